@@ -1,0 +1,84 @@
+"""The ``excavator-payload`` command.
+
+Each role registers its own sub-commands (``simulation/commands.py``,
+``estimators/commands.py``, ``evaluation/commands.py``) so that the command modules stay next to
+the code they drive; this module only assembles them and turns user errors into one clear
+message instead of a traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import traceback
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from excavator_payload import __version__
+from excavator_payload.errors import ExcavatorPayloadError
+
+app = typer.Typer(
+    name="excavator-payload",
+    help="Weigh the payload in an excavator's bucket while the arm moves: simulate, train "
+    "virtual sensors, estimate, evaluate.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+# Console scripts call main(); it must hand its return code to the shell.
+err_console = Console(stderr=True)
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
+) -> None:
+    if version:
+        typer.echo(__version__)
+        raise typer.Exit()
+
+
+def _register_commands() -> None:
+    from excavator_payload.estimators import commands as estimator_commands
+    from excavator_payload.evaluation import commands as evaluation_commands
+    from excavator_payload.simulation import commands as simulation_commands
+
+    simulation_commands.register(app)
+    estimator_commands.register(app)
+    evaluation_commands.register(app)
+
+
+_register_commands()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the CLI; user errors print one line and exit with status 2."""
+    try:
+        app(args=argv)  # standalone: usage errors are printed by typer and raise SystemExit
+    except SystemExit as exc:
+        code = exc.code
+        return code if isinstance(code, int) else (0 if code is None else 1)
+    except KeyboardInterrupt:
+        err_console.print("[red]interrupted[/red] (finished work is kept; rerun to resume)")
+        return 130
+    except ExcavatorPayloadError as exc:
+        err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
+        return 2
+    except Exception as exc:  # a bug of ours: keep the details in a file, show one line
+        log = Path(tempfile.gettempdir()) / "excavator-payload-crash.log"
+        log.write_text(traceback.format_exc())
+        err_console.print(f"[bold red]internal error:[/bold red] {type(exc).__name__}: {exc} "
+                          f"(details in {log}; please report it)", highlight=False)
+        return 1
+    return 0
+
+
+def run() -> None:
+    """Console-script entry point."""
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    run()

@@ -1,0 +1,174 @@
+"""Reading and writing datasets as Parquet, with validation.
+
+Layout: one Parquet file, one row per sample with the columns of
+:data:`~excavator_payload.data.schema.COLUMNS` (SI units), and the file-level and
+per-experiment metadata as JSON in the Parquet schema metadata under the key
+``excavator_payload`` (readable with ``pyarrow.parquet.read_schema(path).metadata``).
+Writes are atomic: a temporary file in the same folder is renamed over the target.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import (
+    COLUMNS,
+    ESTIMATE_COLUMNS,
+    FORMAT_VERSION,
+    METADATA_KEY,
+    PLAUSIBLE_ABS,
+    SIGNALS,
+    TRUTH_COLUMNS,
+    UNITS,
+)
+from excavator_payload.errors import DatasetError
+
+
+def atomic_write_table(table: pa.Table, path: str | Path) -> None:
+    """Write a Parquet table atomically (temporary file + rename): never a half-written file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        pq.write_table(table, tmp, compression="zstd")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def write_dataset(dataset: Dataset, path: str | Path) -> None:
+    """Validate and write ``dataset`` to ``path`` (Parquet, atomic)."""
+    validate_frame(dataset.frame, source="dataset to write")
+    cols = list(COLUMNS) + [c for c in TRUTH_COLUMNS if c in dataset.frame.columns]
+    frame = dataset.frame[cols].copy()
+    frame["experiment"] = frame["experiment"].astype("int64")
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    meta = dict(dataset.meta)
+    meta.setdefault("format_version", FORMAT_VERSION)
+    meta["units"] = {c: UNITS.get(c.removeprefix("true_"), "") for c in cols}
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                           METADATA_KEY: json.dumps(meta).encode()})
+    atomic_write_table(table, path)
+
+
+def read_metadata(path: str | Path) -> dict:
+    """The excavator_payload metadata of a Parquet file (empty dict if it has none)."""
+    schema = _read_schema(Path(path))
+    raw = (schema.metadata or {}).get(METADATA_KEY)
+    if raw is None:
+        return {}
+    try:
+        return json.loads(raw)
+    except json.JSONDecodeError:
+        raise DatasetError(f"{path}: its excavator_payload metadata is not valid JSON") from None
+
+
+def _read_schema(path: Path) -> pa.Schema:
+    if not path.exists():
+        raise DatasetError(f"dataset file '{path}' does not exist")
+    if path.is_dir():
+        raise DatasetError(f"'{path}' is a folder, not a Parquet dataset file")
+    try:
+        return pq.read_schema(path)
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise DatasetError(f"'{path}' is not a readable Parquet file (truncated or another format?): {exc}") from None
+
+
+def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
+    """Read and validate a dataset written by ``excavator-payload simulate`` (or by you).
+
+    Raises
+    ------
+    DatasetError
+        If the file is missing, not Parquet, truncated, or violates the schema, with a
+        message that says what is wrong.
+    """
+    path = Path(path)
+    meta = read_metadata(path)
+    try:
+        frame = pq.read_table(path).to_pandas()
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise DatasetError(f"'{path}' could not be read (truncated or corrupt?): {exc}") from None
+    if validate:
+        validate_frame(frame, source=str(path))
+    return Dataset(frame.reset_index(drop=True), meta)
+
+
+def validate_frame(frame: pd.DataFrame, source: str = "dataset") -> None:
+    """Check columns, types, units (plausible magnitudes) and values of a sample table."""
+    missing = [c for c in COLUMNS if c not in frame.columns]
+    if missing:
+        hint = ""
+        if "payload_estimate" in frame.columns:
+            hint = " (this looks like an estimates file, not a dataset)"
+        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}{hint}")
+    if len(frame) == 0:
+        raise DatasetError(f"{source}: has no rows")
+    for c in COLUMNS:
+        if not pd.api.types.is_numeric_dtype(frame[c]):
+            raise DatasetError(f"{source}: column '{c}' must be numeric, found {frame[c].dtype}")
+    exp = frame["experiment"].to_numpy()
+    if not np.all(np.isfinite(exp)) or not np.all(exp == np.round(exp)):
+        raise DatasetError(f"{source}: column 'experiment' must hold whole numbers")
+    for c in ("time", "payload"):
+        if not np.all(np.isfinite(frame[c].to_numpy(dtype=float))):
+            raise DatasetError(f"{source}: column '{c}' has NaN or infinite values")
+    if (frame["payload"] < 0).any():
+        raise DatasetError(f"{source}: column 'payload' has negative masses (kg)")
+    for c in SIGNALS:
+        values = frame[c].to_numpy(dtype=float)
+        finite = values[np.isfinite(values)]
+        if finite.size and np.abs(finite).max() > PLAUSIBLE_ABS[c]:
+            raise DatasetError(
+                f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in "
+                f"{UNITS[c]} (are the units degrees instead of SI?)"
+            )
+    # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
+    for c in ("boom_angle",):
+        values = frame[c].to_numpy(dtype=float)
+        if np.nanmax(np.abs(values)) > 2 * np.pi:
+            raise DatasetError(f"{source}: column '{c}' exceeds 2π; angles must be in radians")
+    grouped = frame.groupby("experiment", sort=False)
+    times = grouped["time"]
+    if not (times.apply(lambda t: bool(np.all(np.diff(t.to_numpy()) > 0)))).all():
+        raise DatasetError(f"{source}: 'time' must increase strictly within each experiment")
+    if (grouped["payload"].nunique() > 1).any():
+        raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
+
+
+def read_estimates(path: str | Path) -> pd.DataFrame:
+    """Read an estimates file (``experiment``, ``time``, ``payload_estimate``, optional ``status``)."""
+    path = Path(path)
+    _read_schema(path)
+    try:
+        frame = pq.read_table(path).to_pandas()
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise DatasetError(f"'{path}' could not be read (truncated or corrupt?): {exc}") from None
+    missing = [c for c in ESTIMATE_COLUMNS if c not in frame.columns]
+    if missing:
+        raise DatasetError(f"{path}: not an estimates file, missing column(s) {', '.join(missing)}")
+    return frame
+
+
+def write_estimates(frame: pd.DataFrame, path: str | Path, meta: dict | None = None) -> None:
+    """Write an estimates table atomically as Parquet."""
+    missing = [c for c in ESTIMATE_COLUMNS if c not in frame.columns]
+    if missing:
+        raise DatasetError(f"estimates are missing column(s) {', '.join(missing)}")
+    table = pa.Table.from_pandas(frame.reset_index(drop=True), preserve_index=False)
+    if meta:
+        table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                               METADATA_KEY: json.dumps(meta).encode()})
+    atomic_write_table(table, path)

@@ -1,0 +1,1 @@
+"""Evaluation: metrics, the Cramér–Rao bound, figures and the report."""

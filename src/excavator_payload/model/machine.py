@@ -1,0 +1,214 @@
+"""Machine descriptions: the physical parameters of one excavator arm, loaded from TOML.
+
+A machine file has four tables (see ``presets/cat345c.toml``)::
+
+    name = "my-machine"
+    [boom]    length, mass, friction, angle_range, torque_limit
+    [dipper]  length, mass, friction, angle_range, torque_limit
+    [bucket]  mass
+    [payload] rated, max
+
+Units are SI (m, kg, N·m·s/rad, rad, N·m). Inertias are those of uniform bars about their
+centre, ``mass * length**2 / 12``, as in the thesis (appendix A.2).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from excavator_payload.errors import MachineError
+
+GRAVITY = 9.81  # m/s², as the thesis
+
+
+@dataclass(frozen=True)
+class Machine:
+    """Physical parameters of a two-link excavator arm (boom + dipper, bucket at the tip)."""
+
+    name: str
+    boom_length: float
+    boom_mass: float
+    boom_friction: float
+    dipper_length: float
+    dipper_mass: float
+    dipper_friction: float
+    bucket_mass: float
+    rated_payload: float
+    max_payload: float
+    boom_angle_range: tuple[float, float] = (-math.pi / 4, math.pi / 3)
+    dipper_angle_range: tuple[float, float] = (-5 * math.pi / 6, -math.pi / 12)
+    boom_torque_limit: float = 4.0e6
+    dipper_torque_limit: float = 2.0e6
+    description: str = ""
+    gravity: float = GRAVITY
+
+    @property
+    def boom_inertia(self) -> float:
+        """Inertia of the boom about its centre of mass, kg·m² (uniform bar)."""
+        return self.boom_mass * self.boom_length**2 / 12.0
+
+    @property
+    def dipper_inertia(self) -> float:
+        """Inertia of the dipper about its centre of mass, kg·m² (uniform bar)."""
+        return self.dipper_mass * self.dipper_length**2 / 12.0
+
+    @property
+    def parameter_vector(self) -> np.ndarray:
+        """Parameters in the order of :data:`excavator_payload.model.dynamics.PARAMETER_NAMES`."""
+        return np.array(
+            [
+                self.boom_length,
+                self.dipper_length,
+                self.boom_mass,
+                self.dipper_mass,
+                self.bucket_mass,
+                self.boom_friction,
+                self.dipper_friction,
+                self.gravity,
+            ],
+            dtype=float,
+        )
+
+    @property
+    def torque_limits(self) -> np.ndarray:
+        return np.array([self.boom_torque_limit, self.dipper_torque_limit])
+
+    def to_dict(self) -> dict:
+        """Flat dictionary (JSON-friendly) that :meth:`from_dict` reads back."""
+        d = asdict(self)
+        d["boom_angle_range"] = list(self.boom_angle_range)
+        d["dipper_angle_range"] = list(self.dipper_angle_range)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Machine":
+        d = dict(d)
+        for key in ("boom_angle_range", "dipper_angle_range"):
+            if key in d:
+                d[key] = tuple(d[key])
+        machine = cls(**d)
+        _check_physics(machine)
+        return machine
+
+    def to_toml(self) -> str:
+        """The machine as a TOML machine file."""
+        return (
+            f'name = "{self.name}"\ndescription = "{self.description}"\n\n'
+            f"[boom]\nlength = {self.boom_length!r}\nmass = {self.boom_mass!r}\n"
+            f"friction = {self.boom_friction!r}\nangle_range = {list(self.boom_angle_range)!r}\n"
+            f"torque_limit = {self.boom_torque_limit!r}\n\n"
+            f"[dipper]\nlength = {self.dipper_length!r}\nmass = {self.dipper_mass!r}\n"
+            f"friction = {self.dipper_friction!r}\n"
+            f"angle_range = {list(self.dipper_angle_range)!r}\n"
+            f"torque_limit = {self.dipper_torque_limit!r}\n\n"
+            f"[bucket]\nmass = {self.bucket_mass!r}\n\n"
+            f"[payload]\nrated = {self.rated_payload!r}\nmax = {self.max_payload!r}\n"
+        )
+
+
+def list_presets() -> list[str]:
+    """Names of the machine presets shipped with the package."""
+    folder = resources.files("excavator_payload.model") / "presets"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_machine(name_or_path: str | Path | Machine) -> Machine:
+    """Load a preset by name (``cat345c``) or a user's TOML machine file by path.
+
+    Raises
+    ------
+    MachineError
+        With a message that names the missing or bad field.
+    """
+    if isinstance(name_or_path, Machine):
+        return name_or_path
+    text_name = str(name_or_path)
+    path = Path(text_name)
+    if text_name in list_presets():
+        source = f"preset '{text_name}'"
+        text = (resources.files("excavator_payload.model") / "presets" / f"{text_name}.toml").read_text()
+    elif path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise MachineError(f"machine file '{path}' does not exist")
+        source = f"machine file '{path}'"
+        text = path.read_text(encoding="utf-8", errors="replace")
+    else:
+        raise MachineError(
+            f"unknown machine '{text_name}': give a preset ({', '.join(list_presets())}) "
+            "or the path of a .toml machine file"
+        )
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise MachineError(f"{source} is not valid TOML: {exc}") from None
+    return _machine_from_toml(data, source, default_name=path.stem)
+
+
+def _machine_from_toml(data: dict, source: str, default_name: str) -> Machine:
+    def table(name: str) -> dict:
+        value = data.get(name)
+        if not isinstance(value, dict):
+            raise MachineError(f"{source}: missing table [{name}]")
+        return value
+
+    def number(tab: str, key: str, *, positive: bool = True, default: float | None = None) -> float:
+        value = table(tab).get(key, default)
+        if value is None:
+            raise MachineError(f"{source}: missing field '{tab}.{key}'")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise MachineError(f"{source}: field '{tab}.{key}' must be a number, got {value!r}")
+        if not math.isfinite(value) or (positive and value <= 0):
+            raise MachineError(f"{source}: field '{tab}.{key}' must be a positive number, got {value!r}")
+        return float(value)
+
+    def angle_range(tab: str, default: tuple[float, float]) -> tuple[float, float]:
+        value = table(tab).get("angle_range", list(default))
+        if (
+            not isinstance(value, list)
+            or len(value) != 2
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            or not value[0] < value[1]
+        ):
+            raise MachineError(
+                f"{source}: field '{tab}.angle_range' must be [low, high] in radians with low < high, "
+                f"got {value!r}"
+            )
+        return (float(value[0]), float(value[1]))
+
+    name = data.get("name", default_name)
+    if not isinstance(name, str) or not name:
+        raise MachineError(f"{source}: field 'name' must be a non-empty string")
+    machine = Machine(
+        name=name,
+        description=str(data.get("description", "")),
+        boom_length=number("boom", "length"),
+        boom_mass=number("boom", "mass"),
+        boom_friction=number("boom", "friction", positive=False),
+        boom_angle_range=angle_range("boom", Machine.boom_angle_range),
+        boom_torque_limit=number("boom", "torque_limit", default=Machine.boom_torque_limit),
+        dipper_length=number("dipper", "length"),
+        dipper_mass=number("dipper", "mass"),
+        dipper_friction=number("dipper", "friction", positive=False),
+        dipper_angle_range=angle_range("dipper", Machine.dipper_angle_range),
+        dipper_torque_limit=number("dipper", "torque_limit", default=Machine.dipper_torque_limit),
+        bucket_mass=number("bucket", "mass"),
+        rated_payload=number("payload", "rated"),
+        max_payload=number("payload", "max", default=table("payload").get("rated")),
+    )
+    _check_physics(machine, source)
+    return machine
+
+
+def _check_physics(machine: Machine, source: str = "machine") -> None:
+    if machine.boom_friction < 0:
+        raise MachineError(f"{source}: field 'boom.friction' must not be negative")
+    if machine.dipper_friction < 0:
+        raise MachineError(f"{source}: field 'dipper.friction' must not be negative")
+    if machine.max_payload < 0 or machine.rated_payload <= 0:
+        raise MachineError(f"{source}: payload.rated must be > 0 and payload.max >= 0")

@@ -1,0 +1,1 @@
+"""Simulator: NMPC-driven digging swings, scenarios, sensor noise, dataset generation."""

@@ -1,0 +1,54 @@
+"""A second motion generator: minimum-jerk moves with computed torques.
+
+Estimators trained on the NMPC's motions are tested on these to see how they generalise to
+motions they have not seen. Joint angles follow the minimum-jerk profile
+q(s) = q₀ + (q_T − q₀)(10s³ − 15s⁴ + 6s⁵), s = t/T_move, followed by rest at the target; the
+torques are the exact inverse dynamics (``ArmModel.inverse_dynamics``) of that motion.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import DURATION, SAMPLE_RATE, SAMPLES_PER_EXPERIMENT
+from excavator_payload.model.dynamics import ArmModel
+from excavator_payload.model.machine import Machine, load_machine
+from excavator_payload.simulation.experiment import experiment_frame
+from excavator_payload.simulation.scenario import experiment_rngs, sample_scenario
+from excavator_payload.simulation.sensors import get_noise_preset
+
+
+def minimum_jerk(q0: np.ndarray, q1: np.ndarray, t: np.ndarray, move_time: float):
+    """Angle, rate and acceleration of a minimum-jerk move from q0 to q1 (rest to rest)."""
+    s = np.clip(t / move_time, 0.0, 1.0)[:, None]
+    d = (np.asarray(q1) - np.asarray(q0))[None, :]
+    pos = np.asarray(q0)[None, :] + d * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    moving = (t < move_time)[:, None]
+    vel = d * (30 * s**2 - 60 * s**3 + 30 * s**4) / move_time * moving
+    acc = d * (60 * s - 180 * s**2 + 120 * s**3) / move_time**2 * moving
+    return pos, vel, acc
+
+
+def simulate_minimum_jerk(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
+                          noise: str = "thesis", with_truth: bool = False,
+                          move_time: tuple[float, float] = (2.5, 4.5),
+                          first_experiment: int = 0) -> Dataset:
+    """Dataset of minimum-jerk swings between the thesis' random start and target poses."""
+    machine = load_machine(machine)
+    arm = ArmModel(machine)
+    preset = get_noise_preset(noise)
+    t = np.linspace(0.0, DURATION, SAMPLES_PER_EXPERIMENT)
+    frames, metas = [], []
+    for k in range(first_experiment, first_experiment + n_experiments):
+        sc = sample_scenario(seed, k, machine.max_payload)
+        rng_sc, rng_noise = experiment_rngs(seed + 7_919, k)  # own stream: differs from NMPC runs
+        T = float(rng_sc.uniform(*move_time))
+        q, qd, qdd = minimum_jerk(np.array(sc.start_pose), np.array(sc.target_pose), t, T)
+        tau = arm.inverse_dynamics(q, qd, qdd, sc.payload)
+        frames.append(experiment_frame(k, t, q, qd, qdd, tau, sc.payload, preset, rng_noise, with_truth))
+        metas.append({**sc.to_dict(), "move_time": T, "status": "ok"})
+    meta = {"machine": machine.to_dict(), "noise": preset.name, "motion": "minimum-jerk",
+            "base_seed": int(seed), "sample_rate": SAMPLE_RATE, "experiments": metas}
+    return Dataset(pd.concat(frames, ignore_index=True), meta)
