@@ -327,10 +327,10 @@ ESTIMATOR_MODULES: dict[str, str] = {
     "calibrated": "excavator_payload.estimators.classical.calibrated",
     "quasi-static": "excavator_payload.estimators.classical.quasi_static",
     "net1": "excavator_payload.estimators.dvs.networks",
-    "net2": "excavator_payload.estimators.dvs.networks",
+    "net2": "excavator_payload.estimators.dvs.recurrent",
     "ffnn": "excavator_payload.estimators.dvs.networks",
     "dtdnn": "excavator_payload.estimators.dvs.networks",
-    "lrn": "excavator_payload.estimators.dvs.networks",
+    "lrn": "excavator_payload.estimators.dvs.recurrent",
 }
 
 _REGISTRY: dict[str, type[Estimator]] = {}
