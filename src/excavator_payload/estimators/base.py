@@ -174,6 +174,8 @@ class Estimator(ABC):
 
         Never raises for bad data: the status says what happened.
         """
+        if not self.fitted:
+            raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
         try:
             time = float(sample["time"])
             values = np.array([float(sample[s]) for s in SIGNALS])
