@@ -40,6 +40,22 @@ def _root(
         raise typer.Exit()
 
 
+@app.command()
+def machines(
+    show: str = typer.Argument(None, help="Print this machine (preset name or TOML file) as a TOML "
+                               "machine file, a template for your own."),
+) -> None:
+    """List the machine presets, or print one as a machine file."""
+    from excavator_payload.model.machine import list_presets, load_machine
+
+    if show is None:
+        for name in list_presets():
+            m = load_machine(name)
+            typer.echo(f"{name:14s} {m.description}")
+        return
+    typer.echo(load_machine(show).to_toml(), nl=False)
+
+
 def _register_commands() -> None:
     from excavator_payload.estimators import commands as estimator_commands
     from excavator_payload.evaluation import commands as evaluation_commands
