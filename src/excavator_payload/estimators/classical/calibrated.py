@@ -1,0 +1,254 @@
+r"""Calibrated inverse-dynamics estimator: identify the arm's base parameters, then weigh.
+
+A machine file is never exactly right (the thesis' ``cat345c-3pct`` is 3 % off, which biases a
+model-based estimator by up to a few hundred kg). The arm's dynamics are *linear* in a small set
+of lumped parameters (see :mod:`~excavator_payload.estimators.classical.inverse_dynamics`), and
+so is the payload's contribution:
+
+.. math::
+
+    \tau_k = Y_k\,\theta_0 + m_e\,Y_{k,1:5}\,\theta_1 + \varepsilon_k
+           = \underbrace{[\,Y_k \;\; m_e Y_{k,1:5}\,]}_{\Phi_k}
+             \begin{bmatrix}\theta_0\\ \theta_1\end{bmatrix} + \varepsilon_k
+
+with :math:`\theta_0` the seven empty-arm base parameters (inertias, first moments, viscous
+friction), :math:`\theta_1` the five payload parameters (:math:`l_1^2, l_2^2, l_1l_2, gl_1,
+gl_2`) and :math:`m_e` the *known* payload of calibration experiment :math:`e`. Calibration is
+Bayesian weighted least squares on the relative deviation :math:`\delta` from the machine file's
+parameters :math:`\theta_p` (:math:`\theta = \theta_p \odot (1 + \delta)`, prior
+:math:`\delta \sim \mathcal N(0, s^2 I)`, ``--prior-std s``):
+
+.. math::
+
+    \bar\Phi_k &= \Phi_k \operatorname{diag}(\theta_p), \qquad
+    W_k = (\Sigma_\tau + J_k\Sigma_x J_k^\top)^{-1} \\
+    H &= \sum_k \bar\Phi_k^\top W_k \bar\Phi_k + s^{-2} I, \qquad
+    \hat\delta = H^{-1}\sum_k \bar\Phi_k^\top W_k(\tau_k - \Phi_k\theta_p), \qquad
+    \operatorname{cov}\hat\theta = \operatorname{diag}(\theta_p) H^{-1}\operatorname{diag}(\theta_p).
+
+The prior matters only for what the data cannot separate: with a single calibration experiment
+(one payload) only :math:`\theta_0 + m_e\theta_1` is identifiable, and the prior decides the
+split; two or more payloads identify all twelve parameters. The payload is then estimated exactly
+as :class:`InverseDynamicsEstimator` does, with the identified :math:`(\theta_0, \theta_1)`.
+
+:func:`calibration_curve` measures accuracy against the number of calibration experiments.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import SIGNALS
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.base import Option, register
+from excavator_payload.estimators.classical.inverse_dynamics import (
+    BASE_PARAMETER_NAMES,
+    PAYLOAD_PARAMETER_NAMES,
+    InverseDynamicsEstimator,
+    base_parameters,
+    base_regressor,
+    residual_covariance,
+    torque_jacobian,
+)
+from excavator_payload.model.machine import Machine, load_machine
+
+#: Judged samples: index ≥ 81 of each experiment (the last second, as the thesis judges).
+FIRST_JUDGED_SAMPLE = 81
+
+
+def identify_base_parameters(dataset: Dataset, prior: Machine, variances: np.ndarray,
+                             prior_std: float = 0.1, weighting: str = "full"):
+    r"""Bayesian weighted least squares of :math:`(\theta_0, \theta_1)` from known-payload data.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Calibration experiments; the ``payload`` column is the known payload.
+    prior : Machine
+        The (possibly wrong) machine file: prior mean :math:`\theta_p`.
+    variances : ndarray (8,)
+        Sensor noise variances in :data:`SIGNALS` order (weights :math:`W_k`).
+    prior_std : float
+        Relative prior standard deviation :math:`s` of every parameter.
+
+    Returns
+    -------
+    theta_empty (7,), theta_payload (5,), covariance (12, 12)
+    """
+    values = dataset.signals(SIGNALS)
+    payload = dataset.frame["payload"].to_numpy(dtype=float)
+    ok = np.all(np.isfinite(values), axis=1) & np.isfinite(payload)
+    lo1, hi1 = prior.boom_angle_range
+    lo2, hi2 = prior.dipper_angle_range
+    ok &= (values[:, 0] >= lo1) & (values[:, 0] <= hi1) & (values[:, 3] >= lo2) & (values[:, 3] <= hi2)
+    if ok.sum() < 12:
+        raise EstimatorError("calibration needs at least 12 valid samples with known payloads, "
+                             f"the data have {int(ok.sum())}")
+    values, payload = values[ok], payload[ok]
+    q, qd, qdd = values[:, [0, 3]], values[:, [1, 4]], values[:, [2, 5]]
+    tau = values[:, 6:8]
+    theta0_p, theta1_p = base_parameters(prior)
+    theta_p = np.r_[theta0_p, theta1_p]
+
+    Y = base_regressor(q, qd, qdd)                                       # (n, 2, 7)
+    Phi = np.concatenate([Y, payload[:, None, None] * Y[..., :5]], -1)  # (n, 2, 12)
+    Phi_bar = Phi * theta_p                                              # columns scaled
+    theta_eff = theta0_p + np.c_[payload[:, None] * theta1_p, np.zeros((len(payload), 2))]
+    R = residual_covariance(torque_jacobian(q, qd, qdd, theta_eff), variances[:6], variances[6:],
+                            weighting)
+    W = np.linalg.inv(R)
+    residual = tau - Phi @ theta_p
+    H = np.einsum("nia,nij,njb->ab", Phi_bar, W, Phi_bar) + np.eye(12) / prior_std**2
+    rhs = np.einsum("nia,nij,nj->a", Phi_bar, W, residual)
+    delta = np.linalg.solve(H, rhs)
+    theta = theta_p * (1.0 + delta)
+    cov = np.linalg.inv(H) * np.outer(theta_p, theta_p)
+    return theta[:7], theta[7:], cov
+
+
+@register
+class CalibratedEstimator(InverseDynamicsEstimator):
+    """Inverse-dynamics estimator whose base parameters are identified from calibration data.
+
+    ``fit(dataset)`` takes experiments with *known* payloads (``--experiments N``: the first N
+    only), starts from the machine file (``--machine``, e.g. the wrong ``cat345c-3pct``) and
+    identifies the twelve base parameters; estimation then equals ``inverse-dynamics``.
+    """
+
+    name = "calibrated"
+    OPTIONS = {
+        **InverseDynamicsEstimator.OPTIONS,
+        "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),
+        "prior_std": Option(float, 0.1, "relative prior std of each base parameter around the "
+                            "machine file's value"),
+    }
+
+    def __init__(self, machine=None, **options) -> None:
+        super().__init__(machine, **options)
+        if self.options["experiments"] < 0:
+            raise EstimatorError(f"{self.name}: option --experiments must be >= 0")
+        if not self.options["prior_std"] > 0:
+            raise EstimatorError(f"{self.name}: option --prior-std must be > 0")
+        self.parameter_covariance = np.zeros((12, 12))
+        self.calibration_experiments: list[int] = []
+
+    def _fit(self, dataset: Dataset) -> None:
+        self._set_noise(self._noise_from(dataset))
+        n = self.options["experiments"]
+        ids = list(dataset.experiment_ids)
+        if n > len(ids):
+            raise EstimatorError(f"{self.name}: --experiments {n} but the calibration data have only "
+                                 f"{len(ids)} experiments")
+        if n:
+            ids = ids[:n]
+            dataset = dataset.subset(ids)
+        if not np.all(np.isfinite(dataset.payloads)):
+            raise EstimatorError(f"{self.name}: calibration experiments need known payloads")
+        theta_empty, theta_payload, cov = identify_base_parameters(
+            dataset, self.machine, self.variances, self.options["prior_std"], self.options["weighting"])
+        self.theta_empty, self.theta_payload, self.parameter_covariance = theta_empty, theta_payload, cov
+        self.calibration_experiments = [int(i) for i in ids]
+        self._prepare()
+
+    def identified_parameters(self) -> pd.DataFrame:
+        """Prior (machine file) and identified base parameters with their standard deviations."""
+        prior = np.concatenate(base_parameters(self.machine))
+        value = np.r_[self.theta_empty, self.theta_payload]
+        return pd.DataFrame({
+            "parameter": [*BASE_PARAMETER_NAMES, *(f"payload {p}" for p in PAYLOAD_PARAMETER_NAMES)],
+            "prior": prior, "identified": value, "std": np.sqrt(np.diag(self.parameter_covariance)),
+        })
+
+    def _config(self) -> dict:
+        return {**super()._config(), "calibration_experiments": self.calibration_experiments}
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        return {**super()._arrays(), "parameter_covariance": self.parameter_covariance}
+
+    def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        super()._restore(config, arrays)
+        self.parameter_covariance = np.asarray(arrays["parameter_covariance"], float)
+        self.calibration_experiments = [int(i) for i in config.get("calibration_experiments", [])]
+
+
+def judged_errors(dataset: Dataset, estimates: pd.DataFrame,
+                  first_judged: int = FIRST_JUDGED_SAMPLE) -> pd.DataFrame:
+    """Per test experiment: RMS, max |error| and mean error (kg) over samples ≥ ``first_judged``."""
+    err = estimates["payload_estimate"].to_numpy(float) - dataset.frame["payload"].to_numpy(float)
+    exp = dataset.frame["experiment"].to_numpy()
+    index = dataset.frame.groupby("experiment", sort=False).cumcount().to_numpy()
+    judged = index >= first_judged
+    frame = pd.DataFrame({"experiment": exp[judged], "error": err[judged]})
+    frame["error"] = frame["error"].fillna(np.inf)  # a missing estimate counts as a failure
+    g = frame.groupby("experiment", sort=False)["error"]
+    return pd.DataFrame({
+        "rms_kg": g.apply(lambda e: float(np.sqrt(np.mean(e**2)))),
+        "max_kg": g.apply(lambda e: float(np.max(np.abs(e)))),
+        "bias_kg": g.mean(),
+        "n_judged": g.size(),
+    }).reset_index()
+
+
+def calibration_curve(train_ds: Dataset, test_ds: Dataset, counts: Sequence[int] = (1, 2, 5, 10, 20),
+                      machine: Machine | str = "cat345c-3pct", progress: bool = False,
+                      **options) -> pd.DataFrame:
+    """Accuracy of ``calibrated`` against the number of calibration experiments.
+
+    Parameters
+    ----------
+    train_ds, test_ds : Dataset
+        Calibration experiments (known payloads; the first ``count`` are used) and test data.
+    counts : sequence of int
+        Numbers of calibration experiments; ``0`` means no calibration (``inverse-dynamics``
+        with ``machine`` as it is), the baseline.
+    machine : Machine or str
+        The machine file calibration starts from.
+    progress : bool
+        Show a rich progress bar.
+    **options
+        Further estimator options (``prior_std``, ``weighting`` …).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per count: ``calibration_experiments``, ``mean_rms_kg`` (mean over test
+        experiments of each one's RMS error on judged samples), ``rms_kg`` (over all judged
+        samples), ``max_error_kg`` (largest |error| of any judged sample), ``worst_rms_kg``,
+        ``bias_kg`` (mean error), ``n_test``.
+    """
+    machine = load_machine(machine)
+    rows = []
+    counts = list(counts)
+    if any(c > train_ds.n_experiments for c in counts):
+        raise EstimatorError(f"calibration_curve: counts {counts} need {max(counts)} calibration "
+                             f"experiments, the data have {train_ds.n_experiments}")
+
+    def run(count: int) -> dict:
+        if count == 0:
+            id_options = {k: v for k, v in options.items() if k in InverseDynamicsEstimator.OPTIONS}
+            est = InverseDynamicsEstimator(machine, **id_options).fit(train_ds)
+        else:
+            est = CalibratedEstimator(machine, experiments=count, **options).fit(train_ds)
+        per_exp = judged_errors(test_ds, est.estimate(test_ds))
+        n = per_exp["n_judged"]
+        err_all = float(np.sqrt((per_exp["rms_kg"] ** 2 * n).sum() / n.sum()))
+        return {"calibration_experiments": count, "mean_rms_kg": per_exp["rms_kg"].mean(),
+                "rms_kg": err_all, "max_error_kg": per_exp["max_kg"].max(),
+                "worst_rms_kg": per_exp["rms_kg"].max(), "bias_kg": per_exp["bias_kg"].mean(),
+                "n_test": len(per_exp)}
+
+    if progress:
+        from rich.progress import Progress
+
+        with Progress(transient=True) as bar:
+            task = bar.add_task("calibration curve", total=len(counts))
+            for c in counts:
+                rows.append(run(c))
+                bar.advance(task)
+    else:
+        rows = [run(c) for c in counts]
+    return pd.DataFrame(rows)
