@@ -1,9 +1,76 @@
-"""Command-line commands of this role (registered into :mod:`excavator_payload.cli`)."""
+"""Command-line commands of this role (registered into :mod:`excavator_payload.cli`).
+
+``excavator-payload simulate`` generates a dataset, ``excavator-payload export-mat`` writes a
+dataset in the thesis' MATLAB layout (appendix A.2).
+"""
 
 from __future__ import annotations
 
+import time
+from pathlib import Path
+
 import typer
+from rich.console import Console
+
+from excavator_payload.errors import ExcavatorPayloadError
+
+console = Console(stderr=True)
 
 
 def register(app: typer.Typer) -> None:
     """Add this role's commands to ``app``."""
+
+    @app.command("simulate")
+    def simulate(
+        out: Path = typer.Option(..., "--out", help="Output dataset file (Parquet)."),
+        experiments: int = typer.Option(200, "--experiments", "-n", help="Number of experiments."),
+        seed: int = typer.Option(0, "--seed", help="Base seed (same seed, same data)."),
+        machine: str = typer.Option("cat345c", "--machine",
+                                    help="Machine preset (cat345c, cat345c-1pct, cat345c-3pct) or TOML file."),
+        noise: str = typer.Option("thesis", "--noise", help="Sensor noise preset: thesis, none or field."),
+        with_truth: bool = typer.Option(False, "--with-truth", help="Also store the noise-free true_* columns."),
+        workers: int = typer.Option(0, "--workers",
+                                    help="Worker processes (0 = all cores). The data do not depend on it."),
+        motion: str = typer.Option("nmpc", "--motion",
+                                   help="nmpc (thesis simulator), minimum-jerk, or lifts (calibration lifts)."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    ) -> None:
+        """Simulate experiments (thesis §5.3) and write them to a dataset file.
+
+        An interrupted run keeps its finished experiments in OUT.partial/; run the same command again to resume.
+        """
+        from excavator_payload.simulation.generate import simulate_to_file, summary
+
+        if workers < 0:
+            raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
+        start = time.perf_counter()
+        dataset = simulate_to_file(out, experiments, seed=seed, machine=machine, noise=noise,
+                                   with_truth=with_truth, workers=workers or None, motion=motion,
+                                   progress=not quiet)
+        info = summary(dataset, time.perf_counter() - start)
+        typer.echo(f"wrote {info['written']} experiments to {out} ({motion}, noise={noise}, seed={seed})")
+        skipped = info["skipped"]
+        if skipped:
+            typer.echo(f"skipped {len(skipped)} experiment(s):")
+            for s in skipped[:10]:
+                typer.echo(f"  #{s['experiment']}: {s['reason']}")
+            if len(skipped) > 10:
+                typer.echo(f"  … and {len(skipped) - 10} more (see the file's metadata)")
+        else:
+            typer.echo("skipped 0 experiments")
+        if info["reached_share"] is not None:
+            typer.echo(f"reached the target (within 1°, at rest) by 5 s: {100 * info['reached_share']:.1f} %")
+        typer.echo(f"wall time {info['wall_time']:.1f} s")
+
+    @app.command("export-mat")
+    def export_mat(
+        data: Path = typer.Option(..., "--data", help="Dataset file (Parquet)."),
+        out: Path = typer.Option(..., "--out", help="MATLAB file to write (.mat)."),
+    ) -> None:
+        """Write a dataset in the thesis' MATLAB layout (appendix A.2): dataset{exp}.input …"""
+        from excavator_payload.data.io import read_dataset
+        from excavator_payload.data.matlab import export_mat as write_mat
+
+        dataset = read_dataset(data)
+        write_mat(dataset, out)
+        typer.echo(f"wrote {dataset.n_experiments} experiments to {out} (variable 'dataset')")

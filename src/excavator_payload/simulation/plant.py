@@ -1,0 +1,93 @@
+r"""The simulated plant: the arm's dynamics integrated accurately under zero-order-hold torques.
+
+The state is :math:`x = [q_1, q_2, \dot q_1, \dot q_2]` (boom angle, dipper angle, their rates)
+and the input the two joint torques :math:`u = \tau`, held constant over each interval
+(zero-order hold). The right-hand side :math:`\dot x = f(x, u, m)` is
+``ArmModel.casadi_function("state_derivative")`` (the single symbolic source), integrated with
+the classical fourth-order Runge–Kutta scheme
+
+.. math::
+
+    k_1 &= f(x_n, u),\quad k_2 = f(x_n + \tfrac h2 k_1, u),\quad
+    k_3 = f(x_n + \tfrac h2 k_2, u),\quad k_4 = f(x_n + h k_3, u) \\
+    x_{n+1} &= x_n + \tfrac h6 (k_1 + 2k_2 + 2k_3 + k_4)
+
+with small substeps :math:`h` (default 2.5 ms: the fastest mode of the arm, about
+:math:`-30\,\mathrm{s^{-1}}` with an empty bucket, gives :math:`|h\lambda| < 0.1`; over one
+20 Hz sample the state differs from CVODES at 1e-10 tolerance by < 1e-7 rad or rad/s, hundreds of
+times below the thesis' smallest sensor noise). :func:`cvodes_integrator` gives the same step with CasADi's adaptive
+CVODES integrator; the tests check that both agree.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from excavator_payload.model.dynamics import ArmModel
+
+#: Default RK4 substep of the plant, s.
+PLANT_SUBSTEP = 0.0025
+
+
+def rk4_step(f: ca.Function, x, u, payload, h: float):
+    """One classical RK4 step of ``xdot = f(x, u, payload)`` of length ``h`` (symbolic or numeric)."""
+    k1 = f(x, u, payload)
+    k2 = f(x + h / 2 * k1, u, payload)
+    k3 = f(x + h / 2 * k2, u, payload)
+    k4 = f(x + h * k3, u, payload)
+    return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def rk4_interval(arm: ArmModel, duration: float, substeps: int, name: str = "rk4_interval") -> ca.Function:
+    """CasADi function ``(x, u, payload) -> x(t + duration)`` by ``substeps`` RK4 steps, u held."""
+    f = arm.casadi_function("state_derivative")
+    x = ca.SX.sym("x", 4)
+    u = ca.SX.sym("u", 2)
+    m = ca.SX.sym("payload")
+    h = duration / substeps
+    xn = x
+    for _ in range(substeps):
+        xn = rk4_step(f, xn, u, m, h)
+    return ca.Function(name, [x, u, m], [xn], ["x", "u", "payload"], ["xf"])
+
+
+def cvodes_integrator(arm: ArmModel, duration: float, reltol: float = 1e-10,
+                      abstol: float = 1e-10) -> ca.Function:
+    """CasADi CVODES integrator over ``duration`` with ``p = [u1, u2, payload]`` held constant."""
+    f = arm.casadi_function("state_derivative")
+    x = ca.SX.sym("x", 4)
+    p = ca.SX.sym("p", 3)
+    dae = {"x": x, "p": p, "ode": f(x, p[:2], p[2])}
+    return ca.integrator("plant_cvodes", "cvodes", dae, 0.0, duration,
+                         {"reltol": reltol, "abstol": abstol})
+
+
+class Plant:
+    """The arm of one machine, stepped with zero-order-hold torques.
+
+    Parameters
+    ----------
+    arm : ArmModel
+        The machine's arm model.
+    sample_period : float
+        Length of one :meth:`step`, s (the 20 Hz sensor period).
+    substep : float
+        RK4 substep, s.
+    """
+
+    def __init__(self, arm: ArmModel, sample_period: float = 0.05, substep: float = PLANT_SUBSTEP):
+        self.arm = arm
+        self.sample_period = float(sample_period)
+        n = max(1, int(round(sample_period / substep)))
+        self.substeps = n
+        self._step = rk4_interval(arm, self.sample_period, n, "plant_step")
+        self._xdot = arm.casadi_function("state_derivative")
+
+    def step(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
+        """State after one sample period with ``torque`` held constant."""
+        return np.asarray(self._step(state, torque, payload)).ravel()
+
+    def acceleration(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
+        """True joint accelerations q̈ = M⁻¹(τ − h) at ``state`` under ``torque``, rad/s²."""
+        return np.asarray(self._xdot(state, torque, payload)).ravel()[2:]

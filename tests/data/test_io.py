@@ -1,0 +1,138 @@
+"""The dataset loader rejects bad files with a message that says what is wrong; round trips."""
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.io import read_dataset, read_metadata, write_dataset
+from excavator_payload.data.schema import COLUMNS, METADATA_KEY, TRUTH_COLUMNS
+from excavator_payload.errors import DatasetError
+
+
+@pytest.fixture()
+def small(mj_dataset_clean):
+    return mj_dataset_clean.subset(mj_dataset_clean.experiment_ids[:3])
+
+
+def _write_frame(frame, path):
+    pq.write_table(pa.Table.from_pandas(frame, preserve_index=False), path)
+    return path
+
+
+def test_round_trip_keeps_data_and_metadata(small, tmp_path):
+    path = tmp_path / "d.parquet"
+    write_dataset(small, path)
+    back = read_dataset(path)
+    assert back.meta["experiments"] == json.loads(json.dumps(small.meta["experiments"]))
+    assert back.meta["noise"] == small.meta["noise"]
+    assert back.meta["motion"] == small.meta["motion"]
+    assert back.machine() == small.machine()
+    assert back.has_truth
+    for column in COLUMNS + TRUTH_COLUMNS:
+        np.testing.assert_array_equal(back.frame[column].to_numpy(), small.frame[column].to_numpy())
+    assert read_metadata(path)["units"]["boom_angle"] == "rad"
+
+
+def test_truncated_file(small, tmp_path):
+    path = tmp_path / "d.parquet"
+    write_dataset(small, path)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatasetError, match="truncated|corrupt|not a readable Parquet"):
+        read_dataset(path)
+
+
+def test_not_parquet(tmp_path):
+    path = tmp_path / "d.parquet"
+    path.write_text("experiment,time,boom_angle\n0,0.0,0.1\n")
+    with pytest.raises(DatasetError, match="not a readable Parquet"):
+        read_dataset(path)
+
+
+def test_missing_file_and_folder(tmp_path):
+    with pytest.raises(DatasetError, match="does not exist"):
+        read_dataset(tmp_path / "nope.parquet")
+    with pytest.raises(DatasetError, match="folder"):
+        read_dataset(tmp_path)
+
+
+def test_missing_column(small, tmp_path):
+    path = _write_frame(small.frame.drop(columns=["dipper_torque"]), tmp_path / "d.parquet")
+    with pytest.raises(DatasetError, match="missing column.*dipper_torque"):
+        read_dataset(path)
+
+
+@pytest.mark.parametrize("column", ["boom_angle", "dipper_angle"])
+def test_degrees_instead_of_radians(small, tmp_path, column):
+    frame = small.frame.copy()
+    frame[column] = np.degrees(frame[column])
+    path = _write_frame(frame, tmp_path / "d.parquet")
+    with pytest.raises(DatasetError, match=f"{column}.*(radians|degrees)"):
+        read_dataset(path)
+
+
+def test_nan_payload(small, tmp_path):
+    frame = small.frame.copy()
+    frame.loc[5, "payload"] = np.nan
+    path = _write_frame(frame, tmp_path / "d.parquet")
+    with pytest.raises(DatasetError, match="payload.*NaN"):
+        read_dataset(path)
+
+
+def test_negative_payload_and_changing_payload(small, tmp_path):
+    frame = small.frame.copy()
+    frame.loc[:, "payload"] = -frame["payload"] - 1
+    with pytest.raises(DatasetError, match="negative"):
+        read_dataset(_write_frame(frame, tmp_path / "neg.parquet"))
+    frame = small.frame.copy()
+    frame.loc[3, "payload"] = frame.loc[3, "payload"] + 10
+    with pytest.raises(DatasetError, match="constant within an experiment"):
+        read_dataset(_write_frame(frame, tmp_path / "change.parquet"))
+
+
+def test_time_must_increase(small, tmp_path):
+    frame = small.frame.copy()
+    frame.loc[4, "time"] = frame.loc[2, "time"]
+    with pytest.raises(DatasetError, match="time.*increase"):
+        read_dataset(_write_frame(frame, tmp_path / "d.parquet"))
+
+
+def test_text_column_and_empty_file(small, tmp_path):
+    frame = small.frame.copy()
+    frame["boom_torque"] = frame["boom_torque"].astype(str)
+    with pytest.raises(DatasetError, match="boom_torque.*numeric"):
+        read_dataset(_write_frame(frame, tmp_path / "text.parquet"))
+    with pytest.raises(DatasetError, match="no rows"):
+        read_dataset(_write_frame(small.frame.iloc[:0], tmp_path / "empty.parquet"))
+
+
+def test_estimates_file_is_not_a_dataset(tmp_path):
+    import pandas as pd
+
+    frame = pd.DataFrame({"experiment": [0], "time": [0.0], "payload_estimate": [1.0]})
+    with pytest.raises(DatasetError, match="estimates file"):
+        read_dataset(_write_frame(frame, tmp_path / "e.parquet"))
+
+
+def test_bad_metadata_json(small, tmp_path):
+    table = pa.Table.from_pandas(small.frame, preserve_index=False)
+    table = table.replace_schema_metadata({METADATA_KEY: b"{not json"})
+    path = tmp_path / "d.parquet"
+    pq.write_table(table, path)
+    with pytest.raises(DatasetError, match="not valid JSON"):
+        read_dataset(path)
+
+
+def test_write_is_atomic_and_validates(small, tmp_path):
+    path = tmp_path / "d.parquet"
+    write_dataset(small, path)
+    before = path.read_bytes()
+    bad = Dataset(small.frame.assign(payload=np.nan), small.meta)
+    with pytest.raises(DatasetError):
+        write_dataset(bad, path)
+    assert path.read_bytes() == before  # the good file is untouched, no data lost
+    assert [p.name for p in tmp_path.iterdir()] == ["d.parquet"]  # no temporary file left
