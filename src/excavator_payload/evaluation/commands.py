@@ -1,9 +1,240 @@
-"""Command-line commands of this role (registered into :mod:`excavator_payload.cli`)."""
+"""``excavator-payload evaluate``, ``report`` and ``demo``."""
 
 from __future__ import annotations
 
+import json
+import math
+from pathlib import Path
+from typing import Sequence
+
+import pandas as pd
 import typer
+from rich import box
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.io import read_dataset, read_estimates, read_metadata
+from excavator_payload.errors import DatasetError, EstimatorError
+from excavator_payload.evaluation.metrics import (
+    DEFAULT_DISCARD,
+    Evaluation,
+    bound_window,
+    dataset_bound,
+    display_label,
+    evaluate_estimates,
+    to_jsonable,
+)
+
+console = Console()
+
+
+def progress_bar(console_: Console | None = None) -> Progress:
+    """The progress bar used by this role's commands."""
+    return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
+                    MofNCompleteColumn(), TimeElapsedColumn(), console=console_ or console,
+                    transient=False)
+
+
+def estimate_in_chunks(estimator, dataset: Dataset, progress: Progress | None = None,
+                       description: str = "estimating", chunk: int = 10) -> pd.DataFrame:
+    """``estimator.estimate(dataset)`` a few experiments at a time, advancing a progress bar.
+
+    Estimators reset at every experiment, so chunking gives the same estimates.
+    """
+    ids = list(dataset.experiment_ids)
+    task = progress.add_task(description, total=len(ids)) if progress is not None else None
+    frames = []
+    for start in range(0, len(ids), chunk):
+        part = ids[start:start + chunk]
+        frames.append(estimator.estimate(dataset.subset(part) if len(ids) > chunk else dataset))
+        if progress is not None:
+            progress.advance(task, len(part))
+    return pd.concat(frames, ignore_index=True)
+
+
+def _model_options(model_dir: Path) -> tuple[str | None, dict, str | None]:
+    """Estimator name, options and machine name from a saved model's ``estimator.json``."""
+    try:
+        cfg = json.loads((model_dir / "estimator.json").read_text())
+        return cfg.get("estimator"), dict(cfg.get("options") or {}), (cfg.get("machine") or {}).get("name")
+    except (OSError, ValueError, AttributeError):
+        return None, {}, None
+
+
+def _unique(label: str, taken: set) -> str:
+    out, k = label, 2
+    while out in taken:
+        out, k = f"{label} #{k}", k + 1
+    taken.add(out)
+    return out
+
+
+def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: Sequence[Path] = (),
+                     discard: int = DEFAULT_DISCARD, progress: Progress | None = None) -> list[Evaluation]:
+    """Evaluate saved models (run on ``dataset``) and estimates files, in the order given."""
+    from excavator_payload.estimators.base import load_estimator
+
+    if not models and not estimates:
+        raise EstimatorError("nothing to evaluate: give --model DIR and/or --estimates FILE")
+    evaluations: list[Evaluation] = []
+    bounds: dict = {}
+    taken: set = set()
+
+    def bound_for(window):
+        if window not in bounds:
+            bounds[window] = dataset_bound(dataset, window)
+        return bounds[window]
+
+    for model in models:
+        est = load_estimator(model)
+        name, options, machine = est.name, est.options, est.machine.name if est.machine else None
+        label = _unique(display_label(name, options, machine), taken)
+        frame = estimate_in_chunks(est, dataset, progress, f"{label}: estimating")
+        window = bound_window(name, options)
+        evaluations.append(evaluate_estimates(dataset, frame, label=label, discard=discard, window=window,
+                                              bound=bound_for(window),
+                                              info={"estimator": name, "options": options,
+                                                    "machine": machine, "model": str(model)}))
+    for path in estimates:
+        frame = read_estimates(path)
+        meta = read_metadata(path)
+        name, options, machine = meta.get("estimator"), {}, None
+        if meta.get("model"):
+            n2, options, machine = _model_options(Path(meta["model"]))
+            name = name or n2
+        label = _unique(display_label(name, options, machine) if name else Path(path).stem, taken)
+        window = bound_window(name, options)
+        evaluations.append(evaluate_estimates(dataset, frame, label=label, discard=discard, window=window,
+                                              bound=bound_for(window),
+                                              info={"estimator": name, "options": options,
+                                                    "machine": machine, "estimates": str(path)}))
+    return evaluations
+
+
+def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accuracy") -> Table:
+    """A rich table of the headline figures."""
+    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, caption="MAX, RMS: mean over experiments (kg), ± their std; MAX%: of the "
+                                       "rated payload; p95: of |error| (kg); ≤1%: share of experiments with "
+                                       "MAX ≤ 1 % of rated; conv: convergence time (s); eff: RMS of "
+                                       "error/Cramér–Rao bound; est: judged samples with an estimate")
+    for col in ("estimator", "MAX", "±", "RMS", "±", "MAX%", "p95", "≤1%", "conv", "eff", "est"):
+        if col == "estimator":
+            table.add_column(col, justify="left", no_wrap=True, min_width=9)
+        else:
+            table.add_column(col, justify="right")
+
+    def f(x, fmt="{:.3g}"):
+        return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
+
+    for ev in evaluations:
+        s = ev.summary
+        table.add_row(ev.label, f(s["mean_max"]), f(s["std_max"]), f(s["mean_rms"]), f(s["std_rms"]),
+                      f(s["mean_max_pct"], "{:.2g}"), f(s["mean_p95"]), f(s["meets_requirement_share"], "{:.0%}"),
+                      f(s["mean_convergence_time"], "{:.2f}"), f(s.get("efficiency")),
+                      f(s["estimated_share"], "{:.0%}"))
+    return table
+
+
+def write_json(path: Path, payload: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(to_jsonable(payload), indent=2))
+    tmp.replace(path)
 
 
 def register(app: typer.Typer) -> None:
-    """Add this role's commands to ``app``."""
+    """Add ``evaluate``, ``report`` and ``demo`` to ``app``."""
+
+    @app.command()
+    def evaluate(
+        data: Path = typer.Option(..., "--data", help="Test dataset with the true payloads (Parquet)."),
+        model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable)."),
+        estimates: list[Path] = typer.Option([], "--estimates",
+                                             help="Estimates file from `estimate` or another tool: columns "
+                                                  "experiment, time, payload_estimate (repeatable)."),
+        discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0,
+                                    help="Samples not judged at the start of every experiment (thesis: 81)."),
+        json_out: Path = typer.Option(None, "--json", help="Write every figure to this JSON file."),
+    ) -> None:
+        """Judge estimators on a dataset: MAX/RMS errors (thesis Tables 7.1, 7.2), percentiles, convergence time, share meeting the 1 % requirement, efficiency against the Cramér–Rao bound."""  # noqa: E501
+        dataset = read_dataset(data)
+        with progress_bar() as progress:
+            evaluations = evaluate_sources(dataset, model, estimates, discard, progress)
+        console.print(summary_table(evaluations, f"Payload accuracy on {data} "
+                                                 f"({dataset.n_experiments} experiments, first {discard} "
+                                                 "samples discarded)"))
+        if json_out is not None:
+            write_json(json_out, {"data": str(data), "discard": discard,
+                                  "evaluations": [ev.to_dict() for ev in evaluations]})
+            console.print(f"figures written to [bold]{json_out}[/bold]")
+
+    @app.command()
+    def report(
+        data: Path = typer.Option(..., "--data", help="Test dataset with the true payloads (Parquet)."),
+        out: Path = typer.Option(..., "--out", help="Folder to write report.html, report.md and figures/ in."),
+        model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable)."),
+        estimates: list[Path] = typer.Option([], "--estimates", help="Estimates file (repeatable)."),
+        discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0, help="Samples not judged at the start."),
+        experiments: str = typer.Option(None, "--experiments",
+                                        help="Experiments to plot like thesis Figures 7.1–7.12, e.g. '3,17,42' "
+                                             "(default: six spread over the payload range)."),
+        calibration: Path = typer.Option(None, "--calibration-curve",
+                                         help="CSV of the calibrated estimator's accuracy against the number "
+                                              "of calibration experiments."),
+        title: str = typer.Option("excavator-payload evaluation", "--title", help="Report title."),
+    ) -> None:
+        """Write a self-contained HTML report (and Markdown) with tables and figures."""
+        from excavator_payload.evaluation.report import build_report
+
+        dataset = read_dataset(data)
+        chosen = None
+        if experiments:
+            try:
+                chosen = [int(x) for x in experiments.split(",") if x.strip()]
+            except ValueError:
+                raise DatasetError(f"--experiments: {experiments!r} is not a comma-separated list of numbers") from None
+            unknown = sorted(set(chosen) - {int(i) for i in dataset.experiment_ids})
+            if unknown:
+                raise DatasetError(f"--experiments: {unknown} not in {data}")
+        curve = None
+        if calibration is not None:
+            if not calibration.is_file():
+                raise DatasetError(f"calibration curve file '{calibration}' does not exist")
+            try:
+                curve = pd.read_csv(calibration)
+            except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+                raise DatasetError(f"'{calibration}' is not a readable CSV: {exc}") from None
+        with progress_bar() as progress:
+            evaluations = evaluate_sources(dataset, model, estimates, discard, progress)
+        training = {ev.label: Path(ev.info["model"]) for ev in evaluations if ev.info.get("model")
+                    and ((Path(ev.info["model"]) / "training.png").is_file()
+                         or (Path(ev.info["model"]) / "training_log.csv").is_file())}
+        settings = {"data": str(data), "data_meta": {k: v for k, v in dataset.meta.items() if k != "experiments"},
+                    "models": [str(m) for m in model], "estimates": [str(e) for e in estimates],
+                    "discard": discard}
+        paths = build_report(out, dataset, evaluations, title=title, settings=settings, experiments=chosen,
+                             calibration=curve, training_dirs=training)
+        console.print(summary_table(evaluations))
+        console.print(f"report: [bold]{paths.html}[/bold] (Markdown: {paths.markdown})")
+
+    @app.command()
+    def demo(
+        out: Path = typer.Option(Path("excavator-payload-demo"), "--out",
+                                 help="Folder for datasets, models, cache and the report."),
+        scale: str = typer.Option("quick", "--scale",
+                                  help="quick (≈15 min on 2 cores), thesis (the thesis' full sizes) "
+                                       "or tiny (seconds; for tests)."),
+        workers: int = typer.Option(None, "--workers", min=1, help="Simulation worker processes (default: all cores)."),
+        motion: str = typer.Option("nmpc", "--motion",
+                                   help="Motion generator: nmpc (the thesis') or minimum-jerk (fast)."),
+        seed: int = typer.Option(2024, "--seed", help="Base seed of all simulated data."),
+        only: str = typer.Option(None, "--only",
+                                 help="Comma-separated estimator labels to run (default: all), e.g. 'Net1,EKF_ideal'."),
+    ) -> None:
+        """Simulate, fit every estimator, evaluate and write the report: the thesis end to end."""
+        from excavator_payload.evaluation.demo import run_demo
+
+        run_demo(out, scale=scale, workers=workers, motion=motion, seed=seed,
+                 only=[s.strip() for s in only.split(",")] if only else None, console=console)

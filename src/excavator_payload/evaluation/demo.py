@@ -1,0 +1,476 @@
+"""``excavator-payload demo``: the thesis end to end in one command.
+
+1. simulate the training, validation and test sets (NMPC motions, thesis noise, truth
+   columns) and the calibration lifts, with embedded defaults: nothing is downloaded;
+2. fit or train every estimator (:data:`ROSTER`): the thesis' three EKFs, a tuned EKF, the
+   UKF, inverse dynamics, the calibrated model, the quasi-static map and the networks Net₁,
+   Net₂;
+3. estimate on the test set, evaluate (:mod:`~excavator_payload.evaluation.metrics`) and
+   write the report (:mod:`~excavator_payload.evaluation.report`).
+
+Everything lands in the output folder and is cached there keyed by the settings that made
+it (datasets, fitted models, estimates): a rerun, or a run after an interruption, redoes only
+what is missing. An estimator that fails is reported with the reason; it does not stop the
+demo.
+
+Scales (:data:`SCALES`): ``quick`` (default; sized for ≈15 minutes on a 2-core machine),
+``thesis`` (2000 simulated experiments, 100 train / 51 validation / 200 test, as in the
+thesis) and ``tiny`` (seconds; for the test suite).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import shutil
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import pandas as pd
+from rich.console import Console
+
+from excavator_payload import __version__
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.io import read_dataset, read_estimates, write_dataset, write_estimates
+from excavator_payload.errors import ExcavatorPayloadError
+from excavator_payload.evaluation.metrics import (
+    DEFAULT_DISCARD,
+    Evaluation,
+    bound_window,
+    dataset_bound,
+    evaluate_estimates,
+)
+from excavator_payload.model.machine import load_machine
+
+#: The machine that generates all data (thesis §5.3).
+TRUE_MACHINE = "cat345c"
+#: Sensor noise of all data (appendix A.2).
+NOISE = "thesis"
+
+
+@dataclass(frozen=True)
+class Scale:
+    """Sizes of one demo scale (experiment counts)."""
+
+    train: int
+    validation: int
+    test: int
+    calibration: int  #: calibration experiments of the calibrated estimator (≤ 10, thesis-like effort)
+    lifts: int        #: calibration lifts of the quasi-static map
+    pool: int = 0     #: experiments simulated in all (≥ train + validation + test), 0: just those
+    chunk: int = 60   #: at most this many experiments per cached simulation file (resume granularity)
+    plots: int = 6    #: test experiments drawn like thesis Figures 7.1–7.12
+    net_options: dict = field(default_factory=dict)  #: options for the networks at this scale
+    note: str = ""
+
+
+SCALES: dict[str, Scale] = {
+    "tiny": Scale(train=8, validation=4, test=6, calibration=4, lifts=4, plots=2,
+                  net_options={"epochs": 2, "hidden": "4", "max_time": 10.0},
+                  note="tiny: for tests only; the networks barely train"),
+    "quick": Scale(train=100, validation=51, test=100, calibration=10, lifts=10,
+                   net_options={"max_time": 150.0},
+                   note="quick: thesis-sized training (100 experiments) and validation (51), 100 instead "
+                        "of 200 test experiments so that the whole demo fits ≈15 minutes on 2 cores"),
+    "thesis": Scale(train=100, validation=51, test=200, calibration=10, lifts=10, pool=2000,
+                    note="thesis: 2000 simulated experiments as the thesis' dataset; experiments 0–99 train, "
+                         "100–150 validation (appendix A.3), 151–350 test (chapter 7's 200 simulations)"),
+}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One estimator of the demo.
+
+    ``fit_on``: ``train``, ``train+validation`` (networks: they train on the first
+    ``Scale.train`` experiments and log the validation error on the next ``Scale.validation``,
+    appendix A.3), ``calibration`` (the first ``Scale.calibration`` training experiments:
+    known payloads, thesis-like effort) or ``lifts``.
+    """
+
+    label: str
+    estimator: str
+    machine: str | None = TRUE_MACHINE
+    options: dict = field(default_factory=dict)
+    fit_on: str = "train"
+    network: bool = False
+
+
+#: Every estimator the demo runs, labelled as in the thesis where it is the thesis' one.
+ROSTER: tuple[Entry, ...] = (
+    Entry("Net1", "net1", fit_on="train+validation", network=True),
+    Entry("Net2", "net2", fit_on="train+validation", network=True),
+    Entry("EKF_ideal", "ekf", "cat345c", {"tuning": "thesis"}),
+    Entry("EKF_1%", "ekf", "cat345c-1pct", {"tuning": "thesis"}),
+    Entry("EKF_3%", "ekf", "cat345c-3pct", {"tuning": "thesis"}),
+    Entry("EKF_tuned", "ekf", "cat345c"),
+    Entry("UKF", "ukf", "cat345c"),
+    Entry("inverse-dynamics", "inverse-dynamics", "cat345c"),
+    Entry("calibrated (3% model)", "calibrated", "cat345c-3pct", fit_on="calibration"),  # first N train exps
+    Entry("quasi-static", "quasi-static", "cat345c", fit_on="lifts"),
+)
+
+
+# -- small helpers --------------------------------------------------------------------------
+def _key(obj: Any) -> str:
+    """Short stable hash of JSON-able settings (cache keys)."""
+    return hashlib.sha1(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _safe(label: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in label)
+
+
+def _concat(parts: Sequence[Dataset]) -> Dataset:
+    if len(parts) == 1:
+        return parts[0]
+    meta = dict(parts[0].meta)
+    meta["experiments"] = [e for p in parts for e in p.meta.get("experiments", [])]
+    return Dataset(pd.concat([p.frame for p in parts], ignore_index=True), meta)
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return f"{type(exc).__name__}: {text}"[:400]
+
+
+# -- data -----------------------------------------------------------------------------------
+def simulate(n: int, first: int, seed: int, motion: str, workers: int | None) -> Dataset:
+    """Simulate experiments ``first … first+n−1`` of base seed ``seed`` (truth columns on)."""
+    if motion == "nmpc":
+        try:
+            from excavator_payload.simulation.generate import simulate_dataset
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.startswith("excavator_payload"):
+                raise ExcavatorPayloadError("the NMPC simulator is not available in this installation; "
+                                            "use --motion minimum-jerk") from None
+            raise
+        return simulate_dataset(n, seed, TRUE_MACHINE, NOISE, with_truth=True, workers=workers,
+                                motion="nmpc", first_experiment=first)
+    if motion == "minimum-jerk":
+        from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
+
+        return simulate_minimum_jerk(n, seed, TRUE_MACHINE, NOISE, with_truth=True, first_experiment=first)
+    raise ExcavatorPayloadError(f"unknown motion '{motion}': choose nmpc or minimum-jerk")
+
+
+def simulate_lift_data(n: int, seed: int, workers: int | None) -> Dataset:
+    """Calibration lifts for the quasi-static map (``simulation.lifts.simulate_lifts``)."""
+    try:
+        from excavator_payload.simulation.lifts import simulate_lifts
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.startswith("excavator_payload"):
+            raise ExcavatorPayloadError("calibration lifts (simulation.lifts) are not available "
+                                        "in this installation") from None
+        raise
+    return simulate_lifts(n, seed, TRUE_MACHINE, NOISE, with_truth=True)
+
+
+class Demo:
+    """One demo run: settings, cache folders and what happened (timings, failures, notes)."""
+
+    def __init__(self, out: Path, scale: str, workers: int | None, motion: str, seed: int,
+                 console: Console) -> None:
+        if scale not in SCALES:
+            raise ExcavatorPayloadError(f"unknown scale '{scale}': choose one of {', '.join(SCALES)}")
+        self.out = Path(out)
+        self.scale_name = scale
+        self.scale = SCALES[scale]
+        self.workers = workers
+        self.motion = motion
+        self.seed = int(seed)
+        self.console = console
+        self.timings: dict[str, float] = {}
+        self.failures: dict[str, str] = {}
+        self.notes: list[str] = [self.scale.note] if self.scale.note else []
+        for sub in ("data", "models", "estimates", "report"):
+            (self.out / sub).mkdir(parents=True, exist_ok=True)
+        (self.out / "failures.log").unlink(missing_ok=True)  # this run's failures only
+
+    # -- datasets ------------------------------------------------------------------------
+    def _data_settings(self, first: int, n: int) -> dict:
+        return {"what": "experiments", "first": first, "n": n, "seed": self.seed, "motion": self.motion,
+                "machine": load_machine(TRUE_MACHINE).to_dict(), "noise": NOISE, "version": __version__}
+
+    def experiments(self, name: str, first: int, n: int) -> Dataset:
+        """Experiments ``first … first+n−1``, simulated in cached chunks."""
+        parts = []
+        n_chunks = -(-n // self.scale.chunk)
+        size = -(-n // n_chunks)  # equal chunks of at most Scale.chunk experiments
+        starts = list(range(first, first + n, size))
+        for i, a in enumerate(starts):
+            m = min(size, first + n - a)
+            path = self.out / "data" / f"{self.motion}-{a:05d}-{a + m - 1:05d}-{_key(self._data_settings(a, m))}.parquet"
+            if path.is_file():
+                try:
+                    parts.append(read_dataset(path))
+                    continue
+                except ExcavatorPayloadError:
+                    path.unlink()  # a damaged cache file is simply made again
+            self.console.print(f"  simulating {name}: experiments {a}–{a + m - 1} "
+                               f"({i + 1}/{len(starts)}, {self.motion})")
+            ds = simulate(m, a, self.seed, self.motion, self.workers)
+            write_dataset(ds, path)
+            parts.append(ds)
+        return _concat(parts)
+
+    def lifts(self) -> Dataset:
+        settings = {"what": "lifts", "n": self.scale.lifts, "seed": self.seed + 1,
+                    "machine": load_machine(TRUE_MACHINE).to_dict(), "noise": NOISE, "version": __version__}
+        path = self.out / "data" / f"lifts-{_key(settings)}.parquet"
+        if path.is_file():
+            try:
+                return read_dataset(path)
+            except ExcavatorPayloadError:
+                path.unlink()
+        self.console.print(f"  simulating {self.scale.lifts} calibration lifts")
+        ds = simulate_lift_data(self.scale.lifts, self.seed + 1, self.workers)
+        write_dataset(ds, path)
+        return ds
+
+    # -- estimators ----------------------------------------------------------------------
+    def options_for(self, entry: Entry, klass) -> dict:
+        """The entry's options plus the scale's network options the class knows."""
+        options = dict(entry.options)
+        if entry.network:
+            options.update({k: v for k, v in self.scale.net_options.items() if k in klass.OPTIONS})
+            options.update({k: v for k, v in {"train_experiments": self.scale.train,
+                                              "validation_experiments": self.scale.validation}.items()
+                            if k in klass.OPTIONS})
+        return {k: v for k, v in options.items() if k in klass.OPTIONS or k in entry.options}
+
+    def fit(self, entry: Entry, data: dict[str, Dataset | None], data_keys: dict[str, str]):
+        """Fit (or load the cached fit of) one estimator; returns (estimator, model folder)."""
+        from excavator_payload.estimators.base import create_estimator, estimator_class, load_estimator
+
+        klass = estimator_class(entry.estimator)
+        options = self.options_for(entry, klass)
+        machine = entry.machine if klass.NEEDS_MACHINE or entry.machine != TRUE_MACHINE else None
+        fit_data = data.get(entry.fit_on)
+        if fit_data is None:
+            raise ExcavatorPayloadError(f"its {entry.fit_on} data could not be made "
+                                        f"({self.failures.get('data: ' + entry.fit_on, 'unknown reason')})")
+        key = _key({"estimator": entry.estimator, "options": options,
+                    "machine": load_machine(machine).to_dict() if machine else None,
+                    "fit_on": data_keys[entry.fit_on],
+                    "version": __version__, "code": _source_key(klass)})
+        folder = self.out / "models" / f"{_safe(entry.label)}-{key}"
+        if (folder / "estimator.json").is_file():
+            try:
+                return load_estimator(folder), folder
+            except ExcavatorPayloadError:
+                shutil.rmtree(folder, ignore_errors=True)
+        est = create_estimator(entry.estimator, machine=machine, **options)
+        est.fit(fit_data)
+        tmp = folder.with_name(folder.name + ".partial")
+        shutil.rmtree(tmp, ignore_errors=True)
+        est.save(tmp)
+        _save_training_graph(est, tmp)
+        shutil.rmtree(folder, ignore_errors=True)
+        tmp.rename(folder)  # only complete fits are ever cached
+        return est, folder
+
+    def estimate(self, entry: Entry, est, folder: Path, test: Dataset, test_key: str) -> pd.DataFrame:
+        """Estimates on the test set (cached next to the model's key)."""
+        from excavator_payload.evaluation.commands import estimate_in_chunks, progress_bar
+
+        path = self.out / "estimates" / f"{folder.name}-{test_key}.parquet"
+        if path.is_file():
+            try:
+                return read_estimates(path)
+            except ExcavatorPayloadError:
+                path.unlink()
+        with progress_bar(self.console) as progress:
+            frame = estimate_in_chunks(est, test, progress, f"  {entry.label}: estimating")
+        write_estimates(frame, path, meta={"estimator": entry.estimator, "model": str(folder)})
+        return frame
+
+
+def _source_key(obj) -> str:
+    """Hash of the source file defining ``obj``: a changed estimator invalidates its cached fits."""
+    try:
+        return hashlib.sha1(Path(inspect.getsourcefile(obj)).read_bytes()).hexdigest()[:12]
+    except (TypeError, OSError):
+        return "unknown"
+
+
+def _save_training_graph(est, folder: Path) -> None:
+    """Networks that keep a training history but wrote no graph get one drawn from the log."""
+    log = folder / "training_log.csv"
+    if (folder / "training.png").is_file() or not log.is_file():
+        return
+    from excavator_payload.evaluation import figures
+
+    try:
+        figures.save_png(figures.training_log(pd.read_csv(log), f"{est.name} training"), folder / "training.png")
+    except (ValueError, pd.errors.ParserError, pd.errors.EmptyDataError):
+        pass  # the report says when a training graph is missing
+
+
+def _calibration_curve(demo: Demo, data: dict[str, Dataset | None], test: Dataset) -> pd.DataFrame | None:
+    """Accuracy of the calibrated estimator against the number of calibration experiments
+    (``estimators.classical.calibrated.calibration_curve``; 0 = the uncalibrated 3 % model)."""
+    from excavator_payload.estimators.classical import calibrated
+
+    train = data.get("train")
+    top = min(demo.scale.calibration, train.n_experiments)
+    counts = sorted({c for c in (0, 1, 2, 5, 10, top) if c <= top})
+    key = _key({"counts": counts, "train": demo._data_settings(0, train.n_experiments),
+                "test": demo._data_settings(train.n_experiments, test.n_experiments),
+                "test_ids": [int(i) for i in test.experiment_ids], "code": _source_key(calibrated)})
+    path = demo.out / "estimates" / f"calibration-curve-{key}.csv"
+    if path.is_file():
+        try:
+            return pd.read_csv(path)
+        except (pd.errors.ParserError, pd.errors.EmptyDataError):
+            path.unlink()
+    curve = pd.DataFrame(calibrated.calibration_curve(train, test, counts=counts, machine="cat345c-3pct",
+                                                      progress=True))
+    tmp = path.with_name(path.name + ".tmp")
+    curve.to_csv(tmp, index=False)
+    tmp.replace(path)
+    return curve
+
+
+# -- the demo -------------------------------------------------------------------------------
+def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", workers: int | None = None,
+             motion: str = "nmpc", seed: int = 2024, only: Sequence[str] | None = None,
+             console: Console | None = None) -> dict:
+    """Run the demo; returns ``{"report": Path, "evaluations": [...], "failures": {...}}``."""
+    from excavator_payload.evaluation.commands import summary_table
+    from excavator_payload.evaluation.report import build_report, choose_experiments
+
+    console = console or Console()
+    demo = Demo(Path(out), scale, workers, motion, seed, console)
+    sc = demo.scale
+    roster = list(ROSTER)
+    if only:
+        known = {e.label for e in ROSTER}
+        unknown = [o for o in only if o not in known]
+        if unknown:
+            raise ExcavatorPayloadError(f"--only: unknown estimator(s) {unknown}; choose from {sorted(known)}")
+        roster = [e for e in ROSTER if e.label in only]
+    t_start = time.perf_counter()
+
+    # 1. data
+    console.rule(f"[bold]1/4 data[/bold] ({scale} scale, {motion} motions)")
+    t0 = time.perf_counter()
+    total = max(sc.pool, sc.train + sc.validation + sc.test)
+    first_test = sc.train + sc.validation
+    train = demo.experiments("train", 0, sc.train)
+    validation = demo.experiments("validation", sc.train, sc.validation)
+    test = demo.experiments("test", first_test, sc.test)
+    if total > first_test + sc.test:  # the rest of the thesis' 2000-experiment pool
+        demo.experiments("pool", first_test + sc.test, total - first_test - sc.test)
+    data: dict[str, Dataset | None] = {"train": train, "validation": validation,
+                                       "train+validation": _concat([train, validation]),
+                                       "calibration": train.split(min(sc.calibration, sc.train))[0]}
+    data_keys = {"train": _key(demo._data_settings(0, sc.train)),
+                 "validation": _key(demo._data_settings(sc.train, sc.validation)),
+                 "train+validation": _key(demo._data_settings(0, sc.train + sc.validation)),
+                 "calibration": _key(demo._data_settings(0, min(sc.calibration, sc.train)))}
+    test_key = _key(demo._data_settings(first_test, sc.test))
+    if any(e.fit_on == "lifts" for e in roster):
+        try:
+            data["lifts"] = demo.lifts()
+            data_keys["lifts"] = _key({"lifts": sc.lifts, "seed": seed + 1})
+        except Exception as exc:  # noqa: BLE001 - the other estimators still run
+            data["lifts"] = None
+            data_keys["lifts"] = "none"
+            demo.failures["data: lifts"] = _reason(exc)
+            console.print(f"  [yellow]calibration lifts failed[/yellow]: {_reason(exc)}")
+    demo.timings["data"] = time.perf_counter() - t0
+
+    # 2. fit
+    console.rule("[bold]2/4 fit / train[/bold]")
+    fitted = []
+    for i, entry in enumerate(roster, start=1):
+        console.print(f"[bold]{entry.label}[/bold] ({entry.estimator}, {i}/{len(roster)})")
+        t0 = time.perf_counter()
+        try:
+            est, folder = demo.fit(entry, data, data_keys)
+            fitted.append((entry, est, folder))
+        except KeyboardInterrupt:
+            raise
+        except Exception as exc:  # noqa: BLE001 - one estimator must not stop the demo
+            demo.failures[entry.label] = "fit: " + _reason(exc)
+            _log_failure(demo.out, entry.label, exc)
+            console.print(f"  [red]failed[/red]: {_reason(exc)}")
+        demo.timings[f"fit {entry.label}"] = time.perf_counter() - t0
+
+    # 3. estimate + evaluate
+    console.rule(f"[bold]3/4 estimate on {test.n_experiments} test experiments and evaluate[/bold]")
+    evaluations: list[Evaluation] = []
+    bounds: dict = {}
+    for entry, est, folder in fitted:
+        t0 = time.perf_counter()
+        try:
+            frame = demo.estimate(entry, est, folder, test, test_key)
+            window = bound_window(entry.estimator, est.options)
+            if window not in bounds:
+                bounds[window] = dataset_bound(test, window)
+            evaluations.append(evaluate_estimates(
+                test, frame, label=entry.label, window=window, bound=bounds[window],
+                info={"estimator": entry.estimator, "options": est.options, "machine": entry.machine,
+                      "model": str(folder), "fit_on": entry.fit_on}))
+        except KeyboardInterrupt:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            demo.failures[entry.label] = "estimate: " + _reason(exc)
+            _log_failure(demo.out, entry.label, exc)
+            console.print(f"  [red]{entry.label} failed[/red]: {_reason(exc)}")
+        demo.timings[f"estimate {entry.label}"] = time.perf_counter() - t0
+
+    curve = None
+    if any(e.estimator == "calibrated" for e in roster):
+        t0 = time.perf_counter()
+        try:
+            curve = _calibration_curve(demo, data, test)
+        except KeyboardInterrupt:
+            raise
+        except Exception as exc:  # noqa: BLE001
+            demo.failures["calibration curve"] = _reason(exc)
+            console.print(f"  [yellow]calibration curve failed[/yellow]: {_reason(exc)}")
+        demo.timings["calibration curve"] = time.perf_counter() - t0
+
+    # 4. report
+    console.rule("[bold]4/4 report[/bold]")
+    t0 = time.perf_counter()
+    training = {e.label: f for e, _, f in fitted if e.network and any(ev.label == e.label for ev in evaluations)}
+    demo.timings["total before report"] = time.perf_counter() - t_start
+    settings = {
+        "command": f"excavator-payload demo --out {out} --scale {scale} --motion {motion} --seed {seed}"
+                   + (f" --workers {workers}" if workers else "") + (f" --only {','.join(only)}" if only else ""),
+        "scale": scale, "sizes": asdict(sc), "motion": motion, "base_seed": seed,
+        "experiment_numbers": {"train": [0, sc.train - 1], "validation": [sc.train, first_test - 1],
+                               "test": [first_test, first_test + sc.test - 1],
+                               "calibration": [0, min(sc.calibration, sc.train) - 1], "simulated": total},
+        "lifts_seed": seed + 1, "true_machine": load_machine(TRUE_MACHINE).to_dict(), "noise": NOISE,
+        "estimators": [{"label": e.label, "estimator": e.estimator, "machine": e.machine,
+                        "options": e.options, "fit_on": e.fit_on} for e in roster],
+        "workers": workers, "timings_s": {k: round(v, 2) for k, v in demo.timings.items()},
+    }
+    paths = build_report(demo.out / "report", test, evaluations, title="excavator-payload demo",
+                         settings=settings, failures=demo.failures, calibration=curve,
+                         experiments=choose_experiments(test, sc.plots),
+                         training_dirs=training, notes=demo.notes)
+    demo.timings["report"] = time.perf_counter() - t0
+    console.print(summary_table(evaluations, f"Payload accuracy on {test.n_experiments} test experiments "
+                                             f"(first {DEFAULT_DISCARD} samples discarded)"))
+    for label, reason in demo.failures.items():
+        console.print(f"[red]failed[/red] {label}: {reason}")
+    console.print(f"total {time.perf_counter() - t_start:.0f} s; report: [bold]{paths.html}[/bold]")
+    return {"report": paths.html, "markdown": paths.markdown, "evaluations": evaluations,
+            "failures": dict(demo.failures), "timings": dict(demo.timings)}
+
+
+def _log_failure(out: Path, label: str, exc: BaseException) -> None:
+    """Keep the full traceback of a failed estimator for its author (the console shows one line)."""
+    log = out / "failures.log"
+    with log.open("a") as fh:
+        fh.write(f"--- {label} ({time.strftime('%Y-%m-%d %H:%M:%S')})\n")
+        fh.write("".join(traceback.format_exception(exc)))
