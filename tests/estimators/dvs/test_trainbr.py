@@ -1,0 +1,174 @@
+"""trainbr / Adam trainers: known answers on small problems."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from excavator_payload.estimators.dvs.common import mlp_forward, mlp_sizes, n_weights, nguyen_widrow_init
+from excavator_payload.estimators.dvs.trainbr import (
+    LOG_COLUMNS,
+    TrainingLog,
+    jacobian_forward,
+    train_adam,
+    train_br,
+)
+
+torch.set_num_threads(1)
+
+
+def _sin_problem(hidden=8, n=41):
+    x = torch.linspace(-2.0, 2.0, n, dtype=torch.float64)[:, None]
+    t = torch.sin(x[:, 0])
+    sizes = mlp_sizes(1, [hidden])
+
+    def residuals(w):
+        return t - mlp_forward(w, x, sizes)[:, 0]
+
+    w0 = nguyen_widrow_init(sizes, torch.Generator().manual_seed(3))
+    return residuals, w0, x, sizes
+
+
+def test_trainbr_fits_sine():
+    residuals, w0, x, sizes = _sin_problem()
+    w, log = train_br(residuals, w0, epochs=100, progress=False)
+    x_dense = torch.linspace(-2.0, 2.0, 401, dtype=torch.float64)[:, None]
+    err = torch.sin(x_dense[:, 0]) - mlp_forward(w, x_dense, sizes)[:, 0]
+    assert float(err.abs().max()) < 1e-3  # between the training points too
+    assert log.sse[-1] < 1e-2 * log.sse[0]
+    # SSE is not monotone under changing α, β, but the regularised fit ends far below the start
+    assert log.trainer == "trainbr" and log.n_errors == 41 and log.n_parameters == n_weights(sizes)
+
+
+def test_gamma_well_below_parameter_count_for_redundant_network():
+    # a straight line through noisy points: 61 weights, a handful of them really needed
+    rng = np.random.default_rng(0)
+    x = torch.as_tensor(np.linspace(-1, 1, 60)[:, None])
+    t = torch.as_tensor(0.6 * np.linspace(-1, 1, 60) + 0.05 * rng.standard_normal(60))
+    sizes = mlp_sizes(1, [20])
+
+    def residuals(w):
+        return t - mlp_forward(w, x, sizes)[:, 0]
+
+    w, log = train_br(residuals, nguyen_widrow_init(sizes, torch.Generator().manual_seed(1)),
+                      epochs=200, progress=False)
+    P = n_weights(sizes)
+    assert log.gamma[1] == pytest.approx(P)  # first update: α was 0, so γ = P
+    assert log.gamma[-1] < P / 6
+    assert log.gamma[-1] >= 1.0
+    # the residual is about the noise: β ≈ 1/(2σ²) within a factor of two
+    assert 0.5 < log.beta[-1] * 2 * 0.05**2 < 2.0
+
+
+def test_first_step_and_hyperparameter_update_match_hand_computation():
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((7, 3))
+    t_np = rng.standard_normal(7)
+    A_t, t = torch.as_tensor(A), torch.as_tensor(t_np)
+    w0_np = np.array([0.3, -0.2, 0.1])
+
+    def residuals(w):
+        return t - A_t @ w
+
+    w1, log = train_br(residuals, torch.as_tensor(w0_np), epochs=1, progress=False)
+    # epoch 1 with α = 0, β = 1, μ = 0.005: Δw = −(JᵀJ + μI)⁻¹ Jᵀe with J = ∂e/∂w = −A
+    J = -A
+    e0 = t_np - A @ w0_np
+    dw = -np.linalg.solve(J.T @ J + 0.005 * np.eye(3), J.T @ e0)
+    np.testing.assert_allclose(w1.numpy(), w0_np + dw, rtol=1e-10, atol=1e-12)
+    e1 = t_np - A @ (w0_np + dw)
+    E_D, E_W = e1 @ e1, (w0_np + dw) @ (w0_np + dw)
+    assert log.sse[1] == pytest.approx(E_D)
+    assert log.gamma[1] == pytest.approx(3.0)
+    assert log.alpha[1] == pytest.approx(3.0 / (2 * E_W))
+    assert log.beta[1] == pytest.approx((7 - 3.0) / (2 * E_D))
+    assert log.mu[1] == pytest.approx(0.005)
+
+    # epoch 2 uses the new α, β and μ·0.1, and γ = P − α tr((βJᵀJ + αI)⁻¹)
+    w2, log2 = train_br(residuals, torch.as_tensor(w0_np), epochs=2, progress=False)
+    a, b, mu = log.alpha[1], log.beta[1], 0.0005
+    w1_np = w0_np + dw
+    dw2 = -np.linalg.solve(b * J.T @ J + (mu + a) * np.eye(3), b * J.T @ e1 + a * w1_np)
+    np.testing.assert_allclose(w2.numpy(), w1_np + dw2, rtol=1e-9, atol=1e-12)
+    gamma2 = 3 - a * np.trace(np.linalg.inv(b * J.T @ J + a * np.eye(3)))
+    assert log2.gamma[2] == pytest.approx(gamma2)
+    assert log2.mu[2] == pytest.approx(mu)
+
+
+def test_stops_on_small_gradient():
+    t = torch.ones(5, dtype=torch.float64)
+
+    def residuals(w):  # nothing to learn: J = 0 and, with α = 0, ∇F = 0
+        return t + 0.0 * w.sum()
+
+    w, log = train_br(residuals, torch.zeros(2, dtype=torch.float64), epochs=50, progress=False)
+    assert log.stop_reason.startswith("minimum gradient")
+    assert len(log.epoch) == 1
+
+
+def test_stops_when_mu_exceeds_maximum():
+    A = torch.eye(3, dtype=torch.float64)
+    t = torch.ones(3, dtype=torch.float64)
+
+    def residuals(w):
+        return t - A @ w
+
+    # a Jacobian of the wrong sign: every step goes uphill, μ grows until it exceeds μ_max
+    w, log = train_br(residuals, torch.zeros(3, dtype=torch.float64), epochs=50, progress=False,
+                      jacobian=lambda w: A.clone(), mu_max=1e3)
+    assert log.stop_reason.startswith("maximum mu")
+    assert torch.equal(w, torch.zeros(3, dtype=torch.float64))
+
+
+def test_stops_at_epoch_limit():
+    residuals, w0, _, _ = _sin_problem()
+    _, log = train_br(residuals, w0, epochs=3, progress=False)
+    assert log.epoch == [0, 1, 2, 3]
+    assert log.stop_reason.startswith("maximum epochs")
+
+
+def test_validation_is_logged():
+    residuals, w0, _, _ = _sin_problem()
+    _, log = train_br(residuals, w0, epochs=5, progress=False,
+                      validation=lambda w: float(residuals(w) @ residuals(w)) * 2)
+    np.testing.assert_allclose(log.validation_sse, 2 * np.array(log.sse))
+
+
+def test_forward_jacobian_equals_finite_differences():
+    residuals, w0, _, _ = _sin_problem(hidden=3, n=9)
+    J = jacobian_forward(residuals, w0, chunk_size=4).numpy()
+    h = 1e-6
+    fd = np.stack([(residuals(w0 + h * torch.eye(len(w0), dtype=torch.float64)[k])
+                    - residuals(w0 - h * torch.eye(len(w0), dtype=torch.float64)[k])).numpy() / (2 * h)
+                   for k in range(len(w0))], axis=1)
+    np.testing.assert_allclose(J, fd, atol=1e-7)
+
+
+def test_adam_reduces_error_and_logs_nan_hyperparameters():
+    residuals, w0, _, _ = _sin_problem()
+    w, log = train_adam(residuals, w0, epochs=300, lr=0.02, progress=False)
+    assert log.sse[-1] < 0.1 * log.sse[0]
+    assert all(math.isnan(g) for g in log.gamma)
+    assert log.trainer == "adam"
+    assert float(residuals(w) @ residuals(w)) == pytest.approx(log.sse[-1])
+
+
+def test_log_frame_roundtrip_and_plot(tmp_path):
+    residuals, w0, _, _ = _sin_problem()
+    _, log = train_br(residuals, w0, epochs=4, progress=False)
+    frame = log.to_frame()
+    assert list(frame.columns) == list(LOG_COLUMNS)
+    back = TrainingLog.from_frame(frame, log.stop_reason, log.seconds, log.n_errors, log.n_parameters, "trainbr")
+    pd.testing.assert_frame_equal(back.to_frame(), frame)
+    log.plot(tmp_path / "fig" / "training.png")
+    assert (tmp_path / "fig" / "training.png").stat().st_size > 1000
+
+
+def test_time_limit_stops_training():
+    residuals, w0, _, _ = _sin_problem()
+    _, log = train_br(residuals, w0, epochs=50, progress=False, max_seconds=0.0)
+    assert log.epoch == [0, 1] and log.stop_reason.startswith("time limit")
+    _, log = train_adam(residuals, w0, epochs=50, progress=False, max_seconds=0.0)
+    assert log.stop_reason.startswith("time limit") and len(log.epoch) == 1
