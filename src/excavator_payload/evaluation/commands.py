@@ -113,27 +113,42 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
     return evaluations
 
 
-def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accuracy") -> Table:
-    """A rich table of the headline figures."""
-    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, caption="MAX, RMS: mean over experiments (kg), ± their std; MAX%: of the "
-                                       "rated payload; p95: of |error| (kg); ≤1%: share of experiments with "
-                                       "MAX ≤ 1 % of rated; conv: convergence time (s); eff: RMS of "
-                                       "error/Cramér–Rao bound; est: judged samples with an estimate")
-    for col in ("estimator", "MAX", "±", "RMS", "±", "MAX%", "p95", "≤1%", "conv", "eff", "est"):
-        if col == "estimator":
-            table.add_column(col, justify="left", no_wrap=True, min_width=9)
-        else:
-            table.add_column(col, justify="right")
+def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accuracy",
+                  width: int | None = None) -> Table:
+    """A rich table of the headline figures.
+
+    On a terminal narrower than 110 columns only the essential columns are shown (numbers are
+    never cut short); the full set is in ``--json`` and the report.
+    """
+    width = Console().width if width is None else width
+    compact = width < 110
+    columns = [("estimator", "estimator"), ("MAX", "mean_max"), ("±", "std_max"), ("RMS", "mean_rms"),
+               ("±", "std_rms"), ("MAX%", "mean_max_pct"), ("p95", "mean_p95"),
+               ("≤1%", "meets_requirement_share"), ("conv", "mean_convergence_time"),
+               ("eff", "efficiency"), ("est", "estimated_share")]
+    if compact:
+        columns = [c for c in columns if c[1] in ("estimator", "mean_max", "std_max", "mean_rms",
+                                                  "meets_requirement_share", "efficiency")]
+    legend = {"MAX": "MAX, RMS: mean over experiments (kg), ± their std",
+              "MAX%": "MAX%: of the rated payload", "p95": "p95: of |error| (kg)",
+              "≤1%": "≤1%: share of experiments with MAX ≤ 1 % of rated",
+              "conv": "conv: convergence time (s)", "eff": "eff: RMS of error/Cramér–Rao bound",
+              "est": "est: judged samples with an estimate"}
+    caption = "; ".join(legend[c] for c, _ in columns if c in legend)
+    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, caption=caption)
+    for col, _ in columns:
+        table.add_column(col, justify="left" if col == "estimator" else "right", no_wrap=True)
+
+    formats = {"mean_max_pct": "{:.2g}", "meets_requirement_share": "{:.0%}",
+               "mean_convergence_time": "{:.2f}", "estimated_share": "{:.0%}"}
 
     def f(x, fmt="{:.3g}"):
         return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
     for ev in evaluations:
         s = ev.summary
-        table.add_row(ev.label, f(s["mean_max"]), f(s["std_max"]), f(s["mean_rms"]), f(s["std_rms"]),
-                      f(s["mean_max_pct"], "{:.2g}"), f(s["mean_p95"]), f(s["meets_requirement_share"], "{:.0%}"),
-                      f(s["mean_convergence_time"], "{:.2f}"), f(s.get("efficiency")),
-                      f(s["estimated_share"], "{:.0%}"))
+        table.add_row(*[ev.label if key == "estimator" else f(s.get(key), formats.get(key, "{:.3g}"))
+                        for _, key in columns])
     return table
 
 

@@ -172,3 +172,51 @@ def test_time_limit_stops_training():
     assert log.epoch == [0, 1] and log.stop_reason.startswith("time limit")
     _, log = train_adam(residuals, w0, epochs=50, progress=False, max_seconds=0.0)
     assert log.stop_reason.startswith("time limit") and len(log.epoch) == 1
+
+
+def _line_problem():
+    """Rosenbrock's valley as least squares: many small epochs before it converges."""
+    def residuals(w):
+        return torch.stack([10 * (w[1] - w[0] ** 2), 1 - w[0]])
+
+    return residuals
+
+
+@pytest.mark.parametrize("trainer", ["trainbr", "adam"])
+def test_best_validation_returns_the_weights_of_the_lowest_validation_error(trainer):
+    """The validation error is scripted as a V (lowest at the 3rd call): those weights come back,
+    and patience 4 stops training four epochs after the minimum."""
+    from excavator_payload.estimators.dvs.trainbr import train_adam, train_br
+
+    scripted = [5.0, 4.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]
+    seen = []
+
+    def validation(w):
+        seen.append(w.detach().clone())
+        return scripted[len(seen) - 1]
+
+    train = train_br if trainer == "trainbr" else train_adam
+    kwargs = {"min_grad": 0.0} if trainer == "trainbr" else {"lr": 0.05}
+    w, log = train(_line_problem(), torch.tensor([-1.2, 1.0], dtype=torch.float64), epochs=10,
+                   validation=validation, progress=False, best_validation=True,
+                   validation_patience=4, **kwargs)
+    assert log.best_epoch == log.epoch[2]
+    assert torch.equal(w, seen[2])
+    assert "not improved for 4 epochs" in log.stop_reason
+    assert len(log.epoch) == 7  # epochs 0..6: the minimum at index 2, then four worse ones
+    assert log.returned_validation_sse == 1.0
+
+
+def test_without_best_validation_the_last_weights_come_back():
+    from excavator_payload.estimators.dvs.trainbr import train_br
+
+    calls = []
+
+    def validation(w):
+        calls.append(w.detach().clone())
+        return float(len(calls))  # only ever gets worse
+
+    w, log = train_br(_line_problem(), torch.tensor([-1.2, 1.0], dtype=torch.float64), epochs=5,
+                      validation=validation, progress=False)
+    assert log.best_epoch == -1
+    assert torch.equal(w, calls[-1])

@@ -139,7 +139,10 @@ class Scaler:
         else:
             center, spread = x.mean(axis=0), x.std(axis=0, ddof=1) if len(x) > 1 else np.zeros(x.shape[1])
         self.center = center
-        self.gain = np.where(spread > 0, 1.0 / np.where(spread > 0, spread, 1.0), 1.0)
+        # A (numerically) constant column keeps gain 1, as MATLAB does for xmax == xmin; a
+        # subnormal spread would otherwise overflow the gain to inf and the transform to NaN.
+        usable = spread > np.finfo(float).tiny * 1e6
+        self.gain = np.where(usable, 1.0 / np.where(usable, spread, 1.0), 1.0)
         return self
 
     def _check(self) -> None:
@@ -348,7 +351,12 @@ def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Optio
         "learning_rate": Option(float, 1e-3, "Adam learning rate (trainer adam only)"),
         "seed": Option(int, 0, "seed of the initial weights"),
         "train_experiments": Option(int, 100, "the first N experiments of the data train"),
-        "validation_experiments": Option(int, 51, "the next N experiments validate (only logged)"),
+        "validation_experiments": Option(int, 51, "the next N experiments validate"),
+        "best_validation": Option(bool, True, "return the weights of the epoch with the lowest "
+                                  "validation error, as MATLAB's train does with a validation set "
+                                  "(false: the last epoch's, trainbr alone)"),
+        "validation_patience": Option(int, 100, "stop when the validation error has not improved "
+                                      "for this many epochs (MATLAB max_fail; 0: never)"),
         "progress": Option(bool, True, "show a progress bar while training"),
     }
     options.update(extra)
@@ -466,11 +474,14 @@ class NeuralEstimator(Estimator):
         if o["trainer"] == "trainbr":
             w, log = train_br(residuals, w0, epochs=int(o["epochs"]), validation=validation,
                               progress=bool(o["progress"]), description=desc, jacobian=jacobian,
-                              max_seconds=max_time)
+                              max_seconds=max_time, best_validation=bool(o["best_validation"]),
+                              validation_patience=int(o["validation_patience"]))
         else:
             w, log = train_adam(residuals, w0, epochs=int(o["epochs"]), lr=float(o["learning_rate"]),
                                 validation=validation, progress=bool(o["progress"]),
-                                description=desc, max_seconds=max_time)
+                                description=desc, max_seconds=max_time,
+                                best_validation=bool(o["best_validation"]),
+                                validation_patience=int(o["validation_patience"]))
         weights = w.detach().numpy().astype(np.float64)
         if not np.all(np.isfinite(weights)):
             raise EstimatorError(f"{self.name}: training diverged ({log.stop_reason}); try "
@@ -485,7 +496,9 @@ class NeuralEstimator(Estimator):
                 f"{self.name}: {log.trainer} stopped after {log.epoch[-1]} epochs ({log.stop_reason}) "
                 f"in {log.seconds:.1f} s; training SSE {log.sse[-1]:.4g} over {log.n_errors} targets "
                 f"(scaled), effective parameters γ {log.gamma[-1]:.1f} of {log.n_parameters}, "
-                f"validation SSE {log.validation_sse[-1]:.4g}")
+                f"validation SSE {log.returned_validation_sse:.4g}"
+                + (f" (weights of epoch {log.best_epoch}, the lowest validation error)"
+                   if log.best_epoch >= 0 else ""))
 
     # -- persistence -----------------------------------------------------------------------
     def _config(self) -> dict:
@@ -520,7 +533,8 @@ class NeuralEstimator(Estimator):
             frame = pd.DataFrame({c: arrays[f"log_{c}"] for c in LOG_COLUMNS if f"log_{c}" in arrays})
             self.training_log = TrainingLog.from_frame(
                 frame, summary.get("stop_reason", ""), summary.get("seconds", 0.0),
-                summary.get("n_errors", 0), summary.get("n_parameters", 0), summary.get("trainer", ""))
+                summary.get("n_errors", 0), summary.get("n_parameters", 0), summary.get("trainer", ""),
+                summary.get("best_epoch", -1))
         self._use_weights(weights)
 
     def save(self, directory: str | Path) -> Path:

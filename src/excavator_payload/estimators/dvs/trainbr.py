@@ -85,6 +85,9 @@ class TrainingLog:
     n_errors: int = 0
     n_parameters: int = 0
     trainer: str = ""
+    #: epoch whose weights were returned (the lowest validation SSE with ``best_validation``);
+    #: -1: the last epoch's
+    best_epoch: int = -1
 
     def append(self, epoch, sse, sum_sq_weights, gamma, alpha, beta, mu, validation_sse,
                grad_norm) -> None:
@@ -98,9 +101,10 @@ class TrainingLog:
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame, stop_reason: str = "", seconds: float = 0.0,
-                   n_errors: int = 0, n_parameters: int = 0, trainer: str = "") -> "TrainingLog":
+                   n_errors: int = 0, n_parameters: int = 0, trainer: str = "",
+                   best_epoch: int = -1) -> "TrainingLog":
         log = cls(stop_reason=stop_reason, seconds=float(seconds), n_errors=int(n_errors),
-                  n_parameters=int(n_parameters), trainer=trainer)
+                  n_parameters=int(n_parameters), trainer=trainer, best_epoch=int(best_epoch))
         for c in LOG_COLUMNS:
             values = frame[c].tolist() if c in frame else [math.nan] * len(frame)
             setattr(log, c, [int(v) for v in values] if c == "epoch" else [float(v) for v in values])
@@ -113,7 +117,18 @@ class TrainingLog:
                 "n_parameters": self.n_parameters,
                 "final_sse": (self.sse[-1] if self.sse else math.nan),
                 "final_gamma": (self.gamma[-1] if self.gamma else math.nan),
-                "final_validation_sse": (self.validation_sse[-1] if self.validation_sse else math.nan)}
+                "final_validation_sse": (self.validation_sse[-1] if self.validation_sse else math.nan),
+                "best_epoch": self.best_epoch,
+                "returned_validation_sse": self.returned_validation_sse}
+
+    @property
+    def returned_validation_sse(self) -> float:
+        """Validation SSE of the weights that were returned."""
+        if not self.validation_sse:
+            return math.nan
+        if self.best_epoch < 0:
+            return self.validation_sse[-1]
+        return self.validation_sse[self.epoch.index(self.best_epoch)]
 
     def plot(self, path) -> None:
         """Save a figure like thesis Fig. 6.3: SSE (training and validation), E_W, γ and μ."""
@@ -128,6 +143,10 @@ class TrainingLog:
         axes[0].semilogy(ep, frame["sse"], label="training")
         if frame["validation_sse"].notna().any():
             axes[0].semilogy(ep, frame["validation_sse"], label="validation")
+        if self.best_epoch >= 0:
+            for ax in axes:
+                ax.axvline(self.best_epoch, ls=":", lw=1, color="black")
+            axes[0].plot([], [], ls=":", color="black", label=f"returned (epoch {self.best_epoch})")
         axes[0].set_ylabel("SSE (scaled)")
         axes[0].legend()
         title = f"{self.trainer or 'training'}: {self.stop_reason} after {len(ep) - 1} epochs"
@@ -212,12 +231,44 @@ def _validation_value(validation, w) -> float:
         return float(validation(w))
 
 
+class _ValidationWatch:
+    """Keeps the weights of the epoch with the lowest validation SSE and counts the epochs since.
+
+    MATLAB's ``train`` returns the network of the best validation epoch whenever it has a
+    validation set (``tr.best_epoch``) and stops after ``max_fail`` epochs without improvement;
+    ``trainbr`` on its own keeps the last epoch. ``keep_best`` and ``patience`` choose.
+    """
+
+    def __init__(self, keep_best: bool, patience: int):
+        self.keep_best, self.patience = keep_best, int(patience)
+        self.best_value, self.best_epoch, self.best_w, self.since = math.inf, -1, None, 0
+
+    def update(self, epoch: int, value: float, w: torch.Tensor) -> bool:
+        """Record an epoch's validation SSE; True when patience has run out."""
+        if not math.isfinite(value):
+            return False
+        if value < self.best_value:
+            self.best_value, self.best_epoch, self.since = value, epoch, 0
+            if self.keep_best:
+                self.best_w = w.detach().clone()
+        else:
+            self.since += 1
+        return self.patience > 0 and self.since >= self.patience
+
+    def finish(self, w: torch.Tensor, log: "TrainingLog") -> torch.Tensor:
+        if self.keep_best and self.best_w is not None:
+            log.best_epoch = self.best_epoch
+            return self.best_w
+        return w
+
+
 def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: float = 0.005,
              mu_dec: float = 0.1, mu_inc: float = 10.0, mu_max: float = 1e10,
              min_grad: float = 1e-7, validation: Callable[[torch.Tensor], float] | None = None,
              progress: bool = True, description: str = "trainbr",
              jacobian: JacobianFn | None = None,
-             max_seconds: float | None = None) -> tuple[torch.Tensor, TrainingLog]:
+             max_seconds: float | None = None, best_validation: bool = False,
+             validation_patience: int = 0) -> tuple[torch.Tensor, TrainingLog]:
     r"""Train by Levenberg–Marquardt with Bayesian regularisation (MATLAB ``trainbr``).
 
     Parameters
@@ -230,8 +281,13 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
     epochs, mu, mu_dec, mu_inc, mu_max, min_grad
         As MATLAB's ``net.trainParam`` (same defaults).
     validation : callable, optional
-        ``validation(w) -> float``: the validation SSE, only logged (MATLAB's ``trainbr`` does
-        not stop early on validation, ``max_fail = 0``).
+        ``validation(w) -> float``: the validation SSE, logged every epoch.
+    best_validation : bool
+        Return the weights of the epoch with the lowest validation SSE (as MATLAB's ``train``
+        does when it has a validation set) instead of the last epoch's.
+    validation_patience : int
+        Stop when the validation SSE has not improved for this many epochs (MATLAB's
+        ``max_fail``); 0 never stops on validation (``trainbr``'s default).
     progress : bool
         Show a rich progress bar with SSE, γ and μ.
     jacobian : callable, optional
@@ -262,7 +318,10 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
     e_d = float(e @ e)
     e_w = float(w @ w)
     gamma = float(n_params)
-    log.append(0, e_d, e_w, gamma, alpha, beta, mu, _validation_value(validation, w), math.nan)
+    watch = _ValidationWatch(best_validation, validation_patience)
+    v = _validation_value(validation, w)
+    watch.update(0, v, w)
+    log.append(0, e_d, e_w, gamma, alpha, beta, mu, v, math.nan)
     stop_reason = f"maximum epochs ({epochs}) reached"
     with _progress(progress) as bar:
         task = bar.add_task(description, total=epochs, sse=e_d, gamma=gamma, mu=mu)
@@ -314,21 +373,26 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
             if beta <= 0:  # more effective parameters than errors: fall back to LM weighting
                 beta = 1.0
             log.grad_norm[-1] = grad_norm
-            log.append(epoch, e_d, e_w, gamma, alpha, beta, mu_used,
-                       _validation_value(validation, w), math.nan)
+            v = _validation_value(validation, w)
+            log.append(epoch, e_d, e_w, gamma, alpha, beta, mu_used, v, math.nan)
             bar.update(task, advance=1, sse=e_d, gamma=gamma, mu=mu)
+            if watch.update(epoch, v, w):
+                stop_reason = (f"validation SSE not improved for {validation_patience} epochs "
+                               f"(best at epoch {watch.best_epoch})")
+                break
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 stop_reason = f"time limit ({max_seconds:g} s) reached"
                 break
     log.stop_reason = stop_reason
     log.seconds = time.perf_counter() - start
-    return w, log
+    return watch.finish(w, log), log
 
 
 def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr: float = 1e-3,
                validation: Callable[[torch.Tensor], float] | None = None, progress: bool = True,
                description: str = "adam",
-               max_seconds: float | None = None) -> tuple[torch.Tensor, TrainingLog]:
+               max_seconds: float | None = None, best_validation: bool = False,
+               validation_patience: int = 0) -> tuple[torch.Tensor, TrainingLog]:
     r"""Train by full-batch Adam on the mean squared error :math:`E_D/N`.
 
     One epoch is one Adam step on all residuals (no regularisation term, no mini-batches), so
@@ -339,6 +403,7 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
     w = w0.detach().to(torch.float64).clone().requires_grad_(True)
     opt = torch.optim.Adam([w], lr=lr)
     log = TrainingLog(n_parameters=w.numel(), trainer="adam")
+    watch = _ValidationWatch(best_validation, validation_patience)
     stop_reason = f"maximum epochs ({epochs}) reached"
     with _progress(progress) as bar:
         task = bar.add_task(description, total=epochs, sse=math.nan, gamma=math.nan, mu=math.nan)
@@ -351,10 +416,15 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
             grad_norm = float(torch.linalg.vector_norm(w.grad)) * e.numel()  # ‖∇E_D‖
             log.n_errors = e.numel()
             with torch.no_grad():
+                v = _validation_value(validation, w.detach())
                 log.append(epoch, float(sse.detach()), float(w @ w), math.nan, math.nan, math.nan, math.nan,
-                           _validation_value(validation, w.detach()), grad_norm)
+                           v, grad_norm)
             if not math.isfinite(float(sse.detach())):
                 stop_reason = "diverged (non-finite error)"
+                break
+            if watch.update(epoch, v, w):
+                stop_reason = (f"validation SSE not improved for {validation_patience} epochs "
+                               f"(best at epoch {watch.best_epoch})")
                 break
             if epoch == epochs:
                 break
@@ -365,7 +435,7 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
             bar.update(task, advance=1, sse=float(sse.detach()))
     log.stop_reason = stop_reason
     log.seconds = time.perf_counter() - start
-    return w.detach(), log
+    return watch.finish(w.detach(), log), log
 
 
 __all__ = ["TrainingLog", "LOG_COLUMNS", "train_br", "train_adam", "jacobian_forward"]
