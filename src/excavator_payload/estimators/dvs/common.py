@@ -355,8 +355,8 @@ def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Optio
         "best_validation": Option(bool, True, "return the weights of the epoch with the lowest "
                                   "validation error, as MATLAB's train does with a validation set "
                                   "(false: the last epoch's, trainbr alone)"),
-        "validation_patience": Option(int, 100, "stop when the validation error has not improved "
-                                      "for this many epochs (MATLAB max_fail; 0: never)"),
+        "validation_patience": Option(int, 0, "stop when the validation error has not improved "
+                                      "for this many epochs (MATLAB max_fail; 0: never, as trainbr)"),
         "progress": Option(bool, True, "show a progress bar while training"),
     }
     options.update(extra)
