@@ -318,8 +318,10 @@ def _calibration_curve(demo: Demo, data: dict[str, Dataset | None], test: Datase
     from excavator_payload.estimators.classical import calibrated
 
     train = data.get("train")
-    top = min(demo.scale.calibration, train.n_experiments)
-    counts = sorted({c for c in (0, 1, 2, 5, 10, top) if c <= top})
+    # The curve goes beyond the fitted estimator's calibration set (issue 3: 1, 2, 5, 10, 20
+    # experiments) as far as the training set allows.
+    top = train.n_experiments
+    counts = sorted({c for c in (0, 1, 2, 5, 10, 20, min(demo.scale.calibration, top)) if c <= top})
     key = _key({"counts": counts, "train": demo._data_settings(0, train.n_experiments),
                 "test": demo._data_settings(train.n_experiments, test.n_experiments),
                 "test_ids": [int(i) for i in test.experiment_ids], "code": _source_key(calibrated)})
