@@ -108,18 +108,18 @@ def test_interpreted_model_gives_the_same_control_as_the_compiled_one():
 def test_compiled_library_is_cached_on_disk(tmp_path, monkeypatch):
     import casadi as ca
 
-    from excavator_payload.simulation import nmpc
+    from excavator_payload.model import codegen
 
-    if nmpc._compiler() is None:
+    if codegen.compiler() is None:
         pytest.skip("no C compiler")
     monkeypatch.setenv("EXCAVATOR_PAYLOAD_CACHE", str(tmp_path))
     x = ca.SX.sym("x", 2)
     f = ca.Function("tiny_model", [x], [ca.sin(x) * x[0]])
-    first = nmpc._compiled_library([f, f.jacobian()], "tiny_model")
-    assert first.parent == tmp_path / "jit" and first.exists()
+    first = codegen.compiled_library([f, f.jacobian()], "tiny_model")
+    assert first.parent == tmp_path / "native" and first.exists()
     stamp = first.stat().st_mtime_ns
-    again = nmpc._compiled_library([f, f.jacobian()], "tiny_model")
+    again = codegen.compiled_library([f, f.jacobian()], "tiny_model")
     assert again == first and again.stat().st_mtime_ns == stamp  # loaded, not recompiled
-    assert [p.name for p in (tmp_path / "jit").iterdir()] == [first.name]  # no temporary left
+    assert [p.name for p in (tmp_path / "native").iterdir()] == [first.name]  # no temporary left
     ext = ca.external("tiny_model", str(first))
     np.testing.assert_allclose(np.asarray(ext([0.3, 0.7])).ravel(), np.sin([0.3, 0.7]) * 0.3)

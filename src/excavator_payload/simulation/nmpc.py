@@ -58,27 +58,18 @@ and the caller skips the experiment with the reason.
 
 from __future__ import annotations
 
-import hashlib
 import logging
-import os
-import shutil
-import subprocess
-import tempfile
 import time as _time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
+from excavator_payload.model.codegen import native
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.simulation.plant import rk4_interval
 
 log = logging.getLogger(__name__)
-
-#: C optimisation of the compiled model: -O1 compiles the 0.8 MB Jacobian code ~2× faster
-#: than -O2 for nearly the same speed.
-JIT_FLAGS = "-O1"
 
 #: Thesis NMPC settings (§5.3, appendix A.2).
 CONTROL_PERIOD = 0.1  # s, T_s
@@ -86,66 +77,16 @@ HORIZON = 2.0  # s, T_p
 TERMINAL_WEIGHT = (2e11, 2e11, 1e3, 1e3)  # P
 
 
-def _compiler() -> str | None:
-    """A C compiler for CasADi's JIT, if the machine has one."""
-    return shutil.which("gcc") or shutil.which("cc")
-
-
-def jit_cache_folder() -> Path:
-    """Where compiled NMPC models are kept (``$EXCAVATOR_PAYLOAD_CACHE`` or ~/.cache/...)."""
-    root = os.environ.get("EXCAVATOR_PAYLOAD_CACHE") or os.path.join(
-        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "excavator_payload")
-    return Path(root) / "jit"
-
-
-def _compiled_library(functions: list[ca.Function], name: str) -> Path:
-    """C code of ``functions`` compiled to a shared library, cached on disk by content hash.
-
-    The first call on a machine compiles (~3–5 s); later calls and other processes load the
-    cached library. The library is written atomically (compiled to a temporary name, renamed).
-    """
-    generator = ca.CodeGenerator(f"{name}.c")
-    for f in functions:
-        generator.add(f)
-    source = generator.dump()
-    digest = hashlib.sha256((source + JIT_FLAGS + ca.__version__).encode()).hexdigest()[:20]
-    folder = jit_cache_folder()
-    library = folder / f"{name}_{digest}.so"
-    if library.exists():
-        return library
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, c_file = tempfile.mkstemp(prefix=f".{name}_", suffix=".c", dir=folder)
-    with os.fdopen(fd, "w") as handle:
-        handle.write(source)
-    tmp_library = c_file[:-2] + ".so"
-    try:
-        subprocess.run([_compiler(), JIT_FLAGS, "-fPIC", "-shared", c_file, "-o", tmp_library],
-                       check=True, capture_output=True, text=True)
-        os.replace(tmp_library, library)
-    finally:
-        for leftover in (c_file, tmp_library):
-            if os.path.exists(leftover):
-                os.unlink(leftover)
-    return library
-
-
 def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool) -> ca.Function:
     """The prediction model ``(x, u, payload) -> x(t + duration)``, compiled to C when possible.
 
     The model and its Jacobian (``jac_nmpc_model``, which CasADi's ``external`` picks up for
-    the derivatives) are compiled once per machine and cached (:func:`jit_cache_folder`):
+    the derivatives) are compiled once per machine and cached (:mod:`excavator_payload.model.codegen`):
     ~15× faster Jacobians than CasADi's virtual machine. Without a compiler, or if compiling
     fails, the same function runs in the virtual machine (same results, slower).
     """
     model = rk4_interval(arm, duration, substeps, "nmpc_model")
-    if not jit or _compiler() is None:
-        return model
-    try:
-        library = _compiled_library([model, model.jacobian()], "nmpc_model")
-        return ca.external("nmpc_model", str(library))
-    except (OSError, RuntimeError, subprocess.CalledProcessError) as exc:
-        log.warning("compiling the NMPC model failed, using CasADi's interpreter: %s", exc)
-        return model
+    return native(model, model.jacobian()) if jit else model
 
 
 class ControlFailure(RuntimeError):

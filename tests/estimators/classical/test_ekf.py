@@ -279,16 +279,18 @@ def test_cli_train_thesis_3pct_then_estimate(tmp_path, mj_dataset):
 
 
 def test_native_code_matches_casadi_and_falls_back(tmp_path, monkeypatch):
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    from excavator_payload.model import codegen
+
+    monkeypatch.setenv("EXCAVATOR_PAYLOAD_CACHE", str(tmp_path))
     x = ca.SX.sym("x", 3)
     f = ca.Function("native_test_fn", [x], [ca.vertcat(ca.sin(x[0]) * x[1], x[2] ** 2, ca.exp(-x[1]))])
-    compiled = kf.native(f)
+    compiled = codegen.native(f)
     arg = np.array([0.3, -1.2, 4.0])
     assert np.allclose(np.asarray(compiled(arg)).ravel(), np.asarray(f(arg)).ravel(), rtol=1e-14)
     if shutil.which("gcc") or shutil.which("cc"):
-        assert compiled is not f and list(kf.native_cache_dir().glob("native_test_fn_*.so"))
+        assert compiled is not f and list(codegen.cache_folder().glob("native_test_fn_*.so"))
     monkeypatch.setenv("PATH", "")  # no C compiler: the CasADi function itself is used
-    assert kf.native(f) is f
+    assert codegen.native(f) is f
     monkeypatch.setenv("PATH", str(tmp_path))
-    monkeypatch.setenv(kf.NATIVE_ENV, "0")
-    assert kf.native(f) is f
+    monkeypatch.setenv(codegen.NATIVE_ENV, "0")
+    assert codegen.native(f) is f

@@ -66,16 +66,10 @@ Initial state: angles and rates from the first sample (broad prior around it), p
 
 from __future__ import annotations
 
-import hashlib
-import os
 import re
-import shutil
-import subprocess
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from functools import lru_cache
-from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -83,6 +77,7 @@ import numpy as np
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SAMPLE_PERIOD, SIGNALS
 from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
+from excavator_payload.model.codegen import native
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.model.machine import Machine
 from excavator_payload.simulation.sensors import get_noise_preset
@@ -106,54 +101,6 @@ THESIS_X0 = np.array([-0.17, -1.57, 0.0, 0.0, 5000.0])
 
 #: Smallest standard deviations used when a noise preset says 0 (keeps R invertible).
 STD_FLOOR = {"angle": 1e-7, "rate": 1e-7, "accel": 1e-6, "torque": 1.0}
-
-
-# -- native code -----------------------------------------------------------------------------
-#: Set the environment variable to ``0`` to always use CasADi's SX virtual machine.
-NATIVE_ENV = "EXCAVATOR_PAYLOAD_NATIVE"
-NATIVE_FLAGS = ("-O1", "-shared", "-fPIC")
-
-
-def native_cache_dir() -> Path:
-    """Where compiled filter functions are kept (``$XDG_CACHE_HOME/excavator-payload``)."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "excavator-payload" / "kalman"
-
-
-def native(function: ca.Function) -> ca.Function:
-    """``function`` as compiled C (CasADi code generation + the system C compiler), cached on disk.
-
-    The filter step is a few thousand scalar operations; CasADi's SX virtual machine runs
-    them in ≈60 µs, the compiled code in ≈5 µs. The shared object is named after a hash of
-    the generated code, so a changed model or machine compiles anew, and it is built once per
-    machine and user (≈2 s). Without a C compiler (or with ``EXCAVATOR_PAYLOAD_NATIVE=0``),
-    or if anything fails, the SX function itself is returned: same numbers, slower.
-    """
-    if os.environ.get(NATIVE_ENV, "1") == "0":
-        return function
-    compiler = shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
-    if compiler is None:
-        return function
-    name = function.name()
-    try:
-        generator = ca.CodeGenerator(f"{name}.c", {"with_header": False})
-        generator.add(function)
-        code = generator.dump()
-        digest = hashlib.sha256((code + " ".join(NATIVE_FLAGS)).encode()).hexdigest()[:16]
-        folder = native_cache_dir()
-        folder.mkdir(parents=True, exist_ok=True)
-        library = folder / f"{name}_{digest}.so"
-        if not library.is_file():
-            with tempfile.TemporaryDirectory(dir=folder) as tmp:
-                source = Path(tmp) / f"{name}.c"
-                source.write_text(code)
-                built = Path(tmp) / library.name
-                subprocess.run([compiler, *NATIVE_FLAGS, "-o", str(built), str(source), "-lm"],
-                               check=True, capture_output=True, timeout=300)
-                os.replace(built, library)  # atomic: concurrent processes never see half a file
-        return ca.external(name, str(library))
-    except (OSError, RuntimeError, subprocess.SubprocessError):
-        return function
 
 
 def _c_name(text: str) -> str:
@@ -286,7 +233,6 @@ def ekf_step_function(machine: Machine, abs_payload: bool, torque_channel: bool)
     R_qqd = ca.SX.sym("R", 4, 4)
     torque_cov = ca.SX.sym("torque_cov", 2, 2)
     accel_cov = ca.SX.sym("accel_cov", 2, 2)
-    I = ca.SX.eye(N_STATE)
 
     # Update 1: angles and rates, h = x[0:4] (linear).
     H1 = ca.horzcat(ca.SX.eye(4), ca.SX.zeros(4, 1))

@@ -1,0 +1,92 @@
+"""C code generation of symbolic-model functions, with one on-disk cache for every user.
+
+The NMPC's interval model, the Kalman filter steps (and, later, the ECU export) are CasADi
+functions of the symbolic arm model. Compiled to C they run 10–15× faster than CasADi's
+virtual machine. :func:`native` compiles once per machine and user, keyed by a hash of the
+generated code, and loads the shared library with :func:`casadi.external`; without a C
+compiler (or with ``EXCAVATOR_PAYLOAD_NATIVE=0``), or if compiling fails, it returns the
+function itself: the same numbers, slower.
+
+Cache folder: ``$EXCAVATOR_PAYLOAD_CACHE``, else ``$XDG_CACHE_HOME/excavator-payload``, else
+``~/.cache/excavator-payload``; compiled libraries live in its ``native/`` subfolder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+
+log = logging.getLogger(__name__)
+
+#: Set to ``0`` to never compile (always CasADi's virtual machine).
+NATIVE_ENV = "EXCAVATOR_PAYLOAD_NATIVE"
+#: -O1 compiles the 0.8 MB NMPC Jacobian about 2× faster than -O2 at the same run time.
+FLAGS = ("-O1", "-fPIC", "-shared")
+
+
+def compiler() -> str | None:
+    """The C compiler to use (``$CC``, gcc or cc), or None if there is none or it is disabled."""
+    if os.environ.get(NATIVE_ENV, "1") == "0":
+        return None
+    return shutil.which(os.environ.get("CC", "gcc")) or shutil.which("cc")
+
+
+def cache_folder() -> Path:
+    """Where compiled libraries are kept (see the module docstring)."""
+    root = os.environ.get("EXCAVATOR_PAYLOAD_CACHE") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "excavator-payload")
+    return Path(root) / "native"
+
+
+def compiled_library(functions: list[ca.Function], name: str) -> Path:
+    """C code of ``functions`` compiled to a shared library, cached by content hash.
+
+    The library is built in a temporary folder and renamed into place, so concurrent
+    processes never load half a file. Raises ``OSError`` / ``subprocess.SubprocessError`` if
+    there is no compiler or it fails.
+    """
+    cc = compiler()
+    if cc is None:
+        raise OSError("no C compiler (or compilation disabled by EXCAVATOR_PAYLOAD_NATIVE=0)")
+    generator = ca.CodeGenerator(f"{name}.c", {"with_header": False})
+    for f in functions:
+        generator.add(f)
+    source = generator.dump()
+    digest = hashlib.sha256((source + " ".join(FLAGS) + ca.__version__).encode()).hexdigest()[:20]
+    folder = cache_folder()
+    library = folder / f"{name}_{digest}.so"
+    if library.is_file():
+        return library
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=folder) as tmp:
+        c_file = Path(tmp) / f"{name}.c"
+        c_file.write_text(source)
+        built = Path(tmp) / library.name
+        subprocess.run([cc, *FLAGS, str(c_file), "-o", str(built), "-lm"], check=True,
+                       capture_output=True, text=True, timeout=600)
+        os.replace(built, library)
+    return library
+
+
+def native(function: ca.Function, *companions: ca.Function) -> ca.Function:
+    """``function`` as compiled C, or ``function`` itself where that is not possible.
+
+    ``companions`` are compiled into the same library, e.g. ``function.jacobian()`` so that
+    CasADi's ``external`` finds compiled derivatives too.
+    """
+    if compiler() is None:
+        return function
+    name = function.name()
+    try:
+        library = compiled_library([function, *companions], name)
+        return ca.external(name, str(library))
+    except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
+        log.warning("compiling %s failed, using CasADi's virtual machine: %s", name, exc)
+        return function
