@@ -45,6 +45,8 @@ from excavator_payload.evaluation.metrics import (
     evaluate_estimates,
 )
 from excavator_payload.model.machine import load_machine
+from excavator_payload.simulation.generate import simulate_dataset
+from excavator_payload.simulation.lifts import simulate_lifts
 
 #: The machine that generates all data (thesis §5.3).
 TRUE_MACHINE = "cat345c"
@@ -142,32 +144,14 @@ def _reason(exc: BaseException) -> str:
 # -- data -----------------------------------------------------------------------------------
 def simulate(n: int, first: int, seed: int, motion: str, workers: int | None) -> Dataset:
     """Simulate experiments ``first … first+n−1`` of base seed ``seed`` (truth columns on)."""
-    if motion == "nmpc":
-        try:
-            from excavator_payload.simulation.generate import simulate_dataset
-        except ModuleNotFoundError as exc:
-            if exc.name and exc.name.startswith("excavator_payload"):
-                raise ExcavatorPayloadError("the NMPC simulator is not available in this installation; "
-                                            "use --motion minimum-jerk") from None
-            raise
-        return simulate_dataset(n, seed, TRUE_MACHINE, NOISE, with_truth=True, workers=workers,
-                                motion="nmpc", first_experiment=first)
-    if motion == "minimum-jerk":
-        from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
-
-        return simulate_minimum_jerk(n, seed, TRUE_MACHINE, NOISE, with_truth=True, first_experiment=first)
-    raise ExcavatorPayloadError(f"unknown motion '{motion}': choose nmpc or minimum-jerk")
+    if motion not in ("nmpc", "minimum-jerk"):
+        raise ExcavatorPayloadError(f"unknown motion '{motion}': choose nmpc or minimum-jerk")
+    return simulate_dataset(n, seed, TRUE_MACHINE, NOISE, with_truth=True, workers=workers,
+                            motion=motion, first_experiment=first)
 
 
 def simulate_lift_data(n: int, seed: int, workers: int | None) -> Dataset:
     """Calibration lifts for the quasi-static map (``simulation.lifts.simulate_lifts``)."""
-    try:
-        from excavator_payload.simulation.lifts import simulate_lifts
-    except ModuleNotFoundError as exc:
-        if exc.name and exc.name.startswith("excavator_payload"):
-            raise ExcavatorPayloadError("calibration lifts (simulation.lifts) are not available "
-                                        "in this installation") from None
-        raise
     return simulate_lifts(n, seed, TRUE_MACHINE, NOISE, with_truth=True)
 
 

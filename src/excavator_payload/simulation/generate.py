@@ -249,10 +249,8 @@ def _delegate(motion, n_experiments, seed, machine, noise, with_truth, first_exp
 
         return simulate_minimum_jerk(n_experiments, seed=seed, machine=machine, noise=noise,
                                      with_truth=with_truth, first_experiment=first_experiment)
-    try:
-        from excavator_payload.simulation.lifts import simulate_lifts
-    except ImportError as exc:
-        raise ExcavatorPayloadError(f"motion 'lifts' is not available in this installation ({exc})") from None
+    from excavator_payload.simulation.lifts import simulate_lifts
+
     if first_experiment:
         raise ExcavatorPayloadError("motion 'lifts' always starts at experiment 0")
     return simulate_lifts(n_experiments, seed, machine, noise, with_truth)
