@@ -122,20 +122,13 @@ def main() -> None:
     p.add_argument("--trainer", default="trainbr", choices=["trainbr", "adam"])
     p.add_argument("--epochs", type=int, default=None, help="default: the network's default")
     p.add_argument("--noise", default="thesis")
-    p.add_argument("--motion", default="auto", choices=["auto", "nmpc", "minimum-jerk"])
+    p.add_argument("--motion", default="nmpc", choices=["nmpc", "minimum-jerk"])
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--n-test", type=int, default=200)
     p.add_argument("--save", default=None, help="save the trained model here")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     motion = args.motion
-    if motion == "auto":
-        try:
-            import excavator_payload.simulation.generate  # noqa: F401
-
-            motion = "nmpc"
-        except ImportError:
-            motion = "minimum-jerk"
     t0 = time.perf_counter()
     train = make_data(151, 1, args.noise, motion)
     test = make_data(args.n_test, 2, args.noise, motion, first=1000)

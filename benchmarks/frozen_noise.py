@@ -80,7 +80,7 @@ def with_noise(truth: Dataset, mode: str, seed: int, preset: str = "thesis") -> 
 def main() -> None:
     p = argparse.ArgumentParser(description="net1 with frozen vs independent noise")
     p.add_argument("--epochs", type=int, default=None)
-    p.add_argument("--motion", default="auto", choices=["auto", "nmpc", "minimum-jerk"])
+    p.add_argument("--motion", default="nmpc", choices=["nmpc", "minimum-jerk"])
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--n-test", type=int, default=200)
     p.add_argument("--modes", default="independent,frozen",
@@ -88,13 +88,6 @@ def main() -> None:
     args = p.parse_args()
     torch.set_num_threads(args.threads)
     motion = args.motion
-    if motion == "auto":
-        try:
-            import excavator_payload.simulation.generate  # noqa: F401
-
-            motion = "nmpc"
-        except ImportError:
-            motion = "minimum-jerk"
     # thesis-noise datasets with truth columns (the same files bench_dvs.py uses and caches)
     train_truth = make_data(151, 1, "thesis", motion)
     test_truth = make_data(args.n_test, 2, "thesis", motion, first=1000)
