@@ -8,21 +8,28 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
-from excavator_payload.data.schema import COLUMNS, SIGNALS, TRUTH_COLUMNS
+from excavator_payload.data.schema import (
+    SENSOR_SETS,
+    SIGNALS,
+    SensorSet,
+    detect_sensor_set,
+    get_sensor_set,
+)
 from excavator_payload.errors import DatasetError
 
 
 @dataclass
 class Dataset:
-    """Samples of many experiments, one row per 20 Hz sample.
+    """Samples of many experiments, one row per sample of its sensor set.
 
     Attributes
     ----------
     frame : pandas.DataFrame
-        Columns :data:`~excavator_payload.data.schema.COLUMNS` (plus optional ``true_*``),
-        sorted by ``experiment`` then ``time``.
+        ``experiment``, ``time``, the signals of :attr:`sensor_set`, ``payload`` (kg; absent in
+        a field log, where nobody knows it) and optional ``true_*`` columns, rows grouped by
+        ``experiment`` and in time order within each.
     meta : dict
-        File-level metadata: ``machine`` (dict), ``noise`` (preset name), ``motion``,
+        File-level metadata: ``sensor_set`` (name), ``machine`` (dict), ``noise`` (preset name), ``motion``,
         ``base_seed``, ``sample_rate``, and ``experiments``: a list of per-experiment dicts
         (``experiment``, ``seed``, ``payload``, ``start_pose``, ``target_pose``, ``status``, …).
     """
@@ -31,9 +38,26 @@ class Dataset:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        missing = [c for c in COLUMNS if c not in self.frame.columns]
+        name = self.meta.get("sensor_set")
+        if name is not None:
+            sensors = get_sensor_set(name)
+        else:
+            sensors = detect_sensor_set(self.frame.columns) or SENSOR_SETS["thesis"]
+        missing = [c for c in ("experiment", "time", *sensors.signals) if c not in self.frame.columns]
         if missing:
-            raise DatasetError(f"dataset is missing column(s): {', '.join(missing)}")
+            raise DatasetError(f"dataset ({sensors.name} sensor set) is missing column(s): "
+                               f"{', '.join(missing)}")
+        self._sensor_set = sensors
+
+    @property
+    def sensor_set(self) -> SensorSet:
+        """The :class:`~excavator_payload.data.schema.SensorSet` whose signals this dataset holds."""
+        return self._sensor_set
+
+    @property
+    def has_payload(self) -> bool:
+        """Whether the true payload is known (simulated data, calibration lifts)."""
+        return "payload" in self.frame.columns
 
     # -- structure -------------------------------------------------------------------------
     @property
@@ -47,7 +71,7 @@ class Dataset:
 
     @property
     def has_truth(self) -> bool:
-        return all(c in self.frame.columns for c in TRUTH_COLUMNS)
+        return all(c in self.frame.columns for c in self.sensor_set.truth_columns)
 
     @property
     def experiment_meta(self) -> dict[int, dict]:
@@ -83,12 +107,14 @@ class Dataset:
             start += c
         return out
 
-    def signals(self, columns=SIGNALS) -> np.ndarray:
-        """All rows of the given columns as a float array (n_rows, n_columns)."""
+    def signals(self, columns=None) -> np.ndarray:
+        """All rows of the given columns (default: the sensor set's signals) as floats (n_rows, n_columns)."""
+        columns = self.sensor_set.signals if columns is None else columns
         return self.frame[list(columns)].to_numpy(dtype=float)
 
-    def stacked(self, columns=SIGNALS) -> np.ndarray:
+    def stacked(self, columns=None) -> np.ndarray:
         """Array (n_experiments, n_samples, n_columns); needs equal-length experiments."""
+        columns = self.sensor_set.signals if columns is None else columns
         sizes = self.frame.groupby("experiment", sort=False).size().to_numpy()
         if len(set(sizes)) != 1:
             raise DatasetError("experiments have different lengths; iterate experiments() instead")
@@ -97,6 +123,9 @@ class Dataset:
     @property
     def payloads(self) -> np.ndarray:
         """True payload per experiment (kg), in experiment order."""
+        if not self.has_payload:
+            raise DatasetError("the dataset has no 'payload' column (a field log?): the true "
+                               "payload is needed here")
         return self.frame.groupby("experiment", sort=False)["payload"].first().to_numpy(dtype=float)
 
     def machine(self):
@@ -111,4 +140,5 @@ class Dataset:
 
     def __repr__(self) -> str:
         return (f"Dataset({self.n_experiments} experiments, {len(self.frame)} samples, "
+                f"sensors={self.sensor_set.name!r}, "
                 f"noise={self.meta.get('noise')!r}, machine={self.meta.get('machine', {}).get('name')!r})")

@@ -21,14 +21,13 @@ import pyarrow.parquet as pq
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import (
-    COLUMNS,
     ESTIMATE_COLUMNS,
     FORMAT_VERSION,
     METADATA_KEY,
-    PLAUSIBLE_ABS,
-    SIGNALS,
-    TRUTH_COLUMNS,
-    UNITS,
+    SENSOR_SETS,
+    SensorSet,
+    detect_sensor_set,
+    get_sensor_set,
 )
 from excavator_payload.errors import DatasetError
 
@@ -53,14 +52,17 @@ def atomic_write_table(table: pa.Table, path: str | Path) -> None:
 
 def write_dataset(dataset: Dataset, path: str | Path) -> None:
     """Validate and write ``dataset`` to ``path`` (Parquet, atomic)."""
-    validate_frame(dataset.frame, source="dataset to write")
-    cols = list(COLUMNS) + [c for c in TRUTH_COLUMNS if c in dataset.frame.columns]
+    sensors = dataset.sensor_set
+    validate_frame(dataset.frame, source="dataset to write", sensor_set=sensors)
+    cols = [c for c in sensors.columns if c in dataset.frame.columns]
+    cols += [c for c in sensors.truth_columns if c in dataset.frame.columns]
     frame = dataset.frame[cols].copy()
     frame["experiment"] = frame["experiment"].astype("int64")
     table = pa.Table.from_pandas(frame, preserve_index=False)
     meta = dict(dataset.meta)
     meta.setdefault("format_version", FORMAT_VERSION)
-    meta["units"] = {c: UNITS.get(c.removeprefix("true_"), "") for c in cols}
+    meta["sensor_set"] = sensors.name
+    meta["units"] = {c: sensors.unit(c) for c in cols}
     table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                            METADATA_KEY: json.dumps(meta).encode()})
     atomic_write_table(table, path)
@@ -104,14 +106,39 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
         frame = pq.read_table(path).to_pandas()
     except (pa.ArrowInvalid, OSError) as exc:
         raise DatasetError(f"'{path}' could not be read (truncated or corrupt?): {exc}") from None
+    sensors = _sensor_set_of(frame, meta, str(path))
     if validate:
-        validate_frame(frame, source=str(path))
+        validate_frame(frame, source=str(path), sensor_set=sensors)
+    meta = {**meta, "sensor_set": sensors.name}
     return Dataset(frame.reset_index(drop=True), meta)
 
 
-def validate_frame(frame: pd.DataFrame, source: str = "dataset") -> None:
-    """Check columns, types, units (plausible magnitudes) and values of a sample table."""
-    missing = [c for c in COLUMNS if c not in frame.columns]
+def _sensor_set_of(frame: pd.DataFrame, meta: dict, source: str) -> SensorSet:
+    """The sensor set a file declares, or the one its columns match (files written by others)."""
+    if meta.get("sensor_set") is not None:
+        return get_sensor_set(meta["sensor_set"])
+    found = detect_sensor_set(frame.columns)
+    if found is None:
+        hint = (" (this looks like an estimates file, not a dataset)"
+                if "payload_estimate" in frame.columns else "")
+        closest = max(SENSOR_SETS.values(), key=lambda s: len(set(s.signals) & set(frame.columns)))
+        missing = [c for c in closest.columns if c != "payload" and c not in frame.columns]
+        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)} of the "
+                           f"{closest.name} sensor set{hint}")
+    return found
+
+
+def validate_frame(frame: pd.DataFrame, source: str = "dataset",
+                   sensor_set: SensorSet | str | None = None) -> None:
+    """Check columns, types, units (plausible magnitudes) and values of a sample table.
+
+    ``payload`` may be absent (a field log); where present it must be a finite, non-negative
+    mass, constant within each experiment.
+    """
+    sensors = (get_sensor_set(sensor_set) if sensor_set is not None
+               else _sensor_set_of(frame, {}, source))
+    required = [c for c in sensors.columns if c != "payload"]
+    missing = [c for c in required if c not in frame.columns]
     if missing:
         hint = ""
         if "payload_estimate" in frame.columns:
@@ -119,24 +146,25 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset") -> None:
         raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}{hint}")
     if len(frame) == 0:
         raise DatasetError(f"{source}: has no rows")
-    for c in COLUMNS:
+    has_payload = "payload" in frame.columns
+    for c in required + (["payload"] if has_payload else []):
         if not pd.api.types.is_numeric_dtype(frame[c]):
             raise DatasetError(f"{source}: column '{c}' must be numeric, found {frame[c].dtype}")
     exp = frame["experiment"].to_numpy()
     if not np.all(np.isfinite(exp)) or not np.all(exp == np.round(exp)):
         raise DatasetError(f"{source}: column 'experiment' must hold whole numbers")
-    for c in ("time", "payload"):
+    for c in ("time", "payload") if has_payload else ("time",):
         if not np.all(np.isfinite(frame[c].to_numpy(dtype=float))):
             raise DatasetError(f"{source}: column '{c}' has NaN or infinite values")
-    if (frame["payload"] < 0).any():
+    if has_payload and (frame["payload"] < 0).any():
         raise DatasetError(f"{source}: column 'payload' has negative masses (kg)")
-    for c in SIGNALS:
+    for c in sensors.signals:
         values = frame[c].to_numpy(dtype=float)
         finite = values[np.isfinite(values)]
-        if finite.size and np.abs(finite).max() > PLAUSIBLE_ABS[c]:
+        if finite.size and np.abs(finite).max() > sensors.plausible_abs[c]:
             raise DatasetError(
                 f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in "
-                f"{UNITS[c]} (are the units degrees instead of SI?)"
+                f"{sensors.units[c]} (are the units degrees instead of SI?)"
             )
     # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
     for c in ("boom_angle",):
@@ -147,7 +175,7 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset") -> None:
     times = grouped["time"]
     if not (times.apply(lambda t: bool(np.all(np.diff(t.to_numpy()) > 0)))).all():
         raise DatasetError(f"{source}: 'time' must increase strictly within each experiment")
-    if (grouped["payload"].nunique() > 1).any():
+    if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
 
 

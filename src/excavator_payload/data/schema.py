@@ -1,4 +1,19 @@
-"""The dataset schema: one row per 20 Hz sample, SI units, fixed column names.
+"""The dataset schema: sensor sets, one row per sample, SI units, fixed column names.
+
+A :class:`SensorSet` names the signals one kind of installation measures, their units, sample
+rate and plausibility limits. Two exist:
+
+* ``thesis`` (:data:`THESIS_SENSORS`): the thesis' 2-link arm with joint torque sensors and
+  measured accelerations, 20 Hz;
+* ``machine`` (:data:`MACHINE_SENSORS`): what a real excavator has: link angles and rates from
+  IMUs, slew rate, house pitch and roll, and the pressures on both sides of each hydraulic
+  cylinder, 100 Hz. A logger on a real machine writes these columns.
+
+A dataset says which set it holds (metadata key ``sensor_set``; older files without it are
+recognised by their columns), and every estimator declares the sets it can run on. Code that
+handles signals takes them from the dataset's or estimator's sensor set, never from a fixed
+list; the module constants ``SIGNALS``, ``COLUMNS`` … are the thesis set's, kept for the thesis
+code paths.
 
 Per-experiment metadata (seed, start and target pose, payload, machine, noise preset, solver
 status) travels inside the Parquet file's schema metadata under the key
@@ -6,6 +21,10 @@ status) travels inside the Parquet file's schema metadata under the key
 """
 
 from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping
 
 #: The eight measured signals, in the thesis' column order (appendix A.2 ``input_names``).
 SIGNALS: tuple[str, ...] = (
@@ -62,3 +81,152 @@ PLAUSIBLE_ABS = {
 
 METADATA_KEY = b"excavator_payload"
 FORMAT_VERSION = 1
+
+
+# -- sensor sets ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SensorSet:
+    """The signals of one kind of installation.
+
+    Attributes
+    ----------
+    name : str
+        Registry name (``thesis``, ``machine``), stored in dataset metadata.
+    description : str
+        One line for humans.
+    signals : tuple of str
+        Measured signals in column order (the order of every signal vector in the code).
+    units : mapping
+        SI unit of each signal.
+    sample_rate : float
+        Nominal sample rate, Hz.
+    plausible_abs : mapping
+        Largest absolute value of each signal that can be physical at all (validation rejects
+        more: it is a unit mistake or a broken sensor, not data).
+    truth_extra : tuple of str
+        Noise-free columns written with ``--with-truth`` besides ``true_<signal>`` (for
+        example the true joint torques and accelerations, which this set does not measure).
+    """
+
+    name: str
+    description: str
+    signals: tuple[str, ...]
+    units: Mapping[str, str]
+    sample_rate: float
+    plausible_abs: Mapping[str, float]
+    truth_extra: tuple[str, ...] = ()
+    extra_units: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def sample_period(self) -> float:
+        """Nominal time between samples, s."""
+        return 1.0 / self.sample_rate
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Columns of a dataset of this set: ``experiment``, ``time``, signals, ``payload``."""
+        return ("experiment", "time", *self.signals, "payload")
+
+    @property
+    def truth_columns(self) -> tuple[str, ...]:
+        """Noise-free columns of ``--with-truth``: ``true_<signal>`` then :attr:`truth_extra`."""
+        return tuple(f"true_{s}" for s in self.signals) + self.truth_extra
+
+    def index(self, signal: str) -> int:
+        """Position of ``signal`` in :attr:`signals`."""
+        return self.signals.index(signal)
+
+    def indices(self, signals: Iterable[str]) -> list[int]:
+        """Positions of several signals."""
+        return [self.signals.index(s) for s in signals]
+
+    def unit(self, column: str) -> str:
+        """SI unit of any column of this set (signals, truth columns, ``time``, ``payload``)."""
+        base = column.removeprefix("true_")
+        return {"experiment": "", "time": "s", "payload": "kg", **self.extra_units,
+                **self.units}.get(base, self.extra_units.get(column, ""))
+
+
+#: The thesis' installation: 2-link arm, joint torque sensors, measured accelerations, 20 Hz.
+THESIS_SENSORS = SensorSet(
+    name="thesis",
+    description="thesis 2-link arm: joint angles, rates, accelerations and torques, 20 Hz",
+    signals=SIGNALS,
+    units={s: UNITS[s] for s in SIGNALS},
+    sample_rate=SAMPLE_RATE,
+    plausible_abs=dict(PLAUSIBLE_ABS),
+)
+
+#: Signals of a real machine (issue "The machine as it is"): IMU angles and rates of each link
+#: relative to the body before it (boom relative to the house), slew rate, house inclination,
+#: and both chamber pressures of each cylinder (the two boom cylinders share their lines).
+MACHINE_SIGNALS: tuple[str, ...] = (
+    "boom_angle",
+    "dipper_angle",
+    "bucket_angle",
+    "boom_rate",
+    "dipper_rate",
+    "bucket_rate",
+    "slew_rate",
+    "house_pitch",
+    "house_roll",
+    "boom_head_pressure",
+    "boom_rod_pressure",
+    "dipper_head_pressure",
+    "dipper_rod_pressure",
+    "bucket_head_pressure",
+    "bucket_rod_pressure",
+)
+
+MACHINE_SENSORS = SensorSet(
+    name="machine",
+    description="hydraulic machine: IMU link angles and rates, slew rate, house pitch and roll, "
+                "cylinder head and rod pressures, 100 Hz",
+    signals=MACHINE_SIGNALS,
+    units={
+        **{s: "rad" for s in ("boom_angle", "dipper_angle", "bucket_angle", "house_pitch", "house_roll")},
+        **{s: "rad/s" for s in ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")},
+        **{s: "Pa" for s in MACHINE_SIGNALS if s.endswith("_pressure")},
+    },
+    sample_rate=100.0,
+    plausible_abs={
+        # Angles: a link never turns more than a full circle relative to its parent.
+        **{s: 2 * math.pi for s in ("boom_angle", "dipper_angle", "bucket_angle")},
+        # A machine standing on more than ~57° of slope has fallen over.
+        "house_pitch": 1.0,
+        "house_roll": 1.0,
+        **{s: 50.0 for s in ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")},
+        # 1000 bar: three times any relief valve of a mobile machine (~350-450 bar).
+        **{s: 1.0e8 for s in MACHINE_SIGNALS if s.endswith("_pressure")},
+    },
+    truth_extra=("true_boom_torque", "true_dipper_torque", "true_bucket_torque",
+                 "true_boom_accel", "true_dipper_accel", "true_bucket_accel", "true_slew_accel",
+                 "true_slew_angle"),
+    extra_units={"true_boom_torque": "N*m", "true_dipper_torque": "N*m", "true_bucket_torque": "N*m",
+                 "true_boom_accel": "rad/s^2", "true_dipper_accel": "rad/s^2",
+                 "true_bucket_accel": "rad/s^2", "true_slew_accel": "rad/s^2",
+                 "true_slew_angle": "rad"},
+)
+
+#: Every sensor set by name.
+SENSOR_SETS: dict[str, SensorSet] = {s.name: s for s in (THESIS_SENSORS, MACHINE_SENSORS)}
+
+
+def get_sensor_set(sensor_set: "str | SensorSet") -> SensorSet:
+    """The :class:`SensorSet` called ``sensor_set`` (an object is returned as it is)."""
+    if isinstance(sensor_set, SensorSet):
+        return sensor_set
+    try:
+        return SENSOR_SETS[str(sensor_set)]
+    except KeyError:
+        from excavator_payload.errors import DatasetError
+
+        raise DatasetError(f"unknown sensor set '{sensor_set}': choose one of "
+                           f"{', '.join(SENSOR_SETS)}") from None
+
+
+def detect_sensor_set(columns: Iterable[str]) -> SensorSet | None:
+    """The sensor set whose signals are all among ``columns`` (the largest such), or None."""
+    cols = set(columns)
+    matches = [s for s in SENSOR_SETS.values() if set(s.signals) <= cols]
+    return max(matches, key=lambda s: len(s.signals)) if matches else None

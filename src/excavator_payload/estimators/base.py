@@ -5,9 +5,13 @@ Every estimator (classical filters and neural networks alike) has
 * ``fit(dataset)``: learn or calibrate from a :class:`~excavator_payload.data.Dataset`;
 * ``estimate(dataset)``: batch, one estimate per sample (a DataFrame with ``experiment``,
   ``time``, ``payload_estimate`` in kg and ``status``);
-* ``reset()`` + ``step(sample)``: streaming, one 20 Hz sample at a time; the batch result
+* ``reset()`` + ``step(sample)``: streaming, one sample at a time; the batch result
   equals resetting at each experiment and stepping through its samples;
 * ``save(dir)`` / ``load(dir)``: a readable ``estimator.json`` plus ``arrays.npz``.
+
+Each estimator declares the sensor sets it runs on (:attr:`Estimator.SENSOR_SETS`, see
+:mod:`excavator_payload.data.schema`); ``fit`` takes the set of its dataset, and from then on
+signal vectors are in that set's column order and a dataset of another set gets one clear line.
 
 Input checking is done once, here, so every estimator reacts the same way: a sample with a
 missing or NaN signal, or an angle outside the machine's range, is *not* used and the step
@@ -30,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import SAMPLE_PERIOD, SIGNALS
+from excavator_payload.data.schema import THESIS_SENSORS, SensorSet, get_sensor_set
 from excavator_payload.errors import EstimatorError
 from excavator_payload.model.machine import Machine, load_machine
 
@@ -104,6 +108,8 @@ class Estimator(ABC):
     OPTIONS: ClassVar[dict[str, Option]] = {}
     #: Whether the estimator needs a machine model.
     NEEDS_MACHINE: ClassVar[bool] = True
+    #: Names of the sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`) it runs on.
+    SENSOR_SETS: ClassVar[tuple[str, ...]] = ("thesis",)
 
     def __init__(self, machine: Machine | str | None = None, **options: Any) -> None:
         unknown = sorted(set(options) - set(self.OPTIONS))
@@ -121,6 +127,8 @@ class Estimator(ABC):
         if machine is None and self.NEEDS_MACHINE:
             machine = "cat345c"
         self.machine: Machine | None = load_machine(machine) if machine is not None else None
+        #: The sensor set of the data it was fitted on (the thesis set until then).
+        self.sensor_set: SensorSet = THESIS_SENSORS
         self.fitted = False
         self._last_time: float | None = None
         self._last_estimate = math.nan
@@ -137,7 +145,7 @@ class Estimator(ABC):
 
     @abstractmethod
     def _step(self, time: float, values: np.ndarray) -> StepResult:
-        """Consume one valid sample (``values`` in :data:`SIGNALS` order, SI units)."""
+        """Consume one valid sample (``values`` in ``self.sensor_set.signals`` order, SI units)."""
 
     def _config(self) -> dict:
         """Extra JSON-able state to save (options and machine are saved by the base class)."""
@@ -157,10 +165,19 @@ class Estimator(ABC):
     # -- protocol --------------------------------------------------------------------------
     def fit(self, dataset: Dataset) -> "Estimator":
         """Fit to ``dataset`` and return ``self``."""
+        self.sensor_set = self._check_sensor_set(dataset)
         self._fit(dataset)
         self.fitted = True
         self.reset()
         return self
+
+    def _check_sensor_set(self, dataset: Dataset) -> SensorSet:
+        """The dataset's sensor set, if this estimator runs on it (one clear line otherwise)."""
+        sensors = dataset.sensor_set
+        if sensors.name not in self.SENSOR_SETS:
+            raise EstimatorError(f"{self.name} does not run on the {sensors.name} sensor set "
+                                 f"(it runs on: {', '.join(self.SENSOR_SETS)})")
+        return sensors
 
     def reset(self) -> None:
         """Start a new experiment (streaming)."""
@@ -170,7 +187,7 @@ class Estimator(ABC):
         self._reset()
 
     def step(self, sample: Mapping[str, float]) -> StepResult:
-        """Consume one 20 Hz sample (a mapping with ``time`` and the eight signals).
+        """Consume one sample (a mapping with ``time`` and the signals of the sensor set).
 
         Never raises for bad data: the status says what happened.
         """
@@ -178,13 +195,13 @@ class Estimator(ABC):
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
         try:
             time = float(sample["time"])
-            values = np.array([float(sample[s]) for s in SIGNALS])
+            values = np.array([float(sample[s]) for s in self.sensor_set.signals])
         except (KeyError, TypeError, ValueError):
             return StepResult(self._last_estimate, Status.INVALID)
         return self.step_values(time, values)
 
     def step_values(self, time: float, values: np.ndarray) -> StepResult:
-        """:meth:`step` for a sample given as ``time`` and an array in :data:`SIGNALS` order."""
+        """:meth:`step` for a sample given as ``time`` and an array in ``sensor_set.signals`` order."""
         if not self.fitted:
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
         if not (math.isfinite(time) and np.all(np.isfinite(values))):
@@ -194,7 +211,7 @@ class Estimator(ABC):
         gap = False
         if self._last_time is not None:
             dt = time - self._last_time
-            if dt <= 0 or dt > 1.5 * SAMPLE_PERIOD:
+            if dt <= 0 or dt > 1.5 * self.sensor_set.sample_period:
                 self._on_gap(time, values)
                 gap = True
         self._last_time = time
@@ -206,9 +223,10 @@ class Estimator(ABC):
         return result
 
     def _in_range(self, values: np.ndarray) -> bool:
-        m = self.machine
-        return (m.boom_angle_range[0] <= values[0] <= m.boom_angle_range[1]
-                and m.dipper_angle_range[0] <= values[3] <= m.dipper_angle_range[1])
+        m, sensors = self.machine, self.sensor_set
+        return (m.boom_angle_range[0] <= values[sensors.index("boom_angle")] <= m.boom_angle_range[1]
+                and m.dipper_angle_range[0] <= values[sensors.index("dipper_angle")]
+                <= m.dipper_angle_range[1])
 
     def estimate(self, dataset: Dataset) -> pd.DataFrame:
         """Batch estimates: reset at each experiment and step through its samples.
@@ -220,10 +238,14 @@ class Estimator(ABC):
         """
         if not self.fitted:
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before estimate()")
+        missing = [c for c in self.sensor_set.signals if c not in dataset.frame.columns]
+        if missing:
+            raise EstimatorError(f"{self.name} was fitted on the {self.sensor_set.name} sensor set; "
+                                 f"the data lack its column(s) {', '.join(missing)}")
         est = np.full(len(dataset.frame), np.nan)
         status = np.empty(len(dataset.frame), dtype=object)
         times = dataset.frame["time"].to_numpy(dtype=float)
-        values = dataset.signals()
+        values = dataset.signals(self.sensor_set.signals)
         exp = dataset.frame["experiment"].to_numpy()
         starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
         bounds = np.r_[starts, len(exp)]
@@ -248,6 +270,7 @@ class Estimator(ABC):
             "estimator": self.name,
             "options": _jsonable(self.options),
             "machine": self.machine.to_dict() if self.machine is not None else None,
+            "sensor_set": self.sensor_set.name,
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
@@ -310,6 +333,8 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
     machine = Machine.from_dict(config["machine"]) if config.get("machine") else None
     try:
         est = klass(machine=machine, **config.get("options", {}))
+        # Files saved before sensor sets existed hold the thesis set.
+        est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
         est._restore(config.get("state", {}), arrays)
     except EstimatorError:
         raise
