@@ -257,14 +257,15 @@ class HydraulicSymbolic:
                     + get("viscous") * velocity_c)
 
         # Pressures that produce a cylinder force F = p_h A_h − p_r A_r: the loaded side carries
-        # the force, the other holds the back pressure (smoothly blended over ±1 kN so that the
-        # pressures are differentiable where the force changes sign).
+        # the force, the other holds the back pressure. Pushing (F > 0): p_r = p_back; pulling:
+        # p_h = p_back. Both satisfy the force balance exactly, so their blend by a smooth step
+        # of F (over ±1 kN) does too, and the pressures stay differentiable where F changes sign.
         force_c = ca.SX.sym("force", 3)
         blend = 1e3
-        push = 0.5 * (force_c + ca.sqrt(force_c**2 + blend**2))  # smooth max(F, 0)
+        pushing = 0.5 * (1 + force_c / ca.sqrt(force_c**2 + blend**2))
         p_back = P["back_pressure"]
-        p_head = p_back + push / head
-        p_rod = (p_back * head + push - force_c) / rod
+        p_head = pushing * (force_c + p_back * rod) / head + (1 - pushing) * p_back
+        p_rod = pushing * p_back + (1 - pushing) * (p_back * head - force_c) / rod
 
         # House inclination seen by an IMU on the house: angle of its x (pitch) and y (roll)
         # axes above the horizontal.
