@@ -1,0 +1,472 @@
+"""Simulator of the hydraulic machine: motions through the model and the machine's sensors.
+
+Every experiment is a motion (planned in :mod:`.machine_motions` within the hydraulics' limits,
+or replayed from a trajectory file, :mod:`.trajectory`) pushed through the symbolic model of
+:mod:`excavator_payload.model.hydraulic`:
+
+1. inverse dynamics gives the joint torques (and the slew torque) of the motion, with the
+   house slewing on tilted ground and the payload in the bucket;
+2. each cylinder's load force is its joint torque over its moment arm (÷ count);
+3. seal friction (Coulomb + load-dependent + Stribeck + viscous, with the presliding state
+   that holds the last friction force where a cylinder stops) is added: the pressures must
+   overcome it;
+4. the head and rod pressures that give that force (the other side at the back pressure);
+5. the sensors (:mod:`.machine_sensors`) add white noise, the session's offsets, pump ripple
+   and the IMUs' dynamic error, at 100 Hz.
+
+Generated motions whose pressures would exceed the relief pressure are redrawn (the operator
+cannot make them), so that every sample is one the machine can produce.
+
+Reproducibility: experiment ``k`` of run ``seed`` draws its motion and its noise from streams
+of ``(seed, k)`` alone, and the sensor offsets from ``session`` alone, so the data do not depend
+on chunking or worker count. :func:`simulate_machine_experiments` is the narrow entry point a
+parallel executor calls per chunk; :func:`simulate_machine_dataset` and
+:func:`simulate_machine_to_file` run whole datasets (parallel, resumable, atomic).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import shutil
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.errors import DatasetError, ExcavatorPayloadError, MachineError
+from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.model.hydraulic_machine import HydraulicMachine
+from excavator_payload.simulation import machine_motions as mm
+from excavator_payload.simulation.machine_sensors import (
+    MachineNoise,
+    get_machine_noise,
+    measure,
+    session_offsets,
+)
+
+log = logging.getLogger(__name__)
+
+SAMPLE_RATE = MACHINE_SENSORS.sample_rate
+MOTIONS = (*mm.MACHINE_MOTIONS, "trajectory")
+MAX_ATTEMPTS = 30
+
+
+def machine_rngs(seed: int, experiment: int) -> tuple[np.random.Generator, np.random.Generator]:
+    """Independent (motion, noise) generators of experiment ``experiment`` of run ``seed``."""
+    ss = np.random.SeedSequence([int(seed), int(experiment), 11])
+    a, b = ss.spawn(2)
+    return np.random.default_rng(a), np.random.default_rng(b)
+
+
+_ARMS: dict[str, HydraulicArmModel] = {}
+
+
+def _arm(machine: HydraulicMachine) -> HydraulicArmModel:
+    key = json.dumps(machine.to_dict(), sort_keys=True)
+    if key not in _ARMS:
+        _ARMS[key] = HydraulicArmModel(machine)
+    return _ARMS[key]
+
+
+# -- physics of one motion ------------------------------------------------------------------
+def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.ndarray) -> np.ndarray:
+    """Presliding (Dahl) state s ∈ [-1, 1] of each cylinder along its length history.
+
+    ds/dx = (1 − s·sign(dx)) / x_p, integrated exactly between samples: s follows the sign of
+    the motion over the presliding displacement x_p and keeps its value while the cylinder
+    stands still (stiction holds the last friction force).
+    """
+    dx = np.diff(lengths, axis=0)
+    decay = np.exp(-np.abs(dx) / presliding)
+    direction = np.sign(dx)
+    out = np.empty_like(lengths)
+    s = np.asarray(initial, dtype=float).copy()
+    out[0] = s
+    for i in range(len(dx)):
+        s = direction[i] + (s - direction[i]) * decay[i]
+        out[i + 1] = s
+    return out
+
+
+def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                   qdd: np.ndarray, tilt: np.ndarray, payload: np.ndarray,
+                   friction_initial: np.ndarray) -> dict[str, np.ndarray]:
+    """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination."""
+    tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
+    tau = arm.inverse_dynamics(q, qd, qdd, tilt, payload)
+    load = arm.load_force(q, tau[:, :3])
+    speeds = arm.cylinder_speeds(q, qd)
+    lengths = arm.cylinder_lengths(q)
+    presliding = np.array([c.presliding for c in arm.machine.cylinders])
+    states = friction_states(lengths, presliding, friction_initial)
+    friction = arm.friction(speeds, states, load)
+    head, rod = arm.pressures(load + friction)
+    inclination = arm.house_inclination(q, tilt)
+    return {"tau": tau, "load": load, "friction": friction, "head": head, "rod": rod,
+            "lengths": lengths, "speeds": speeds, "inclination": inclination}
+
+
+def _truth_columns(q, qd, qdd, physics) -> dict[str, np.ndarray]:
+    truth = {"boom_angle": q[:, 0], "dipper_angle": q[:, 1], "bucket_angle": q[:, 2],
+             "boom_rate": qd[:, 0], "dipper_rate": qd[:, 1], "bucket_rate": qd[:, 2],
+             "slew_rate": qd[:, 3], "house_pitch": physics["inclination"][:, 0],
+             "house_roll": physics["inclination"][:, 1]}
+    for j, name in enumerate(("boom", "dipper", "bucket")):
+        truth[f"{name}_head_pressure"] = physics["head"][:, j]
+        truth[f"{name}_rod_pressure"] = physics["rod"][:, j]
+    return truth
+
+
+def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payload: float,
+                    noise: MachineNoise, offsets: dict, rng: np.random.Generator,
+                    with_truth: bool) -> pd.DataFrame:
+    """Rows of one experiment in the machine sensor set's columns (+ truth columns)."""
+    truth = _truth_columns(q, qd, qdd, physics)
+    measured = measure(truth, time, qdd, noise, offsets, rng)
+    data = {"experiment": np.full(len(time), int(experiment), dtype=np.int64), "time": time}
+    for name in MACHINE_SENSORS.signals:
+        data[name] = measured[name]
+    data["payload"] = np.full(len(time), float(payload))
+    if with_truth:
+        for name in MACHINE_SENSORS.signals:
+            data[f"true_{name}"] = truth[name]
+        for j, name in enumerate(("boom", "dipper", "bucket")):
+            data[f"true_{name}_torque"] = physics["tau"][:, j]
+            data[f"true_{name}_accel"] = qdd[:, j]
+        data["true_slew_accel"] = qdd[:, 3]
+        data["true_slew_angle"] = q[:, 3]
+    return pd.DataFrame(data)
+
+
+def sample_times(duration: float) -> np.ndarray:
+    n = int(math.floor(duration * SAMPLE_RATE + 1e-9)) + 1
+    return np.arange(n) / SAMPLE_RATE
+
+
+def _draw_motion(motion: str, k: int, rng, machine: HydraulicMachine) -> mm.Motion:
+    if motion == "swing":
+        return mm.swing_motion(rng, machine)
+    if motion == "work-cycle":
+        return mm.work_cycle_motion(rng, machine)
+    if motion == "slopes":
+        return mm.work_cycle_motion(rng, machine, tilt=mm.slope_tilt(rng))
+    if motion == "lifts":
+        return mm.lift_motion(k, machine)
+    raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one of "
+                                f"{', '.join(MOTIONS)}")
+
+
+def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
+                               offsets: dict, motion: str, with_truth: bool) -> tuple[pd.DataFrame, dict]:
+    """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure)."""
+    machine = arm.machine
+    motion_rng, noise_rng = machine_rngs(seed, k)
+    relief = machine.hydraulics.relief_pressure
+    for attempt in range(1, MAX_ATTEMPTS + 1):
+        plan = mm.fit_to_hydraulics(arm, _draw_motion(motion, k, motion_rng, machine))
+        time = sample_times(plan.duration)
+        q, qd, qdd = plan.sample(time)
+        payload_t = plan.payload_at(time)
+        friction0 = motion_rng.uniform(-1, 1, 3)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0)
+        peak = float(max(physics["head"].max(), physics["rod"].max()))
+        if peak <= relief or motion == "lifts":
+            break
+    else:
+        raise ValueError(f"no motion within the relief pressure in {MAX_ATTEMPTS} draws")
+    frame = experiment_rows(k, time, q, qd, qdd, physics, plan.payload, noise, offsets, noise_rng,
+                            with_truth)
+    meta = {"experiment": int(k), "seed": int(seed), "payload": float(plan.payload),
+            "motion": motion, "tilt": [float(v) for v in plan.tilt], "duration": float(time[-1]),
+            "peak_pressure": peak, "within_relief": bool(peak <= relief), "draws": attempt,
+            "status": "ok", **{key: (v.tolist() if isinstance(v, np.ndarray) else v)
+                               for key, v in plan.info.items()}}
+    if plan.release is not None:
+        meta["release"] = [float(plan.release[0]), float(plan.release[1])]
+    return frame, meta
+
+
+def simulate_machine_experiments(first: int, count: int, seed: int, session: int, machine,
+                                 noise, motion: str, with_truth: bool, trajectory=None):
+    """Experiments ``first … first+count−1``: (rows, metadata of the written, skipped ones).
+
+    Parameters
+    ----------
+    first, count : int
+        Experiment numbers to simulate (with ``trajectory``: positions in its experiment list).
+    seed : int
+        Base seed of motions and noise; experiment ``k`` uses the streams of ``(seed, k)``.
+    session : int
+        Working session: draws the sensor offsets (independently of ``seed``).
+    machine : HydraulicMachine or dict
+        The machine (a dict from :meth:`HydraulicMachine.to_dict` in worker processes).
+    noise : str or MachineNoise
+        ``field`` or ``none``.
+    motion : str
+        ``swing``, ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
+    with_truth : bool
+        Add the ``true_*`` columns.
+    trajectory : Trajectory, optional
+        Prescribed motions (``motion="trajectory"``).
+    """
+    if isinstance(machine, dict):
+        machine = HydraulicMachine.from_dict(machine)
+    noise = get_machine_noise(noise)
+    arm = _arm(machine)
+    offsets = session_offsets(session, noise)
+    frames, metas, skipped = [], [], []
+    for k in range(first, first + count):
+        try:
+            if motion == "trajectory":
+                from excavator_payload.simulation.trajectory import simulate_trajectory_experiment
+
+                frame, meta = simulate_trajectory_experiment(k, seed, arm, noise, offsets, trajectory,
+                                                             with_truth)
+            else:
+                frame, meta = simulate_motion_experiment(k, seed, arm, noise, offsets, motion, with_truth)
+        except (ValueError, FloatingPointError, RuntimeError) as exc:
+            reason = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+            log.warning("experiment %d skipped: %s", k, reason)
+            skipped.append({"experiment": k, "reason": reason})
+            continue
+        frames.append(frame)
+        metas.append(meta)
+    columns = list(MACHINE_SENSORS.columns) + (list(MACHINE_SENSORS.truth_columns) if with_truth else [])
+    frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
+    return frame, metas, skipped
+
+
+# -- whole datasets ---------------------------------------------------------------------------
+def _check(n_experiments, seed, session, workers, motion, machine, trajectory):
+    for name, value, low in (("the number of experiments", n_experiments, 1), ("the seed", seed, 0),
+                             ("the session", session, 0)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            raise ExcavatorPayloadError(f"{name} must be a whole number ≥ {low}, got {value!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
+                                or workers < 1):
+        raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {workers!r}")
+    if motion not in MOTIONS:
+        raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one "
+                                    f"of {', '.join(MOTIONS)}")
+    if (motion == "trajectory") != (trajectory is not None):
+        raise ExcavatorPayloadError("a trajectory file goes with --motion trajectory (and only with it)")
+    if not isinstance(machine, HydraulicMachine):
+        raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
+
+
+def _resolve(machine, noise, trajectory):
+    from excavator_payload.model.machine import load_machine
+
+    machine = load_machine(machine)
+    noise = get_machine_noise(noise)
+    if trajectory is not None and not hasattr(trajectory, "experiments"):
+        from excavator_payload.simulation.trajectory import read_trajectory
+
+        trajectory = read_trajectory(trajectory)
+    return machine, noise, trajectory
+
+
+def chunk_size_for(n_experiments: int) -> int:
+    """Experiments per chunk: ≈ 40 chunks, 1–50 experiments each (they are cheap)."""
+    return int(min(50, max(1, math.ceil(n_experiments / 40))))
+
+
+def _run(chunks, args, workers, progress, on_done):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    total = sum(c for _, c in chunks)
+    with Progress(TextColumn("simulating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  disable=not progress) as bar:
+        task = bar.add_task("simulating", total=total)
+        if workers <= 1 or len(chunks) <= 1:
+            for first, count in chunks:
+                on_done(first, simulate_machine_experiments(first, count, *args))
+                bar.advance(task, count)
+            return
+        with ProcessPoolExecutor(max_workers=min(workers, len(chunks))) as pool:
+            futures = {pool.submit(simulate_machine_experiments, first, count, *args): (first, count)
+                       for first, count in chunks}
+            from concurrent.futures import as_completed
+
+            for future in as_completed(futures):
+                first, count = futures[future]
+                on_done(first, future.result())
+                bar.advance(task, count)
+
+
+def _assemble(parts: dict, machine, noise, seed, session, motion, with_truth, trajectory) -> Dataset:
+    frames, metas, skipped = [], [], []
+    for first in sorted(parts):
+        frame, m, s = parts[first]
+        if len(frame):
+            frames.append(frame)
+        metas.extend(m)
+        skipped.extend(s)
+    if not frames:
+        reasons = "; ".join(f"#{s['experiment']}: {s['reason']}" for s in skipped[:3])
+        raise ExcavatorPayloadError(f"every experiment failed, nothing to write ({reasons})")
+    frame = pd.concat(frames, ignore_index=True)
+    frame["experiment"] = frame["experiment"].astype("int64")
+    if not with_truth:
+        frame = frame[[c for c in frame.columns if not c.startswith("true_")]]
+    meta = {"sensor_set": "machine", "machine": machine.to_dict(), "noise": noise.name,
+            "motion": motion, "base_seed": int(seed), "session": int(session),
+            "sample_rate": SAMPLE_RATE, "experiments": metas, "skipped": skipped,
+            # The true offsets of this session: for checking offset estimation, not for estimators.
+            "true_sensor_offsets": session_offsets(session, noise)}
+    if trajectory is not None:
+        meta["trajectory"] = trajectory.source
+    return Dataset(frame, meta)
+
+
+def _n_and_chunks(n_experiments, first_experiment, trajectory):
+    if trajectory is not None:
+        available = len(trajectory.experiments)
+        n_experiments = min(int(n_experiments), available - first_experiment)
+        if n_experiments < 1:
+            raise ExcavatorPayloadError(f"the trajectory file holds {available} experiment(s)")
+    size = chunk_size_for(n_experiments)
+    end = first_experiment + n_experiments
+    return [(k, min(size, end - k)) for k in range(first_experiment, end, size)]
+
+
+def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0,
+                             machine="cat345c-hydraulic", noise="field", motion: str = "work-cycle",
+                             with_truth: bool = False, workers: int | None = 1,
+                             first_experiment: int = 0, trajectory=None,
+                             progress: bool = False) -> Dataset:
+    """Simulate experiments of a hydraulic machine in memory.
+
+    Parameters
+    ----------
+    n_experiments : int
+        Number of experiments (with a trajectory: at most that many of its experiments).
+    seed, session : int
+        Motions and noise from ``seed``; sensor offsets from ``session``.
+    machine : HydraulicMachine or str
+        A hydraulic machine, preset name or TOML file.
+    noise : str
+        ``field`` or ``none``.
+    motion : str
+        ``swing``, ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
+    with_truth : bool
+        Add the ``true_*`` columns.
+    workers : int, optional
+        Worker processes (None: all cores); the data do not depend on it.
+    first_experiment : int
+        Number of the first experiment.
+    trajectory : str, Path or Trajectory, optional
+        Prescribed motions for ``motion="trajectory"`` (see :mod:`.trajectory`).
+    progress : bool
+        Show a progress bar.
+    """
+    machine, noise_preset, trajectory = _resolve(machine, noise, trajectory)
+    _check(n_experiments, seed, session, workers, motion, machine, trajectory)
+    workers = (__import__("os").cpu_count() or 1) if workers is None else int(workers)
+    chunks = _n_and_chunks(n_experiments, int(first_experiment), trajectory)
+    parts: dict = {}
+    args = (int(seed), int(session), machine.to_dict(), noise_preset, motion, with_truth, trajectory)
+    _run(chunks, args, workers, progress, lambda first, result: parts.__setitem__(first, result))
+    return _assemble(parts, machine, noise_preset, seed, session, motion, with_truth, trajectory)
+
+
+PARTIAL_SUFFIX = ".partial"
+
+
+def partial_folder(out) -> Path:
+    """Folder of the finished chunks of an unfinished :func:`simulate_machine_to_file` run."""
+    out = Path(out)
+    return out.with_name(out.name + PARTIAL_SUFFIX)
+
+
+def _write_chunk(path: Path, result: tuple) -> None:
+    import pyarrow as pa
+
+    from excavator_payload.data.io import atomic_write_table
+    from excavator_payload.data.schema import METADATA_KEY
+
+    frame, metas, skipped = result
+    table = pa.Table.from_pandas(frame.reset_index(drop=True), preserve_index=False)
+    meta = json.dumps({"experiments": metas, "skipped": skipped}).encode()
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}), METADATA_KEY: meta})
+    atomic_write_table(table, path)
+
+
+def _read_chunk(path: Path) -> tuple | None:
+    import pyarrow.parquet as pq
+
+    from excavator_payload.data.schema import METADATA_KEY
+
+    try:
+        table = pq.read_table(path)
+        meta = json.loads(table.schema.metadata[METADATA_KEY])
+    except Exception:  # a damaged checkpoint is simply simulated again
+        log.warning("ignoring unreadable checkpoint %s", path)
+        return None
+    return table.to_pandas(), meta["experiments"], meta["skipped"]
+
+
+def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: int = 0,
+                             machine="cat345c-hydraulic", noise="field", motion: str = "work-cycle",
+                             with_truth: bool = False, workers: int | None = None, trajectory=None,
+                             progress: bool = True) -> Dataset:
+    """Simulate and write a dataset (Parquet, atomic); an interrupted run resumes.
+
+    Finished chunks are kept in ``<out>.partial/`` until the file is written; the same command
+    run again simulates only the missing ones. Parameters as :func:`simulate_machine_dataset`.
+    """
+    from excavator_payload.data.io import write_dataset
+
+    out = Path(out)
+    if out.is_dir():
+        raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
+    machine, noise_preset, trajectory = _resolve(machine, noise, trajectory)
+    _check(n_experiments, seed, session, workers, motion, machine, trajectory)
+    if trajectory is not None and Path(trajectory.source).resolve() == out.resolve():
+        raise DatasetError("the output would overwrite the trajectory file")
+    workers = (__import__("os").cpu_count() or 1) if workers is None else int(workers)
+    chunks = _n_and_chunks(n_experiments, 0, trajectory)
+    folder = partial_folder(out)
+    settings = {"n_experiments": int(n_experiments), "seed": int(seed), "session": int(session),
+                "machine": machine.to_dict(), "noise": noise_preset.name, "motion": motion,
+                "with_truth": bool(with_truth), "trajectory": None if trajectory is None else trajectory.digest,
+                "chunks": chunks}
+    settings = json.loads(json.dumps(settings))
+    run_file = folder / "run.json"
+    parts: dict = {}
+    if run_file.exists():
+        try:
+            previous = json.loads(run_file.read_text())
+        except (OSError, json.JSONDecodeError):
+            previous = None
+        if previous != settings:
+            raise ExcavatorPayloadError(
+                f"'{folder}' holds an unfinished run with other settings; rerun it with the same "
+                "settings to resume, or delete the folder to start afresh")
+        for path in sorted(folder.glob("chunk_*.parquet")):
+            chunk = _read_chunk(path)
+            if chunk is not None:
+                parts[int(path.stem.split("_")[1])] = chunk
+    else:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            run_file.write_text(json.dumps(settings))
+        except OSError as exc:
+            raise DatasetError(f"cannot write next to '{out}': {exc}") from None
+
+    def checkpoint(first, result):
+        _write_chunk(folder / f"chunk_{first:08d}.parquet", result)
+        parts[first] = result
+
+    todo = [c for c in chunks if c[0] not in parts]
+    args = (int(seed), int(session), machine.to_dict(), noise_preset, motion, with_truth, trajectory)
+    _run(todo, args, workers, progress, checkpoint)
+    dataset = _assemble(parts, machine, noise_preset, seed, session, motion, with_truth, trajectory)
+    write_dataset(dataset, out)
+    shutil.rmtree(folder, ignore_errors=True)
+    return dataset
