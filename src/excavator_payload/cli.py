@@ -65,6 +65,9 @@ def _register_commands() -> None:
     from excavator_payload.simulation import commands as simulation_commands
 
     simulation_commands.register(app)
+    from excavator_payload.simulation import machine_commands  # issue 11: hydraulic machine plot
+
+    machine_commands.register(app)
     estimator_commands.register(app)
     evaluation_commands.register(app)
 

@@ -302,12 +302,34 @@ class HydraulicSymbolic:
             "tip_position": F_("hyd_tip_position", [q, p], [tip], ["q", "p"], ["tip"]),
             "linkage_reach": F_("hyd_linkage_reach", [q, p], [a**2 - along**2], ["q", "p"], ["margin"]),
         }
+        # The simulator's two calls per experiment, each one pass over the samples (compiled to
+        # C by HydraulicArmModel): rigid body + cylinder kinematics, then friction + pressures.
+        self.functions["motion_signals"] = F_(
+            "hyd_motion_signals", [q, qd, qdd, tilt, payload, p],
+            [torque, ca.substitute(load_force, arm_torque, torque[:3]), cylinder_speed, lengths,
+             ca.vertcat(house_pitch, house_roll)],
+            qn, ["tau", "load", "speed", "length", "inclination"])
+        total_force = load_c + friction
+        self.functions["cylinder_pressures"] = F_(
+            "hyd_cylinder_pressures", [velocity_c, state_c, load_c, p],
+            [friction, ca.substitute(ca.vertcat(p_head, p_rod), force_c, total_force)],
+            ["v", "s", "load", "p"], ["friction", "pressures"])
 
 
 @lru_cache(maxsize=1)
 def hydraulic_symbolic() -> HydraulicSymbolic:
     """The hydraulic machine's symbolic model (built on first use, then cached)."""
     return HydraulicSymbolic()
+
+
+_NATIVE: dict[str, ca.Function] = {}
+
+
+def _native_cached(name: str, native) -> ca.Function:
+    """The compiled (C) version of symbolic function ``name``, once per process."""
+    if name not in _NATIVE:
+        _NATIVE[name] = native(hydraulic_symbolic().functions[name])
+    return _NATIVE[name]
 
 
 def _cols(a) -> np.ndarray:
@@ -327,7 +349,7 @@ class HydraulicArmModel:
     machine : HydraulicMachine
     """
 
-    def __init__(self, machine: HydraulicMachine):
+    def __init__(self, machine: HydraulicMachine, compiled: bool = True):
         if not isinstance(machine, HydraulicMachine):
             from excavator_payload.model.machine import load_machine
 
@@ -339,7 +361,12 @@ class HydraulicArmModel:
         self.machine = machine
         self.p = parameter_vector(machine)
         self.sym = hydraulic_symbolic()
-        self._f = self.sym.functions
+        self._f = dict(self.sym.functions)
+        if compiled:
+            from excavator_payload.model.codegen import native
+
+            for name in ("motion_signals", "cylinder_pressures"):
+                self._f[name] = _native_cached(name, native)
 
     def _call(self, name: str, args: list, scalar_payload=None):
         arrays = [np.asarray(a, dtype=float) for a in args]
@@ -432,6 +459,19 @@ class HydraulicArmModel:
     def tip_position(self, q):
         """Bucket teeth in the arm plane [x, z] of the house frame, m."""
         return self._call("tip_position", [q])
+
+    def motion_signals(self, q, qd, qdd, tilt, payload) -> dict[str, np.ndarray]:
+        """Everything the simulator needs from the rigid body and the cylinder kinematics in one
+        pass: ``tau`` (..., 4), per-cylinder ``load`` force, rod ``speed`` and ``length``
+        (..., 3), house ``inclination`` (..., 2)."""
+        out = self._ordered("motion_signals", dict(q=q, qd=qd, qdd=qdd, tilt=tilt), payload)
+        return dict(zip(("tau", "load", "speed", "length", "inclination"), out))
+
+    def cylinder_pressures(self, velocity, state, load):
+        """(friction (..., 3), head (..., 3), rod (..., 3)): seal friction and the pressures that
+        give load + friction."""
+        friction, pressures = self._call("cylinder_pressures", [velocity, state, load])
+        return friction, pressures[..., :3], pressures[..., 3:]
 
     def linkage_margin(self, q):
         """> 0 where the bucket four-bar closes (a² − along²), m²."""

@@ -26,13 +26,24 @@ def register(app: typer.Typer) -> None:
         experiments: int = typer.Option(200, "--experiments", "-n", help="Number of experiments."),
         seed: int = typer.Option(0, "--seed", help="Base seed (same seed, same data)."),
         machine: str = typer.Option("cat345c", "--machine",
-                                    help="Machine preset (cat345c, cat345c-1pct, cat345c-3pct) or TOML file."),
-        noise: str = typer.Option("thesis", "--noise", help="Sensor noise preset: thesis, none or field."),
+                                    help="Machine preset (cat345c, cat345c-1pct, cat345c-3pct, "
+                                         "cat345c-hydraulic, cat345c-hydraulic-3pct) or TOML file."),
+        noise: str = typer.Option(None, "--noise",
+                                  help="Sensor noise preset: thesis (default), none or field; for a "
+                                       "hydraulic machine field (default) or none."),
         with_truth: bool = typer.Option(False, "--with-truth", help="Also store the noise-free true_* columns."),
         workers: int = typer.Option(0, "--workers",
                                     help="Worker processes (0 = all cores). The data do not depend on it."),
-        motion: str = typer.Option("nmpc", "--motion",
-                                   help="nmpc (thesis simulator), minimum-jerk, or lifts (calibration lifts)."),
+        motion: str = typer.Option(None, "--motion",
+                                   help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
+                                        "lifts); for a hydraulic machine swing (default), work-cycle, slopes, "
+                                        "lifts or trajectory."),
+        session: int = typer.Option(0, "--session",
+                                    help="Hydraulic machine: working session, draws the sensor offsets "
+                                         "(independently of --seed)."),
+        trajectory: Path = typer.Option(None, "--trajectory",
+                                        help="Hydraulic machine: replay the motions of this Parquet file "
+                                             "(experiment, time, boom/dipper/bucket/slew_angle, payload)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Simulate experiments (thesis §5.3) and write them to a dataset file.
@@ -44,9 +55,21 @@ def register(app: typer.Typer) -> None:
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
         start = time.perf_counter()
-        dataset = simulate_to_file(out, experiments, seed=seed, machine=machine, noise=noise,
+        # -- issue 11 hook: the hydraulic machine's options (simulation/machine_sim.py) --
+        from excavator_payload.model.machine import load_machine
+
+        machine_object = load_machine(machine)
+        extra = {}
+        if getattr(machine_object, "kind", None) == "hydraulic":
+            noise = noise or "field"
+            motion = motion or ("trajectory" if trajectory is not None else "swing")
+            extra = {"session": session, "trajectory": trajectory}
+        elif session or trajectory is not None:
+            raise ExcavatorPayloadError("--session and --trajectory apply to a hydraulic machine only")
+        noise, motion = noise or "thesis", motion or "nmpc"
+        dataset = simulate_to_file(out, experiments, seed=seed, machine=machine_object, noise=noise,
                                    with_truth=with_truth, workers=workers or None, motion=motion,
-                                   progress=not quiet)
+                                   progress=not quiet, **extra)
         info = summary(dataset, time.perf_counter() - start)
         typer.echo(f"wrote {info['written']} experiments to {out} ({motion}, noise={noise}, seed={seed})")
         skipped = info["skipped"]

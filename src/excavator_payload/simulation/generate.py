@@ -196,7 +196,8 @@ def _assemble(parts: dict[int, tuple], machine: Machine, noise: str, seed: int, 
 
 def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
                      noise: str = "thesis", with_truth: bool = False, workers: int | None = None,
-                     motion: str = "nmpc", first_experiment: int = 0, progress: bool = True) -> Dataset:
+                     motion: str = "nmpc", first_experiment: int = 0, progress: bool = True,
+                     **hydraulic) -> Dataset:
     """Simulate ``n_experiments`` experiments in memory.
 
     Parameters
@@ -219,6 +220,9 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         Number of the first experiment.
     progress : bool
         Show a progress bar.
+    **hydraulic
+        For a hydraulic machine only: ``session`` and ``trajectory`` (see
+        :func:`excavator_payload.simulation.machine_sim.simulate_machine_dataset`).
 
     Returns
     -------
@@ -226,6 +230,12 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         ``meta["experiments"]`` describes each written experiment, ``meta["skipped"]`` lists
         the experiments whose simulation failed, with the reason.
     """
+    # -- issue 11 hook: a hydraulic machine has its own simulator (simulation/machine_sim.py) --
+    if _hydraulic(machine):
+        return _simulate_hydraulic(None, n_experiments, seed, machine, noise, motion, with_truth,
+                                   workers, progress, first_experiment=first_experiment, **hydraulic)
+    if hydraulic:
+        raise ExcavatorPayloadError(f"{', '.join(hydraulic)}: only for a hydraulic machine")
     _check_arguments(n_experiments, seed, workers, motion, first_experiment)
     machine = load_machine(machine)
     get_noise_preset(noise)
@@ -285,7 +295,7 @@ def _read_chunk(path: Path) -> tuple | None:
 def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
                      machine: Machine | str = "cat345c", noise: str = "thesis",
                      with_truth: bool = False, workers: int | None = None, motion: str = "nmpc",
-                     progress: bool = True) -> Dataset:
+                     progress: bool = True, **hydraulic) -> Dataset:
     """Simulate and write the dataset to ``out`` (Parquet, atomic); resume an interrupted run.
 
     Finished chunks of NMPC experiments are kept in ``<out>.partial/`` until the file is
@@ -298,6 +308,12 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
         Bad arguments, an unwritable output, or a checkpoint folder from a run with other
         settings.
     """
+    # -- issue 11 hook: a hydraulic machine has its own simulator (simulation/machine_sim.py) --
+    if _hydraulic(machine):
+        return _simulate_hydraulic(out, n_experiments, seed, machine, noise, motion, with_truth,
+                                   workers, progress, **hydraulic)
+    if hydraulic:
+        raise ExcavatorPayloadError(f"{', '.join(hydraulic)}: only for a hydraulic machine")
     _check_arguments(n_experiments, seed, workers, motion)
     out = Path(out)
     if out.is_dir():
@@ -352,6 +368,31 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
     write_dataset(dataset, out)
     shutil.rmtree(folder, ignore_errors=True)
     return dataset
+
+
+def _hydraulic(machine) -> bool:
+    """Whether ``machine`` (object, preset or file) is a hydraulic machine (issue 11 hook)."""
+    return getattr(load_machine(machine), "kind", None) == "hydraulic"
+
+
+def _simulate_hydraulic(out, n_experiments, seed, machine, noise, motion, with_truth, workers,
+                        progress, first_experiment=0, session=0, trajectory=None):
+    """Issue 11 hook: the hydraulic machine's simulator. The thesis defaults translate: its
+    swings are planned trajectories (``swing``, not NMPC) and its sensors' preset is ``field``."""
+    from excavator_payload.simulation import machine_sim
+
+    motion = "swing" if motion == "nmpc" else motion
+    noise = "field" if noise == "thesis" else noise
+    if trajectory is not None and motion == "swing":
+        motion = "trajectory"
+    if out is None:
+        return machine_sim.simulate_machine_dataset(
+            n_experiments, seed=seed, session=session, machine=machine, noise=noise, motion=motion,
+            with_truth=with_truth, workers=workers, first_experiment=first_experiment,
+            trajectory=trajectory, progress=progress)
+    return machine_sim.simulate_machine_to_file(
+        out, n_experiments, seed=seed, session=session, machine=machine, noise=noise, motion=motion,
+        with_truth=with_truth, workers=workers, trajectory=trajectory, progress=progress)
 
 
 def summary(dataset: Dataset, wall_time: float | None = None) -> dict:

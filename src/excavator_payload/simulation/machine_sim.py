@@ -98,17 +98,12 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
                    friction_initial: np.ndarray) -> dict[str, np.ndarray]:
     """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination."""
     tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
-    tau = arm.inverse_dynamics(q, qd, qdd, tilt, payload)
-    load = arm.load_force(q, tau[:, :3])
-    speeds = arm.cylinder_speeds(q, qd)
-    lengths = arm.cylinder_lengths(q)
+    sig = arm.motion_signals(q, qd, qdd, tilt, payload)
     presliding = np.array([c.presliding for c in arm.machine.cylinders])
-    states = friction_states(lengths, presliding, friction_initial)
-    friction = arm.friction(speeds, states, load)
-    head, rod = arm.pressures(load + friction)
-    inclination = arm.house_inclination(q, tilt)
-    return {"tau": tau, "load": load, "friction": friction, "head": head, "rod": rod,
-            "lengths": lengths, "speeds": speeds, "inclination": inclination}
+    states = friction_states(sig["length"], presliding, friction_initial)
+    friction, head, rod = arm.cylinder_pressures(sig["speed"], states, sig["load"])
+    return {"tau": sig["tau"], "load": sig["load"], "friction": friction, "head": head, "rod": rod,
+            "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"]}
 
 
 def _truth_columns(q, qd, qdd, physics) -> dict[str, np.ndarray]:
