@@ -132,10 +132,11 @@ def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payl
             data[f"true_{name}"] = truth[name]
         for j, name in enumerate(("boom", "dipper", "bucket")):
             data[f"true_{name}_torque"] = physics["tau"][:, j]
+        for j, name in enumerate(("boom", "dipper", "bucket", "slew")):
             data[f"true_{name}_accel"] = qdd[:, j]
-        data["true_slew_accel"] = qdd[:, 3]
         data["true_slew_angle"] = q[:, 3]
-    return pd.DataFrame(data)
+    frame = pd.DataFrame(data)
+    return frame[list(MACHINE_SENSORS.columns) + (list(MACHINE_SENSORS.truth_columns) if with_truth else [])]
 
 
 def sample_times(duration: float) -> np.ndarray:
