@@ -156,14 +156,30 @@ def _uniform(rng, lo, hi):
     return float(rng.uniform(lo, hi))
 
 
-#: Joint speeds an operator asks for at full lever (rad/s): what the pumps give at typical
-#: moment arms; a step takes at least long enough to peak below it (minimum jerk peaks at
-#: 1.875 × the mean speed). What is still too fast is then slowed by fit_to_hydraulics.
-NOMINAL_RATES = (0.22, 0.45, 0.8)
+def shortest_duration(arm: HydraulicArmModel, joint: int, start: float, delta: float) -> float:
+    """Shortest minimum-jerk step of ``joint`` from ``start`` by ``delta`` that the hydraulics
+    allow on its own: rod speed ≤ pump flow / area (each cylinder moves only its joint, so
+    its moment arm depends on that joint's angle alone), slew rate ≤ ``max_slew_rate``."""
+    m = arm.machine
+    s = np.linspace(0.0, 1.0, 41)
+    shape = 30 * s**2 - 60 * s**3 + 30 * s**4  # σ'(s)
+    if joint == 3:
+        return float(1.875 * abs(delta) / m.house.max_slew_rate)
+    q = np.zeros((len(s), 4))
+    q[:, :3] = (-0.3, -1.3, -0.8)
+    q[:, joint] = start + delta * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    rod_speed_per_time = arm.moment_arms(q)[:, joint] * delta * shape  # × 1/T
+    cyl = m.cylinders[joint]
+    flow = m.hydraulics.pump_flow
+    limit = np.where(rod_speed_per_time >= 0, flow / (cyl.count * cyl.head_area),
+                     flow / (cyl.count * cyl.rod_area))
+    return float(np.max(np.abs(rod_speed_per_time) / limit))
 
 
-def _duration(rng, delta, lo, hi, rate):
-    return max(_uniform(rng, lo, hi), 1.875 * abs(delta) / rate)
+def _step(rng, arm, joint, begin, start_angle, delta, lo, hi) -> Step:
+    """A step that takes a drawn operator's time, but never less than the hydraulics allow."""
+    shortest = 1.1 * shortest_duration(arm, joint, start_angle, delta)
+    return Step(joint, begin, max(_uniform(rng, lo, hi), shortest), float(delta))
 
 
 def _inside(machine, margin=5 * DEG):
@@ -187,28 +203,27 @@ def carry_pose(rng, machine) -> np.ndarray:
                      _uniform(rng, -115 * DEG, -85 * DEG), 0.0])
 
 
-def swing_motion(rng, machine) -> Motion:
-    """A loaded swing while slewing, 8 s (the NMPC swings' counterpart with slewing)."""
+def swing_motion(rng, arm: HydraulicArmModel) -> Motion:
+    """A loaded swing while slewing 30-180°, from a digging to a dumping pose."""
+    machine = arm.machine
     start = dig_pose(rng, machine)
     target = carry_pose(rng, machine)
-    slew = _uniform(rng, 30 * DEG, 180 * DEG) * rng.choice([-1, 1])
-    target[3] = slew
+    target[3] = _uniform(rng, 30 * DEG, 180 * DEG) * rng.choice([-1, 1])
     steps = []
     t0 = _uniform(rng, 0.3, 0.8)
-    rates = (*NOMINAL_RATES, 0.9 * machine.house.max_slew_rate)
     end = 0.0
     for j in range(4):
-        begin = t0 + _uniform(rng, 0.0, 0.6)
-        delta = float(target[j] - start[j])
-        steps.append(Step(j, begin, _duration(rng, delta, 2.5, 4.0, rates[j]), delta))
-        end = max(end, begin + steps[-1].duration)
+        steps.append(_step(rng, arm, j, t0 + _uniform(rng, 0.0, 0.6), start[j], target[j] - start[j],
+                           2.0, 3.5))
+        end = max(end, steps[-1].start + steps[-1].duration)
     payload = _uniform(rng, 0.0, machine.max_payload)
-    return Motion(start, steps, end + _uniform(rng, 1.0, 1.5), payload=payload, info={"start_pose": start.tolist(),
-                                                             "target_pose": target.tolist()})
+    return Motion(start, steps, end + _uniform(rng, 1.0, 1.5), payload=payload,
+                  info={"start_pose": start.tolist(), "target_pose": target.tolist()})
 
 
-def work_cycle_motion(rng, machine, tilt=np.zeros(2)) -> Motion:
+def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
     """Curl, lift while slewing, pause with corrections, dump, return (module doc)."""
+    machine = arm.machine
     start = dig_pose(rng, machine)
     start[2] = _uniform(rng, -20 * DEG, 10 * DEG)  # bucket still open at the end of the cut
     carry = carry_pose(rng, machine)
@@ -216,18 +231,17 @@ def work_cycle_motion(rng, machine, tilt=np.zeros(2)) -> Motion:
     steps: list[Step] = []
     t = _uniform(rng, 0.3, 0.8)
     # 1. curl the bucket and pull the dipper in: the end of the dig
-    curl = _uniform(rng, 1.2, 2.0)
-    steps.append(Step(2, t, curl, float(carry[2] - start[2])))
-    steps.append(Step(1, t, curl, _uniform(rng, -10 * DEG, 0.0)))
-    # 2. lift while slewing (starts before the curl is over)
-    t_lift = t + 0.6 * curl
-    lift = max(_duration(rng, carry[0] - start[0], 2.5, 4.0, NOMINAL_RATES[0]),
-               1.875 * abs(slew) / (0.9 * machine.house.max_slew_rate))
-    steps.append(Step(0, t_lift, lift, float(carry[0] - start[0])))
-    steps.append(Step(3, t_lift + _uniform(rng, 0.0, 0.8), lift, slew))
-    steps.append(Step(1, t_lift + 0.3 * lift, 0.7 * lift,
-                      float(carry[1] - (start[1] + steps[1].delta))))
-    t = t_lift + lift + 0.8
+    curl = _step(rng, arm, 2, t, start[2], carry[2] - start[2], 1.0, 2.0)
+    pull = _uniform(rng, -10 * DEG, 0.0)
+    steps += [curl, Step(1, t, curl.duration, pull)]
+    # 2. lift while slewing (starts before the curl is over), dipper out meanwhile
+    t_lift = t + 0.6 * curl.duration
+    lift = _step(rng, arm, 0, t_lift, start[0], carry[0] - start[0], 2.5, 4.0)
+    swing = _step(rng, arm, 3, t_lift + _uniform(rng, 0.0, 0.8), 0.0, slew, 2.5, 4.0)
+    dipper = _step(rng, arm, 1, t_lift + 0.3 * lift.duration, start[1] + pull,
+                   carry[1] - start[1] - pull, 1.5, 3.0)
+    steps += [lift, swing, dipper]
+    t = max(s.start + s.duration for s in steps) + _uniform(rng, 0.2, 0.8)
     # 3. pause over the truck with small corrections (where stiction bites)
     pause = _uniform(rng, 1.0, 2.5)
     for _ in range(int(rng.integers(1, 4))):
@@ -235,17 +249,16 @@ def work_cycle_motion(rng, machine, tilt=np.zeros(2)) -> Motion:
         steps.append(Step(joint, t + _uniform(rng, 0.0, pause - 0.6), 0.5, _uniform(rng, -2 * DEG, 2 * DEG)))
     t += pause
     # 4. dump: bucket opens, dipper out a little; the load leaves the bucket meanwhile
-    dump = _uniform(rng, 1.2, 2.0)
-    steps.append(Step(2, t, dump, _uniform(rng, 100 * DEG, 120 * DEG)))
-    steps.append(Step(1, t, dump, _uniform(rng, 5 * DEG, 15 * DEG)))
-    release = (t + 0.3 * dump, t + dump)
-    t += dump + _uniform(rng, 0.2, 0.6)
+    dump = _step(rng, arm, 2, t, carry[2], _uniform(rng, 100 * DEG, 120 * DEG), 1.0, 2.0)
+    steps += [dump, Step(1, t, dump.duration, _uniform(rng, 5 * DEG, 15 * DEG))]
+    release = (t + 0.3 * dump.duration, t + dump.duration)
+    t += dump.duration + _uniform(rng, 0.2, 0.6)
     # 5. return: slew back, boom down, bucket ready to dig
-    ret = max(_uniform(rng, 3.0, 4.5), 1.875 * abs(slew) / (0.9 * machine.house.max_slew_rate))
-    steps.append(Step(3, t, ret, -slew))
-    steps.append(Step(0, t + 0.3, ret, float(start[0] - carry[0])))
-    steps.append(Step(2, t + 0.5, ret - 0.5, _uniform(rng, -40 * DEG, -10 * DEG)))
-    duration = t + ret + 0.8
+    back = _step(rng, arm, 3, t, slew, -slew, 2.5, 4.0)
+    lower = _step(rng, arm, 0, t + 0.3, carry[0], start[0] - carry[0], 2.5, 4.0)
+    ready = _step(rng, arm, 2, t + 0.5, carry[2] + dump.delta, _uniform(rng, -40 * DEG, -10 * DEG), 1.5, 3.0)
+    steps += [back, lower, ready]
+    duration = max(s.start + s.duration for s in steps) + _uniform(rng, 0.5, 1.0)
     payload = _uniform(rng, 0.0, machine.max_payload)
     motion = Motion(start, steps, duration, tilt=np.asarray(tilt, float), payload=payload,
                     release=release, info={"start_pose": start.tolist(), "carry_pose": carry.tolist(),

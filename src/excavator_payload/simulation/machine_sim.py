@@ -144,15 +144,15 @@ def sample_times(duration: float) -> np.ndarray:
     return np.arange(n) / SAMPLE_RATE
 
 
-def _draw_motion(motion: str, k: int, rng, machine: HydraulicMachine) -> mm.Motion:
+def _draw_motion(motion: str, k: int, rng, arm: HydraulicArmModel) -> mm.Motion:
     if motion == "swing":
-        return mm.swing_motion(rng, machine)
+        return mm.swing_motion(rng, arm)
     if motion == "work-cycle":
-        return mm.work_cycle_motion(rng, machine)
+        return mm.work_cycle_motion(rng, arm)
     if motion == "slopes":
-        return mm.work_cycle_motion(rng, machine, tilt=mm.slope_tilt(rng))
+        return mm.work_cycle_motion(rng, arm, tilt=mm.slope_tilt(rng))
     if motion == "lifts":
-        return mm.lift_motion(k, machine)
+        return mm.lift_motion(k, arm.machine)
     raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one of "
                                 f"{', '.join(MOTIONS)}")
 
@@ -164,7 +164,7 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
     motion_rng, noise_rng = machine_rngs(seed, k)
     relief = machine.hydraulics.relief_pressure
     for attempt in range(1, MAX_ATTEMPTS + 1):
-        plan = mm.fit_to_hydraulics(arm, _draw_motion(motion, k, motion_rng, machine))
+        plan = mm.fit_to_hydraulics(arm, _draw_motion(motion, k, motion_rng, arm))
         time = sample_times(plan.duration)
         q, qd, qdd = plan.sample(time)
         payload_t = plan.payload_at(time)
