@@ -194,3 +194,12 @@ def test_cli_simulates_replays_and_plots(tmp_path):
     assert figure.stat().st_size > 10_000
     assert main(["plot", "--data", str(out), "--experiment", "7", "--out", str(figure)]) == 2
     assert main(["simulate", "--out", str(tmp_path / "x.parquet"), "--session", "1", "-n", "1"]) == 2
+
+
+def test_thesis_estimators_refuse_the_machine_set_in_one_line(tmp_path, capsys):
+    data = tmp_path / "lifts.parquet"
+    simulate_machine_to_file(data, 1, motion="lifts", workers=1, progress=False)
+    for name in ("inverse-dynamics", "quasi-static", "net1"):
+        assert main(["train", name, "--data", str(data), "--out", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert "does not run on" in err and "Traceback" not in err

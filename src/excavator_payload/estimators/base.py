@@ -127,6 +127,10 @@ class Estimator(ABC):
         if machine is None and self.NEEDS_MACHINE:
             machine = "cat345c"
         self.machine: Machine | None = load_machine(machine) if machine is not None else None
+        if getattr(self.machine, "kind", None) == "hydraulic" and "machine" not in self.SENSOR_SETS:
+            # issue 11: a hydraulic machine file only serves estimators of the machine sensor set
+            raise EstimatorError(f"{self.name} does not run on the hydraulic machine "
+                                 f"'{self.machine.name}' (it runs on: {', '.join(self.SENSOR_SETS)})")
         #: The sensor set of the data it was fitted on (the thesis set until then).
         self.sensor_set: SensorSet = THESIS_SENSORS
         self.fitted = False
