@@ -334,7 +334,7 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
             arrays = {k: npz[k] for k in npz.files}
     except (OSError, ValueError) as exc:
         raise EstimatorError(f"'{directory / ARRAYS_FILE}' is missing or corrupt: {exc}") from None
-    machine = Machine.from_dict(config["machine"]) if config.get("machine") else None
+    machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
     try:
         est = klass(machine=machine, **config.get("options", {}))
         # Files saved before sensor sets existed hold the thesis set.
@@ -347,6 +347,15 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
     est.fitted = True
     est.reset()
     return est
+
+
+def _machine_from_dict(data: dict):
+    """A saved machine: the thesis' 2-link arm or a hydraulic machine (issue 11)."""
+    if data.get("kind") == "hydraulic":
+        from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+        return HydraulicMachine.from_dict(data)
+    return Machine.from_dict(data)
 
 
 # -- registry ------------------------------------------------------------------------------

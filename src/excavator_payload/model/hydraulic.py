@@ -309,6 +309,25 @@ class HydraulicSymbolic:
             [torque, ca.substitute(load_force, arm_torque, torque[:3]), cylinder_speed, lengths,
              ca.vertcat(house_pitch, house_roll)],
             qn, ["tau", "load", "speed", "length", "inclination"])
+        # Weighing from pressures (machine sensor set): the arm torques the measured pressures
+        # give, τ_j = count·∂l_j/∂q_j·(p_h A_h − p_r A_r − F_f), with the seal friction's
+        # presliding state replaced by a smooth sign of the rod speed (unknown to an estimator;
+        # near standstill the friction is down-weighted, see ``stiction``), split as
+        # τ_j − τ0_j = m φ_j.
+        measured = ca.SX.sym("pressures", 6)  # boom head, rod, dipper head, rod, bucket head, rod
+        piston_force = measured[0::2] * head - measured[1::2] * rod
+        smooth_sign = cylinder_speed / ca.sqrt(cylinder_speed**2 + get("stribeck_velocity") ** 2)
+        friction_model = ca.substitute(ca.substitute(ca.substitute(
+            friction, velocity_c, cylinder_speed), state_c, smooth_sign), load_c, piston_force)
+        lever = counts * moment_arms
+        torque_from_pressures = lever * (piston_force - friction_model)
+        stiction = ca.fabs(lever) * (get("coulomb") + get("load_coefficient") * ca.fabs(piston_force)) \
+            * get("static_ratio")
+        self.functions["pressure_regression"] = F_(
+            "hyd_pressure_regression", [q, qd, qdd, tilt, measured, p],
+            [torque_from_pressures - torque_empty[:3], regressor[:3], lever, cylinder_speed, stiction],
+            ["q", "qd", "qdd", "tilt", "pressures", "p"],
+            ["residual", "phi", "lever", "speed", "stiction"])
         total_force = load_c + friction
         self.functions["cylinder_pressures"] = F_(
             "hyd_cylinder_pressures", [velocity_c, state_c, load_c, p],
@@ -325,8 +344,11 @@ def hydraulic_symbolic() -> HydraulicSymbolic:
 _NATIVE: dict[str, ca.Function] = {}
 
 
-def _native_cached(name: str, native) -> ca.Function:
-    """The compiled (C) version of symbolic function ``name``, once per process."""
+def compiled_function(name: str) -> ca.Function:
+    """The symbolic function ``name`` compiled to C (cached on disk, loaded once per process);
+    the function itself where no compiler is available."""
+    from excavator_payload.model.codegen import native
+
     if name not in _NATIVE:
         _NATIVE[name] = native(hydraulic_symbolic().functions[name])
     return _NATIVE[name]
@@ -363,10 +385,8 @@ class HydraulicArmModel:
         self.sym = hydraulic_symbolic()
         self._f = dict(self.sym.functions)
         if compiled:
-            from excavator_payload.model.codegen import native
-
             for name in ("motion_signals", "cylinder_pressures"):
-                self._f[name] = _native_cached(name, native)
+                self._f[name] = compiled_function(name)
 
     def _call(self, name: str, args: list, scalar_payload=None):
         arrays = [np.asarray(a, dtype=float) for a in args]
