@@ -59,3 +59,15 @@ def test_wrong_pairs_are_refused_in_one_line():
         create_estimator("inverse-dynamics", "cat345c").fit(data)
     with pytest.raises(EstimatorError, match="does not run on the hydraulic machine"):
         create_estimator("calibrated", MACHINE)
+
+
+def test_cli_trains_estimates_and_evaluates_on_the_machine_set(tmp_path):
+    from excavator_payload.cli import main
+    from excavator_payload.simulation.machine_sim import simulate_machine_to_file
+
+    data = tmp_path / "swings.parquet"
+    simulate_machine_to_file(data, 2, seed=1, motion="swing", workers=1, progress=False)
+    assert main(["train", "inverse-dynamics", "--data", str(data), "--out", str(tmp_path / "m")]) == 0
+    assert main(["estimate", "--model", str(tmp_path / "m"), "--data", str(data),
+                 "--out", str(tmp_path / "e.parquet")]) == 0
+    assert main(["evaluate", "--model", str(tmp_path / "m"), "--data", str(data), "--discard", "100"]) == 0
