@@ -352,7 +352,7 @@ class InverseDynamicsEstimator(Estimator):
         from excavator_payload.simulation.machine_sensors import get_machine_noise
 
         if not self._hydraulic:
-            raise EstimatorError(f"{self.name}: machine-sensor-set data need a hydraulic machine "
+            raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
                                  f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
         name = self.options["noise"]
         if name == "auto":
