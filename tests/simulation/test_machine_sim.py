@@ -145,7 +145,7 @@ def test_bad_input_gives_one_line_errors():
 
 def test_python_api_dispatches_on_the_machine_kind():
     data = simulate_dataset(1, seed=4, machine=MACHINE, progress=False, session=2)
-    assert data.sensor_set.name == "machine" and data.meta["motion"] == "swing"
+    assert data.sensor_set.name == "machine" and data.meta["motion"] == "nmpc"
     assert data.meta["noise"] == "field" and data.meta["session"] == 2
 
 
@@ -203,3 +203,19 @@ def test_thesis_estimators_refuse_the_machine_set_in_one_line(tmp_path, capsys):
         assert main(["train", name, "--data", str(data), "--out", str(tmp_path / name)]) == 2
         err = capsys.readouterr().err
         assert "does not run on" in err and "Traceback" not in err
+
+
+def test_nmpc_swings_reach_their_target_within_the_hydraulics():
+    data = simulate_machine_dataset(2, seed=2, noise="none", motion="nmpc", with_truth=True)
+    machine = load_machine(MACHINE)
+    for meta in data.meta["experiments"]:
+        assert meta["reached"] and meta["within_relief"]
+        assert meta["peak_pressure"] <= machine.hydraulics.relief_pressure
+        assert abs(meta["target_pose"][3]) >= np.radians(30)
+        assert meta["speed_share"] <= 1.0  # these two stay within the pumps' speed
+    for k, rows in data.experiments():
+        target = data.meta["experiments"][k]["target_pose"]
+        np.testing.assert_allclose(rows["true_slew_angle"].iloc[-1], target[3], atol=np.radians(1))
+        np.testing.assert_allclose(rows["true_boom_angle"].iloc[-1], target[0], atol=np.radians(1))
+        lo, hi = machine.angle_ranges[0]
+        assert rows["true_boom_angle"].between(lo, hi).all()

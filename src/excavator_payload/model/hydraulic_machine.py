@@ -5,7 +5,8 @@ these tables; every value is SI (m, kg, kg·m², rad, m², Pa, m³/s, N, N·s/m)
 
     kind = "hydraulic"
     name, description, gravity
-    [house]           mass, com, slew_inertia, boom_foot, slew_friction, max_slew_rate
+    [house]           mass, com, slew_inertia, boom_foot, slew_friction, max_slew_rate,
+                      max_slew_torque
     [boom]            length, mass, com, inertia, joint_friction, angle_range
     [dipper]          length, mass, com, inertia, joint_friction, angle_range
     [bucket]          length, mass, com, inertia, joint_friction, angle_range
@@ -63,6 +64,7 @@ class House:
     boom_foot: tuple[float, float] = _f("vec2")  # [x, z] of the boom joint in the house frame
     slew_friction: float = _f("nonneg", 0.0)  # viscous, N·m·s/rad
     max_slew_rate: float = _f("pos", 0.7)  # rad/s
+    max_slew_torque: float = _f("pos", 1.5e5)  # N·m, the swing drive's largest torque
 
 
 @dataclass(frozen=True, kw_only=True)

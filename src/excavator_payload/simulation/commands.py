@@ -36,8 +36,8 @@ def register(app: typer.Typer) -> None:
                                     help="Worker processes (0 = all cores). The data do not depend on it."),
         motion: str = typer.Option(None, "--motion",
                                    help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
-                                        "lifts); for a hydraulic machine swing (default), work-cycle, slopes, "
-                                        "lifts or trajectory."),
+                                        "lifts); for a hydraulic machine nmpc (default), swing, work-cycle, "
+                                        "slopes, lifts or trajectory."),
         session: int = typer.Option(0, "--session",
                                     help="Hydraulic machine: working session, draws the sensor offsets "
                                          "(independently of --seed)."),
@@ -62,7 +62,7 @@ def register(app: typer.Typer) -> None:
         extra = {}
         if getattr(machine_object, "kind", None) == "hydraulic":
             noise = noise or "field"
-            motion = motion or ("trajectory" if trajectory is not None else "swing")
+            motion = motion or ("trajectory" if trajectory is not None else "nmpc")
             extra = {"session": session, "trajectory": trajectory}
         elif session or trajectory is not None:
             raise ExcavatorPayloadError("--session and --trajectory apply to a hydraulic machine only")
@@ -82,7 +82,8 @@ def register(app: typer.Typer) -> None:
         else:
             typer.echo("skipped 0 experiments")
         if info["reached_share"] is not None:
-            typer.echo(f"reached the target (within 1°, at rest) by 5 s: {100 * info['reached_share']:.1f} %")
+            end = (dataset.meta.get("experiments") or [{}])[0].get("duration", 5.0)  # thesis: 5 s
+            typer.echo(f"reached the target (within 1°, at rest) by {end:g} s: {100 * info['reached_share']:.1f} %")
         typer.echo(f"wall time {info['wall_time']:.1f} s")
 
     @app.command("export-mat")

@@ -377,13 +377,12 @@ def _hydraulic(machine) -> bool:
 
 def _simulate_hydraulic(out, n_experiments, seed, machine, noise, motion, with_truth, workers,
                         progress, first_experiment=0, session=0, trajectory=None):
-    """Issue 11 hook: the hydraulic machine's simulator. The thesis defaults translate: its
-    swings are planned trajectories (``swing``, not NMPC) and its sensors' preset is ``field``."""
+    """Issue 11 hook: the hydraulic machine's simulator. The thesis' default noise preset
+    translates to the machine sensor set's ``field``."""
     from excavator_payload.simulation import machine_sim
 
-    motion = "swing" if motion == "nmpc" else motion
     noise = "field" if noise == "thesis" else noise
-    if trajectory is not None and motion == "swing":
+    if trajectory is not None and motion == "nmpc":
         motion = "trajectory"
     if out is None:
         return machine_sim.simulate_machine_dataset(

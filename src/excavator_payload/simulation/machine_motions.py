@@ -124,9 +124,8 @@ class Motion:
         return self.payload * np.clip((b - time) / (b - a), 0.0, 1.0)
 
 
-def speed_ratio(arm: HydraulicArmModel, motion: Motion, time: np.ndarray) -> float:
-    """Largest share of the hydraulic speed limits the motion uses (> 1: too fast)."""
-    q, qd, _ = motion.sample(time)
+def speed_share(arm: HydraulicArmModel, q: np.ndarray, qd: np.ndarray) -> float:
+    """Largest share of the hydraulic speed limits a sampled motion uses (> 1: too fast)."""
     m = arm.machine
     speeds = arm.cylinder_speeds(q, qd)
     flow = m.hydraulics.pump_flow
@@ -137,6 +136,12 @@ def speed_ratio(arm: HydraulicArmModel, motion: Motion, time: np.ndarray) -> flo
         ratios.append(np.max(np.where(speeds[:, j] >= 0, speeds[:, j] / v_out, -speeds[:, j] / v_in)))
     ratios.append(np.max(np.abs(qd[:, 3])) / m.house.max_slew_rate)
     return float(max(ratios))
+
+
+def speed_ratio(arm: HydraulicArmModel, motion: Motion, time: np.ndarray) -> float:
+    """Largest share of the hydraulic speed limits the motion uses (> 1: too fast)."""
+    q, qd, _ = motion.sample(time)
+    return speed_share(arm, q, qd)
 
 
 def fit_to_hydraulics(arm: HydraulicArmModel, motion: Motion) -> Motion:

@@ -1,7 +1,8 @@
 """Simulator of the hydraulic machine: motions through the model and the machine's sensors.
 
-Every experiment is a motion (planned in :mod:`.machine_motions` within the hydraulics' limits,
-or replayed from a trajectory file, :mod:`.trajectory`) pushed through the symbolic model of
+Every experiment is a motion (an NMPC swing, :mod:`.hydraulic_nmpc`; planned in
+:mod:`.machine_motions` within the hydraulics' limits; or replayed from a trajectory file,
+:mod:`.trajectory`) pushed through the symbolic model of
 :mod:`excavator_payload.model.hydraulic`:
 
 1. inverse dynamics gives the joint torques (and the slew torque) of the motion, with the
@@ -52,7 +53,9 @@ from excavator_payload.simulation.machine_sensors import (
 log = logging.getLogger(__name__)
 
 SAMPLE_RATE = MACHINE_SENSORS.sample_rate
-MOTIONS = (*mm.MACHINE_MOTIONS, "trajectory")
+MOTIONS = ("nmpc", *mm.MACHINE_MOTIONS, "trajectory")
+#: Length of an NMPC swing, s.
+NMPC_DURATION = 10.0
 MAX_ATTEMPTS = 30
 
 
@@ -157,6 +160,48 @@ def _draw_motion(motion: str, k: int, rng, arm: HydraulicArmModel) -> mm.Motion:
                                 f"{', '.join(MOTIONS)}")
 
 
+_NMPC: dict[str, object] = {}
+
+
+def _nmpc_simulator(arm: HydraulicArmModel):
+    """The process's NMPC simulator for this machine (built once; compiled model cached on disk)."""
+    from excavator_payload.simulation.hydraulic_nmpc import HydraulicNMPCSimulator
+
+    key = json.dumps(arm.machine.to_dict(), sort_keys=True)
+    if key not in _NMPC:
+        _NMPC[key] = HydraulicNMPCSimulator(arm)
+    return _NMPC[key]
+
+
+def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
+                             offsets: dict, with_truth: bool) -> tuple[pd.DataFrame, dict]:
+    """NMPC swing ``k``: from a digging pose to a dumping pose while slewing 30-120°, 10 s."""
+    machine = arm.machine
+    motion_rng, noise_rng = machine_rngs(seed, k)
+    relief = machine.hydraulics.relief_pressure
+    sim = _nmpc_simulator(arm)
+    for attempt in range(1, MAX_ATTEMPTS + 1):
+        start = mm.dig_pose(motion_rng, machine)
+        target = mm.carry_pose(motion_rng, machine)
+        target[3] = float(motion_rng.uniform(np.radians(30), np.radians(120)) * motion_rng.choice([-1, 1]))
+        payload = float(motion_rng.uniform(0.0, machine.max_payload))
+        friction0 = motion_rng.uniform(-1, 1, 3)
+        time, q, qd, qdd, _, info = sim.run(start, target, np.zeros(2), payload, NMPC_DURATION)
+        physics = motion_physics(arm, time, q, qd, qdd, np.zeros(2), np.full(len(time), payload), friction0)
+        peak = float(max(physics["head"].max(), physics["rod"].max()))
+        if peak <= relief:
+            break
+    else:
+        raise ValueError(f"no NMPC swing within the relief pressure in {MAX_ATTEMPTS} draws")
+    frame = experiment_rows(k, time, q, qd, qdd, physics, payload, noise, offsets, noise_rng, with_truth)
+    meta = {"experiment": int(k), "seed": int(seed), "payload": payload, "motion": "nmpc",
+            "tilt": [0.0, 0.0], "duration": float(time[-1]), "start_pose": start.tolist(),
+            "target_pose": target.tolist(), "peak_pressure": peak, "within_relief": True,
+            "speed_share": mm.speed_share(arm, q, qd),
+            "draws": attempt, "status": "ok", **info}
+    return frame, meta
+
+
 def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
                                offsets: dict, motion: str, with_truth: bool) -> tuple[pd.DataFrame, dict]:
     """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure)."""
@@ -204,7 +249,7 @@ def simulate_machine_experiments(first: int, count: int, seed: int, session: int
     noise : str or MachineNoise
         ``field`` or ``none``.
     motion : str
-        ``swing``, ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
+        ``nmpc``, ``swing``, ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
     with_truth : bool
         Add the ``true_*`` columns.
     trajectory : Trajectory, optional
@@ -223,6 +268,8 @@ def simulate_machine_experiments(first: int, count: int, seed: int, session: int
 
                 frame, meta = simulate_trajectory_experiment(k, seed, arm, noise, offsets, trajectory,
                                                              with_truth)
+            elif motion == "nmpc":
+                frame, meta = simulate_nmpc_experiment(k, seed, arm, noise, offsets, with_truth)
             else:
                 frame, meta = simulate_motion_experiment(k, seed, arm, noise, offsets, motion, with_truth)
         except (ValueError, FloatingPointError, RuntimeError) as exc:
@@ -349,7 +396,8 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     noise : str
         ``field`` or ``none``.
     motion : str
-        ``swing``, ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
+        ``nmpc`` (NMPC swings with slewing, :mod:`.hydraulic_nmpc`), ``swing`` (planned
+        swings), ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
     with_truth : bool
         Add the ``true_*`` columns.
     workers : int, optional

@@ -103,7 +103,7 @@ def interpolate(rows: pd.DataFrame, sample_rate: float):
 def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets, trajectory: Trajectory,
                                    with_truth: bool):
     """Rows and metadata of the trajectory's experiment at ``position`` (numbered as in the file)."""
-    from excavator_payload.simulation.machine_motions import speed_ratio
+    from excavator_payload.simulation.machine_motions import speed_share
     from excavator_payload.simulation.machine_sim import (
         SAMPLE_RATE,
         experiment_rows,
@@ -127,16 +127,9 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
     ranges = machine.angle_ranges
     inside = bool(np.all((q[:, :3] >= ranges[:, 0]) & (q[:, :3] <= ranges[:, 1])))
 
-    class _Replay:  # speed_ratio needs sample(); the replayed motion is already sampled
-        def __init__(self):
-            self.duration = float(time[-1] - time[0])
-
-        def sample(self, _t):
-            return q, qd, qdd
-
     meta = {"experiment": exp_id, "seed": int(seed), "payload": payload, "motion": "trajectory",
             "duration": float(time[-1] - time[0]), "peak_pressure": peak,
             "within_relief": bool(peak <= machine.hydraulics.relief_pressure),
-            "speed_share": speed_ratio(arm, _Replay(), time), "within_angle_ranges": inside,
+            "speed_share": speed_share(arm, q, qd), "within_angle_ranges": inside,
             "tilt": [float(v) for v in tilt.mean(axis=0)], "status": "ok"}
     return frame, meta
