@@ -36,7 +36,7 @@ values are reported in one line that names the field.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -261,21 +261,17 @@ def parse_hydraulic(data: dict, source: str, default_name: str) -> HydraulicMach
         values = {}
         for key, f in known.items():
             if key not in raw:
-                if f.default is not dataclass_missing():
-                    if table == "bucket_cylinder" or key != "child_point":
-                        continue
+                # Fields with a default may be left out, except the pins of the boom and
+                # dipper cylinders (only the bucket cylinder has none: it drives the linkage).
+                optional = f.default is not MISSING and (table == "bucket_cylinder" or key != "child_point")
+                if optional:
+                    continue
                 raise MachineError(f"{source}: missing field '{table}.{key}'")
             values[key] = _value(raw[key], f.metadata["kind"], f"{table}.{key}", source)
         tables[table] = cls(**values)
     machine = HydraulicMachine(name=name, description=description, gravity=gravity, **tables)
     _check(machine, source)
     return machine
-
-
-def dataclass_missing():
-    from dataclasses import MISSING
-
-    return MISSING
 
 
 def _number(value, where: str, source: str) -> float:
