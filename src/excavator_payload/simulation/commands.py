@@ -61,6 +61,9 @@ def register(app: typer.Typer) -> None:
         machine_object = load_machine(machine)
         extra = {}
         if getattr(machine_object, "kind", None) == "hydraulic":
+            if noise == "thesis":
+                raise ExcavatorPayloadError("noise preset 'thesis' is the thesis arm's; the machine "
+                                            "sensor set has field (default) or none")
             noise = noise or "field"
             motion = motion or ("trajectory" if trajectory is not None else "nmpc")
             extra = {"session": session, "trajectory": trajectory}
