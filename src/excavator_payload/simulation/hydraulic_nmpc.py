@@ -24,8 +24,10 @@ with inputs :math:`U \in [-1, 1]` scaled to the bounds. Multiple shooting, CasAD
 (three SQP iterations per step, the first step to convergence; a failed step is retried once
 from a cold start, a second failure skips the experiment), interval model compiled to C.
 Control period 0.25 s, horizon 2 s. The speed bounds hold at the nodes with a margin (85 %
-of the limit): between nodes the realised rates overshoot the plan by up to ~15 %, rarely
-more (measured; reported per experiment as ``speed_share``).
+of the limit); between nodes the realised rates overshoot the plan, mostly by < 15 % but in
+about 5 % of the swings by more (a poorly converged step): the simulator redraws a swing
+whose realised speed exceeds the pumps' by more than 5 %, or whose pressures exceed relief
+(``draws`` in the experiment's metadata; its ``speed_share`` is the share used).
 The plant integrates the same rigid-body model (RK4, 100 Hz); seal friction is not in the
 loop: the pressures are then computed for the realised motion by
 :func:`~excavator_payload.simulation.machine_sim.motion_physics`, friction included, so that
