@@ -22,7 +22,9 @@ Cost over the horizon :math:`T_p` (:math:`N` intervals of :math:`T_c`):
 with inputs :math:`U \in [-1, 1]` scaled to the bounds. Multiple shooting, CasADi
 ``sqpmethod`` with ``qrqp`` and the objective's constant Gauss–Newton Hessian, warm-started
 (three SQP iterations per step, the first step to convergence; a failed step is retried once
-from a cold start, a second failure skips the experiment), interval model compiled to C.
+from a cold start; if that fails too, the previous plan is followed for that period, up to
+three periods in a row; after that, or if the very first solve fails, the simulator redraws
+the swing and counts it in ``controller_failures``), interval model compiled to C.
 Control period 0.25 s, horizon 2 s. The speed bounds hold at the nodes with a margin (85 %
 of the limit); between nodes the realised rates overshoot the plan, mostly by < 15 % but in
 about 5 % of the swings by more (a poorly converged step): the simulator redraws a swing
@@ -44,6 +46,10 @@ import numpy as np
 
 from excavator_payload.model.codegen import native
 from excavator_payload.model.hydraulic import HydraulicArmModel
+
+
+#: Control periods in a row the controller may follow its previous plan after failed solves.
+MAX_PLAN_FOLLOWING = 3
 
 
 class ControlFailure(RuntimeError):
@@ -196,6 +202,8 @@ class HydraulicNMPC:
         self._cold = True
         self.solve_times = []
         self.retries = 0
+        self.plan_followed = 0
+        self._failures_in_a_row = 0
 
     def control(self, state) -> np.ndarray:
         """Forces and slew torque to apply for the next control period."""
@@ -217,7 +225,21 @@ class HydraulicNMPC:
             solver, self._lam_x, self._lam_g = self._sqp_cold, np.zeros_like(self._lam_x), np.zeros(self._n_g)
             self.retries += 1
         else:
-            raise ControlFailure(f"hydraulic NMPC failed ({status})")
+            # As a real-time controller does: follow the previous plan (already shifted by one
+            # interval) for this period; fail only after several periods in a row.
+            self._failures_in_a_row += 1
+            if self._cold or self._failures_in_a_row > MAX_PLAN_FOLLOWING:
+                raise ControlFailure(f"hydraulic NMPC failed ({status})")
+            self.plan_followed += 1
+            N = self.N
+            X = self._w[:self._n_x].reshape(N + 1, 8)
+            U = self._w[self._n_x:].reshape(N, 4)
+            self._u = U[0].copy()
+            self._w = np.concatenate([np.vstack([X[1:], X[-1:]]).ravel(), np.vstack([U[1:], U[-1:]]).ravel()])
+            self._lam_x, self._lam_g = np.zeros_like(self._lam_x), np.zeros(self._n_g)
+            self.solve_times.append(_time.perf_counter() - start)
+            return self.u_centre + self.u_half * self._u
+        self._failures_in_a_row = 0
         N = self.N
         X = w[:self._n_x].reshape(N + 1, 8)
         U = w[self._n_x:].reshape(N, 4)
@@ -279,6 +301,6 @@ class HydraulicNMPCSimulator:
         solve = np.array(ctl.solve_times)
         info = {"final_error_deg": [float(v) for v in error],
                 "reached": bool(np.all(np.abs(error) < 1.0) and np.all(np.abs(np.degrees(qd[-1])) < 1.0)),
-                "n_solves": len(solve), "n_retries": ctl.retries, "solve_time_median_ms": float(np.median(solve) * 1e3),
+                "n_solves": len(solve), "n_retries": ctl.retries, "n_plan_followed": ctl.plan_followed, "solve_time_median_ms": float(np.median(solve) * 1e3),
                 "solve_time_max_ms": float(np.max(solve) * 1e3)}
         return time, q, qd, accels, forces, info

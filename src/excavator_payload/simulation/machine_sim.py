@@ -181,14 +181,21 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
     relief = machine.hydraulics.relief_pressure
+    from excavator_payload.simulation.hydraulic_nmpc import ControlFailure
+
     sim = _nmpc_simulator(arm)
+    failures: list[str] = []
     for attempt in range(1, MAX_ATTEMPTS + 1):
         start = mm.dig_pose(motion_rng, machine)
         target = mm.carry_pose(motion_rng, machine)
         target[3] = float(motion_rng.uniform(np.radians(30), np.radians(120)) * motion_rng.choice([-1, 1]))
         payload = float(motion_rng.uniform(0.0, machine.max_payload))
         friction0 = motion_rng.uniform(-1, 1, 3)
-        time, q, qd, qdd, _, info = sim.run(start, target, np.zeros(2), payload, NMPC_DURATION)
+        try:
+            time, q, qd, qdd, _, info = sim.run(start, target, np.zeros(2), payload, NMPC_DURATION)
+        except ControlFailure as exc:  # a swing the controller cannot plan is redrawn too
+            failures.append(str(exc))
+            continue
         physics = motion_physics(arm, time, q, qd, qdd, np.zeros(2), np.full(len(time), payload), friction0)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         share = mm.speed_share(arm, q, qd)
@@ -198,12 +205,14 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
         if peak <= relief and share <= NMPC_SPEED_TOLERANCE:
             break
     else:
-        raise ValueError(f"no NMPC swing within the relief pressure and pump speed in {MAX_ATTEMPTS} draws")
+        last = f" (last controller failure: {failures[-1]})" if failures else ""
+        raise ValueError(f"no NMPC swing within the relief pressure and pump speed in {MAX_ATTEMPTS} "
+                         f"draws{last}")
     frame = experiment_rows(k, time, q, qd, qdd, physics, payload, noise, offsets, noise_rng, with_truth)
     meta = {"experiment": int(k), "seed": int(seed), "payload": payload, "motion": "nmpc",
             "tilt": [0.0, 0.0], "duration": float(time[-1]), "start_pose": start.tolist(),
             "target_pose": target.tolist(), "peak_pressure": peak, "within_relief": True,
-            "speed_share": share,
+            "speed_share": share, "controller_failures": len(failures),
             "draws": attempt, "status": "ok", **info}
     return frame, meta
 
