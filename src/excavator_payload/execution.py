@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -166,8 +167,12 @@ class Execution:
             except (OSError, TimeoutError) as exc:
                 raise SchedulerError(f"cannot reach the Dask scheduler at {self.scheduler}: "
                                      f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-        self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                     dashboard_address=None, silence_logs=logging.ERROR)
+        with warnings.catch_warnings():
+            # Without a dashboard the scheduler still serves health checks, on another port if
+            # 8787 is taken (a second cluster): nothing the user needs to hear about.
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, silence_logs=logging.ERROR)
         return Client(self._cluster, set_as_default=False)
 
     def n_workers(self) -> int:
