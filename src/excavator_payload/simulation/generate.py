@@ -265,6 +265,26 @@ def assemble(parts: dict[int, tuple], spec: RunSpec) -> Dataset:
     return Dataset(frame, meta)
 
 
+def simulate_many(specs: dict, execution: Execution, progress: bool = True,
+                  description: str = "simulating") -> dict:
+    """Every experiment of several runs ``{key: spec}`` in one job (their chunks interleave on
+    the workers); returns ``{key: Dataset}``. Experiments are numbered 0 … ``spec.n_experiments − 1``."""
+    keys = list(specs)
+    tasks = [(specs[key], first, count) for key in keys
+             for first, count in _chunks(0, specs[key].n_experiments,
+                                         chunk_size_for(specs[key].n_experiments, specs[key].motion))]
+    parts: dict = {key: {} for key in keys}
+    owner = {id(specs[key]): key for key in keys}
+
+    def keep(index, result):
+        spec, first, _ = tasks[index]
+        parts[owner[id(spec)]][first] = result
+
+    execution.map(simulate_chunk, tasks, on_done=keep, weights=[t[2] for t in tasks],
+                  description=description, progress=progress)
+    return {key: assemble(parts[key], specs[key]) for key in keys}
+
+
 def simulate_spec(spec: RunSpec, first_experiment: int, n_experiments: int, execution: Execution,
                   progress: bool = True, description: str = "simulating") -> Dataset:
     """Experiments ``first_experiment …`` of the run ``spec``, in memory, through ``execution``."""
