@@ -52,13 +52,11 @@ an interruption or with a grown grid, computes only the missing cells.
 from __future__ import annotations
 
 import hashlib
-import io
 import itertools
 import json
 import math
+import pickle
 import shutil
-import tarfile
-import tempfile
 import time
 import tomllib
 from dataclasses import asdict, dataclass, field
@@ -341,28 +339,18 @@ def cell_key(cell: Cell) -> str:
 
 
 # -- the tasks (run on the workers) ---------------------------------------------------------------
-def _pack(folder: Path) -> bytes:
-    buffer = io.BytesIO()
-    with tarfile.open(fileobj=buffer, mode="w:gz") as tar:
-        tar.add(folder, arcname=".")
-    return buffer.getvalue()
-
-
-def _unpack(data: bytes, folder: Path) -> None:
-    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as tar:
-        tar.extractall(folder, filter="data")
-
-
 def _reason(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
     return f"{type(exc).__name__}: {text}"[:300]
 
 
 def fit_task(estimator: str, machine, options: dict, fit_data) -> dict:
-    """Fit one estimator; returns ``{"model": saved folder as tar.gz bytes}`` or ``{"error": why}``.
+    """Fit one estimator; returns ``{"model": pickled estimator, "seconds": fit time}`` or
+    ``{"error": why}``.
 
-    The fitted model travels as its saved folder (the estimators' own save/load), so any
-    estimator works on any worker.
+    The fitted estimator travels pickled (bytes: cached as they are in ``models/``), not through
+    its ``save`` folder: a fit on noise-free data legitimately holds infinite weights, which
+    ``load_estimator`` refuses as corrupt.
     """
     from excavator_payload.estimators.base import create_estimator
 
@@ -371,9 +359,7 @@ def fit_task(estimator: str, machine, options: dict, fit_data) -> dict:
         start = time.perf_counter()
         est.fit(fit_data)
         seconds = time.perf_counter() - start
-        with tempfile.TemporaryDirectory() as tmp:
-            est.save(Path(tmp) / "model")
-            return {"model": _pack(Path(tmp) / "model"), "seconds": seconds}
+        return {"model": pickle.dumps(est, protocol=pickle.HIGHEST_PROTOCOL), "seconds": seconds}
     except Exception as exc:  # noqa: BLE001 - one estimator must not stop the study
         return {"error": "fit: " + _reason(exc)}
 
@@ -381,13 +367,10 @@ def fit_task(estimator: str, machine, options: dict, fit_data) -> dict:
 def score_task(cell: Cell, model: bytes, test_data) -> dict:
     """Estimate on the test data and judge every experiment; ``{"rows": DataFrame}`` or
     ``{"error": why}``."""
-    from excavator_payload.estimators.base import load_estimator
     from excavator_payload.evaluation.metrics import INDUSTRY_TOLERANCE, bound_window, evaluate_estimates
 
     try:
-        with tempfile.TemporaryDirectory() as tmp:
-            _unpack(model, Path(tmp))
-            est = load_estimator(tmp)
+        est = pickle.loads(model)
         start = time.perf_counter()
         estimates = est.estimate(test_data)
         seconds = time.perf_counter() - start
@@ -442,7 +425,7 @@ def run_study(study: Study, out: str | Path, execution: Execution, progress: boo
     reused = len(study.cells) - len(pending)
     failures: dict[str, str] = {}
     console.print(f"study '{study.name}': {len(study.cells)} cells, {reused} already computed, "
-                  f"{len(pending)} to run on {execution.where}")
+                  f"{len(pending)} to run on {execution.where}", soft_wrap=True)
 
     # 1. data: every dataset a pending cell needs, each simulated once (cached by its spec)
     t0 = time.perf_counter()
@@ -467,7 +450,7 @@ def run_study(study: Study, out: str | Path, execution: Execution, progress: boo
         from excavator_payload.simulation.generate import simulate_many
 
         n = sum(s.n_experiments for s in missing.values())
-        console.print(f"simulating {len(missing)} dataset(s), {n} experiments")
+        console.print(f"simulating {len(missing)} dataset(s), {n} experiments", soft_wrap=True)
         for key, ds in simulate_many(missing, execution, progress, "simulating").items():
             write_dataset(ds, out / "data" / f"{key}.parquet")
             datasets[key] = ds
@@ -482,7 +465,7 @@ def run_study(study: Study, out: str | Path, execution: Execution, progress: boo
     models: dict[str, bytes] = {}
     to_fit = []
     for fk, (cell, data_key) in fits.items():
-        path = out / "models" / f"{fk}.tar.gz"
+        path = out / "models" / f"{fk}.pickle"
         if path.is_file():
             models[fk] = path.read_bytes()
         else:
@@ -490,7 +473,7 @@ def run_study(study: Study, out: str | Path, execution: Execution, progress: boo
     if to_fit:
         from excavator_payload.model.machine import load_machine
 
-        console.print(f"fitting {len(to_fit)} estimator(s)")
+        console.print(f"fitting {len(to_fit)} estimator(s)", soft_wrap=True)
         shared = {k: Shared(ds) for k, ds in datasets.items()}
         tasks = []
         for fk in to_fit:
@@ -503,7 +486,7 @@ def run_study(study: Study, out: str | Path, execution: Execution, progress: boo
             if "error" in result:
                 failures[fits[fk][0].label + " (fit)"] = result["error"]
                 return
-            path = out / "models" / f"{fk}.tar.gz"
+            path = out / "models" / f"{fk}.pickle"
             tmp = path.with_name(path.name + ".tmp")
             tmp.write_bytes(result["model"])
             tmp.replace(path)

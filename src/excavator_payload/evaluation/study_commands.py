@@ -42,7 +42,7 @@ def register(app: typer.Typer) -> None:
                 result = run_study(plan, out, execution, progress=not quiet, console=console)
         except KeyboardInterrupt:
             console.print(interrupted_message(f"finished cells are kept in {out}/cells/; "
-                                              "rerun the same command to resume"))
+                                              "rerun the same command to resume"), soft_wrap=True)
             raise typer.Exit(130) from None
         typer.echo(f"{result['cells']} cells: {result['computed']} computed, {result['reused']} reused, "
                    f"{len(result['failures'])} failed")

@@ -60,7 +60,7 @@ def register(app: typer.Typer) -> None:
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "
-                                              "rerun the same command to resume"))
+                                              "rerun the same command to resume"), soft_wrap=True)
             raise typer.Exit(130) from None
         info = summary(dataset, time.perf_counter() - start)
         typer.echo(f"wrote {info['written']} experiments to {out} ({motion}, noise={noise}, seed={seed})")
