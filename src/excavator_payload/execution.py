@@ -40,6 +40,9 @@ log = logging.getLogger(__name__)
 SCHEDULER_ENV = "EXCAVATOR_PAYLOAD_SCHEDULER"
 #: How often a task that raised is run again before its error reaches the caller.
 DEFAULT_RETRIES = 2
+#: Dask settings of the local workers: no statistical profiler (it samples the task's stack
+#: every 10 ms, a cost for the Python-heavy NMPC loop, for a dashboard nobody looks at).
+LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT = 20.0
 
@@ -167,19 +170,15 @@ class Execution:
             except (OSError, TimeoutError) as exc:
                 raise SchedulerError(f"cannot reach the Dask scheduler at {self.scheduler}: "
                                      f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-        with warnings.catch_warnings():
+        import dask
+
+        with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG):
             # Without a dashboard the scheduler still serves health checks, on another port if
             # 8787 is taken (a second cluster): nothing the user needs to hear about.
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                          dashboard_address=None, silence_logs=logging.ERROR)
         return Client(self._cluster, set_as_default=False)
-
-    def n_workers(self) -> int:
-        """Workers available now (the local count, or those connected to the scheduler)."""
-        if self.scheduler is None:
-            return int(self.workers)
-        return len(self.client.scheduler_info(n_workers=-1).get("workers", {}))
 
     # -- running ------------------------------------------------------------------------------
     def map(self, function: Callable, tasks: Sequence[tuple], *, on_done: Callable[[int, Any], None] | None = None,
