@@ -30,7 +30,10 @@ def register(app: typer.Typer) -> None:
         noise: str = typer.Option("thesis", "--noise", help="Sensor noise preset: thesis, none or field."),
         with_truth: bool = typer.Option(False, "--with-truth", help="Also store the noise-free true_* columns."),
         workers: int = typer.Option(0, "--workers",
-                                    help="Worker processes (0 = all cores). The data do not depend on it."),
+                                    help="Local worker processes (0 = all cores). The data do not depend on it."),
+        scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
+                                      help="Run on this existing Dask cluster (default: $EXCAVATOR_PAYLOAD_SCHEDULER, "
+                                           "else local worker processes)."),
         motion: str = typer.Option("nmpc", "--motion",
                                    help="nmpc (thesis simulator), minimum-jerk, or lifts (calibration lifts)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -39,14 +42,26 @@ def register(app: typer.Typer) -> None:
 
         An interrupted run keeps its finished experiments in OUT.partial/; run the same command again to resume.
         """
+        from excavator_payload.execution import Execution, interrupted_message
+        from excavator_payload.model.machine import load_machine
         from excavator_payload.simulation.generate import simulate_to_file, summary
+        from excavator_payload.simulation.sensors import get_noise_preset
 
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
+        # Names are resolved once, here; objects travel inside.
+        machine_obj, preset = load_machine(machine), get_noise_preset(noise)
         start = time.perf_counter()
-        dataset = simulate_to_file(out, experiments, seed=seed, machine=machine, noise=noise,
-                                   with_truth=with_truth, workers=workers or None, motion=motion,
-                                   progress=not quiet)
+        try:
+            with Execution(scheduler, workers or None) as execution:
+                dataset = simulate_to_file(out, experiments, seed=seed, machine=machine_obj, noise=preset,
+                                           with_truth=with_truth, motion=motion, progress=not quiet,
+                                           execution=execution)
+        except KeyboardInterrupt:
+            # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
+            console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "
+                                              "rerun the same command to resume"), soft_wrap=True)
+            raise typer.Exit(130) from None
         info = summary(dataset, time.perf_counter() - start)
         typer.echo(f"wrote {info['written']} experiments to {out} ({motion}, noise={noise}, seed={seed})")
         skipped = info["skipped"]
