@@ -493,18 +493,19 @@ class SignalCodec:
     def _raw(self, sig, value: float) -> int | float:
         if sig.is_float:
             return value
-        top = valid_raw_max(sig.length) if self.j1939 else (1 << sig.length) - 1
+        if sig.is_signed:
+            bottom, top = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
+        else:
+            bottom, top = 0, valid_raw_max(sig.length) if self.j1939 else (1 << sig.length) - 1
         if not math.isfinite(value):
-            return not_available(sig.length) if self.j1939 else 0
+            return not_available(sig.length) if self.j1939 and not sig.is_signed else 0
         raw = round((value - sig.offset) / sig.scale)
         lo = sig.minimum if sig.minimum is not None else -math.inf
         hi = sig.maximum if sig.maximum is not None else math.inf
-        if raw < 0 or raw > top or value < lo - abs(sig.scale) / 2 or value > hi + abs(sig.scale) / 2:
-            if self.j1939:
+        if raw < bottom or raw > top or value < lo - abs(sig.scale) / 2 or value > hi + abs(sig.scale) / 2:
+            if self.j1939 and not sig.is_signed:
                 return error_indicator(sig.length)
-            raw = min(max(raw, 0), top)
-        if sig.is_signed:
-            raise CanConfigError(f"signal {sig.name}: signed signals are not supported for sending")
+            raw = min(max(raw, bottom), top)
         return int(raw)
 
     def quantise(self, values: np.ndarray) -> np.ndarray:
