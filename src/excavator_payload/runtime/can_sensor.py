@@ -14,7 +14,10 @@ The sample's time is the timestamp of its first frame. Frames of other ids are i
 frame of the wrong length or with an out-of-range or not-available raw value gives NaN signals,
 never an exception. When no sample has arrived for ``stale_after`` seconds the sensor keeps
 publishing at the sample rate with status ``stale`` (last estimate kept); the next sample
-restarts it as the estimator's gap handling says (:meth:`Estimator._on_gap`).
+restarts it as the estimator's gap handling says (:meth:`Estimator._on_gap`). Staleness and
+time-outs are judged on the receiver's clock (the time a frame was received), so interfaces
+whose timestamps count from another epoch (hardware time since boot) work too; the estimator
+sees the frames' own timestamps.
 
 :func:`run_bus` is the live loop of ``excavator-payload can-run``.
 """
@@ -146,12 +149,16 @@ class PayloadSensor:
         self._values = np.full(len(self.sensor_set.signals), np.nan)
         self._received: set[str] = set()
         self._pending_time: float | None = None
+        self._pending_received: float | None = None
         self.last_output: SensorOutput | None = None
-        self.last_sample_time: float | None = None
+        self.last_sample_received: float | None = None
 
     # -- frames in ---------------------------------------------------------------------------
-    def feed(self, message: can.Message) -> list[SensorOutput]:
-        """Consume one received frame; returns the estimates it completed (0, 1 or 2)."""
+    def feed(self, message: can.Message, received_at: float | None = None) -> list[SensorOutput]:
+        """Consume one received frame; returns the estimates it completed (0, 1 or 2).
+
+        ``received_at`` is the receiver's clock at reception (default: the frame's timestamp).
+        """
         self.counters["frames"] += 1
         if message.is_error_frame or message.is_remote_frame:
             self.counters["ignored"] += 1
@@ -165,6 +172,7 @@ class PayloadSensor:
             outputs.append(self.flush())
         if self._pending_time is None:
             self._pending_time = float(message.timestamp)
+            self._pending_received = float(message.timestamp if received_at is None else received_at)
         self._received.add(spec.name)
         decoded = self.codec.decode(spec, bytes(message.data))
         if any(v != v for _, v in decoded):
@@ -182,9 +190,10 @@ class PayloadSensor:
         self._values = np.full(len(self.sensor_set.signals), np.nan)
         self._received = set()
         self._pending_time = None
+        self.last_sample_received = self._pending_received
+        self._pending_received = None
         result = self.estimator.step_values(time, values)
         self.counters["samples"] += 1
-        self.last_sample_time = time
         output = SensorOutput(time, float(result.estimate), result.status.value,
                               estimate_sigma(self.estimator, result))
         self.last_output = output
@@ -197,14 +206,13 @@ class PayloadSensor:
 
     # -- time passing (live) -----------------------------------------------------------------
     def poll(self, now: float) -> list[SensorOutput]:
-        """Called regularly with the bus clock: flush a timed-out partial sample, report stale.
-
-        Returns the outputs to publish now.
+        """Called regularly with the receiver's clock: flush a timed-out partial sample, report
+        stale. Returns the outputs to publish now.
         """
         outputs = []
-        if self._pending_time is not None and now - self._pending_time > self.period:
+        if self._pending_received is not None and now - self._pending_received > self.period:
             outputs.append(self.flush())
-        if self.last_sample_time is None or now - self.last_sample_time > self.stale_after:
+        if self.last_sample_received is None or now - self.last_sample_received > self.stale_after:
             last = self.last_output
             self.counters["stale"] += 1
             outputs.append(SensorOutput(now, last.estimate if last else math.nan, dbc.STALE,
@@ -222,8 +230,7 @@ def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
 
     Publishes each estimate as it completes (at the sensor rate); while the sensors are silent
     it publishes ``stale`` at the sample rate. Bus errors (error frames, a failing ``recv`` or
-    ``send``) are logged and counted, never fatal. ``clock`` gives the bus time of a tick
-    (python-can timestamps are ``time.time()`` based).
+    ``send``) are logged and counted, never fatal. ``clock`` is the receiver's clock.
 
     Returns
     -------
@@ -257,11 +264,12 @@ def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
             if message.is_error_frame:
                 counters["bus_errors"] += 1
                 log.warning("CAN error frame at %.3f", message.timestamp)
-            publish(sensor.feed(message))
+            publish(sensor.feed(message, clock()))
         now = clock()
         if now >= next_tick:
             # silent sensors: stale at the sample rate; a partial sample times out
-            if sensor.last_sample_time is None or now - sensor.last_sample_time > sensor.period:
+            last = sensor.last_sample_received
+            if last is None or now - last > sensor.period:
                 publish(sensor.poll(now))
             next_tick = max(next_tick + sensor.period, now)
     return dict(counters)
