@@ -347,3 +347,29 @@ def test_machine_sensor_set_log_round_trip(tmp_path):
     resolution = np.array([dbc.RESOLUTION[MACHINE_SENSORS.units[s]] for s in MACHINE_SENSORS.signals])
     assert np.all(np.abs(decoded - dataset.signals()) <= resolution / 2 + 1e-9)
     assert np.diff(stamps)[n // 2 - 1] == pytest.approx(5.0)  # experiments apart in bus time
+
+
+def test_one_silent_sensor_makes_the_status_stale(swings, estimator):
+    """One message missing for longer than stale_after: 'stale', not just 'invalid_input';
+    it recovers when the message comes back."""
+    codec = SignalCodec.for_sensor_set(swings.sensor_set)
+    sensor = PayloadSensor(estimator, stale_after=0.16)
+    values = swings.signals()
+    status = []
+    for k in range(40):
+        frames = _frames(codec, values[k], 0.05 * k)
+        if 10 <= k < 20:
+            frames = frames[:3]  # the torque message falls silent for 0.5 s
+        for f in frames:
+            status += [o.status for o in sensor.feed(f)]
+    assert status[:10] == list(estimator.estimate(swings.subset(swings.experiment_ids[:1]))["status"][:10])
+    assert status[10:13] == [Status.INVALID.value] * 3   # a lost frame or two: invalid samples
+    assert set(status[13:20]) == {"stale"}
+    assert "stale" not in status[21:]
+
+
+def test_cli_can_dbc(tmp_path):
+    out = tmp_path / "machine.dbc"
+    assert main(["can-dbc", "--sensor-set", "machine", "--out", str(out)]) == 0
+    assert out.read_text() == dbc.generate_dbc("machine")
+    assert main(["can-dbc", "--sensor-set", "nope"]) == 2

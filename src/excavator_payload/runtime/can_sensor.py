@@ -14,7 +14,10 @@ The sample's time is the timestamp of its first frame. Frames of other ids are i
 frame of the wrong length or with an out-of-range or not-available raw value gives NaN signals,
 never an exception. When no sample has arrived for ``stale_after`` seconds the sensor keeps
 publishing at the sample rate with status ``stale`` (last estimate kept); the next sample
-restarts it as the estimator's gap handling says (:meth:`Estimator._on_gap`). Staleness and
+restarts it as the estimator's gap handling says (:meth:`Estimator._on_gap`). When only some
+sensors fall silent, the samples lack their signals (the estimator keeps its last estimate)
+and are published as ``stale`` too once a missing message has not been seen for
+``stale_after`` seconds (``invalid_input`` before: one lost frame is not a silent sensor). Staleness and
 time-outs are judged on the receiver's clock (the time a frame was received), so interfaces
 whose timestamps count from another epoch (hardware time since boot) work too; the estimator
 sees the frames' own timestamps.
@@ -152,6 +155,7 @@ class PayloadSensor:
         self._pending_received: float | None = None
         self.last_output: SensorOutput | None = None
         self.last_sample_received: float | None = None
+        self._last_seen: dict[str, float] = {}  # message -> receiver time it last arrived
 
     # -- frames in ---------------------------------------------------------------------------
     def feed(self, message: can.Message, received_at: float | None = None) -> list[SensorOutput]:
@@ -174,6 +178,7 @@ class PayloadSensor:
             self._pending_time = float(message.timestamp)
             self._pending_received = float(message.timestamp if received_at is None else received_at)
         self._received.add(spec.name)
+        self._last_seen[spec.name] = float(message.timestamp if received_at is None else received_at)
         decoded = self.codec.decode(spec, bytes(message.data))
         if any(v != v for _, v in decoded):
             self.counters["bad_frames"] += 1
@@ -186,6 +191,9 @@ class PayloadSensor:
     def flush(self) -> SensorOutput:
         """Step the estimator with the pending sample (missing signals NaN) and clear it."""
         time = self._pending_time if self._pending_time is not None else math.nan
+        now = self._pending_received
+        silent = [m for m in self._needed - self._received
+                  if now is None or now - self._last_seen.get(m, -math.inf) > self.stale_after]
         values = self._values
         self._values = np.full(len(self.sensor_set.signals), np.nan)
         self._received = set()
@@ -194,7 +202,8 @@ class PayloadSensor:
         self._pending_received = None
         result = self.estimator.step_values(time, values)
         self.counters["samples"] += 1
-        output = SensorOutput(time, float(result.estimate), result.status.value,
+        status = dbc.STALE if silent else result.status.value
+        output = SensorOutput(time, float(result.estimate), status,
                               estimate_sigma(self.estimator, result))
         self.last_output = output
         return output
