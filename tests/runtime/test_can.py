@@ -373,3 +373,15 @@ def test_cli_can_dbc(tmp_path):
     assert main(["can-dbc", "--sensor-set", "machine", "--out", str(out)]) == 0
     assert out.read_text() == dbc.generate_dbc("machine")
     assert main(["can-dbc", "--sensor-set", "nope"]) == 2
+
+
+def test_replay_of_a_foreign_log_is_one_clear_error(tmp_path, estimator):
+    log = tmp_path / "other.asc"
+    with can.Logger(str(log)) as writer:
+        for k in range(5):
+            writer.on_message_received(can.Message(timestamp=0.1 * k, arbitration_id=0x100, data=bytes(8)))
+    model = tmp_path / "model"
+    estimator.save(model)
+    assert main(["can-replay", "--log", str(log), "--model", str(model),
+                 "--out", str(tmp_path / "e.parquet")]) == 2
+    assert not (tmp_path / "e.parquet").exists()

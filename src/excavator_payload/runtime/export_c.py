@@ -184,18 +184,16 @@ class CModel:
     reset: str                       # body of ep_model_reset(ep_state *s)
     step: str                        # body of ep_model_step(s, time, v, estimate) -> status
     on_gap: str | None = None        # body of ep_model_on_gap(s, time, v); None: reset
-    check_range: bool = False        # angles checked against the machine's ranges
     header_defines: list[str] = field(default_factory=list)  # sizes the state struct needs
-    notes: list[str] = field(default_factory=list)
 
 
-def _angle_range_checks(est: Estimator) -> tuple[str, list[str]]:
+def _angle_range_condition(est: Estimator) -> str:
+    """C condition of :meth:`Estimator._in_range` (both angles inside the machine's ranges)."""
     m, sensors = est.machine, est.sensor_set
     b, d = sensors.index("boom_angle"), sensors.index("dipper_angle")
-    cond = (f"{c_number(m.boom_angle_range[0])} <= v[{b}] && v[{b}] <= {c_number(m.boom_angle_range[1])}"
+    return (f"{c_number(m.boom_angle_range[0])} <= v[{b}] && v[{b}] <= {c_number(m.boom_angle_range[1])}"
             f" && {c_number(m.dipper_angle_range[0])} <= v[{d}] && v[{d}] <= "
             f"{c_number(m.dipper_angle_range[1])}")
-    return cond, []
 
 
 def _inverse_dynamics_model(est) -> CModel:
@@ -251,7 +249,7 @@ def _inverse_dynamics_model(est) -> CModel:
                       "ep_real info;  /* I: information, 1/variance of the estimate */"],
         definitions=definitions,
         reset="    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);",
-        step=step, check_range=True)
+        step=step)
 
 
 def _ekf_model(est) -> CModel:
@@ -377,7 +375,7 @@ def _ekf_model(est) -> CModel:
         reset="    int i;\n    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = (double)NAN;\n"
               "    for (i = 0; i < 5; ++i) s->x[i] = 0.0;\n"
               "    for (i = 0; i < 25; ++i) s->P[i] = 0.0;",
-        step=step, on_gap=on_gap, check_range=True)
+        step=step, on_gap=on_gap)
 
 
 def _time_delay_model(est) -> CModel:
@@ -637,8 +635,8 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
 """
     statuses = ", ".join(f'"{s.value}"' for s in Status)
     gap_body = model.on_gap if model.on_gap is not None else "    (void)time;\n    (void)v;\n    ep_model_reset(s);"
-    if model.check_range:
-        cond, _ = _angle_range_checks(est)
+    if est.machine is not None:  # base.py checks the angles whenever there is a machine model
+        cond = _angle_range_condition(est)
         range_check = f"""    /* Estimator._in_range: an angle outside the machine's range is not used */
     if (!({cond})) {{
         *estimate = s->last_estimate;

@@ -79,6 +79,11 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     finally:
         if bar is not None:
             bar.stop()
+    if not rows:
+        names = ", ".join(sensor.codec.message_names)
+        raise DatasetError(f"CAN log '{path}': no frame carries the sensor messages ({names}) of "
+                           f"the {sensor.sensor_set.name} sensor set; another DBC (--dbc, "
+                           f"--signal-map)?")
     frame = pd.DataFrame(rows, columns=["experiment", "time", "payload_estimate", "status",
                                         "payload_sigma", "log_time"])
     frame["experiment"] = frame["experiment"].astype("int64")
