@@ -14,7 +14,9 @@ from excavator_payload.runtime.dbc import SignalCodec
 @pytest.mark.parametrize("name", list(SENSOR_SETS))
 def test_shipped_dbc_equals_generator(name):
     """The DBC files in the package are exactly what the generator writes from the sensor set."""
-    assert dbc.shipped_dbc_path(name).read_text() == dbc.generate_dbc(name)
+    assert dbc.shipped_dbc_path(name).read_text() == dbc.generate_dbc(name), (
+        "the shipped DBC is out of date (sensor set or Status enum changed): regenerate with "
+        "python -c 'from excavator_payload.runtime.dbc import write_shipped_dbcs; write_shipped_dbcs()'")
 
 
 @pytest.mark.parametrize("sensors", [THESIS_SENSORS, MACHINE_SENSORS], ids=lambda s: s.name)
