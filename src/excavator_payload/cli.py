@@ -60,12 +60,14 @@ def _register_commands() -> None:
     from excavator_payload.estimators import commands as estimator_commands
     from excavator_payload.evaluation import commands as evaluation_commands
     from excavator_payload.evaluation import study_commands
+    from excavator_payload.runtime import commands as runtime_commands
     from excavator_payload.simulation import commands as simulation_commands
 
     simulation_commands.register(app)
     estimator_commands.register(app)
     evaluation_commands.register(app)
     study_commands.register(app)
+    runtime_commands.register(app)
 
 
 _register_commands()

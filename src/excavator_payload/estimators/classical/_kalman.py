@@ -212,8 +212,16 @@ def kalman_model(machine: Machine, abs_payload: bool) -> KalmanModel:
 
 @lru_cache(maxsize=16)
 def ekf_step_function(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
+    """:func:`ekf_step_symbolic`, compiled to C when a compiler is available."""
+    return native(ekf_step_symbolic(machine, abs_payload, torque_channel))
+
+
+@lru_cache(maxsize=16)
+def ekf_step_symbolic(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
     r"""One whole EKF step (update with :math:`y_k`, then prediction with :math:`u_k`) as one
-    compiled CasADi function, so a 20 Hz step costs one call instead of dozens of numpy calls.
+    CasADi function (compiled by :func:`ekf_step_function`; exported to C for an ECU by
+    :mod:`excavator_payload.runtime.export_c`), so a 20 Hz step costs one call instead of dozens
+    of numpy calls.
 
     Inputs ``x, P`` (prior), ``y`` (4 or 6), ``u``, ``a``, ``Q`` (5×5), ``R`` (4×4),
     ``torque_cov``, ``accel_cov`` (2×2). Output: one dense vector
@@ -263,9 +271,9 @@ def ekf_step_function(machine: Machine, abs_payload: bool, torque_channel: bool)
     P_next = 0.5 * (P_next + P_next.T)
     packed = ca.cse(ca.densify(ca.vertcat(x_post, ca.vec(P_post), x_next, ca.vec(P_next))))
     tag = _c_name(machine.name) + ("_abs" if abs_payload else "") + ("_tau" if torque_channel else "")
-    return native(ca.Function(f"ekf_step_{tag}", [x, P, y, u, a, Q0, R_qqd, torque_cov, accel_cov],
-                              [packed], ["x", "P", "y", "u", "a", "Q", "R", "torque_cov", "accel_cov"],
-                              ["packed"]))
+    return ca.Function(f"ekf_step_{tag}", [x, P, y, u, a, Q0, R_qqd, torque_cov, accel_cov],
+                       [packed], ["x", "P", "y", "u", "a", "Q", "R", "torque_cov", "accel_cov"],
+                       ["packed"])
 
 
 def joseph_update(x, P, innovation, H, R):

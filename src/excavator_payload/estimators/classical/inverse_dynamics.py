@@ -228,7 +228,8 @@ def sensor_variances(noise, torque_floor: float = TORQUE_STD_FLOOR) -> np.ndarra
 
 
 def information_terms(values, theta_empty, theta_payload, variances, weight_payload: float,
-                      weighting: str = "full", eiv_correction: bool = True) -> tuple[float, float]:
+                      weighting: str = "full", eiv_correction: bool = True,
+                      trig=math) -> tuple[float, float]:
     r"""One sample's contribution :math:`(\Delta N, \Delta I)` to the estimating equation.
 
     ``values`` is the sample in :data:`SIGNALS` order as Python floats; the arithmetic is plain
@@ -242,12 +243,12 @@ def information_terms(values, theta_empty, theta_payload, variances, weight_payl
         \Sigma_x)` (the traces only with ``eiv_correction``).
     """
     q1, qd1, qdd1, q2, qd2, qdd2, t1, t2 = values
-    s1 = math.sin(q1)
-    c1 = math.cos(q1)
-    s2 = math.sin(q2)
-    c2 = math.cos(q2)
-    s12 = math.sin(q1 + q2)
-    c12 = math.cos(q1 + q2)
+    s1 = trig.sin(q1)
+    c1 = trig.cos(q1)
+    s2 = trig.sin(q2)
+    c2 = trig.cos(q2)
+    s12 = trig.sin(q1 + q2)
+    c12 = trig.cos(q1 + q2)
     A0, B0, C0, D0, E0, F1, F2 = theta_empty
     a, b, c, d, e = theta_payload
     (ya1, _), (yb, _), (yc1, yc2), _, _, _, _ = _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2)
