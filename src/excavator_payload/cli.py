@@ -49,9 +49,12 @@ def machines(
     from excavator_payload.model.machine import list_presets, load_machine
 
     if show is None:
-        for name in list_presets():
+        names = list_presets()
+        width = max(len(n) for n in names)
+        for name in names:
             m = load_machine(name)
-            typer.echo(f"{name:14s} {m.description}")
+            kind = getattr(m, "kind", "2-link")  # thesis arm or hydraulic machine (issue 11)
+            typer.echo(f"{name:{width}s}  {kind:9s}  {m.description}")
         return
     typer.echo(load_machine(show).to_toml(), nl=False)
 
@@ -64,6 +67,9 @@ def _register_commands() -> None:
     from excavator_payload.simulation import commands as simulation_commands
 
     simulation_commands.register(app)
+    from excavator_payload.simulation import machine_commands  # issue 11: hydraulic machine plot
+
+    machine_commands.register(app)
     estimator_commands.register(app)
     evaluation_commands.register(app)
     study_commands.register(app)

@@ -133,6 +133,10 @@ class Dataset:
         from excavator_payload.model.machine import Machine
 
         m = self.meta.get("machine")
+        if isinstance(m, dict) and m.get("kind") == "hydraulic":  # issue 11: hydraulic machines
+            from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+            return HydraulicMachine.from_dict(m)
         return Machine.from_dict(m) if isinstance(m, dict) else None
 
     def __len__(self) -> int:

@@ -127,6 +127,10 @@ class Estimator(ABC):
         if machine is None and self.NEEDS_MACHINE:
             machine = "cat345c"
         self.machine: Machine | None = load_machine(machine) if machine is not None else None
+        if getattr(self.machine, "kind", None) == "hydraulic" and "machine" not in self.SENSOR_SETS:
+            # issue 11: a hydraulic machine file only serves estimators of the machine sensor set
+            raise EstimatorError(f"{self.name} does not run on the hydraulic machine "
+                                 f"'{self.machine.name}' (it runs on: {', '.join(self.SENSOR_SETS)})")
         #: The sensor set of the data it was fitted on (the thesis set until then).
         self.sensor_set: SensorSet = THESIS_SENSORS
         self.fitted = False
@@ -330,7 +334,7 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
             arrays = {k: npz[k] for k in npz.files}
     except (OSError, ValueError) as exc:
         raise EstimatorError(f"'{directory / ARRAYS_FILE}' is missing or corrupt: {exc}") from None
-    machine = Machine.from_dict(config["machine"]) if config.get("machine") else None
+    machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
     try:
         est = klass(machine=machine, **config.get("options", {}))
         # Files saved before sensor sets existed hold the thesis set.
@@ -343,6 +347,15 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
     est.fitted = True
     est.reset()
     return est
+
+
+def _machine_from_dict(data: dict):
+    """A saved machine: the thesis' 2-link arm or a hydraulic machine (issue 11)."""
+    if data.get("kind") == "hydraulic":
+        from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+        return HydraulicMachine.from_dict(data)
+    return Machine.from_dict(data)
 
 
 # -- registry ------------------------------------------------------------------------------

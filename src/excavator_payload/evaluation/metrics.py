@@ -382,8 +382,8 @@ def dataset_bound(dataset: Dataset, window: int | None = None) -> np.ndarray | N
     """Cramér–Rao bound of every row, or ``None`` when the dataset lacks machine or noise info."""
     from excavator_payload.evaluation.crb import cramer_rao_bound
 
-    if dataset.machine() is None:
-        return None
+    if dataset.machine() is None or dataset.sensor_set.name != "thesis":
+        return None  # the machine sensor set's bound is issue 12's
     try:
         return cramer_rao_bound(dataset, window=window)
     except Exception as exc:  # noqa: BLE001 - an unknown noise preset must not stop evaluation

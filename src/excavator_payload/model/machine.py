@@ -126,7 +126,7 @@ def load_machine(name_or_path: str | Path | Machine) -> Machine:
     MachineError
         With a message that names the missing or bad field.
     """
-    if isinstance(name_or_path, Machine):
+    if isinstance(name_or_path, Machine) or getattr(name_or_path, "kind", None) == "hydraulic":
         return name_or_path
     text_name = str(name_or_path)
     path = Path(text_name)
@@ -147,6 +147,10 @@ def load_machine(name_or_path: str | Path | Machine) -> Machine:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MachineError(f"{source} is not valid TOML: {exc}") from None
+    from excavator_payload.model import hydraulic_machine  # issue 11: a second machine kind
+
+    if hydraulic_machine.is_hydraulic_data(data):
+        return hydraulic_machine.parse_hydraulic(data, source, default_name=path.stem)
     return _machine_from_toml(data, source, default_name=path.stem)
 
 

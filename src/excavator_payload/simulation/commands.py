@@ -26,16 +26,27 @@ def register(app: typer.Typer) -> None:
         experiments: int = typer.Option(200, "--experiments", "-n", help="Number of experiments."),
         seed: int = typer.Option(0, "--seed", help="Base seed (same seed, same data)."),
         machine: str = typer.Option("cat345c", "--machine",
-                                    help="Machine preset (cat345c, cat345c-1pct, cat345c-3pct) or TOML file."),
-        noise: str = typer.Option("thesis", "--noise", help="Sensor noise preset: thesis, none or field."),
+                                    help="Machine preset (cat345c, cat345c-1pct, cat345c-3pct, "
+                                         "cat345c-hydraulic, cat345c-hydraulic-3pct) or TOML file."),
+        noise: str = typer.Option(None, "--noise",
+                                  help="Sensor noise preset: thesis (default), none or field; for a "
+                                       "hydraulic machine field (default) or none."),
         with_truth: bool = typer.Option(False, "--with-truth", help="Also store the noise-free true_* columns."),
         workers: int = typer.Option(0, "--workers",
                                     help="Local worker processes (0 = all cores). The data do not depend on it."),
         scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
                                       help="Run on this existing Dask cluster (default: $EXCAVATOR_PAYLOAD_SCHEDULER, "
                                            "else local worker processes)."),
-        motion: str = typer.Option("nmpc", "--motion",
-                                   help="nmpc (thesis simulator), minimum-jerk, or lifts (calibration lifts)."),
+        motion: str = typer.Option(None, "--motion",
+                                   help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
+                                        "lifts); for a hydraulic machine swing (default), work-cycle, slopes, "
+                                        "lifts or trajectory."),
+        session: int = typer.Option(0, "--session",
+                                    help="Hydraulic machine: working session, draws the sensor offsets "
+                                         "(independently of --seed)."),
+        trajectory: Path = typer.Option(None, "--trajectory",
+                                        help="Hydraulic machine: replay the motions of this Parquet file "
+                                             "(experiment, time, boom/dipper/bucket/slew_angle, payload)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Simulate experiments (thesis §5.3) and write them to a dataset file.
@@ -44,19 +55,22 @@ def register(app: typer.Typer) -> None:
         """
         from excavator_payload.execution import Execution, interrupted_message
         from excavator_payload.model.machine import load_machine
-        from excavator_payload.simulation.generate import simulate_to_file, summary
-        from excavator_payload.simulation.sensors import get_noise_preset
+        from excavator_payload.simulation.generate import make_spec, simulate_to_file, summary
 
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
-        # Names are resolved once, here; objects travel inside.
-        machine_obj, preset = load_machine(machine), get_noise_preset(noise)
+        # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
+        # a run description; objects travel inside.
+        spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
+                         session=session, trajectory=trajectory)
+        motion, noise = spec.motion, spec.noise.name
         start = time.perf_counter()
         try:
             with Execution(scheduler, workers or None) as execution:
-                dataset = simulate_to_file(out, experiments, seed=seed, machine=machine_obj, noise=preset,
-                                           with_truth=with_truth, motion=motion, progress=not quiet,
-                                           execution=execution)
+                dataset = simulate_to_file(out, experiments, seed=seed, machine=spec.machine,
+                                           noise=spec.noise, with_truth=with_truth, motion=motion,
+                                           progress=not quiet, execution=execution, session=session,
+                                           trajectory=spec.option("trajectory"))
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "

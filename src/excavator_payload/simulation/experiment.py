@@ -77,10 +77,20 @@ class RunSpec:
     def to_dict(self) -> dict:
         """JSON-able description (checkpoint settings, cache keys)."""
         return {"motion": self.motion, "seed": int(self.seed), "machine": self.machine.to_dict(),
-                "noise": {"name": self.noise.name, "std": dict(self.noise.std)},
+                "noise": (self.noise.to_dict() if hasattr(self.noise, "to_dict")
+                          else {"name": self.noise.name, "std": dict(self.noise.std)}),
                 "with_truth": bool(self.with_truth), "n_experiments": int(self.n_experiments),
                 "frozen_noise_seed": self.frozen_noise_seed,
-                "options": {str(k): (list(v) if isinstance(v, tuple) else v) for k, v in self.options}}
+                "options": {str(k): _jsonable_option(v) for k, v in self.options}}
+
+
+def _jsonable_option(value):
+    """An option as JSON: tuples as lists, a replayed trajectory by its content digest."""
+    if isinstance(value, tuple):
+        return list(value)
+    if hasattr(value, "digest"):
+        return {"trajectory": value.source, "digest": value.digest}
+    return value
 
 
 def noise_rng(spec: RunSpec, independent: np.random.Generator) -> np.random.Generator:

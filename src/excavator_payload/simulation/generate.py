@@ -20,8 +20,10 @@ The per-experiment simulator is chosen from ``spec.motion`` in :data:`MOTIONS`: 
 (``"package.module:function"``, imported lazily in the worker, so the entry must be in this
 table, not registered at run time in the client: remote workers would not see it), a chunk
 size rule and the exceptions that mean "this one experiment failed, skip it". A new machine
-type with its own simulator (e.g. a hydraulic arm) adds one entry; ``simulate``, checkpoints,
-clusters and studies then work for it unchanged. Per-process state that is expensive to build
+type with its own simulator adds one table: the hydraulic machine's motions
+(:data:`MACHINE_MOTIONS`, simulated by :mod:`~excavator_payload.simulation.machine_sim`) go
+through the same chunks, checkpoints, clusters and studies; :func:`motions_for` picks the table
+by the machine's kind. Per-process state that is expensive to build
 (the NMPC's compiled solver: ~2 s) is cached at module level in the worker, keyed by machine,
 so it is built once per worker process, not once per chunk.
 
@@ -50,7 +52,13 @@ import pyarrow.parquet as pq
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import atomic_write_table, write_dataset
-from excavator_payload.data.schema import COLUMNS, DURATION, METADATA_KEY, SAMPLE_PERIOD, SAMPLE_RATE, TRUTH_COLUMNS
+from excavator_payload.data.schema import (
+    DURATION,
+    MACHINE_SENSORS,
+    METADATA_KEY,
+    SAMPLE_PERIOD,
+    THESIS_SENSORS,
+)
 from excavator_payload.errors import DatasetError, ExcavatorPayloadError
 from excavator_payload.execution import Execution
 from excavator_payload.model.machine import Machine, load_machine
@@ -113,14 +121,52 @@ MOTIONS: dict[str, Motion] = {
 }
 
 
+def _machine_chunk_size(n_experiments: int) -> int:
+    """Hydraulic motions take ~0.05 s each: ≈ 40 chunks of 1–50 experiments."""
+    return int(min(50, max(1, math.ceil(n_experiments / 40))))
+
+
+_MACHINE_EXPERIMENT = "excavator_payload.simulation.machine_sim:machine_experiment"
+_MACHINE_SKIP = ("builtins:RuntimeError", "builtins:ValueError", "builtins:FloatingPointError")
+
+#: The hydraulic machine's motion families (issue "The machine as it is").
+MACHINE_MOTIONS: dict[str, Motion] = {
+    "swing": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                    description="swings with slewing, within pump flow and relief pressure"),
+    "work-cycle": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                         description="operator-like cycles: dig, lift while slewing, pause, dump, return"),
+    "slopes": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                     description="work cycles of a machine standing on a slope"),
+    "lifts": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                    description="slow calibration lifts"),
+    "trajectory": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                         description="prescribed motions replayed from a trajectory file"),
+}
+
+
+def is_hydraulic(machine) -> bool:
+    """Whether ``machine`` (an object) is a hydraulic machine."""
+    return getattr(machine, "kind", None) == "hydraulic"
+
+
+def motions_for(machine) -> dict[str, Motion]:
+    """The motion families a machine can be simulated with."""
+    return MACHINE_MOTIONS if is_hydraulic(machine) else MOTIONS
+
+
+def sensor_set_of(machine):
+    """The sensor set a simulated machine carries."""
+    return MACHINE_SENSORS if is_hydraulic(machine) else THESIS_SENSORS
+
+
 def _import(path: str):
     module, _, name = path.partition(":")
     return getattr(importlib.import_module(module), name)
 
 
-def chunk_size_for(n_experiments: int, motion: str = "nmpc") -> int:
+def chunk_size_for(n_experiments: int, motion: str = "nmpc", machine=None) -> int:
     """Experiments per chunk of a run of ``n_experiments`` ``motion`` experiments."""
-    return MOTIONS[motion].chunk_size(n_experiments)
+    return motions_for(machine)[motion].chunk_size(n_experiments)
 
 
 # -- NMPC experiments (run in a worker process) -------------------------------------------------
@@ -169,7 +215,7 @@ def nmpc_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]
 def simulate_chunk(spec: RunSpec, first: int, count: int) -> tuple[pd.DataFrame, list[dict], list[dict]]:
     """Experiments ``first … first+count-1`` of the run ``spec``: (rows, metadata of the written
     experiments, skipped experiments with their reason)."""
-    motion = MOTIONS[spec.motion]
+    motion = motions_for(spec.machine)[spec.motion]
     simulate = _import(motion.experiment)
     skip_on = tuple(_import(name) for name in motion.skip_on)
     frames, metas, skipped = [], [], []
@@ -186,13 +232,14 @@ def simulate_chunk(spec: RunSpec, first: int, count: int) -> tuple[pd.DataFrame,
             continue
         frames.append(frame)
         metas.append(meta)
-    columns = list(COLUMNS) + (list(TRUTH_COLUMNS) if spec.with_truth else [])
+    sensors = sensor_set_of(spec.machine)
+    columns = list(sensors.columns) + (list(sensors.truth_columns) if spec.with_truth else [])
     frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
     return frame, metas, skipped
 
 
 # -- the public entry points ------------------------------------------------------------------
-def _check_arguments(n_experiments, seed, workers, motion, first_experiment=0):
+def _check_arguments(n_experiments, seed, workers, motion, first_experiment=0, machine=None):
     if isinstance(n_experiments, bool) or not isinstance(n_experiments, (int, np.integer)) or n_experiments < 1:
         raise ExcavatorPayloadError(f"the number of experiments must be a whole number ≥ 1, got {n_experiments!r}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -200,11 +247,13 @@ def _check_arguments(n_experiments, seed, workers, motion, first_experiment=0):
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
                                 or workers < 1):
         raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {workers!r}")
-    if motion not in MOTIONS:
-        raise ExcavatorPayloadError(f"unknown motion '{motion}': choose one of {', '.join(MOTIONS)}")
+    motions = motions_for(machine)
+    if motion not in motions:
+        kind = "a hydraulic machine" if is_hydraulic(machine) else "this machine"
+        raise ExcavatorPayloadError(f"unknown motion '{motion}' for {kind}: choose one of {', '.join(motions)}")
     if not isinstance(first_experiment, (int, np.integer)) or first_experiment < 0:
         raise ExcavatorPayloadError(f"first_experiment must be a whole number ≥ 0, got {first_experiment!r}")
-    if first_experiment and MOTIONS[motion].needs_first_zero:
+    if first_experiment and motions[motion].needs_first_zero:
         raise ExcavatorPayloadError(f"motion '{motion}' always starts at experiment 0")
 
 
@@ -214,15 +263,52 @@ def _chunks(first_experiment: int, n_experiments: int, size: int) -> list[tuple[
 
 
 def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
-              noise: str | NoisePreset = "thesis", with_truth: bool = False, motion: str = "nmpc",
+              noise: str | NoisePreset | None = None, with_truth: bool = False, motion: str | None = None,
               first_experiment: int = 0, frozen_noise_seed: int | None = None,
-              options: dict | None = None) -> RunSpec:
-    """Check the arguments and resolve the names into a :class:`RunSpec` (at the edge, once)."""
-    _check_arguments(n_experiments, seed, None, motion, first_experiment)
+              options: dict | None = None, session: int = 0, trajectory=None) -> RunSpec:
+    """Check the arguments and resolve the names into a :class:`RunSpec` (at the edge, once).
+
+    ``noise`` and ``motion`` default to the machine kind's own (thesis: ``thesis`` noise and
+    ``nmpc`` swings; hydraulic: ``field`` noise and ``swing``, or ``trajectory`` when a
+    trajectory is given). ``session`` and ``trajectory`` (a file or a
+    :class:`~excavator_payload.simulation.trajectory.Trajectory`) are for a hydraulic machine.
+    """
+    machine = load_machine(machine)
+    options = dict(options or {})
+    if is_hydraulic(machine):
+        from excavator_payload.simulation.machine_sensors import get_machine_noise
+        from excavator_payload.simulation.trajectory import read_trajectory
+
+        if motion is None:
+            motion = "trajectory" if trajectory is not None else "swing"
+        if (motion == "trajectory") != (trajectory is not None):
+            raise ExcavatorPayloadError("a trajectory file goes with --motion trajectory (and only with it)")
+        if frozen_noise_seed is not None:
+            raise ExcavatorPayloadError("frozen noise is a thesis-setting study; the hydraulic machine's "
+                                        "sensors always draw their own noise")
+        if isinstance(session, bool) or not isinstance(session, (int, np.integer)) or session < 0:
+            raise ExcavatorPayloadError(f"the session must be a whole number ≥ 0, got {session!r}")
+        preset = get_machine_noise("field" if noise is None else noise)
+        options["session"] = int(session)
+        if trajectory is not None:
+            if not hasattr(trajectory, "experiments"):
+                trajectory = read_trajectory(trajectory)
+            available = len(trajectory.experiments) - int(first_experiment)
+            if available < 1:
+                raise ExcavatorPayloadError(f"the trajectory file holds {len(trajectory.experiments)} experiment(s)")
+            n_experiments = min(int(n_experiments), available) if not isinstance(n_experiments, bool) \
+                and isinstance(n_experiments, (int, np.integer)) else n_experiments
+            options["trajectory"] = trajectory
+    else:
+        if session or trajectory is not None:
+            raise ExcavatorPayloadError("--session and --trajectory apply to a hydraulic machine only")
+        motion = "nmpc" if motion is None else motion
+        preset = get_noise_preset("thesis" if noise is None else noise)
+    _check_arguments(n_experiments, seed, None, motion, first_experiment, machine)
     if frozen_noise_seed is not None and (isinstance(frozen_noise_seed, bool) or frozen_noise_seed < 0):
         raise ExcavatorPayloadError(f"frozen_noise_seed must be a whole number ≥ 0, got {frozen_noise_seed!r}")
-    opts = tuple(sorted((str(k), tuple(v) if isinstance(v, list) else v) for k, v in (options or {}).items()))
-    return RunSpec(motion, int(seed), load_machine(machine), get_noise_preset(noise), bool(with_truth),
+    opts = tuple(sorted((str(k), tuple(v) if isinstance(v, list) else v) for k, v in options.items()))
+    return RunSpec(motion, int(seed), machine, preset, bool(with_truth),
                    int(first_experiment) + int(n_experiments),
                    None if frozen_noise_seed is None else int(frozen_noise_seed), opts)
 
@@ -253,9 +339,14 @@ def assemble(parts: dict[int, tuple], spec: RunSpec) -> Dataset:
         raise ExcavatorPayloadError(f"every experiment failed, nothing to write ({reasons})")
     frame = pd.concat(frames, ignore_index=True)
     frame["experiment"] = frame["experiment"].astype("int64")
-    meta = {"machine": spec.machine.to_dict(), "noise": spec.noise.name, "motion": spec.motion,
-            "base_seed": int(spec.seed), "sample_rate": SAMPLE_RATE, "experiments": metas,
-            "skipped": skipped}
+    sensors = sensor_set_of(spec.machine)
+    meta = {"sensor_set": sensors.name, "machine": spec.machine.to_dict(), "noise": spec.noise.name,
+            "motion": spec.motion, "base_seed": int(spec.seed), "sample_rate": sensors.sample_rate,
+            "experiments": metas, "skipped": skipped}
+    if is_hydraulic(spec.machine):
+        from excavator_payload.simulation.machine_sim import dataset_meta
+
+        meta.update(dataset_meta(spec))
     if spec.frozen_noise_seed is not None:
         meta["frozen_noise_seed"] = int(spec.frozen_noise_seed)
     if spec.motion == "nmpc":
@@ -272,7 +363,8 @@ def simulate_many(specs: dict, execution: Execution, progress: bool = True,
     keys = list(specs)
     tasks = [(specs[key], first, count) for key in keys
              for first, count in _chunks(0, specs[key].n_experiments,
-                                         chunk_size_for(specs[key].n_experiments, specs[key].motion))]
+                                         chunk_size_for(specs[key].n_experiments, specs[key].motion,
+                                                        specs[key].machine))]
     parts: dict = {key: {} for key in keys}
     owner = {id(specs[key]): key for key in keys}
 
@@ -288,7 +380,10 @@ def simulate_many(specs: dict, execution: Execution, progress: bool = True,
 def simulate_spec(spec: RunSpec, first_experiment: int, n_experiments: int, execution: Execution,
                   progress: bool = True, description: str = "simulating") -> Dataset:
     """Experiments ``first_experiment …`` of the run ``spec``, in memory, through ``execution``."""
-    chunks = _chunks(int(first_experiment), int(n_experiments), chunk_size_for(n_experiments, spec.motion))
+    # A trajectory run may hold fewer experiments than asked for: the spec knows how many.
+    n_experiments = min(int(n_experiments), spec.n_experiments - int(first_experiment))
+    chunks = _chunks(int(first_experiment), n_experiments,
+                     chunk_size_for(n_experiments, spec.motion, spec.machine))
     parts: dict[int, tuple] = {}
 
     def keep(first, count, result):
@@ -299,10 +394,11 @@ def simulate_spec(spec: RunSpec, first_experiment: int, n_experiments: int, exec
 
 
 def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
-                     noise: str | NoisePreset = "thesis", with_truth: bool = False, workers: int | None = None,
-                     motion: str = "nmpc", first_experiment: int = 0, progress: bool = True,
-                     scheduler: str | None = None, frozen_noise_seed: int | None = None,
-                     execution: Execution | None = None) -> Dataset:
+                     noise: str | NoisePreset | None = None, with_truth: bool = False,
+                     workers: int | None = None, motion: str | None = None, first_experiment: int = 0,
+                     progress: bool = True, scheduler: str | None = None,
+                     frozen_noise_seed: int | None = None, execution: Execution | None = None,
+                     session: int = 0, trajectory=None) -> Dataset:
     """Simulate ``n_experiments`` experiments in memory.
 
     Parameters
@@ -311,16 +407,18 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         Number of experiments (numbered ``first_experiment …``).
     seed : int
         Base seed; experiment ``k`` uses the streams of ``(seed, k)``.
-    machine : Machine or str
-        Machine, preset name or TOML machine file.
-    noise : NoisePreset or str
-        Noise preset: ``thesis``, ``none`` or ``field``.
+    machine : Machine, HydraulicMachine or str
+        Machine, preset name or TOML machine file (thesis arm or hydraulic machine).
+    noise : NoisePreset, MachineNoise or str, optional
+        Noise preset: ``thesis`` (default), ``none`` or ``field``; for a hydraulic machine
+        ``field`` (default) or ``none``.
     with_truth : bool
         Add the noise-free ``true_*`` columns.
     workers : int, optional
         Local worker processes (default: all cores). The data do not depend on it.
-    motion : str
-        A key of :data:`MOTIONS`: ``nmpc`` (the thesis' simulator), ``minimum-jerk`` or ``lifts``.
+    motion : str, optional
+        A key of :data:`MOTIONS`: ``nmpc`` (default, the thesis' simulator), ``minimum-jerk`` or
+        ``lifts``; for a hydraulic machine a key of :data:`MACHINE_MOTIONS` (default ``swing``).
     first_experiment : int
         Number of the first experiment.
     progress : bool
@@ -332,6 +430,11 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         Put the same noise sequence (drawn from this seed) in every experiment.
     execution : Execution, optional
         An open execution layer to use instead of ``workers`` / ``scheduler`` (kept open).
+    session : int
+        Hydraulic machine: the working session, which draws the sensor offsets (independently
+        of ``seed``).
+    trajectory : str, Path or Trajectory, optional
+        Hydraulic machine: prescribed motions to replay (``motion="trajectory"``).
 
     Returns
     -------
@@ -339,8 +442,9 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         ``meta["experiments"]`` describes each written experiment, ``meta["skipped"]`` lists
         the experiments whose simulation failed, with the reason.
     """
-    _check_arguments(n_experiments, seed, workers, motion, first_experiment)
-    spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, first_experiment, frozen_noise_seed)
+    spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, first_experiment,
+                     frozen_noise_seed, session=session, trajectory=trajectory)
+    _check_arguments(n_experiments, seed, workers, spec.motion, first_experiment, spec.machine)
     if execution is not None:
         return simulate_spec(spec, first_experiment, n_experiments, execution, progress)
     with Execution(scheduler, None if workers is None else int(workers)) as own:
@@ -374,10 +478,11 @@ def _read_chunk(path: Path) -> tuple | None:
 
 
 def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
-                     machine: Machine | str = "cat345c", noise: str | NoisePreset = "thesis",
-                     with_truth: bool = False, workers: int | None = None, motion: str = "nmpc",
+                     machine: Machine | str = "cat345c", noise: str | NoisePreset | None = None,
+                     with_truth: bool = False, workers: int | None = None, motion: str | None = None,
                      progress: bool = True, scheduler: str | None = None,
-                     frozen_noise_seed: int | None = None, execution: Execution | None = None) -> Dataset:
+                     frozen_noise_seed: int | None = None, execution: Execution | None = None,
+                     session: int = 0, trajectory=None) -> Dataset:
     """Simulate and write the dataset to ``out`` (Parquet, atomic); resume an interrupted run.
 
     Finished chunks of experiments are kept in ``<out>.partial/`` until the file is written;
@@ -390,14 +495,18 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
         Bad arguments, an unwritable output, or a checkpoint folder from a run with other
         settings.
     """
-    _check_arguments(n_experiments, seed, workers, motion)
     out = Path(out)
     if out.is_dir():
         raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
-    spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed)
-    n_experiments = int(n_experiments)
+    spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed,
+                     session=session, trajectory=trajectory)
+    _check_arguments(n_experiments, seed, workers, spec.motion, 0, spec.machine)
+    source = dict(spec.options).get("trajectory")
+    if source is not None and Path(source.source).resolve() == out.resolve():
+        raise DatasetError("the output would overwrite the trajectory file")
+    n_experiments = spec.n_experiments  # a trajectory may hold fewer than asked for
     folder = partial_folder(out)
-    settings = {**spec.to_dict(), "chunk_size": chunk_size_for(n_experiments, motion)}
+    settings = {**spec.to_dict(), "chunk_size": chunk_size_for(n_experiments, spec.motion, spec.machine)}
     run_file = folder / "run.json"
     parts: dict[int, tuple] = {}
     if run_file.exists():

@@ -298,6 +298,9 @@ class InverseDynamicsEstimator(Estimator):
     """
 
     name = "inverse-dynamics"
+    #: On the machine sensor set (a hydraulic machine) the kernel is
+    #: :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`.
+    SENSOR_SETS = ("thesis", "machine")
     OPTIONS = {
         "forgetting": Option(float, 1.0, "forgetting factor λ in (0, 1]; 1 keeps the whole history"),
         "warmup_std": Option(float, 50.0, "status warming_up until the estimate's std (kg) is at most this"),
@@ -306,6 +309,8 @@ class InverseDynamicsEstimator(Estimator):
         "eiv_correction": Option(bool, True, "correct the errors-in-variables bias of noisy kinematics"),
         "noise": Option(str, "auto", "sensor noise preset for the weights (auto: the training data's)",
                         ("auto", "thesis", "none", "field")),
+        "half_window": Option(int, 5, "machine sensor set: samples each side of the centred "
+                              "differentiator that gives the accelerations"),
     }
 
     def __init__(self, machine=None, **options) -> None:
@@ -315,11 +320,51 @@ class InverseDynamicsEstimator(Estimator):
             raise EstimatorError(f"{self.name}: option --forgetting must be in (0, 1], got {lam}")
         if not self.options["warmup_std"] > 0:
             raise EstimatorError(f"{self.name}: option --warmup-std must be > 0 kg")
+        if not 1 <= self.options["half_window"] <= 100:
+            raise EstimatorError(f"{self.name}: option --half-window must be in 1…100 samples")
+        self._pressure = None  # the machine sensor set's kernel, once fitted on such data
+        if self._hydraulic:
+            self.noise_name = "field"
+            self._pressure_noise = (0.0, 0.0)
+            self._reset()
+            return
         self.theta_empty, self.theta_payload = base_parameters(self.machine)
         self.variances = sensor_variances("thesis")
         self.noise_name = "thesis"
         self._prepare()
         self._reset()
+
+    @property
+    def _hydraulic(self) -> bool:
+        return getattr(self.machine, "kind", None) == "hydraulic"
+
+    def _build_pressure_kernel(self) -> None:
+        from excavator_payload.estimators.classical.pressure_regression import PressureRegression
+        from excavator_payload.model.hydraulic import HydraulicArmModel
+
+        std, ripple = self._pressure_noise
+        self._pressure = PressureRegression(HydraulicArmModel(self.machine, compiled=False),
+                                            pressure_std=std, ripple_fraction=ripple,
+                                            half_window=self.options["half_window"],
+                                            forgetting=self.options["forgetting"])
+        self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
+
+    def _fit_machine_set(self, dataset: Dataset) -> None:
+        from excavator_payload.simulation.machine_sensors import get_machine_noise
+
+        if not self._hydraulic:
+            raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
+                                 f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
+        name = self.options["noise"]
+        if name == "auto":
+            name = dataset.meta.get("noise")
+            if name is None:
+                raise EstimatorError(f"{self.name}: the training data names no noise preset; "
+                                     "pass --noise field|none")
+        preset = get_machine_noise(name)
+        self.noise_name = preset.name
+        self._pressure_noise = (preset.pressure_noise, preset.ripple_fraction)
+        self._build_pressure_kernel()
 
     # -- fitting ---------------------------------------------------------------------------
     def _noise_from(self, dataset: Dataset):
@@ -338,6 +383,12 @@ class InverseDynamicsEstimator(Estimator):
         self._prepare()
 
     def _fit(self, dataset: Dataset) -> None:
+        if dataset.sensor_set.name == "machine":
+            self._fit_machine_set(dataset)
+            return
+        if self._hydraulic:
+            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
+                                 "with machine-sensor-set data")
         self._set_noise(self._noise_from(dataset))
         self.theta_empty, self.theta_payload = base_parameters(self.machine)
         self._prepare()
@@ -358,8 +409,24 @@ class InverseDynamicsEstimator(Estimator):
     def _reset(self) -> None:
         self._num = 0.0
         self._info = 0.0
+        if self._pressure is not None:
+            self._pressure.reset()
+
+    def _in_range(self, values: np.ndarray) -> bool:
+        if not self._hydraulic:
+            return super()._in_range(values)
+        ranges = self.machine.angle_ranges
+        angles = values[[self.sensor_set.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle")]]
+        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
+        if self._pressure is not None:
+            self._pressure.update(time, values)
+            self._info = self._pressure.info
+            if self._info <= 0.0:
+                return StepResult(math.nan, Status.WARMING_UP)
+            status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
+            return StepResult(self._pressure.estimate, status)
         if self._info > 0.0:  # weights use the current estimate, kept physical
             m_w = min(max(self._num / self._info, 0.0), self._max_payload)
         else:
@@ -381,16 +448,28 @@ class InverseDynamicsEstimator(Estimator):
 
     # -- persistence -----------------------------------------------------------------------
     def _config(self) -> dict:
+        if self._pressure is not None:
+            return {"noise": self.noise_name, "kernel": "pressure_regression"}
         return {"noise": self.noise_name,
                 "base_parameter_names": list(BASE_PARAMETER_NAMES),
                 "payload_parameter_names": list(PAYLOAD_PARAMETER_NAMES)}
 
     def _arrays(self) -> dict[str, np.ndarray]:
+        if self._pressure is not None:
+            return {"pressure_noise": np.asarray(self._pressure_noise, float)}
         return {"theta_empty": np.asarray(self.theta_empty, float),
                 "theta_payload": np.asarray(self.theta_payload, float),
                 "sensor_variances": np.asarray(self.variances, float)}
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        if config.get("kernel") == "pressure_regression":
+            noise = np.asarray(arrays["pressure_noise"], float)
+            if noise.shape != (2,) or not np.all(np.isfinite(noise)) or not self._hydraulic:
+                raise EstimatorError("saved pressure-regression state is corrupt")
+            self._pressure_noise = (float(noise[0]), float(noise[1]))
+            self.noise_name = str(config.get("noise", "unknown"))
+            self._build_pressure_kernel()
+            return
         theta_empty = np.asarray(arrays["theta_empty"], float)
         theta_payload = np.asarray(arrays["theta_payload"], float)
         variances = np.asarray(arrays["sensor_variances"], float)

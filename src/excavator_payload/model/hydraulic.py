@@ -1,0 +1,498 @@
+r"""Dynamics of the hydraulic machine: boom, dipper and bucket on a slewing, tilted house.
+
+The single symbolic source of the hydraulic machine's physics (as :mod:`.dynamics` is for the
+thesis' 2-link arm): rigid-body dynamics by Lagrange, cylinder kinematics (lengths and moment
+arms, the bucket through its four-bar linkage), seal friction and the pressures that produce a
+cylinder force, all CasADi expressions of the machine's parameter vector
+(:data:`HYDRAULIC_PARAMETER_NAMES`).
+
+Coordinates
+-----------
+:math:`q = [q_1, q_2, q_3, \psi]`: boom angle (from the house's x axis, up positive), dipper
+angle (relative to the boom), bucket angle (relative to the dipper) and slew angle (about the
+house's vertical axis). The arm moves in the house's x–z plane; the house stands on ground
+tilted by ``tilt`` = [pitch, roll] (pitch: front up, roll: left side up), so that the house
+frame is :math:`R_H = R_x(\mathrm{roll})\,R_y(-\mathrm{pitch})\,R_z(\psi)` in the world.
+
+Lagrangian
+----------
+Each link :math:`i` has mass :math:`m_i`, centre of mass :math:`c_i` in its frame and
+principal inertia :math:`(I_u, I_y, I_w)_i` about it; the payload is a point mass at
+``payload_position`` in the bucket frame. With :math:`p_H` a point in house coordinates, its
+world velocity has the magnitude of :math:`\dot p_H + \dot\psi\, e_z \times p_H`, and a link's
+angular velocity in its own frame is :math:`R_y(-\theta_i)^\top (0, -\dot\theta_i, \dot\psi)`
+(:math:`\theta_i` its absolute angle in the arm plane). Then
+
+.. math::
+
+    K = \sum_i \tfrac12 m_i \|v_i\|^2 + \tfrac12 \omega_i^\top I_i \omega_i
+        + \tfrac12 (J_H + m_H r_H^2)\dot\psi^2 + \tfrac12 m \|v_m\|^2, \quad
+    P = -\sum_j m_j\, g_H \cdot p_{H,j}, \quad
+    D = \tfrac12 \sum_k \beta_k \dot q_k^2
+
+with :math:`g_H = R_H^\top (0, 0, -g)` gravity in the house frame, and
+:math:`\tau = \frac{d}{dt}\partial_{\dot q}K - \partial_q K + \partial_q P + \partial_{\dot q}D
+= M(q)\ddot q + h(q, \dot q)`. Slewing adds centrifugal and Coriolis terms on the arm joints,
+tilt turns gravity (and loads the slew drive). With the bucket locked, no slew, no tilt and
+uniform-bar links this is the thesis' 2-link model (tested).
+
+Cylinders
+---------
+Cylinder length :math:`l_j(q)` is the distance between its two pins; the bucket cylinder's rod
+pin G is the joint of the rocker (pivot E on the dipper) and the link (pin F on the bucket): the
+intersection of two circles, closed form. The moment arm is :math:`\partial l_j / \partial q_j`
+(CasADi's Jacobian), and by virtual work the joint torque of ``count`` cylinders with force
+:math:`F` each is :math:`\tau_j = \text{count}\cdot F \cdot \partial l_j/\partial q_j`. The
+force is :math:`F = p_h A_h - p_r A_r - F_f`, where seal friction
+
+.. math::
+
+    F_f = s\,(F_C + \mu |F_\text{load}|)\,\bigl(1 + (r_s - 1) e^{-(v/v_s)^2}\bigr) + b v
+
+has Coulomb (:math:`F_C`, plus :math:`\mu` times the load: seals press harder at high
+pressure), Stribeck (breakaway :math:`r_s F_C` at low speed) and viscous parts; :math:`s \in
+[-1, 1]` is a presliding (Dahl) state that follows the sign of the motion over the presliding
+displacement and *stays where it was* when the cylinder stops: stiction holds the last force.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import casadi as ca
+import numpy as np
+
+from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+LINKS = ("boom", "dipper", "bucket")
+CYLINDERS = ("boom_cylinder", "dipper_cylinder", "bucket_cylinder")
+
+#: Order of the parameter vector ``p`` of every symbolic function of this module.
+HYDRAULIC_PARAMETER_NAMES: tuple[str, ...] = (
+    "gravity",
+    "boom_length", "dipper_length", "bucket_length",
+    "boom_foot_x", "boom_foot_z",
+    *(f"{link}_{k}" for link in LINKS
+      for k in ("mass", "com_u", "com_w", "inertia_u", "inertia_y", "inertia_w")),
+    "house_mass", "house_com_x", "house_com_y", "house_com_z", "house_slew_inertia",
+    "payload_u", "payload_w",
+    "boom_joint_friction", "dipper_joint_friction", "bucket_joint_friction", "slew_friction",
+    "boom_cylinder_parent_x", "boom_cylinder_parent_z", "boom_cylinder_child_u", "boom_cylinder_child_w",
+    "dipper_cylinder_parent_u", "dipper_cylinder_parent_w", "dipper_cylinder_child_u",
+    "dipper_cylinder_child_w",
+    "bucket_cylinder_parent_u", "bucket_cylinder_parent_w",
+    "rocker_pivot_u", "rocker_pivot_w", "rocker_length", "link_length", "bucket_point_u",
+    "bucket_point_w", "linkage_branch",
+    *(f"{c}_{k}" for c in CYLINDERS for k in ("count", "head_area", "rod_area", "coulomb",
+                                               "load_coefficient", "static_ratio",
+                                               "stribeck_velocity", "viscous")),
+    "back_pressure",
+)
+
+
+def parameter_vector(machine: HydraulicMachine) -> np.ndarray:
+    """The machine's parameters in the order of :data:`HYDRAULIC_PARAMETER_NAMES`."""
+    m = machine
+    v: dict[str, float] = {"gravity": m.gravity, "boom_length": m.boom.length,
+                           "dipper_length": m.dipper.length, "bucket_length": m.bucket.length,
+                           "boom_foot_x": m.house.boom_foot[0], "boom_foot_z": m.house.boom_foot[1]}
+    for name, link in zip(LINKS, m.links):
+        v.update({f"{name}_mass": link.mass, f"{name}_com_u": link.com[0], f"{name}_com_w": link.com[1],
+                  f"{name}_inertia_u": link.inertia[0], f"{name}_inertia_y": link.inertia[1],
+                  f"{name}_inertia_w": link.inertia[2], f"{name}_joint_friction": link.joint_friction})
+    v.update({"house_mass": m.house.mass, "house_com_x": m.house.com[0], "house_com_y": m.house.com[1],
+              "house_com_z": m.house.com[2], "house_slew_inertia": m.house.slew_inertia,
+              "payload_u": m.payload.position[0], "payload_w": m.payload.position[1],
+              "slew_friction": m.house.slew_friction})
+    bc, dc, kc, lk = m.boom_cylinder, m.dipper_cylinder, m.bucket_cylinder, m.linkage
+    v.update({"boom_cylinder_parent_x": bc.parent_point[0], "boom_cylinder_parent_z": bc.parent_point[1],
+              "boom_cylinder_child_u": bc.child_point[0], "boom_cylinder_child_w": bc.child_point[1],
+              "dipper_cylinder_parent_u": dc.parent_point[0], "dipper_cylinder_parent_w": dc.parent_point[1],
+              "dipper_cylinder_child_u": dc.child_point[0], "dipper_cylinder_child_w": dc.child_point[1],
+              "bucket_cylinder_parent_u": kc.parent_point[0], "bucket_cylinder_parent_w": kc.parent_point[1],
+              "rocker_pivot_u": lk.rocker_pivot[0], "rocker_pivot_w": lk.rocker_pivot[1],
+              "rocker_length": lk.rocker_length, "link_length": lk.link_length,
+              "bucket_point_u": lk.bucket_point[0], "bucket_point_w": lk.bucket_point[1],
+              "linkage_branch": float(lk.branch), "back_pressure": m.hydraulics.back_pressure})
+    for name, c in zip(CYLINDERS, m.cylinders):
+        v.update({f"{name}_count": c.count, f"{name}_head_area": c.head_area,
+                  f"{name}_rod_area": c.rod_area, f"{name}_coulomb": c.coulomb,
+                  f"{name}_load_coefficient": c.load_coefficient, f"{name}_static_ratio": c.static_ratio,
+                  f"{name}_stribeck_velocity": c.stribeck_velocity, f"{name}_viscous": c.viscous})
+    return np.array([float(v[k]) for k in HYDRAULIC_PARAMETER_NAMES])
+
+
+def _rot2(angle):
+    """2-D rotation in the arm plane (u along x, w along z)."""
+    c, s = ca.cos(angle), ca.sin(angle)
+    return ca.vertcat(ca.horzcat(c, -s), ca.horzcat(s, c))
+
+
+def _rx(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.vertcat(ca.horzcat(1, 0, 0), ca.horzcat(0, c, -s), ca.horzcat(0, s, c))
+
+
+def _ry(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.vertcat(ca.horzcat(c, 0, s), ca.horzcat(0, 1, 0), ca.horzcat(-s, 0, c))
+
+
+def _rz(a):
+    c, s = ca.cos(a), ca.sin(a)
+    return ca.vertcat(ca.horzcat(c, -s, 0), ca.horzcat(s, c, 0), ca.horzcat(0, 0, 1))
+
+
+class HydraulicSymbolic:
+    """CasADi symbols, expressions and functions of the hydraulic machine (see module doc).
+
+    Symbols: ``q``, ``qd``, ``qdd``, ``tau`` (4 each: boom, dipper, bucket, slew), ``tilt`` (2:
+    ground pitch, roll), ``payload`` (1), ``p`` (:data:`HYDRAULIC_PARAMETER_NAMES`).
+    """
+
+    def __init__(self) -> None:
+        q, qd, qdd, tau = (ca.SX.sym(n, 4) for n in ("q", "qd", "qdd", "tau"))
+        tilt = ca.SX.sym("tilt", 2)
+        payload = ca.SX.sym("payload")
+        p = ca.SX.sym("p", len(HYDRAULIC_PARAMETER_NAMES))
+        P = {name: p[i] for i, name in enumerate(HYDRAULIC_PARAMETER_NAMES)}
+        self.q, self.qd, self.qdd, self.tau, self.tilt, self.payload, self.p = q, qd, qdd, tau, tilt, payload, p
+
+        # -- planar kinematics in the arm plane (house x, z) ---------------------------------
+        angles = [q[0], q[0] + q[1], q[0] + q[1] + q[2]]  # absolute link angles θ_i
+        foot = ca.vertcat(P["boom_foot_x"], P["boom_foot_z"])
+        dipper_joint = foot + ca.mtimes(_rot2(angles[0]), ca.vertcat(P["boom_length"], 0))
+        bucket_joint = dipper_joint + ca.mtimes(_rot2(angles[1]), ca.vertcat(P["dipper_length"], 0))
+        origins = [foot, dipper_joint, bucket_joint]
+
+        def in_plane(link: int, u, w):
+            return origins[link] + ca.mtimes(_rot2(angles[link]), ca.vertcat(u, w))
+
+        def to_house(xz):  # arm plane point -> 3-D house coordinates (y = 0)
+            return ca.vertcat(xz[0], 0, xz[1])
+
+        tip = in_plane(2, P["bucket_length"], 0)
+        payload_point = in_plane(2, P["payload_u"], P["payload_w"])
+
+        # -- energies ------------------------------------------------------------------------
+        slew_rate = qd[3]
+        e_z = ca.DM([0, 0, 1])
+
+        def velocity(point3):
+            return ca.mtimes(ca.jacobian(point3, q), qd) + ca.cross(slew_rate * e_z, point3)
+
+        R_house = ca.mtimes(ca.mtimes(_rx(tilt[1]), _ry(-tilt[0])), _rz(q[3]))
+        gravity_house = ca.mtimes(R_house.T, ca.vertcat(0, 0, -P["gravity"]))
+        kinetic, potential = 0, 0
+        for i, name in enumerate(LINKS):
+            m_i = P[f"{name}_mass"]
+            c3 = to_house(in_plane(i, P[f"{name}_com_u"], P[f"{name}_com_w"]))
+            v = velocity(c3)
+            theta_rate = ca.sum1(qd[: i + 1])
+            omega_house = ca.vertcat(0, -theta_rate, slew_rate)
+            omega_body = ca.mtimes(_ry(-angles[i]).T, omega_house)
+            inertia = ca.vertcat(P[f"{name}_inertia_u"], P[f"{name}_inertia_y"], P[f"{name}_inertia_w"])
+            kinetic += 0.5 * m_i * ca.dot(v, v) + 0.5 * ca.dot(inertia, omega_body**2)
+            potential -= m_i * ca.dot(gravity_house, c3)
+        m3 = to_house(payload_point)
+        v_m = velocity(m3)
+        kinetic += 0.5 * payload * ca.dot(v_m, v_m)
+        potential -= payload * ca.dot(gravity_house, m3)
+        house_com = ca.vertcat(P["house_com_x"], P["house_com_y"], P["house_com_z"])
+        r2 = P["house_com_x"] ** 2 + P["house_com_y"] ** 2
+        kinetic += 0.5 * (P["house_slew_inertia"] + P["house_mass"] * r2) * slew_rate**2
+        potential -= P["house_mass"] * ca.dot(gravity_house, house_com)
+        damping = ca.vertcat(P["boom_joint_friction"], P["dipper_joint_friction"],
+                             P["bucket_joint_friction"], P["slew_friction"])
+        rayleigh = 0.5 * ca.dot(damping, qd**2)
+
+        dK_dqd = ca.gradient(kinetic, qd)
+        torque = (ca.mtimes(ca.jacobian(dK_dqd, q), qd) + ca.mtimes(ca.jacobian(dK_dqd, qd), qdd)
+                  - ca.gradient(kinetic, q) + ca.gradient(potential, q) + ca.gradient(rayleigh, qd))
+        mass_matrix = ca.hessian(kinetic, qd)[0]
+        bias = ca.substitute(torque, qdd, ca.DM.zeros(4))
+        qdd_forward = ca.solve(mass_matrix, tau - bias)
+        regressor = ca.jacobian(torque, payload)
+        torque_empty = ca.substitute(torque, payload, 0)
+
+        # -- cylinders -----------------------------------------------------------------------
+        boom_a = ca.vertcat(P["boom_cylinder_parent_x"], P["boom_cylinder_parent_z"])
+        boom_b = in_plane(0, P["boom_cylinder_child_u"], P["boom_cylinder_child_w"])
+        dip_a = in_plane(0, P["dipper_cylinder_parent_u"], P["dipper_cylinder_parent_w"])
+        dip_b = in_plane(1, P["dipper_cylinder_child_u"], P["dipper_cylinder_child_w"])
+        buck_a = in_plane(1, P["bucket_cylinder_parent_u"], P["bucket_cylinder_parent_w"])
+        # Four-bar: G on the circle about E (rocker) and on the circle about F (link).
+        E = in_plane(1, P["rocker_pivot_u"], P["rocker_pivot_w"])
+        F = in_plane(2, P["bucket_point_u"], P["bucket_point_w"])
+        a, b = P["rocker_length"], P["link_length"]
+        d_vec = F - E
+        d = ca.norm_2(d_vec)
+        along = (a**2 - b**2 + d**2) / (2 * d)
+        # Outside the linkage's reach the root would be imaginary: fmax keeps it finite, and
+        # the simulator checks that motions stay inside the angle ranges where it is real.
+        height = ca.sqrt(ca.fmax(a**2 - along**2, 0))
+        normal = ca.vertcat(-d_vec[1], d_vec[0]) / d
+        G = E + along * d_vec / d + P["linkage_branch"] * height * normal
+        lengths = ca.vertcat(ca.norm_2(boom_b - boom_a), ca.norm_2(dip_b - dip_a), ca.norm_2(G - buck_a))
+        length_jacobian = ca.jacobian(lengths, q)
+        moment_arms = ca.vertcat(length_jacobian[0, 0], length_jacobian[1, 1], length_jacobian[2, 2])
+        counts = ca.vertcat(*[P[f"{c}_count"] for c in CYLINDERS])
+        head = ca.vertcat(*[P[f"{c}_head_area"] for c in CYLINDERS])
+        rod = ca.vertcat(*[P[f"{c}_rod_area"] for c in CYLINDERS])
+
+        # Cylinder force (per cylinder) that gives the arm torques: τ_j = count F_j ∂l_j/∂q_j.
+        arm_torque = ca.SX.sym("arm_torque", 3)
+        load_force = arm_torque / (counts * moment_arms)
+        cylinder_speed = moment_arms * qd[:3]
+
+        # Seal friction (module doc), per cylinder.
+        velocity_c = ca.SX.sym("v", 3)
+        state_c = ca.SX.sym("s", 3)
+        load_c = ca.SX.sym("load", 3)
+        def get(key):
+            return ca.vertcat(*[P[f"{c}_{key}"] for c in CYLINDERS])
+
+        stribeck = 1 + (get("static_ratio") - 1) * ca.exp(-(velocity_c / get("stribeck_velocity")) ** 2)
+        friction = (state_c * (get("coulomb") + get("load_coefficient") * ca.fabs(load_c)) * stribeck
+                    + get("viscous") * velocity_c)
+
+        # Pressures that produce a cylinder force F = p_h A_h − p_r A_r: the loaded side carries
+        # the force, the other holds the back pressure. Pushing (F > 0): p_r = p_back; pulling:
+        # p_h = p_back. Both satisfy the force balance exactly, so their blend by a smooth step
+        # of F (over ±1 kN) does too, and the pressures stay differentiable where F changes sign.
+        force_c = ca.SX.sym("force", 3)
+        blend = 1e3
+        pushing = 0.5 * (1 + force_c / ca.sqrt(force_c**2 + blend**2))
+        p_back = P["back_pressure"]
+        p_head = pushing * (force_c + p_back * rod) / head + (1 - pushing) * p_back
+        p_rod = pushing * p_back + (1 - pushing) * (p_back * head - force_c) / rod
+
+        # House inclination seen by an IMU on the house: angle of its x (pitch) and y (roll)
+        # axes above the horizontal.
+        house_pitch = ca.asin(ca.fmin(1, ca.fmax(-1, R_house[2, 0])))
+        house_roll = ca.asin(ca.fmin(1, ca.fmax(-1, R_house[2, 1])))
+
+        self.kinetic, self.potential, self.rayleigh = kinetic, potential, rayleigh
+        self.torque, self.mass_matrix, self.bias = torque, mass_matrix, bias
+        self.lengths, self.moment_arms = lengths, moment_arms
+
+        F_ = ca.Function
+        qn = ["q", "qd", "qdd", "tilt", "payload", "p"]
+        self.functions = {
+            "inverse_dynamics": F_("hyd_inverse_dynamics", [q, qd, qdd, tilt, payload, p], [torque], qn, ["tau"]),
+            "forward_dynamics": F_("hyd_forward_dynamics", [q, qd, tau, tilt, payload, p], [qdd_forward],
+                                   ["q", "qd", "tau", "tilt", "payload", "p"], ["qdd"]),
+            "mass_matrix": F_("hyd_mass_matrix", [q, payload, p], [mass_matrix], ["q", "payload", "p"], ["M"]),
+            "payload_regressor": F_("hyd_payload_regressor", [q, qd, qdd, tilt, p], [regressor],
+                                    ["q", "qd", "qdd", "tilt", "p"], ["phi"]),
+            "torque_empty": F_("hyd_torque_empty", [q, qd, qdd, tilt, p], [torque_empty],
+                               ["q", "qd", "qdd", "tilt", "p"], ["tau0"]),
+            "energy": F_("hyd_energy", [q, qd, tilt, payload, p], [kinetic, potential],
+                         ["q", "qd", "tilt", "payload", "p"], ["kinetic", "potential"]),
+            "cylinder_lengths": F_("hyd_cylinder_lengths", [q, p], [lengths], ["q", "p"], ["length"]),
+            "moment_arms": F_("hyd_moment_arms", [q, p], [moment_arms], ["q", "p"], ["arm"]),
+            "cylinder_speeds": F_("hyd_cylinder_speeds", [q, qd, p], [cylinder_speed], ["q", "qd", "p"], ["v"]),
+            "load_force": F_("hyd_load_force", [q, arm_torque, p], [load_force], ["q", "tau", "p"], ["force"]),
+            "friction": F_("hyd_friction", [velocity_c, state_c, load_c, p], [friction],
+                           ["v", "s", "load", "p"], ["friction"]),
+            "pressures": F_("hyd_pressures", [force_c, p], [p_head, p_rod], ["force", "p"],
+                            ["head", "rod"]),
+            "house_inclination": F_("hyd_house_inclination", [q, tilt], [ca.vertcat(house_pitch, house_roll)],
+                                    ["q", "tilt"], ["pitch_roll"]),
+            "tip_position": F_("hyd_tip_position", [q, p], [tip], ["q", "p"], ["tip"]),
+            "linkage_reach": F_("hyd_linkage_reach", [q, p], [a**2 - along**2], ["q", "p"], ["margin"]),
+        }
+        # The simulator's two calls per experiment, each one pass over the samples (compiled to
+        # C by HydraulicArmModel): rigid body + cylinder kinematics, then friction + pressures.
+        self.functions["motion_signals"] = F_(
+            "hyd_motion_signals", [q, qd, qdd, tilt, payload, p],
+            [torque, ca.substitute(load_force, arm_torque, torque[:3]), cylinder_speed, lengths,
+             ca.vertcat(house_pitch, house_roll)],
+            qn, ["tau", "load", "speed", "length", "inclination"])
+        # Weighing from pressures (machine sensor set): the arm torques the measured pressures
+        # give, τ_j = count·∂l_j/∂q_j·(p_h A_h − p_r A_r − F_f), with the seal friction's
+        # presliding state replaced by a smooth sign of the rod speed (unknown to an estimator;
+        # near standstill the friction is down-weighted, see ``stiction``), split as
+        # τ_j − τ0_j = m φ_j.
+        measured = ca.SX.sym("pressures", 6)  # boom head, rod, dipper head, rod, bucket head, rod
+        piston_force = measured[0::2] * head - measured[1::2] * rod
+        smooth_sign = cylinder_speed / ca.sqrt(cylinder_speed**2 + get("stribeck_velocity") ** 2)
+        friction_model = ca.substitute(ca.substitute(ca.substitute(
+            friction, velocity_c, cylinder_speed), state_c, smooth_sign), load_c, piston_force)
+        lever = counts * moment_arms
+        torque_from_pressures = lever * (piston_force - friction_model)
+        stiction = ca.fabs(lever) * (get("coulomb") + get("load_coefficient") * ca.fabs(piston_force)) \
+            * get("static_ratio")
+        self.functions["pressure_regression"] = F_(
+            "hyd_pressure_regression", [q, qd, qdd, tilt, measured, p],
+            [torque_from_pressures - torque_empty[:3], regressor[:3], lever, cylinder_speed, stiction],
+            ["q", "qd", "qdd", "tilt", "pressures", "p"],
+            ["residual", "phi", "lever", "speed", "stiction"])
+        total_force = load_c + friction
+        self.functions["cylinder_pressures"] = F_(
+            "hyd_cylinder_pressures", [velocity_c, state_c, load_c, p],
+            [friction, ca.substitute(ca.vertcat(p_head, p_rod), force_c, total_force)],
+            ["v", "s", "load", "p"], ["friction", "pressures"])
+
+
+@lru_cache(maxsize=1)
+def hydraulic_symbolic() -> HydraulicSymbolic:
+    """The hydraulic machine's symbolic model (built on first use, then cached)."""
+    return HydraulicSymbolic()
+
+
+_NATIVE: dict[str, ca.Function] = {}
+
+
+def compiled_function(name: str) -> ca.Function:
+    """The symbolic function ``name`` compiled to C (cached on disk, loaded once per process);
+    the function itself where no compiler is available."""
+    from excavator_payload.model.codegen import native
+
+    if name not in _NATIVE:
+        _NATIVE[name] = native(hydraulic_symbolic().functions[name])
+    return _NATIVE[name]
+
+
+def _cols(a) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    return np.ascontiguousarray(a.reshape(-1, a.shape[-1]).T)
+
+
+class HydraulicArmModel:
+    """Numeric model of one hydraulic machine, evaluated in batches.
+
+    Every method takes arrays with the coordinate on the last axis (``(..., 4)`` for ``q``,
+    ``qd``, ``qdd``: boom, dipper, bucket, slew; ``(..., 2)`` for ``tilt``; ``(..., 3)`` for
+    per-cylinder quantities) and broadcasts over the leading axes; one CasADi call per batch.
+
+    Parameters
+    ----------
+    machine : HydraulicMachine
+    """
+
+    def __init__(self, machine: HydraulicMachine, compiled: bool = True):
+        if not isinstance(machine, HydraulicMachine):
+            from excavator_payload.model.machine import load_machine
+
+            machine = load_machine(machine)
+            if not isinstance(machine, HydraulicMachine):
+                from excavator_payload.errors import MachineError
+
+                raise MachineError(f"machine '{machine.name}' is not a hydraulic machine")
+        self.machine = machine
+        self.p = parameter_vector(machine)
+        self.sym = hydraulic_symbolic()
+        self._f = dict(self.sym.functions)
+        if compiled:
+            for name in ("motion_signals", "cylinder_pressures"):
+                self._f[name] = compiled_function(name)
+
+    def _call(self, name: str, args: list, scalar_payload=None):
+        arrays = [np.asarray(a, dtype=float) for a in args]
+        shapes = [a.shape[:-1] for a in arrays]
+        if scalar_payload is not None:
+            shapes.append(np.shape(scalar_payload))
+        lead = np.broadcast_shapes(*shapes)
+        n = int(np.prod(lead)) if lead else 1
+        cols = [_cols(np.broadcast_to(a, lead + a.shape[-1:])) for a in arrays]
+        if scalar_payload is not None:
+            cols.append(np.broadcast_to(np.asarray(scalar_payload, float), lead).reshape(1, n))
+        cols.append(np.repeat(self.p[:, None], n, axis=1))
+        f = self._f[name]
+        out = f(*cols)
+        outs = out if isinstance(out, (tuple, list)) else (out,)
+        result = []
+        for o in outs:
+            o = np.asarray(o)
+            k = o.shape[0]
+            result.append(o.T.reshape(lead + ((k,) if k > 1 else ())))
+        return result if len(result) > 1 else result[0]
+
+    def _ordered(self, name, named: dict, payload=None):
+        """Call ``name`` with inputs by name (payload as the scalar broadcast argument)."""
+        f = self._f[name]
+        order = [f.name_in(i) for i in range(f.n_in()) if f.name_in(i) not in ("payload", "p")]
+        if payload is not None:
+            assert [f.name_in(i) for i in range(f.n_in())][-2] == "payload"
+        return self._call(name, [named[k] for k in order], payload)
+
+    # -- rigid-body dynamics ---------------------------------------------------------------
+    def inverse_dynamics(self, q, qd, qdd, tilt, payload):
+        """Generalised forces [τ_boom, τ_dipper, τ_bucket, τ_slew] (N·m), shape (..., 4)."""
+        return self._ordered("inverse_dynamics", dict(q=q, qd=qd, qdd=qdd, tilt=tilt), payload)
+
+    def forward_dynamics(self, q, qd, tau, tilt, payload):
+        """Accelerations q̈ (rad/s²) under generalised forces ``tau``, shape (..., 4)."""
+        return self._ordered("forward_dynamics", dict(q=q, qd=qd, tau=tau, tilt=tilt), payload)
+
+    def payload_regressor(self, q, qd, qdd, tilt):
+        """∂τ/∂m, so that τ = τ₀ + m·φ, shape (..., 4)."""
+        return self._ordered("payload_regressor", dict(q=q, qd=qd, qdd=qdd, tilt=tilt))
+
+    def torque_empty(self, q, qd, qdd, tilt):
+        """τ₀: the generalised forces with an empty bucket, shape (..., 4)."""
+        return self._ordered("torque_empty", dict(q=q, qd=qd, qdd=qdd, tilt=tilt))
+
+    def mass_matrix(self, q, payload):
+        out = self._call("mass_matrix", [q], payload)
+        return out.reshape(out.shape[:-1] + (4, 4))
+
+    def energy(self, q, qd, tilt, payload):
+        """(kinetic, potential) energy, J."""
+        return self._ordered("energy", dict(q=q, qd=qd, tilt=tilt), payload)
+
+    # -- cylinders -------------------------------------------------------------------------
+    def cylinder_lengths(self, q):
+        """Pin-to-pin lengths of the boom, dipper and bucket cylinders, m, shape (..., 3)."""
+        return self._call("cylinder_lengths", [q])
+
+    def moment_arms(self, q):
+        """∂l_j/∂q_j of the three cylinders, m/rad, shape (..., 3)."""
+        return self._call("moment_arms", [q])
+
+    def cylinder_speeds(self, q, qd):
+        """Rod speeds l̇_j (m/s, extension positive), shape (..., 3)."""
+        return self._call("cylinder_speeds", [q, qd])
+
+    def load_force(self, q, arm_torque):
+        """Force per cylinder (N) that produces the arm torques ``arm_torque`` (..., 3)."""
+        return self._call("load_force", [q, arm_torque])
+
+    def friction(self, velocity, state, load):
+        """Seal friction force per cylinder (N), opposing ``velocity`` (..., 3)."""
+        return self._call("friction", [velocity, state, load])
+
+    def pressures(self, force):
+        """(head, rod) pressures, Pa, that give the cylinder force ``force`` (N), each (..., 3)."""
+        return self._call("pressures", [force])
+
+    def house_inclination(self, q, tilt):
+        """(pitch, roll) of the house (rad) at slew angle q[..., 3] on ground ``tilt``, (..., 2)."""
+        q, tilt = np.asarray(q, float), np.asarray(tilt, float)
+        lead = np.broadcast_shapes(q.shape[:-1], tilt.shape[:-1])
+        n = int(np.prod(lead)) if lead else 1
+        out = self._f["house_inclination"](_cols(np.broadcast_to(q, lead + (4,))),
+                                           _cols(np.broadcast_to(tilt, lead + (2,))))
+        return np.asarray(out).T.reshape(lead + (2,)) if n else np.zeros(lead + (2,))
+
+    def tip_position(self, q):
+        """Bucket teeth in the arm plane [x, z] of the house frame, m."""
+        return self._call("tip_position", [q])
+
+    def motion_signals(self, q, qd, qdd, tilt, payload) -> dict[str, np.ndarray]:
+        """Everything the simulator needs from the rigid body and the cylinder kinematics in one
+        pass: ``tau`` (..., 4), per-cylinder ``load`` force, rod ``speed`` and ``length``
+        (..., 3), house ``inclination`` (..., 2)."""
+        out = self._ordered("motion_signals", dict(q=q, qd=qd, qdd=qdd, tilt=tilt), payload)
+        return dict(zip(("tau", "load", "speed", "length", "inclination"), out))
+
+    def cylinder_pressures(self, velocity, state, load):
+        """(friction (..., 3), head (..., 3), rod (..., 3)): seal friction and the pressures that
+        give load + friction."""
+        friction, pressures = self._call("cylinder_pressures", [velocity, state, load])
+        return friction, pressures[..., :3], pressures[..., 3:]
+
+    def linkage_margin(self, q):
+        """> 0 where the bucket four-bar closes (a² − along²), m²."""
+        return self._call("linkage_reach", [q])

@@ -1,0 +1,331 @@
+"""Hydraulic machine files: a boom–dipper–bucket arm on a slewing house, driven by cylinders.
+
+A hydraulic machine file (``kind = "hydraulic"``, see ``presets/cat345c-hydraulic.toml``) has
+these tables; every value is SI (m, kg, kg·m², rad, m², Pa, m³/s, N, N·s/m)::
+
+    kind = "hydraulic"
+    name, description, gravity
+    [house]           mass, com, slew_inertia, boom_foot, slew_friction, max_slew_rate
+    [boom]            length, mass, com, inertia, joint_friction, angle_range
+    [dipper]          length, mass, com, inertia, joint_friction, angle_range
+    [bucket]          length, mass, com, inertia, joint_friction, angle_range
+    [payload]         rated, max, position
+    [boom_cylinder]   count, parent_point, child_point, bore, rod, stroke,
+                      coulomb, load_coefficient, static_ratio, stribeck_velocity, viscous,
+                      presliding
+    [dipper_cylinder] (the same keys)
+    [bucket_cylinder] (the same keys except child_point: it drives the linkage)
+    [linkage]         rocker_pivot, rocker_length, link_length, bucket_point, branch
+    [hydraulics]      pump_flow, relief_pressure, back_pressure
+
+Frames (all planar in the arm's plane, the house's x–z plane): the house frame has x forward,
+z up along the slew axis; each link frame has its origin at the link's joint, ``u`` along the
+line to the next joint (for the bucket: to the teeth) and ``w`` perpendicular to it, up when
+the link is horizontal. ``com``, ``child_point``, ``position`` … are ``[u, w]`` in the link's
+frame; ``boom_foot`` and the boom cylinder's ``parent_point`` are ``[x, z]`` in the house frame,
+the dipper cylinder's ``parent_point`` is in the boom frame, the bucket cylinder's in the dipper
+frame. ``inertia`` is ``[along u, about the joint axis, along w]`` about the link's centre of
+mass (principal axes along the link frame). ``stroke`` is ``[shortest, longest]`` pin-to-pin
+cylinder length.
+
+Loading is strict: unknown tables or keys, missing fields, non-finite numbers and impossible
+values are reported in one line that names the field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from excavator_payload.errors import MachineError
+
+#: Value of ``kind`` that marks a hydraulic machine file.
+KIND = "hydraulic"
+
+
+def _f(kind: str, default: Any = None, doc: str = ""):
+    """A dataclass field with its TOML kind (``pos``, ``nonneg``, ``real``, ``vec2`` …)."""
+    if default is None:
+        return field(metadata={"kind": kind, "doc": doc})
+    return field(default=default, metadata={"kind": kind, "doc": doc})
+
+
+@dataclass(frozen=True, kw_only=True)
+class House:
+    """The slewing upper structure (without the arm)."""
+
+    mass: float = _f("pos")
+    com: tuple[float, float, float] = _f("vec3")  # [x, y, z] in the house frame
+    slew_inertia: float = _f("pos")  # about the vertical axis through its centre of mass, kg·m²
+    boom_foot: tuple[float, float] = _f("vec2")  # [x, z] of the boom joint in the house frame
+    slew_friction: float = _f("nonneg", 0.0)  # viscous, N·m·s/rad
+    max_slew_rate: float = _f("pos", 0.7)  # rad/s
+
+
+@dataclass(frozen=True, kw_only=True)
+class Link:
+    """One rigid link of the arm (boom, dipper or bucket)."""
+
+    length: float = _f("pos")  # joint to next joint (bucket: joint to teeth), m
+    mass: float = _f("pos")
+    com: tuple[float, float] = _f("vec2")
+    inertia: tuple[float, float, float] = _f("vec3pos")
+    angle_range: tuple[float, float] = _f("range")
+    joint_friction: float = _f("nonneg", 0.0)  # viscous friction of the pin, N·m·s/rad
+
+
+@dataclass(frozen=True, kw_only=True)
+class Payload:
+    rated: float = _f("pos")
+    max: float = _f("pos")
+    position: tuple[float, float] = _f("vec2")  # centre of the payload in the bucket frame
+
+
+@dataclass(frozen=True, kw_only=True)
+class Cylinder:
+    """A hydraulic cylinder (or ``count`` identical ones in parallel) and its seal friction."""
+
+    count: int = _f("count", 1)
+    parent_point: tuple[float, float] = _f("vec2")
+    child_point: tuple[float, float] | None = _f("vec2opt", ())
+    bore: float = _f("pos")
+    rod: float = _f("pos")
+    stroke: tuple[float, float] = _f("range")  # [shortest, longest] pin-to-pin length, m
+    coulomb: float = _f("nonneg")  # Coulomb seal friction, N
+    load_coefficient: float = _f("nonneg", 0.0)  # extra Coulomb friction per N of load force
+    static_ratio: float = _f("ratio", 1.0)  # breakaway / Coulomb friction (Stribeck peak)
+    stribeck_velocity: float = _f("pos", 0.005)  # m/s
+    viscous: float = _f("nonneg", 0.0)  # N·s/m
+    presliding: float = _f("pos", 0.001)  # displacement over which friction reverses, m
+
+    @property
+    def head_area(self) -> float:
+        """Piston area on the head side of one cylinder, m²."""
+        return math.pi * self.bore**2 / 4
+
+    @property
+    def rod_area(self) -> float:
+        """Annulus area on the rod side of one cylinder, m²."""
+        return math.pi * (self.bore**2 - self.rod**2) / 4
+
+
+@dataclass(frozen=True, kw_only=True)
+class Linkage:
+    """The bucket four-bar: the cylinder drives the rocker/link joint G."""
+
+    rocker_pivot: tuple[float, float] = _f("vec2")  # E, dipper frame
+    rocker_length: float = _f("pos")  # |EG|
+    link_length: float = _f("pos")  # |GF|
+    bucket_point: tuple[float, float] = _f("vec2")  # F, bucket frame
+    branch: int = _f("sign", 1)  # which of the two circle intersections G is
+
+
+@dataclass(frozen=True, kw_only=True)
+class Hydraulics:
+    pump_flow: float = _f("pos")  # largest flow one cylinder function can get, m³/s
+    relief_pressure: float = _f("pos")  # Pa
+    back_pressure: float = _f("nonneg")  # pressure held on the return side, Pa
+
+
+TABLES: dict[str, type] = {
+    "house": House, "boom": Link, "dipper": Link, "bucket": Link, "payload": Payload,
+    "boom_cylinder": Cylinder, "dipper_cylinder": Cylinder, "bucket_cylinder": Cylinder,
+    "linkage": Linkage, "hydraulics": Hydraulics,
+}
+TOP_LEVEL = ("kind", "name", "description", "gravity")
+
+
+@dataclass(frozen=True, kw_only=True)
+class HydraulicMachine:
+    """A hydraulic excavator: house, three links, cylinders, bucket linkage, hydraulics."""
+
+    name: str
+    house: House
+    boom: Link
+    dipper: Link
+    bucket: Link
+    payload: Payload
+    boom_cylinder: Cylinder
+    dipper_cylinder: Cylinder
+    bucket_cylinder: Cylinder
+    linkage: Linkage
+    hydraulics: Hydraulics
+    description: str = ""
+    gravity: float = 9.81
+
+    kind = KIND
+
+    @property
+    def rated_payload(self) -> float:
+        return self.payload.rated
+
+    @property
+    def max_payload(self) -> float:
+        return self.payload.max
+
+    @property
+    def links(self) -> tuple[Link, Link, Link]:
+        return (self.boom, self.dipper, self.bucket)
+
+    @property
+    def cylinders(self) -> tuple[Cylinder, Cylinder, Cylinder]:
+        return (self.boom_cylinder, self.dipper_cylinder, self.bucket_cylinder)
+
+    @property
+    def angle_ranges(self) -> np.ndarray:
+        """(3, 2) array of [low, high] of boom, dipper and bucket angles, rad."""
+        return np.array([link.angle_range for link in self.links], dtype=float)
+
+    # -- (de)serialisation -----------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """The machine file as nested dictionaries (JSON- and TOML-friendly)."""
+        out: dict = {"kind": KIND, "name": self.name, "description": self.description,
+                     "gravity": self.gravity}
+        for table in TABLES:
+            values = {}
+            for key, value in asdict(getattr(self, table)).items():
+                if value is None or value == ():
+                    continue
+                values[key] = list(value) if isinstance(value, tuple) else value
+            out[table] = values
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "machine") -> "HydraulicMachine":
+        """Parse (strictly) the nested dictionaries of :meth:`to_dict` or a TOML file."""
+        return parse_hydraulic(data, source, default_name="hydraulic")
+
+    def to_toml(self) -> str:
+        """The machine as a TOML machine file that :func:`load_machine` reads back."""
+        d = self.to_dict()
+        lines = [f'kind = "{KIND}"', f"name = {_toml(d['name'])}",
+                 f"description = {_toml(d['description'])}", f"gravity = {_toml(d['gravity'])}"]
+        for table in TABLES:
+            lines.append(f"\n[{table}]")
+            lines += [f"{k} = {_toml(v)}" for k, v in d[table].items()]
+        return "\n".join(lines) + "\n"
+
+
+def _toml(value) -> str:
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value)
+
+
+def is_hydraulic_data(data: dict) -> bool:
+    """Whether parsed TOML/JSON data describe a hydraulic machine (``kind`` or cylinder tables)."""
+    return data.get("kind") == KIND or any(t in data for t in ("boom_cylinder", "cylinders"))
+
+
+def parse_hydraulic(data: dict, source: str, default_name: str) -> HydraulicMachine:
+    """A :class:`HydraulicMachine` from parsed TOML, strictly checked.
+
+    Raises
+    ------
+    MachineError
+        One line naming the unknown, missing or bad field.
+    """
+    unknown = [k for k in data if k not in TOP_LEVEL and k not in TABLES]
+    if unknown:
+        raise MachineError(f"{source}: unknown table or key(s) {', '.join(map(repr, unknown))} "
+                           f"(a hydraulic machine has {', '.join(TABLES)})")
+    kind = data.get("kind", KIND)
+    if kind != KIND:
+        raise MachineError(f"{source}: field 'kind' must be \"{KIND}\", got {kind!r}")
+    name = data.get("name", default_name)
+    if not isinstance(name, str) or not name:
+        raise MachineError(f"{source}: field 'name' must be a non-empty string")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise MachineError(f"{source}: field 'description' must be a string")
+    gravity = _value(data.get("gravity", 9.81), "pos", "gravity", source)
+    tables = {}
+    for table, cls in TABLES.items():
+        raw = data.get(table)
+        if not isinstance(raw, dict):
+            raise MachineError(f"{source}: missing table [{table}]")
+        known = {f.name: f for f in fields(cls)}
+        extra = [k for k in raw if k not in known]
+        if extra:
+            raise MachineError(f"{source}: unknown key(s) {', '.join(f'{table}.{k}' for k in extra)} "
+                               f"(known: {', '.join(known)})")
+        values = {}
+        for key, f in known.items():
+            if key not in raw:
+                if f.default is not dataclass_missing():
+                    if table == "bucket_cylinder" or key != "child_point":
+                        continue
+                raise MachineError(f"{source}: missing field '{table}.{key}'")
+            values[key] = _value(raw[key], f.metadata["kind"], f"{table}.{key}", source)
+        tables[table] = cls(**values)
+    machine = HydraulicMachine(name=name, description=description, gravity=gravity, **tables)
+    _check(machine, source)
+    return machine
+
+
+def dataclass_missing():
+    from dataclasses import MISSING
+
+    return MISSING
+
+
+def _number(value, where: str, source: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise MachineError(f"{source}: field '{where}' must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise MachineError(f"{source}: field '{where}' must be finite, got {value!r}")
+    return float(value)
+
+
+def _value(value, kind: str, where: str, source: str):
+    if kind in ("vec2", "vec3", "vec3pos", "range", "vec2opt"):
+        n = 3 if kind.startswith("vec3") else 2
+        if not isinstance(value, list) or len(value) != n:
+            raise MachineError(f"{source}: field '{where}' must be a list of {n} numbers, got {value!r}")
+        out = tuple(_number(v, where, source) for v in value)
+        if kind == "range" and not out[0] < out[1]:
+            raise MachineError(f"{source}: field '{where}' must be [low, high] with low < high, got {value!r}")
+        if kind == "vec3pos" and not all(v > 0 for v in out):
+            raise MachineError(f"{source}: field '{where}' must hold positive numbers, got {value!r}")
+        return out
+    if kind == "count":
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise MachineError(f"{source}: field '{where}' must be a whole number ≥ 1, got {value!r}")
+        return value
+    if kind == "sign":
+        if value not in (1, -1) or isinstance(value, bool):
+            raise MachineError(f"{source}: field '{where}' must be 1 or -1, got {value!r}")
+        return int(value)
+    x = _number(value, where, source)
+    if kind == "pos" and x <= 0:
+        raise MachineError(f"{source}: field '{where}' must be a positive number, got {value!r}")
+    if kind == "nonneg" and x < 0:
+        raise MachineError(f"{source}: field '{where}' must not be negative, got {value!r}")
+    if kind == "ratio" and x < 1:
+        raise MachineError(f"{source}: field '{where}' must be ≥ 1, got {value!r}")
+    return x
+
+
+def _check(m: HydraulicMachine, source: str) -> None:
+    for table in ("boom_cylinder", "dipper_cylinder", "bucket_cylinder"):
+        c = getattr(m, table)
+        if not c.rod < c.bore:
+            raise MachineError(f"{source}: field '{table}.rod' must be smaller than the bore")
+        if c.stroke[0] <= 0:
+            raise MachineError(f"{source}: field '{table}.stroke' must be positive lengths")
+    if m.boom_cylinder.child_point in (None, ()) or m.dipper_cylinder.child_point in (None, ()):
+        raise MachineError(f"{source}: boom and dipper cylinders need a child_point")
+    if m.bucket_cylinder.child_point not in (None, ()):
+        raise MachineError(f"{source}: field 'bucket_cylinder.child_point' is not used: the bucket "
+                           "cylinder drives the linkage joint (see [linkage])")
+    if m.payload.max < m.payload.rated:
+        raise MachineError(f"{source}: field 'payload.max' must be ≥ payload.rated")
+    if m.hydraulics.back_pressure >= m.hydraulics.relief_pressure:
+        raise MachineError(f"{source}: field 'hydraulics.back_pressure' must be below the relief pressure")

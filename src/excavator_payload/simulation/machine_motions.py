@@ -1,0 +1,313 @@
+r"""Motions of the hydraulic machine, planned within what its hydraulics can do.
+
+A motion is, per coordinate (boom, dipper, bucket, slew), a sum of rest-to-rest minimum-jerk
+steps that may overlap in time, as an operator moves several levers at once:
+
+.. math::
+
+    q_j(t) = q_j(0) + \sum_k \Delta_{jk}\,\sigma\!\left(\frac{t - t_{jk}}{T_{jk}}\right), \qquad
+    \sigma(s) = 10s^3 - 15s^4 + 6s^5 \text{ on } [0, 1]
+
+(smooth: angles, rates and accelerations are continuous). A planned motion is then checked
+against the machine's hydraulics: the rod speed of each cylinder may not exceed what one
+pump's flow gives (``pump_flow`` / piston area when extending, / annulus area when retracting,
+shared by ``count`` cylinders), the slew rate may not exceed ``max_slew_rate``; if it does, the
+whole motion is slowed down uniformly (time stretched) until it fits. Poses stay inside the
+angle ranges (which fit the strokes) and the simulator rejects and redraws motions whose
+pressures would exceed the relief pressure.
+
+Motions
+-------
+``swing``       loaded swing from a digging pose to a dumping pose while slewing 30-180°, 8 s.
+``work-cycle``  operator-like cycle: curl at the end of the dig, lift while slewing, pause
+                with small corrections, dump (the load leaves the bucket), return; 12-20 s.
+``slopes``      work cycles on ground tilted up to 10° in a random direction.
+``lifts``       slow constant-speed boom lifts (calibration runs): dipper and bucket held,
+                no slew, payloads alternating empty / rated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from excavator_payload.model.hydraulic import HydraulicArmModel
+
+DEG = np.pi / 180.0
+MACHINE_MOTIONS = ("swing", "work-cycle", "slopes", "lifts")
+SAMPLE_RATE = 100.0
+
+
+@dataclass
+class Step:
+    """One step of coordinate ``joint`` by ``delta`` from ``start`` over ``duration``.
+
+    Minimum-jerk by default; with ``ramp`` (s) a constant-speed move whose speed ramps up and
+    down smoothly (σ of the rate) over ``ramp`` at both ends, as the calibration lifts.
+    """
+
+    joint: int
+    start: float
+    duration: float
+    delta: float
+    ramp: float | None = None
+
+    def profile(self, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Displacement, rate and acceleration of this step at ``time``."""
+        tau = time - self.start
+        D = self.duration
+        if self.ramp is None:
+            s = np.clip(tau / D, 0.0, 1.0)
+            inside = (tau > 0) & (tau < D)
+            return (self.delta * (10 * s**3 - 15 * s**4 + 6 * s**5),
+                    inside * self.delta * (30 * s**2 - 60 * s**3 + 30 * s**4) / D,
+                    inside * self.delta * (60 * s - 180 * s**2 + 120 * s**3) / D**2)
+        r = self.ramp
+        v = self.delta / (D - r)
+
+        def smooth(x):
+            x = np.clip(x, 0.0, 1.0)
+            return (10 * x**3 - 15 * x**4 + 6 * x**5, 30 * x**2 - 60 * x**3 + 30 * x**4,
+                    2.5 * x**4 - 3 * x**5 + x**6)
+
+        up_v, up_a, up_i = smooth(tau / r)
+        dn_v, dn_a, dn_i = smooth((D - tau) / r)
+        before, after = tau <= 0, tau >= D
+        rising, falling = (tau > 0) & (tau < r), (tau > D - r) & (tau < D)
+        pos = np.where(rising, v * r * up_i, np.where(falling, self.delta - v * r * dn_i,
+                                                       v * r / 2 + v * (tau - r)))
+        pos = np.where(before, 0.0, np.where(after, self.delta, pos))
+        rate = np.where(before | after, 0.0, v * np.where(rising, up_v, np.where(falling, dn_v, 1.0)))
+        accel = np.where(rising, v / r * up_a, np.where(falling, -v / r * dn_a, 0.0))
+        return pos, rate, accel
+
+
+@dataclass
+class Motion:
+    """A planned motion: initial pose, steps, duration, ground tilt, payload (kg, maybe over time)."""
+
+    initial: np.ndarray  # (4,) rad
+    steps: list[Step]
+    duration: float
+    tilt: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    payload: float = 0.0
+    release: tuple[float, float] | None = None  # the load leaves the bucket between these times
+    info: dict = field(default_factory=dict)
+
+    def stretched(self, factor: float) -> "Motion":
+        """The same motion ``factor`` times slower."""
+        steps = [Step(s.joint, s.start * factor, s.duration * factor, s.delta,
+                      None if s.ramp is None else s.ramp * factor) for s in self.steps]
+        release = None if self.release is None else (self.release[0] * factor, self.release[1] * factor)
+        return Motion(self.initial.copy(), steps, self.duration * factor, self.tilt.copy(),
+                      self.payload, release, dict(self.info))
+
+    def sample(self, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(q, q̇, q̈) at ``time``, each (n, 4)."""
+        n = len(time)
+        q = np.tile(self.initial, (n, 1)).astype(float)
+        qd = np.zeros((n, 4))
+        qdd = np.zeros((n, 4))
+        for st in self.steps:
+            pos, rate, accel = st.profile(time)
+            q[:, st.joint] += pos
+            qd[:, st.joint] += rate
+            qdd[:, st.joint] += accel
+        return q, qd, qdd
+
+    def payload_at(self, time: np.ndarray) -> np.ndarray:
+        """Mass in the bucket at ``time`` (falls linearly to 0 over the release window)."""
+        if self.release is None:
+            return np.full(len(time), float(self.payload))
+        a, b = self.release
+        return self.payload * np.clip((b - time) / (b - a), 0.0, 1.0)
+
+
+def speed_ratio(arm: HydraulicArmModel, motion: Motion, time: np.ndarray) -> float:
+    """Largest share of the hydraulic speed limits the motion uses (> 1: too fast)."""
+    q, qd, _ = motion.sample(time)
+    m = arm.machine
+    speeds = arm.cylinder_speeds(q, qd)
+    flow = m.hydraulics.pump_flow
+    ratios = []
+    for j, cyl in enumerate(m.cylinders):
+        v_out = flow / (cyl.count * cyl.head_area)
+        v_in = flow / (cyl.count * cyl.rod_area)
+        ratios.append(np.max(np.where(speeds[:, j] >= 0, speeds[:, j] / v_out, -speeds[:, j] / v_in)))
+    ratios.append(np.max(np.abs(qd[:, 3])) / m.house.max_slew_rate)
+    return float(max(ratios))
+
+
+def fit_to_hydraulics(arm: HydraulicArmModel, motion: Motion) -> Motion:
+    """``motion``, slowed down uniformly if it asks for more speed than the pumps give."""
+    time = np.arange(0.0, motion.duration + 1e-9, 0.02)
+    ratio = speed_ratio(arm, motion, time)
+    if ratio > 1.0:
+        motion = motion.stretched(ratio * 1.01)
+        motion.info["time_stretch"] = ratio * 1.01
+    else:
+        motion.info["time_stretch"] = 1.0
+    motion.info["speed_share"] = min(ratio, 1.0 / 1.01) if ratio > 1 else ratio
+    return motion
+
+
+def _uniform(rng, lo, hi):
+    return float(rng.uniform(lo, hi))
+
+
+def shortest_duration(arm: HydraulicArmModel, joint: int, start: float, delta: float) -> float:
+    """Shortest minimum-jerk step of ``joint`` from ``start`` by ``delta`` that the hydraulics
+    allow on its own: rod speed ≤ pump flow / area (each cylinder moves only its joint, so
+    its moment arm depends on that joint's angle alone), slew rate ≤ ``max_slew_rate``."""
+    m = arm.machine
+    s = np.linspace(0.0, 1.0, 41)
+    shape = 30 * s**2 - 60 * s**3 + 30 * s**4  # σ'(s)
+    if joint == 3:
+        return float(1.875 * abs(delta) / m.house.max_slew_rate)
+    q = np.zeros((len(s), 4))
+    q[:, :3] = (-0.3, -1.3, -0.8)
+    q[:, joint] = start + delta * (10 * s**3 - 15 * s**4 + 6 * s**5)
+    rod_speed_per_time = arm.moment_arms(q)[:, joint] * delta * shape  # × 1/T
+    cyl = m.cylinders[joint]
+    flow = m.hydraulics.pump_flow
+    limit = np.where(rod_speed_per_time >= 0, flow / (cyl.count * cyl.head_area),
+                     flow / (cyl.count * cyl.rod_area))
+    return float(np.max(np.abs(rod_speed_per_time) / limit))
+
+
+def _step(rng, arm, joint, begin, start_angle, delta, lo, hi) -> Step:
+    """A step that takes a drawn operator's time, but never less than the hydraulics allow."""
+    shortest = 1.1 * shortest_duration(arm, joint, start_angle, delta)
+    return Step(joint, begin, max(_uniform(rng, lo, hi), shortest), float(delta))
+
+
+def _inside(machine, margin=5 * DEG):
+    r = machine.angle_ranges.copy()
+    r[:, 0] += margin
+    r[:, 1] -= margin
+    return r
+
+
+def dig_pose(rng, machine) -> np.ndarray:
+    """End of a dig: boom low, dipper pulled in, bucket curled."""
+    r = _inside(machine)
+    return np.array([_uniform(rng, r[0, 0], r[0, 0] + 25 * DEG), _uniform(rng, -110 * DEG, -75 * DEG),
+                     _uniform(rng, -60 * DEG, -30 * DEG), 0.0])
+
+
+def carry_pose(rng, machine) -> np.ndarray:
+    """Over the truck: boom high, dipper half out, bucket curled in to hold the load."""
+    r = _inside(machine)
+    return np.array([_uniform(rng, 25 * DEG, r[0, 1]), _uniform(rng, -90 * DEG, -45 * DEG),
+                     _uniform(rng, -115 * DEG, -85 * DEG), 0.0])
+
+
+def swing_motion(rng, arm: HydraulicArmModel) -> Motion:
+    """A loaded swing while slewing 30-180°, from a digging to a dumping pose."""
+    machine = arm.machine
+    start = dig_pose(rng, machine)
+    target = carry_pose(rng, machine)
+    target[3] = _uniform(rng, 30 * DEG, 180 * DEG) * rng.choice([-1, 1])
+    steps = []
+    t0 = _uniform(rng, 0.3, 0.8)
+    end = 0.0
+    for j in range(4):
+        steps.append(_step(rng, arm, j, t0 + _uniform(rng, 0.0, 0.6), start[j], target[j] - start[j],
+                           2.0, 3.5))
+        end = max(end, steps[-1].start + steps[-1].duration)
+    payload = _uniform(rng, 0.0, machine.max_payload)
+    return Motion(start, steps, end + _uniform(rng, 1.0, 1.5), payload=payload,
+                  info={"start_pose": start.tolist(), "target_pose": target.tolist()})
+
+
+def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
+    """Curl, lift while slewing, pause with corrections, dump, return (module doc)."""
+    machine = arm.machine
+    start = dig_pose(rng, machine)
+    start[2] = _uniform(rng, -20 * DEG, 10 * DEG)  # bucket still open at the end of the cut
+    carry = carry_pose(rng, machine)
+    slew = _uniform(rng, 45 * DEG, 160 * DEG) * rng.choice([-1, 1])
+    steps: list[Step] = []
+    t = _uniform(rng, 0.3, 0.8)
+    # 1. curl the bucket and pull the dipper in: the end of the dig
+    curl = _step(rng, arm, 2, t, start[2], carry[2] - start[2], 1.0, 2.0)
+    pull = _uniform(rng, -10 * DEG, 0.0)
+    steps += [curl, Step(1, t, curl.duration, pull)]
+    # 2. lift while slewing (starts before the curl is over), dipper out meanwhile
+    t_lift = t + 0.6 * curl.duration
+    lift = _step(rng, arm, 0, t_lift, start[0], carry[0] - start[0], 2.5, 4.0)
+    swing = _step(rng, arm, 3, t_lift + _uniform(rng, 0.0, 0.8), 0.0, slew, 2.5, 4.0)
+    dipper = _step(rng, arm, 1, t_lift + 0.3 * lift.duration, start[1] + pull,
+                   carry[1] - start[1] - pull, 1.5, 3.0)
+    steps += [lift, swing, dipper]
+    t = max(s.start + s.duration for s in steps) + _uniform(rng, 0.2, 0.8)
+    # 3. pause over the truck with small corrections (where stiction bites)
+    pause = _uniform(rng, 1.0, 2.5)
+    for _ in range(int(rng.integers(1, 4))):
+        joint = int(rng.integers(0, 3))
+        steps.append(Step(joint, t + _uniform(rng, 0.0, pause - 0.6), 0.5, _uniform(rng, -2 * DEG, 2 * DEG)))
+    t += pause
+    # 4. dump: bucket opens, dipper out a little; the load leaves the bucket meanwhile
+    dump = _step(rng, arm, 2, t, carry[2], _uniform(rng, 100 * DEG, 120 * DEG), 1.0, 2.0)
+    steps += [dump, Step(1, t, dump.duration, _uniform(rng, 5 * DEG, 15 * DEG))]
+    release = (t + 0.3 * dump.duration, t + dump.duration)
+    t += dump.duration + _uniform(rng, 0.2, 0.6)
+    # 5. return: slew back, boom down, bucket ready to dig
+    back = _step(rng, arm, 3, t, slew, -slew, 2.5, 4.0)
+    lower = _step(rng, arm, 0, t + 0.3, carry[0], start[0] - carry[0], 2.5, 4.0)
+    ready = _step(rng, arm, 2, t + 0.5, carry[2] + dump.delta, _uniform(rng, -40 * DEG, -10 * DEG), 1.5, 3.0)
+    steps += [back, lower, ready]
+    duration = max(s.start + s.duration for s in steps) + _uniform(rng, 0.5, 1.0)
+    payload = _uniform(rng, 0.0, machine.max_payload)
+    motion = Motion(start, steps, duration, tilt=np.asarray(tilt, float), payload=payload,
+                    release=release, info={"start_pose": start.tolist(), "carry_pose": carry.tolist(),
+                                           "slew": slew})
+    return _clip_to_ranges(motion, machine)
+
+
+def _clip_to_ranges(motion: Motion, machine) -> Motion:
+    """Shrink steps that would leave an angle range (corrections near an end)."""
+    r = _inside(machine, 1 * DEG)
+    time = np.linspace(0, motion.duration, 400)
+    for _ in range(5):
+        q, _, _ = motion.sample(time)
+        ok = True
+        for j in range(3):
+            if q[:, j].min() < r[j, 0] or q[:, j].max() > r[j, 1]:
+                ok = False
+                # scale down the last step of that joint that pushes outwards
+                for st in reversed(motion.steps):
+                    if st.joint == j:
+                        st.delta *= 0.5
+                        break
+        if ok:
+            return motion
+    return motion
+
+
+def slope_tilt(rng) -> np.ndarray:
+    """Ground tilt of up to 10° in a random direction: [pitch, roll]."""
+    slope = _uniform(rng, 0.0, 10 * DEG)
+    direction = _uniform(rng, 0.0, 2 * np.pi)
+    return np.array([slope * np.cos(direction), slope * np.sin(direction)])
+
+
+def lift_motion(k: int, machine, n_dipper_angles: int = 5, boom_speed: float = 5 * DEG) -> Motion:
+    """Calibration lift ``k``: the boom from low to high at constant speed (ramps of 1 s).
+
+    Payloads alternate empty / rated (even / odd ``k``); each pair uses the next of
+    ``n_dipper_angles`` dipper angles spread over -120°…-40°; bucket held curled, no slew,
+    level ground (as the thesis' lifts, EP0736752A1).
+    """
+    r = _inside(machine)
+    dippers = np.linspace(-120 * DEG, -40 * DEG, n_dipper_angles)
+    dipper = float(dippers[(k // 2) % n_dipper_angles])
+    start = np.array([r[0, 0], dipper, -90 * DEG, 0.0])
+    travel = float(r[0, 1] - r[0, 0])
+    ramp = 1.0
+    move = travel / boom_speed + ramp
+    steps = [Step(0, 1.0, move, travel, ramp=ramp)]
+    payload = 0.0 if k % 2 == 0 else machine.rated_payload
+    return Motion(start, steps, move + 2.0, payload=payload,
+                  info={"start_pose": start.tolist(), "boom_speed": boom_speed, "dipper": dipper})

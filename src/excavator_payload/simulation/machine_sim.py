@@ -1,0 +1,279 @@
+"""Simulator of the hydraulic machine: motions through the model and the machine's sensors.
+
+Every experiment is a motion (planned in :mod:`.machine_motions` within the hydraulics' limits,
+or replayed from a trajectory file, :mod:`.trajectory`) pushed through the symbolic model of
+:mod:`excavator_payload.model.hydraulic`:
+
+1. inverse dynamics gives the joint torques (and the slew torque) of the motion, with the
+   house slewing on tilted ground and the payload in the bucket;
+2. each cylinder's load force is its joint torque over its moment arm (÷ count);
+3. seal friction (Coulomb + load-dependent + Stribeck + viscous, with the presliding state
+   that holds the last friction force where a cylinder stops) is added: the pressures must
+   overcome it;
+4. the head and rod pressures that give that force (the other side at the back pressure);
+5. the sensors (:mod:`.machine_sensors`) add white noise, the session's offsets, pump ripple
+   and the IMUs' dynamic error, at 100 Hz.
+
+Generated motions whose pressures would exceed the relief pressure are redrawn (the operator
+cannot make them), so that every sample is one the machine can produce.
+
+Reproducibility: experiment ``k`` of run ``seed`` draws its motion and its noise from streams
+of ``(seed, k)`` alone, and the sensor offsets from ``session`` alone, so the data do not depend
+on chunking or worker count. :func:`machine_experiment` is the entry of the hydraulic motions in
+:mod:`excavator_payload.simulation.generate`, which runs them in chunks through the execution
+layer like every other simulation (parallel, resumable, atomic);
+:func:`simulate_machine_dataset` and :func:`simulate_machine_to_file` are wrappers of it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.errors import DatasetError, ExcavatorPayloadError, MachineError
+from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.model.hydraulic_machine import HydraulicMachine
+from excavator_payload.simulation import machine_motions as mm
+from excavator_payload.simulation.machine_sensors import (
+    MachineNoise,
+    get_machine_noise,
+    measure,
+    session_offsets,
+)
+
+log = logging.getLogger(__name__)
+
+SAMPLE_RATE = MACHINE_SENSORS.sample_rate
+MOTIONS = (*mm.MACHINE_MOTIONS, "trajectory")
+MAX_ATTEMPTS = 30
+
+
+def machine_rngs(seed: int, experiment: int) -> tuple[np.random.Generator, np.random.Generator]:
+    """Independent (motion, noise) generators of experiment ``experiment`` of run ``seed``."""
+    ss = np.random.SeedSequence([int(seed), int(experiment), 11])
+    a, b = ss.spawn(2)
+    return np.random.default_rng(a), np.random.default_rng(b)
+
+
+_ARMS: dict[str, HydraulicArmModel] = {}
+
+
+def _arm(machine: HydraulicMachine) -> HydraulicArmModel:
+    key = json.dumps(machine.to_dict(), sort_keys=True)
+    if key not in _ARMS:
+        _ARMS[key] = HydraulicArmModel(machine)
+    return _ARMS[key]
+
+
+# -- physics of one motion ------------------------------------------------------------------
+def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.ndarray) -> np.ndarray:
+    """Presliding (Dahl) state s ∈ [-1, 1] of each cylinder along its length history.
+
+    ds/dx = (1 − s·sign(dx)) / x_p, integrated exactly between samples: s follows the sign of
+    the motion over the presliding displacement x_p and keeps its value while the cylinder
+    stands still (stiction holds the last friction force).
+    """
+    dx = np.diff(lengths, axis=0)
+    decay = np.exp(-np.abs(dx) / presliding)
+    direction = np.sign(dx)
+    out = np.empty_like(lengths)
+    s = np.asarray(initial, dtype=float).copy()
+    out[0] = s
+    for i in range(len(dx)):
+        s = direction[i] + (s - direction[i]) * decay[i]
+        out[i + 1] = s
+    return out
+
+
+def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: np.ndarray,
+                   qdd: np.ndarray, tilt: np.ndarray, payload: np.ndarray,
+                   friction_initial: np.ndarray) -> dict[str, np.ndarray]:
+    """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination."""
+    tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
+    sig = arm.motion_signals(q, qd, qdd, tilt, payload)
+    presliding = np.array([c.presliding for c in arm.machine.cylinders])
+    states = friction_states(sig["length"], presliding, friction_initial)
+    friction, head, rod = arm.cylinder_pressures(sig["speed"], states, sig["load"])
+    return {"tau": sig["tau"], "load": sig["load"], "friction": friction, "head": head, "rod": rod,
+            "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"]}
+
+
+def _truth_columns(q, qd, qdd, physics) -> dict[str, np.ndarray]:
+    truth = {"boom_angle": q[:, 0], "dipper_angle": q[:, 1], "bucket_angle": q[:, 2],
+             "boom_rate": qd[:, 0], "dipper_rate": qd[:, 1], "bucket_rate": qd[:, 2],
+             "slew_rate": qd[:, 3], "house_pitch": physics["inclination"][:, 0],
+             "house_roll": physics["inclination"][:, 1]}
+    for j, name in enumerate(("boom", "dipper", "bucket")):
+        truth[f"{name}_head_pressure"] = physics["head"][:, j]
+        truth[f"{name}_rod_pressure"] = physics["rod"][:, j]
+    return truth
+
+
+def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payload: float,
+                    noise: MachineNoise, offsets: dict, rng: np.random.Generator,
+                    with_truth: bool) -> pd.DataFrame:
+    """Rows of one experiment in the machine sensor set's columns (+ truth columns)."""
+    truth = _truth_columns(q, qd, qdd, physics)
+    measured = measure(truth, time, qdd, noise, offsets, rng)
+    data = {"experiment": np.full(len(time), int(experiment), dtype=np.int64), "time": time}
+    for name in MACHINE_SENSORS.signals:
+        data[name] = measured[name]
+    data["payload"] = np.full(len(time), float(payload))
+    if with_truth:
+        for name in MACHINE_SENSORS.signals:
+            data[f"true_{name}"] = truth[name]
+        for j, name in enumerate(("boom", "dipper", "bucket")):
+            data[f"true_{name}_torque"] = physics["tau"][:, j]
+        for j, name in enumerate(("boom", "dipper", "bucket", "slew")):
+            data[f"true_{name}_accel"] = qdd[:, j]
+        data["true_slew_angle"] = q[:, 3]
+    frame = pd.DataFrame(data)
+    return frame[list(MACHINE_SENSORS.columns) + (list(MACHINE_SENSORS.truth_columns) if with_truth else [])]
+
+
+def sample_times(duration: float) -> np.ndarray:
+    n = int(math.floor(duration * SAMPLE_RATE + 1e-9)) + 1
+    return np.arange(n) / SAMPLE_RATE
+
+
+def _draw_motion(motion: str, k: int, rng, arm: HydraulicArmModel) -> mm.Motion:
+    if motion == "swing":
+        return mm.swing_motion(rng, arm)
+    if motion == "work-cycle":
+        return mm.work_cycle_motion(rng, arm)
+    if motion == "slopes":
+        return mm.work_cycle_motion(rng, arm, tilt=mm.slope_tilt(rng))
+    if motion == "lifts":
+        return mm.lift_motion(k, arm.machine)
+    raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one of "
+                                f"{', '.join(MOTIONS)}")
+
+
+def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
+                               offsets: dict, motion: str, with_truth: bool) -> tuple[pd.DataFrame, dict]:
+    """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure)."""
+    machine = arm.machine
+    motion_rng, noise_rng = machine_rngs(seed, k)
+    relief = machine.hydraulics.relief_pressure
+    for attempt in range(1, MAX_ATTEMPTS + 1):
+        plan = mm.fit_to_hydraulics(arm, _draw_motion(motion, k, motion_rng, arm))
+        time = sample_times(plan.duration)
+        q, qd, qdd = plan.sample(time)
+        payload_t = plan.payload_at(time)
+        friction0 = motion_rng.uniform(-1, 1, 3)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0)
+        peak = float(max(physics["head"].max(), physics["rod"].max()))
+        if peak <= relief or motion == "lifts":
+            break
+    else:
+        raise ValueError(f"no motion within the relief pressure in {MAX_ATTEMPTS} draws")
+    frame = experiment_rows(k, time, q, qd, qdd, physics, plan.payload, noise, offsets, noise_rng,
+                            with_truth)
+    meta = {"experiment": int(k), "seed": int(seed), "payload": float(plan.payload),
+            "motion": motion, "tilt": [float(v) for v in plan.tilt], "duration": float(time[-1]),
+            "peak_pressure": peak, "within_relief": bool(peak <= relief), "draws": attempt,
+            "status": "ok", **{key: (v.tolist() if isinstance(v, np.ndarray) else v)
+                               for key, v in plan.info.items()}}
+    if plan.release is not None:
+        meta["release"] = [float(plan.release[0]), float(plan.release[1])]
+    return frame, meta
+
+
+def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Experiment ``experiment`` of the run ``spec`` (the entry of
+    :data:`excavator_payload.simulation.generate.MACHINE_MOTIONS`): a generated motion, or the
+    trajectory file's experiment at that position."""
+    arm = _arm(spec.machine)
+    offsets = session_offsets(spec.option("session", 0), spec.noise)
+    if spec.motion == "trajectory":
+        from excavator_payload.simulation.trajectory import simulate_trajectory_experiment
+
+        return simulate_trajectory_experiment(experiment, spec.seed, arm, spec.noise, offsets,
+                                              spec.option("trajectory"), spec.with_truth)
+    return simulate_motion_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.motion,
+                                      spec.with_truth)
+
+
+def dataset_meta(spec) -> dict:
+    """File metadata a hydraulic run adds (session, its true offsets, the trajectory's source)."""
+    session = int(spec.option("session", 0))
+    meta = {"session": session,
+            # The true offsets of this session: for checking offset estimation, not for estimators.
+            "true_sensor_offsets": session_offsets(session, spec.noise)}
+    trajectory = spec.option("trajectory")
+    if trajectory is not None:
+        meta["trajectory"] = trajectory.source
+    return meta
+
+
+# -- whole datasets: the one simulation pipeline (simulation/generate.py) -----------------------
+def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0,
+                             machine="cat345c-hydraulic", noise="field", motion: str | None = None,
+                             with_truth: bool = False, workers: int | None = 1,
+                             first_experiment: int = 0, trajectory=None,
+                             progress: bool = False, **execution) -> Dataset:
+    """Simulate experiments of a hydraulic machine in memory.
+
+    A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_dataset`
+    (the same chunks, execution layer and reproducibility as every other simulation).
+
+    Parameters
+    ----------
+    n_experiments : int
+        Number of experiments (with a trajectory: at most that many of its experiments).
+    seed, session : int
+        Motions and noise from ``seed``; sensor offsets from ``session``.
+    machine : HydraulicMachine or str
+        A hydraulic machine, preset name or TOML file.
+    noise : str
+        ``field`` or ``none``.
+    motion : str, optional
+        ``swing`` (default), ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
+    with_truth : bool
+        Add the ``true_*`` columns.
+    workers : int, optional
+        Worker processes (None: all cores); the data do not depend on it.
+    first_experiment : int
+        Number of the first experiment.
+    trajectory : str, Path or Trajectory, optional
+        Prescribed motions for ``motion="trajectory"`` (see :mod:`.trajectory`).
+    progress : bool
+        Show a progress bar.
+    """
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    machine = load_machine(machine)
+    if not isinstance(machine, HydraulicMachine):
+        raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
+    return simulate_dataset(n_experiments, seed=seed, machine=machine, noise=noise,
+                            with_truth=with_truth, workers=workers, motion=motion,
+                            first_experiment=first_experiment, progress=progress, session=session,
+                            trajectory=trajectory, **execution)
+
+
+def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: int = 0,
+                             machine="cat345c-hydraulic", noise="field", motion: str | None = None,
+                             with_truth: bool = False, workers: int | None = None, trajectory=None,
+                             progress: bool = True, **execution) -> Dataset:
+    """Simulate and write a dataset (Parquet, atomic); an interrupted run resumes.
+
+    A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_to_file`;
+    parameters as :func:`simulate_machine_dataset`.
+    """
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.generate import simulate_to_file
+
+    machine = load_machine(machine)
+    if not isinstance(machine, HydraulicMachine):
+        raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
+    return simulate_to_file(out, n_experiments, seed=seed, machine=machine, noise=noise,
+                            with_truth=with_truth, workers=workers, motion=motion, progress=progress,
+                            session=session, trajectory=trajectory, **execution)

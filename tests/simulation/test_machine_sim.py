@@ -1,0 +1,209 @@
+"""The hydraulic machine's simulator: columns, sessions, reproducibility, replay, limits."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from excavator_payload.cli import main
+from excavator_payload.data.io import read_dataset
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.errors import DatasetError, ExcavatorPayloadError
+from excavator_payload.model.machine import load_machine
+from excavator_payload.simulation import machine_sim
+from excavator_payload.simulation.generate import partial_folder, simulate_dataset
+from excavator_payload.simulation.machine_sensors import get_machine_noise, session_offsets
+from excavator_payload.simulation.machine_sim import (
+
+    simulate_machine_dataset,
+    simulate_machine_to_file,
+)
+from excavator_payload.simulation.trajectory import trajectory_from_frame
+
+MACHINE = "cat345c-hydraulic"
+
+
+@pytest.fixture(scope="module")
+def cycles():
+    return simulate_machine_dataset(3, seed=5, session=1, motion="work-cycle", with_truth=True)
+
+
+def test_columns_are_the_machine_sensor_set(cycles):
+    assert cycles.sensor_set.name == "machine"
+    assert list(cycles.frame.columns) == list(MACHINE_SENSORS.columns) + list(MACHINE_SENSORS.truth_columns)
+    plain = simulate_machine_dataset(1, seed=5, motion="lifts")
+    assert list(plain.frame.columns) == list(MACHINE_SENSORS.columns)
+    dt = np.diff(cycles.frame[cycles.frame.experiment == 0]["time"].to_numpy())
+    np.testing.assert_allclose(dt, 1 / MACHINE_SENSORS.sample_rate)
+
+
+def test_generated_motions_stay_within_the_hydraulics(cycles):
+    machine = load_machine(MACHINE)
+    for meta in cycles.meta["experiments"]:
+        assert meta["within_relief"] and meta["peak_pressure"] <= machine.hydraulics.relief_pressure
+        assert meta["speed_share"] <= 1.0
+    f = cycles.frame
+    assert f[[c for c in f.columns if c.startswith("true_") and c.endswith("pressure")]].to_numpy().min() > 0
+    # the house slews and the angles stay in their ranges
+    assert np.ptp(f["true_slew_angle"]) > np.radians(40)
+    for j, name in enumerate(("boom", "dipper", "bucket")):
+        lo, hi = machine.angle_ranges[j]
+        assert f[f"true_{name}_angle"].between(lo, hi).all()
+
+
+def test_sensor_offsets_differ_between_sessions_not_between_seeds():
+    field = get_machine_noise("field")
+    assert session_offsets(1, field) == session_offsets(1, field)
+    assert session_offsets(1, field) != session_offsets(2, field)
+    # Offsets only (no white noise or ripple): the error at rest is exactly the session's offset.
+    offsets_only = dataclasses.replace(field, name="offsets", angle_noise=0.0, rate_noise=0.0,
+                                       inclination_noise=0.0, pressure_noise=0.0, ripple_fraction=0.0)
+    a = simulate_machine_dataset(1, seed=1, session=7, noise=offsets_only, motion="lifts", with_truth=True)
+    b = simulate_machine_dataset(1, seed=2, session=7, noise=offsets_only, motion="lifts", with_truth=True)
+    c = simulate_machine_dataset(1, seed=1, session=8, noise=offsets_only, motion="lifts", with_truth=True)
+
+    def offset(d, name):  # at rest before the lift starts (no IMU lag or acceleration error)
+        rest = d.frame[d.frame.time < 0.95]
+        return float((rest[name] - rest[f"true_{name}"]).mean())
+
+    for name in MACHINE_SENSORS.signals:
+        assert offset(a, name) == pytest.approx(session_offsets(7, field)[name], rel=1e-6, abs=1e-12)
+        assert offset(a, name) == pytest.approx(offset(b, name), rel=1e-6, abs=1e-12)
+        assert offset(a, name) != pytest.approx(offset(c, name), rel=1e-3)
+    a = simulate_machine_dataset(1, seed=1, session=7, motion="lifts")
+    b = simulate_machine_dataset(1, seed=2, session=7, motion="lifts")
+    # the noise itself differs between seeds
+    assert not np.allclose(a.frame["boom_angle"], b.frame["boom_angle"])
+    assert session_offsets(3, get_machine_noise("none")) == {s: 0.0 for s in MACHINE_SENSORS.signals}
+
+
+def test_bit_identical_whatever_the_chunking():
+    from excavator_payload.simulation.generate import make_spec, simulate_chunk
+
+    spec = make_spec(3, 9, load_machine(MACHINE), "field", True, "swing", session=2)
+    whole, metas, _ = simulate_chunk(spec, 0, 3)
+    parts = [simulate_chunk(spec, k, 1)[0] for k in range(3)]
+    pd.testing.assert_frame_equal(whole, pd.concat(parts, ignore_index=True))
+    parallel = simulate_machine_dataset(3, seed=9, session=2, motion="swing", with_truth=True, workers=2)
+    pd.testing.assert_frame_equal(parallel.frame, whole)
+
+
+def test_trajectory_replay_reproduces_the_angles():
+    t = np.arange(0, 6.0001, 0.05)  # 20 Hz
+    boom = 0.1 + 0.3 * np.sin(0.5 * t)
+    dipper = -1.2 + 0.2 * np.sin(0.7 * t)
+    bucket = -1.0 + 0.3 * np.sin(0.9 * t)
+    slew = 0.4 * np.sin(0.4 * t)
+    frame = pd.DataFrame({"experiment": 4, "time": t, "boom_angle": boom, "dipper_angle": dipper,
+                          "bucket_angle": bucket, "slew_angle": slew, "payload": 2000.0})
+    replay = simulate_machine_dataset(1, seed=0, noise="none", motion="trajectory", with_truth=True,
+                                      trajectory=trajectory_from_frame(frame))
+    rows = replay.frame
+    assert list(replay.experiment_ids) == [4]
+    time = rows["time"].to_numpy()
+    assert len(time) == 601
+    np.testing.assert_allclose(rows["boom_angle"], 0.1 + 0.3 * np.sin(0.5 * time), atol=2e-5)
+    np.testing.assert_allclose(rows["true_slew_angle"], 0.4 * np.sin(0.4 * time), atol=2e-5)
+    np.testing.assert_allclose(rows["slew_rate"], 0.16 * np.cos(0.4 * time), atol=2e-3)
+    # at the file's own sample times the spline goes through the given angles exactly
+    np.testing.assert_allclose(rows["dipper_angle"].to_numpy()[::5], dipper, atol=1e-12)
+    assert rows["payload"].eq(2000.0).all()
+    with pytest.raises(DatasetError, match="slew_angle"):
+        trajectory_from_frame(frame.drop(columns="slew_angle"))
+
+
+def test_lifts_are_slow_constant_speed_boom_lifts():
+    lifts = simulate_machine_dataset(2, seed=0, noise="none", motion="lifts", with_truth=True)
+    assert list(lifts.payloads) == [0.0, load_machine(MACHINE).rated_payload]
+    rows = lifts.frame[lifts.frame.experiment == 0]
+    middle = rows[(rows.time > 5) & (rows.time < 15)]
+    np.testing.assert_allclose(middle["boom_rate"], np.radians(5), rtol=1e-9)
+    assert np.allclose(rows["slew_rate"], 0) and np.ptp(rows["dipper_angle"]) == 0
+
+
+def test_slopes_tilt_the_house():
+    slopes = simulate_machine_dataset(1, seed=3, noise="none", motion="slopes", with_truth=True)
+    tilt = slopes.meta["experiments"][0]["tilt"]
+    assert 0 < np.hypot(*tilt) <= np.radians(10)
+    pitch = slopes.frame["house_pitch"].to_numpy()
+    assert np.ptp(pitch) > 1e-3  # the house's inclination changes as it slews on the slope
+
+
+def test_bad_input_gives_one_line_errors():
+    with pytest.raises(ExcavatorPayloadError, match="unknown motion"):
+        simulate_machine_dataset(1, motion="nmpc-ish")
+    with pytest.raises(ExcavatorPayloadError, match="noise preset"):
+        simulate_machine_dataset(1, noise="thesis")
+    with pytest.raises(ExcavatorPayloadError, match="hydraulic machine"):
+        simulate_machine_dataset(1, machine="cat345c")
+    with pytest.raises(ExcavatorPayloadError, match="hydraulic machine only"):
+        simulate_dataset(1, session=3, progress=False)
+
+
+def test_python_api_dispatches_on_the_machine_kind():
+    data = simulate_dataset(1, seed=4, machine=MACHINE, progress=False, session=2)
+    assert data.sensor_set.name == "machine" and data.meta["motion"] == "swing"
+    assert data.meta["noise"] == "field" and data.meta["session"] == 2
+
+
+def test_interrupted_file_run_resumes(tmp_path, monkeypatch):
+    out = tmp_path / "m.parquet"
+    from excavator_payload.simulation import generate
+
+    real = machine_sim.machine_experiment
+    calls = []
+
+    def interrupted(spec, k):
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(k)
+        return real(spec, k)
+
+    monkeypatch.setattr(machine_sim, "machine_experiment", interrupted)
+    monkeypatch.setattr(generate, "_machine_chunk_size", lambda n: 1)
+    monkeypatch.setitem(generate.MACHINE_MOTIONS, "lifts",
+                        generate.Motion(generate._MACHINE_EXPERIMENT, lambda n: 1, generate._MACHINE_SKIP))
+    with pytest.raises(KeyboardInterrupt):
+        simulate_machine_to_file(out, 2, seed=1, motion="lifts", workers=1, progress=False)
+    assert not out.exists() and len(list(partial_folder(out).glob("chunk_*"))) == 1
+    monkeypatch.setattr(machine_sim, "machine_experiment", real)
+    resumed = simulate_machine_to_file(out, 2, seed=1, motion="lifts", workers=1, progress=False)
+    fresh = simulate_machine_dataset(2, seed=1, motion="lifts")
+    pd.testing.assert_frame_equal(read_dataset(out).frame, fresh.frame)
+    assert resumed.n_experiments == 2 and not partial_folder(out).exists()
+
+
+def test_cli_simulates_replays_and_plots(tmp_path):
+    out = tmp_path / "cycles.parquet"
+    assert main(["simulate", "--machine", MACHINE, "--motion", "work-cycle", "-n", "1", "--session", "4",
+                 "--out", str(out), "--quiet", "--workers", "1", "--with-truth"]) == 0
+    data = read_dataset(out)
+    assert data.meta["sensor_set"] == "machine" and data.meta["session"] == 4
+    # replay its true motion as a trajectory file at 10 Hz
+    rows = data.frame.iloc[::10]
+    traj = pd.DataFrame({"experiment": rows.experiment, "time": rows.time,
+                         **{c: rows[f"true_{c}"] for c in ("boom_angle", "dipper_angle", "bucket_angle")},
+                         "slew_angle": rows.true_slew_angle, "payload": rows.payload})
+    traj_file = tmp_path / "motion.parquet"
+    traj.to_parquet(traj_file)
+    replay = tmp_path / "replay.parquet"
+    assert main(["simulate", "--machine", MACHINE, "--trajectory", str(traj_file), "--out", str(replay),
+                 "--quiet", "--workers", "1"]) == 0
+    assert read_dataset(replay).meta["motion"] == "trajectory"
+    figure = tmp_path / "fig.png"
+    assert main(["plot", "--data", str(out), "--out", str(figure)]) == 0
+    assert figure.stat().st_size > 10_000
+    assert main(["plot", "--data", str(out), "--experiment", "7", "--out", str(figure)]) == 2
+    assert main(["simulate", "--out", str(tmp_path / "x.parquet"), "--session", "1", "-n", "1"]) == 2
+
+
+def test_thesis_estimators_refuse_the_machine_set_in_one_line(tmp_path, capsys):
+    data = tmp_path / "lifts.parquet"
+    simulate_machine_to_file(data, 1, motion="lifts", workers=1, progress=False)
+    for name in ("calibrated", "ekf", "quasi-static", "net1"):
+        assert main(["train", name, "--data", str(data), "--out", str(tmp_path / name)]) == 2
+        err = capsys.readouterr().err
+        assert "does not run on" in err and "Traceback" not in err
