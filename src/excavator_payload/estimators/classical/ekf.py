@@ -140,6 +140,40 @@ class KalmanEstimatorBase(Estimator):
         x[kf.PAYLOAD] = min(max(x[kf.PAYLOAD], self._bounds[0]), self._bounds[1])
         return True
 
+    # -- gate, uncertainty, state watch (see estimators.base) --------------------------------
+    def _innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
+        r"""Normalised innovation squared of all the filter's measurements at the prior.
+
+        :math:`\nu^\top S^{-1}\nu` with :math:`\nu = y_k - h(\bar x_k)` and
+        :math:`S = H\bar P H^\top + R` (angles and rates; with the ``consistent`` tuning also the
+        torques, :math:`R^{(2)} = \Sigma_\tau + M\Sigma_a M^\top`); chi-square with 4 or 6
+        degrees of freedom for a sample the noise model describes.
+        """
+        if self._x is None:
+            return None
+        tuning = self.tuning
+        if tuning.torque_channel:
+            _, _, _, h, H, M = self._terms(self._x, values[kf.TORQUES], values[kf.ACCELS])
+            nu = values[kf.MEASURED + kf.TORQUES] - h
+            R = np.zeros((6, 6))
+            R[:4, :4] = tuning.R
+            R[4:, 4:] = tuning.torque_cov + M @ tuning.accel_cov @ M.T
+            S = H @ self._P @ H.T + R
+        else:
+            nu = values[kf.MEASURED] - self._x[:4]
+            S = self._P[:4, :4] + tuning.R
+        # Solve in units of the diagonal (the measurements span 14 orders of magnitude).
+        d = np.sqrt(np.diag(S))
+        z = nu / d
+        return float(z @ np.linalg.solve(S / np.outer(d, d), z)), len(nu)
+
+    def _estimate_sigma(self) -> float:
+        """Square root of the payload's posterior variance, kg (thesis tuning: not calibrated)."""
+        return self._posterior_std
+
+    def _state_finite(self) -> bool:
+        return self._x is None or bool(np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._P)))
+
     @property
     def payload_std(self) -> float:
         """The filter's posterior standard deviation of the payload (kg) at the last sample."""
@@ -209,6 +243,7 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
         for i, value in enumerate((tuning.Q, tuning.R, tuning.torque_cov, tuning.accel_cov)):
             self._step_function.set_input(5 + i, value)
         self._y_index = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
+        self._terms = kf.kalman_model(self.machine, self.options["tuning"] == "thesis").evaluator()
 
     # Positions in the packed step output [x_post, P_post, x_next, P_next].
     _POST_DIAG = np.array([5 + 6 * i for i in range(5)])
