@@ -455,10 +455,14 @@ class Estimator(ABC):
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
+        text = json.dumps(config, indent=2)
+        # estimator.json is what makes a folder a model: it goes first and comes back last, so
+        # an interrupted save never leaves old settings beside new arrays (or the reverse).
+        (directory / CONFIG_FILE).unlink(missing_ok=True)
         tmp = directory / (ARRAYS_FILE + ".tmp.npz")
         np.savez(tmp, **arrays)
         tmp.replace(directory / ARRAYS_FILE)
-        (directory / (CONFIG_FILE + ".tmp")).write_text(json.dumps(config, indent=2))
+        (directory / (CONFIG_FILE + ".tmp")).write_text(text)
         (directory / (CONFIG_FILE + ".tmp")).replace(directory / CONFIG_FILE)
         return directory
 
