@@ -229,6 +229,8 @@ class Estimator(ABC):
         #: The sensor set of the data it was fitted on (the thesis set until then).
         self.sensor_set: SensorSet = THESIS_SENSORS
         self.fitted = False
+        #: Doubts about the fit (too little data …), one line each; the CLI prints them.
+        self.fit_warnings: list[str] = []
         #: Whether the statistical gate is on (turn off only to study the bare estimator).
         self.gating = True
         #: Plausibility limits per signal (see :func:`plausibility_limits`), set by fit/load.
@@ -290,6 +292,7 @@ class Estimator(ABC):
     def fit(self, dataset: Dataset) -> "Estimator":
         """Fit to ``dataset`` and return ``self``."""
         self.sensor_set = self._check_sensor_set(dataset)
+        self.fit_warnings = []
         self._fit(dataset)
         # Networks have no machine of their own: their limits come from the data's machine.
         self.plausible_low, self.plausible_high = plausibility_limits(

@@ -76,6 +76,8 @@ def register(app: typer.Typer) -> None:
         est = create_estimator(name, machine=machine, **options)
         console.print(Text.assemble("training ", (name, "bold"), f" on {dataset}"))
         est.fit(dataset)
+        for warning in est.fit_warnings:
+            console.print(Text.assemble(("warning: ", "bold yellow"), warning))
         est.save(out)
         console.print(Text.assemble("saved to ", (str(out), "bold")))
 
