@@ -272,6 +272,21 @@ def test_poisoned_state_is_reset_not_reported(name, fitted, clean):
     assert math.isfinite(results[-1].estimate) == math.isfinite(clean_results[-1].estimate)
 
 
+@pytest.mark.parametrize("name", list(RECIPES))
+def test_implausible_samples_are_out_of_range(name, fitted, clean):
+    """An angle outside the machine's range (networks: the machine of their training data), a
+    torque far beyond the machine's limit or an acceleration of 10⁶ rad/s² is not used."""
+    est = fitted[name]
+    samples, payload, clean_results = clean[name]
+    est.reset()
+    for s in samples[:60]:
+        last = est.step(s)
+    for bad in ({"boom_angle": 2.5}, {"dipper_angle": 0.5}, {"boom_torque": 5e8}, {"dipper_accel": 1e6}):
+        r = est.step(dict(samples[60], **bad))
+        assert r.status is Status.OUT_OF_RANGE, (bad, r)
+        assert r.estimate == last.estimate or (math.isnan(r.estimate) and math.isnan(last.estimate))
+
+
 def test_step_values_rejects_wrong_shapes(fitted):
     est = fitted["inverse-dynamics"]
     est.reset()
