@@ -603,6 +603,8 @@ def argument_cases() -> list[Case]:
         "demo-scale-unknown": (["demo", "--out", "{work}/d", "--scale", "huge"], "huge"),
         "demo-motion-unknown": (["demo", "--out", "{work}/d", "--scale", "tiny", "--motion", "teleport"],
                                 "teleport"),
+        "demo-seed-2e70": (["demo", "--out", "{work}/d", "--scale", "tiny", "--seed", str(2**70)], "seed"),
+        "demo-workers-zero": (["demo", "--out", "{work}/d", "--scale", "tiny", "--workers", "0"], None),
         "no-such-command": (["fly"], None),
         "estimate-missing-out": (["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet"], None),
         "estimate-extra-arg": (["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet", "--out",

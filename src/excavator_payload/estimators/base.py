@@ -35,9 +35,15 @@ step returns the last estimate (and its sigma) with the status of the check.
    inverse-dynamics least squares: the torque residual at the current estimate against its
    covariance); the sample is rejected when it exceeds the chi-square quantile of
    :data:`GATE_PROBABILITY` (10⁻⁶ per sample: about one false rejection in 14 hours at 20 Hz).
-   The filter state is not updated. After :data:`MAX_CONSECUTIVE_REJECTIONS` rejections in a
-   row the estimator does not lock itself out: it re-initialises (the payload may really have
-   changed), uses the sample and reports ``reinitialised``.
+   The filter state is not updated; the next used sample bridges the hole like a short gap
+   (the filters restart their kinematic states and keep the payload). After
+   :data:`MAX_CONSECUTIVE_REJECTIONS` rejections in a row the estimator does not lock itself
+   out: it re-initialises (the payload may really have changed), uses the sample, reports
+   ``reinitialised`` and widens its gate to the data. The gate also widens slowly
+   (:data:`GATE_SCALE_RATE`) while accepted innovations run larger than the noise model says,
+   so a machine model a few percent wrong costs a few rejections, not a lock-out; it never
+   narrows below the chi-square quantile. ``Estimator.gating = False`` turns the gate off (to
+   study the bare estimator).
 
 The state itself is watched too: an estimator whose state is no longer finite
 (:meth:`Estimator._state_finite`) or that produced a non-finite ``ok`` estimate restarts and

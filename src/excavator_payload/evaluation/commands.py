@@ -269,5 +269,7 @@ def register(app: typer.Typer) -> None:
         from excavator_payload.evaluation.demo import run_demo
 
         check_output_path(out, kind="folder")
+        if not 0 <= seed < 2**63:
+            raise DatasetError(f"--seed must be in 0 … 2⁶³−1, got {seed}")
         run_demo(out, scale=scale, workers=workers, motion=motion, seed=seed,
                  only=[s.strip() for s in only.split(",")] if only else None, console=console)
