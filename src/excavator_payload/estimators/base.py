@@ -157,7 +157,9 @@ def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple
             if signal not in sensor_set.signals:
                 continue
             i = sensor_set.index(signal)
-            value = getattr(machine, field_name)
+            value = getattr(machine, field_name, None)
+            if value is None:  # a kind of machine file without this field
+                continue
             if rule == "range":
                 low[i], high[i] = max(low[i], value[0]), min(high[i], value[1])
             else:
