@@ -43,6 +43,19 @@ def parse_extra_options(args: list[str], name: str) -> dict[str, str]:
     return options
 
 
+#: What each non-``ok`` status of an estimates file means (printed by ``estimate``).
+STATUS_MEANING = {
+    "warming_up": "not enough samples yet (estimate not trusted)",
+    "no_data": "no usable sample yet",
+    "gap": "time jumped; the estimator bridged the hole or restarted",
+    "invalid_input": "a signal was missing, NaN or infinite; sample not used",
+    "out_of_range": "a signal outside its plausible range (machine file); sample not used",
+    "rejected_outlier": "inconsistent with the noise model; sample not used, estimate kept",
+    "reinitialised": "too many rejections in a row; the estimator restarted",
+    "state_reset": "the estimator's state went non-finite; it restarted",
+}
+
+
 def status_breakdown(status) -> str:
     """``"960 ok, 50 warming_up"``: how many estimates have each status, most common first."""
     counts = status.value_counts()
@@ -98,11 +111,9 @@ def register(app: typer.Typer) -> None:
                                           "data": str(data), "data_fingerprint": dataset.fingerprint()})
         console.print(Text.assemble(f"{est.name}: {len(frame)} estimates ({status_breakdown(frame['status'])}) "
                                     "written to ", (str(out), "bold")))
-        if (frame["status"] != "ok").any():
-            console.print("statuses: ok = a valid estimate; warming_up = not enough samples yet; "
-                          "gap = time jumped; invalid_input = NaN or missing signal; out_of_range = "
-                          "implausible value; rejected_outlier = inconsistent with the noise model "
-                          "(estimate kept); reinitialised / state_reset = the estimator restarted",
+        seen = [status for status in STATUS_MEANING if (frame["status"] == status).any()]
+        if seen:
+            console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
                           markup=False, highlight=False)
 
     @app.command()
