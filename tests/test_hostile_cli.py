@@ -203,6 +203,8 @@ BAD_DATASETS: dict[str, tuple[Callable, str | None]] = {
     "no-rows": (_edit(lambda f: f.iloc[:0]), None),
     "torque-1e400": (_edit(_set("boom_torque", math.inf, slice(10, 11))), None),
     "implausible-torque": (_edit(_set("boom_torque", 5e9, slice(10, 11))), "boom_torque"),
+    "time-in-ms": (_edit(lambda f: f.assign(time=f["time"] * 1000.0)), "seconds"),
+    "sampled-at-100hz": (_edit(lambda f: f.assign(time=f["time"] / 5.0)), "Hz"),
     "fractional-experiment": (_edit(lambda f: f.assign(experiment=f["experiment"] + 0.5)), "experiment"),
     "bad-metadata-json": (lambda work, inputs: _write_frame(work / "bad.parquet", _frame(inputs), b"{not json"),
                           "JSON"),

@@ -233,6 +233,16 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
     times = grouped["time"]
     if not (times.apply(lambda t: bool(np.all(np.diff(t.to_numpy()) > 0)))).all():
         raise DatasetError(f"{source}: 'time' must increase strictly within each experiment")
+    # Time in milliseconds, or data of another rate labelled as this sensor set, would pass
+    # every column check and give every sample a "gap" (or wrong physics): check the rate.
+    same = exp[1:] == exp[:-1]
+    steps = np.diff(frame["time"].to_numpy(dtype=float))[same]
+    if steps.size:
+        period = float(np.median(steps))
+        if not 0.8 * sensors.sample_period <= period <= 1.25 * sensors.sample_period:
+            raise DatasetError(f"{source}: samples are {period:.4g} s apart, but the {sensors.name} "
+                               f"sensor set samples at {sensors.sample_rate:g} Hz "
+                               f"({sensors.sample_period:g} s); is 'time' in seconds?")
     if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
 
