@@ -820,3 +820,21 @@ def test_crash_in_a_real_process_is_one_line(tmp_path):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 2
     assert err.strip().count("\n") == 0 and "[bucket]" in err
+
+
+def test_concurrent_runs_into_one_output(good_inputs, tmp_path):
+    """Two trainings saving the same folder and two estimates writing the same file at once:
+    both finish and what is left is one complete, loadable result."""
+    from excavator_payload.data.io import read_estimates
+    from excavator_payload.estimators import load_estimator
+
+    procs = [_cli("train", "inverse-dynamics", "--data", str(good_inputs / "data.parquet"),
+                  "--out", str(tmp_path / "m")) for _ in range(2)]
+    procs += [_cli("estimate", "--model", str(good_inputs / "model"), "--data", str(good_inputs / "data.parquet"),
+                   "--out", str(tmp_path / "e.parquet")) for _ in range(2)]
+    for proc in procs:
+        out, err = proc.communicate(timeout=300)
+        assert proc.returncode == 0, err
+    load_estimator(tmp_path / "m")
+    assert len(read_estimates(tmp_path / "e.parquet")) == 606
+    assert sorted(p.name for p in (tmp_path / "m").iterdir()) == ["arrays.npz", "estimator.json"]

@@ -60,6 +60,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
@@ -470,11 +471,12 @@ class Estimator(ABC):
         # estimator.json is what makes a folder a model: it goes first and comes back last, so
         # an interrupted save never leaves old settings beside new arrays (or the reverse).
         (directory / CONFIG_FILE).unlink(missing_ok=True)
-        tmp = directory / (ARRAYS_FILE + ".tmp.npz")
+        tag = f".{os.getpid()}.tmp"  # private temporary names: concurrent saves never share one
+        tmp = directory / (ARRAYS_FILE + tag + ".npz")
         np.savez(tmp, **arrays)
         tmp.replace(directory / ARRAYS_FILE)
-        (directory / (CONFIG_FILE + ".tmp")).write_text(text)
-        (directory / (CONFIG_FILE + ".tmp")).replace(directory / CONFIG_FILE)
+        (directory / (CONFIG_FILE + tag)).write_text(text)
+        (directory / (CONFIG_FILE + tag)).replace(directory / CONFIG_FILE)
         return directory
 
     @classmethod

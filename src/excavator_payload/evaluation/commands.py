@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import math
 from pathlib import Path
 from typing import Sequence
@@ -165,7 +166,7 @@ def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accur
 
 def write_json(path: Path, payload: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
     tmp.write_text(json.dumps(to_jsonable(payload), indent=2))
     tmp.replace(path)
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import os
 import shutil
 import time
 import traceback
@@ -252,12 +253,16 @@ class Demo:
                 shutil.rmtree(folder, ignore_errors=True)
         est = create_estimator(entry.estimator, machine=machine, **options)
         est.fit(fit_data)
-        tmp = folder.with_name(folder.name + ".partial")
+        # A private temporary folder: two demos on one output folder never mix their files.
+        tmp = folder.with_name(f"{folder.name}.partial-{os.getpid()}")
         shutil.rmtree(tmp, ignore_errors=True)
         est.save(tmp)
         _save_training_graph(est, tmp)
         shutil.rmtree(folder, ignore_errors=True)
-        tmp.rename(folder)  # only complete fits are ever cached
+        try:
+            tmp.rename(folder)  # only complete fits are ever cached
+        except OSError:  # another demo cached the same fit in between: keep theirs
+            shutil.rmtree(tmp, ignore_errors=True)
         return est, folder
 
     def estimate(self, entry: Entry, est, folder: Path, test: Dataset, test_key: str) -> pd.DataFrame:
@@ -331,7 +336,7 @@ def _calibration_curve(demo: Demo, data: dict[str, Dataset | None], test: Datase
             path.unlink()
     curve = pd.DataFrame(calibrated.calibration_curve(train, test, counts=counts, machine="cat345c-3pct",
                                                       progress=True))
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     curve.to_csv(tmp, index=False)
     tmp.replace(path)
     return curve

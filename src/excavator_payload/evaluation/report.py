@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
 import math
 import platform
 import shutil
@@ -355,6 +356,6 @@ def _render_markdown(title: str, sections: list[_Section], out_dir: Path) -> str
 
 def _atomic_text(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
     tmp.write_text(text, encoding="utf-8")
     tmp.replace(path)
