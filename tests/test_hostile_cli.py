@@ -577,8 +577,10 @@ def argument_cases() -> list[Case]:
         "max-gap-negative": (["--max-gap", "-0.5"], "max-gap"),
         "warmup-text": (["--warmup-samples", "few"], "warmup-samples"),
         "ukf-alpha": (["--alpha", "3"], None),
+        "ukf-kappa-nan": (["--kappa", "nan"], "kappa"),
+        "ukf-beta-inf": (["--beta", "inf"], "beta"),
     }.items():
-        argv = train_ekf + extra if key != "ukf-alpha" else ["train", "ukf", *train_ekf[2:], *extra]
+        argv = train_ekf + extra if not key.startswith("ukf") else ["train", "ukf", *train_ekf[2:], *extra]
         c.append(Case(f"arg-ekf-{key}", "arguments", argv, message=message, outputs=["{work}/m/estimator.json"]))
     for key, (extra, message) in {
         "calibrated-too-many": (["train", "calibrated", "--data", "{in}/data.parquet", "--out", "{work}/m",

@@ -229,6 +229,11 @@ class Estimator(ABC):
                             and o.type is not str else options.get(k, o.default))
                         for k, o in self.OPTIONS.items()}
         for k, o in self.OPTIONS.items():
+            value = self.options[k]
+            if o.type is float and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                        and math.isfinite(value)):
+                raise EstimatorError(f"{self.name}: option --{k.replace('_', '-')} must be a finite "
+                                     f"number, got {value!r}")
             if o.choices is not None and self.options[k] not in o.choices:
                 raise EstimatorError(f"{self.name}: option --{k.replace('_', '-')} must be one of "
                                      f"{', '.join(map(str, o.choices))}, got {self.options[k]!r}")
@@ -515,6 +520,8 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
     """Load any saved estimator from ``directory``; clear errors for foreign or corrupt folders."""
     directory = Path(directory)
     cfg_path = directory / CONFIG_FILE
+    if directory.exists() and not directory.is_dir():
+        raise EstimatorError(f"'{directory}' is a file, not a saved model folder")
     if not directory.is_dir():
         raise EstimatorError(f"model folder '{directory}' does not exist")
     if not cfg_path.is_file():
