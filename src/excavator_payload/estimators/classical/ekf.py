@@ -90,11 +90,12 @@ class KalmanEstimatorBase(Estimator):
     def _fit(self, dataset: Dataset) -> None:
         if self.options["tuning"] == "thesis":
             self.tuning = kf.thesis_tuning(self.machine)
-            return
-        noise = kf.dataset_noise(dataset, self.options["noise"])
-        angle_trunc, rate_trunc = kf.euler_truncation_std(dataset)
-        self.tuning = kf.consistent_tuning(self.machine, noise, angle_trunc, rate_trunc,
-                                           self.options["payload_walk"])
+        else:
+            noise = kf.dataset_noise(dataset, self.options["noise"])
+            angle_trunc, rate_trunc = kf.euler_truncation_std(dataset)
+            self.tuning = kf.consistent_tuning(self.machine, noise, angle_trunc, rate_trunc,
+                                               self.options["payload_walk"])
+        self._build_gate()
 
     def _reset(self) -> None:
         self._x = None
@@ -151,21 +152,8 @@ class KalmanEstimatorBase(Estimator):
         """
         if self._x is None:
             return None
-        tuning = self.tuning
-        if tuning.torque_channel:
-            _, _, _, h, H, M = self._terms(self._x, values[kf.TORQUES], values[kf.ACCELS])
-            nu = values[kf.MEASURED + kf.TORQUES] - h
-            R = np.zeros((6, 6))
-            R[:4, :4] = tuning.R
-            R[4:, 4:] = tuning.torque_cov + M @ tuning.accel_cov @ M.T
-            S = H @ self._P @ H.T + R
-        else:
-            nu = values[kf.MEASURED] - self._x[:4]
-            S = self._P[:4, :4] + tuning.R
-        # Solve in units of the diagonal (the measurements span 14 orders of magnitude).
-        d = np.sqrt(np.diag(S))
-        z = nu / d
-        return float(z @ np.linalg.solve(S / np.outer(d, d), z)), len(nu)
+        nis = float(self._gate.evaluate(self._x, self._P, values[self._gate_y], values[kf.ACCELS])[0])
+        return nis, len(self._gate_y)
 
     def _estimate_sigma(self) -> float:
         """Square root of the payload's posterior variance, kg (thesis tuning: not calibrated)."""
@@ -181,7 +169,7 @@ class KalmanEstimatorBase(Estimator):
 
     # -- persistence -----------------------------------------------------------------------
     #: Compiled functions and their buffers: rebuilt, not pickled (multiprocessing, deepcopy).
-    _RUNTIME = ("_step_function", "_sigma", "_terms")
+    _RUNTIME = ("_step_function", "_sigma", "_terms", "_gate")
 
     def __getstate__(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k not in self._RUNTIME}
@@ -192,6 +180,18 @@ class KalmanEstimatorBase(Estimator):
 
     def _build_runtime(self) -> None:
         """(Re)create the compiled functions the filter steps with."""
+        self._build_gate()
+
+    def _build_gate(self) -> None:
+        """The compiled statistical gate, with its constant covariances written once."""
+        tuning = self.tuning
+        if tuning is None:
+            return
+        self._gate = kf.BufferedFunction(kf.gate_function(self.machine, self.options["tuning"] == "thesis",
+                                                          tuning.torque_channel))
+        for i, value in enumerate((tuning.R, tuning.torque_cov, tuning.accel_cov)):
+            self._gate.set_input(4 + i, value)
+        self._gate_y = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
 
     def _config(self) -> dict:
         return self.tuning.config()
@@ -204,6 +204,7 @@ class KalmanEstimatorBase(Estimator):
         if self.tuning.name != self.options["tuning"]:
             raise EstimatorError(f"saved {self.name} is inconsistent: option --tuning "
                                  f"{self.options['tuning']} but covariances of '{self.tuning.name}'")
+        self._build_gate()
 
 
 @register
@@ -243,7 +244,7 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
         for i, value in enumerate((tuning.Q, tuning.R, tuning.torque_cov, tuning.accel_cov)):
             self._step_function.set_input(5 + i, value)
         self._y_index = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
-        self._terms = kf.kalman_model(self.machine, self.options["tuning"] == "thesis").evaluator()
+        self._build_gate()
 
     # Positions in the packed step output [x_post, P_post, x_next, P_next].
     _POST_DIAG = np.array([5 + 6 * i for i in range(5)])
