@@ -14,7 +14,10 @@ import traceback
 from pathlib import Path
 
 import typer
+from typer._click.exceptions import ClickException  # typer vendors its own click
+from typer.exceptions import Abort
 from rich.console import Console
+from rich.text import Text
 
 from excavator_payload import __version__
 from excavator_payload.errors import ExcavatorPayloadError
@@ -26,18 +29,26 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Plain help: flags show as flags (rich help printed them as "<bool>").
+    rich_markup_mode=None,
 )
 # Console scripts call main(); it must hand its return code to the shell.
 err_console = Console(stderr=True)
 
 
+def _print_version(value: bool) -> None:
+    # An eager parameter callback runs before click looks for a command.
+    if value:
+        typer.echo(f"excavator-payload {__version__}")
+        raise typer.Exit()
+
+
 @app.callback()
 def _root(
-    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True),
+    version: bool = typer.Option(False, "--version", help="Print the version and exit.", is_eager=True,
+                                 callback=_print_version, expose_value=False),
 ) -> None:
-    if version:
-        typer.echo(__version__)
-        raise typer.Exit()
+    """Weigh the payload in an excavator's bucket while the arm moves."""
 
 
 @app.command()
@@ -62,6 +73,8 @@ def machines(
 def _register_commands() -> None:
     from excavator_payload.estimators import commands as estimator_commands
     from excavator_payload.evaluation import commands as evaluation_commands
+    from excavator_payload.evaluation import study_commands
+    from excavator_payload.runtime import commands as runtime_commands
     from excavator_payload.simulation import commands as simulation_commands
 
     simulation_commands.register(app)
@@ -70,31 +83,60 @@ def _register_commands() -> None:
     machine_commands.register(app)
     estimator_commands.register(app)
     evaluation_commands.register(app)
+    study_commands.register(app)
+    runtime_commands.register(app)
 
 
 _register_commands()
 
 
+def error_line(message: str) -> None:
+    """Print one ``error:`` line on stderr; the message is text, never rich markup."""
+    err_console.print(Text.assemble(("error:", "bold red"), " ", " ".join(str(message).split())),
+                      soft_wrap=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI; user errors print one line and exit with status 2."""
     try:
-        app(args=argv)  # standalone: usage errors are printed by typer and raise SystemExit
+        code = app(args=argv, standalone_mode=False)
+        if code == 130:  # typer turns Ctrl-C into a silent exit status 130
+            return _interrupted()
+        return code if isinstance(code, int) else 0
+    except (Abort, KeyboardInterrupt):
+        return _interrupted()
+    except ClickException as exc:  # usage errors: typer/click's own one-line message
+        exc.show()
+        return exc.exit_code
     except SystemExit as exc:
         code = exc.code
         return code if isinstance(code, int) else (0 if code is None else 1)
-    except KeyboardInterrupt:
-        err_console.print("[red]interrupted[/red] (finished work is kept; rerun to resume)")
-        return 130
     except ExcavatorPayloadError as exc:
-        err_console.print(f"[bold red]error:[/bold red] {exc}", highlight=False)
+        error_line(str(exc))
+        return 2
+    except OSError as exc:  # a path the user gave cannot be read or written
+        where = f" ('{exc.filename}')" if getattr(exc, "filename", None) else ""
+        error_line(f"{exc.strerror or type(exc).__name__}{where}")
+        return 2
+    except MemoryError:
+        error_line("out of memory: use smaller data or a smaller model")
         return 2
     except Exception as exc:  # a bug of ours: keep the details in a file, show one line
         log = Path(tempfile.gettempdir()) / "excavator-payload-crash.log"
-        log.write_text(traceback.format_exc())
-        err_console.print(f"[bold red]internal error:[/bold red] {type(exc).__name__}: {exc} "
-                          f"(details in {log}; please report it)", highlight=False)
+        try:
+            log.write_text(traceback.format_exc())
+        except OSError:
+            log = Path("(could not write the crash log)")
+        err_console.print(Text.assemble(("internal error:", "bold red"),
+                                        f" {type(exc).__name__}: {exc} (details in {log}; please report it)"),
+                          soft_wrap=True)
         return 1
-    return 0
+
+
+def _interrupted() -> int:
+    err_console.print(Text.assemble(("interrupted", "red"),
+                                    " (finished work is kept; rerun the same command to resume)"))
+    return 130
 
 
 def run() -> None:

@@ -61,7 +61,7 @@ def _sample(ds, row):
 def test_noise_free_converges_and_statuses(mj_dataset_clean):
     est = create_estimator("test-running-mean").fit(mj_dataset_clean)
     out = est.estimate(mj_dataset_clean)
-    assert list(out.columns) == ["experiment", "time", "payload_estimate", "status"]
+    assert list(out.columns) == ["experiment", "time", "payload_estimate", "status", "sigma"]
     first = out.groupby("experiment").head(2)
     assert set(first["status"]) == {"warming_up"}
     err = out["payload_estimate"] - mj_dataset_clean.frame["payload"]

@@ -37,3 +37,31 @@ def test_user_errors_are_one_line(tmp_path, capsys):
     assert main(["export-mat", "--data", str(bad), "--out", str(tmp_path / "x.mat")]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and "unknown noise preset" in err and "nope.toml" in err
+
+
+def test_ctrl_c_keeps_finished_chunks_and_says_so(tmp_path, capsys, monkeypatch):
+    from excavator_payload.simulation import generate
+
+    real = generate.simulate_chunk
+    calls = []
+
+    def interrupted(spec, first, count):
+        if calls:
+            raise KeyboardInterrupt  # Ctrl-C during the second chunk
+        calls.append(first)
+        return real(spec, first, count)
+
+    monkeypatch.setattr(generate, "simulate_chunk", interrupted)
+    out = tmp_path / "d.parquet"
+    args = ["simulate", "-n", "3", "--out", str(out), "--workers", "1", "--quiet"]
+    assert main(args) == 130
+    assert "rerun the same command to resume" in capsys.readouterr().err
+    assert not out.exists() and len(list((tmp_path / "d.parquet.partial").glob("chunk_*.parquet"))) == 1
+    monkeypatch.setattr(generate, "simulate_chunk", real)
+    assert main(args) == 0 and read_dataset(out).n_experiments == 3
+
+
+def test_bad_scheduler_address_is_one_line(tmp_path, capsys):
+    assert main(["simulate", "-n", "2", "--out", str(tmp_path / "x.parquet"), "--scheduler", "nowhere"]) == 2
+    err = capsys.readouterr().err
+    assert "tcp://HOST:PORT" in err and "Traceback" not in err

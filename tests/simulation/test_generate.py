@@ -56,16 +56,16 @@ def test_other_seed_other_data(reference):
 
 def test_interrupted_run_resumes(reference, tmp_path, monkeypatch):
     out = tmp_path / "d.parquet"
-    real_chunk = generate._simulate_chunk
+    real_chunk = generate.simulate_chunk
     calls = []
 
-    def interrupted(first, count, *args):
+    def interrupted(spec, first, count):
         if calls:
             raise KeyboardInterrupt  # the user presses Ctrl-C during the second chunk
         calls.append(first)
-        return real_chunk(first, count, *args)
+        return real_chunk(spec, first, count)
 
-    monkeypatch.setattr(generate, "_simulate_chunk", interrupted)
+    monkeypatch.setattr(generate, "simulate_chunk", interrupted)
     with pytest.raises(KeyboardInterrupt):
         simulate_to_file(out, 4, seed=21, noise="thesis", with_truth=True, workers=1, progress=False)
     assert not out.exists()
@@ -79,11 +79,11 @@ def test_interrupted_run_resumes(reference, tmp_path, monkeypatch):
 
     resumed = []
 
-    def counting(first, count, *args):
+    def counting(spec, first, count):
         resumed.append(first)
-        return real_chunk(first, count, *args)
+        return real_chunk(spec, first, count)
 
-    monkeypatch.setattr(generate, "_simulate_chunk", counting)
+    monkeypatch.setattr(generate, "simulate_chunk", counting)
     simulate_to_file(out, 4, seed=21, noise="thesis", with_truth=True, workers=1, progress=False)
     assert calls[0] not in resumed and sorted(resumed + calls) == [0, 1, 2, 3]
     assert not folder.exists()
@@ -138,6 +138,7 @@ def test_chunk_sizes():
     assert generate.chunk_size_for(4) == 1
     assert generate.chunk_size_for(200) == 5
     assert generate.chunk_size_for(100_000) == 25
+    assert generate.chunk_size_for(200, "minimum-jerk") == 200  # cheap: one chunk, in this process
     chunks = generate._chunks(0, 11, 5)
     assert chunks == [(0, 5), (5, 5), (10, 1)]
     assert np.sum([c for _, c in chunks]) == 11

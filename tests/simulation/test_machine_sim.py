@@ -14,12 +14,11 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import DatasetError, ExcavatorPayloadError
 from excavator_payload.model.machine import load_machine
 from excavator_payload.simulation import machine_sim
-from excavator_payload.simulation.generate import simulate_dataset
+from excavator_payload.simulation.generate import partial_folder, simulate_dataset
 from excavator_payload.simulation.machine_sensors import get_machine_noise, session_offsets
 from excavator_payload.simulation.machine_sim import (
-    partial_folder,
+
     simulate_machine_dataset,
-    simulate_machine_experiments,
     simulate_machine_to_file,
 )
 from excavator_payload.simulation.trajectory import trajectory_from_frame
@@ -82,10 +81,11 @@ def test_sensor_offsets_differ_between_sessions_not_between_seeds():
 
 
 def test_bit_identical_whatever_the_chunking():
-    machine = load_machine(MACHINE)
-    args = (9, 2, machine, "field", "swing", True)
-    whole, metas, _ = simulate_machine_experiments(0, 3, *args)
-    parts = [simulate_machine_experiments(k, 1, *args)[0] for k in range(3)]
+    from excavator_payload.simulation.generate import make_spec, simulate_chunk
+
+    spec = make_spec(3, 9, load_machine(MACHINE), "field", True, "swing", session=2)
+    whole, metas, _ = simulate_chunk(spec, 0, 3)
+    parts = [simulate_chunk(spec, k, 1)[0] for k in range(3)]
     pd.testing.assert_frame_equal(whole, pd.concat(parts, ignore_index=True))
     parallel = simulate_machine_dataset(3, seed=9, session=2, motion="swing", with_truth=True, workers=2)
     pd.testing.assert_frame_equal(parallel.frame, whole)
@@ -139,33 +139,37 @@ def test_bad_input_gives_one_line_errors():
         simulate_machine_dataset(1, noise="thesis")
     with pytest.raises(ExcavatorPayloadError, match="hydraulic machine"):
         simulate_machine_dataset(1, machine="cat345c")
-    with pytest.raises(ExcavatorPayloadError, match="only for a hydraulic"):
+    with pytest.raises(ExcavatorPayloadError, match="hydraulic machine only"):
         simulate_dataset(1, session=3, progress=False)
 
 
 def test_python_api_dispatches_on_the_machine_kind():
     data = simulate_dataset(1, seed=4, machine=MACHINE, progress=False, session=2)
-    assert data.sensor_set.name == "machine" and data.meta["motion"] == "nmpc"
+    assert data.sensor_set.name == "machine" and data.meta["motion"] == "swing"
     assert data.meta["noise"] == "field" and data.meta["session"] == 2
 
 
 def test_interrupted_file_run_resumes(tmp_path, monkeypatch):
     out = tmp_path / "m.parquet"
-    real = machine_sim.simulate_machine_experiments
+    from excavator_payload.simulation import generate
+
+    real = machine_sim.machine_experiment
     calls = []
 
-    def interrupted(first, count, *args):
+    def interrupted(spec, k):
         if calls:
             raise KeyboardInterrupt
-        calls.append(first)
-        return real(first, count, *args)
+        calls.append(k)
+        return real(spec, k)
 
-    monkeypatch.setattr(machine_sim, "simulate_machine_experiments", interrupted)
-    monkeypatch.setattr(machine_sim, "chunk_size_for", lambda n: 1)
+    monkeypatch.setattr(machine_sim, "machine_experiment", interrupted)
+    monkeypatch.setattr(generate, "_machine_chunk_size", lambda n: 1)
+    monkeypatch.setitem(generate.MACHINE_MOTIONS, "lifts",
+                        generate.Motion(generate._MACHINE_EXPERIMENT, lambda n: 1, generate._MACHINE_SKIP))
     with pytest.raises(KeyboardInterrupt):
         simulate_machine_to_file(out, 2, seed=1, motion="lifts", workers=1, progress=False)
     assert not out.exists() and len(list(partial_folder(out).glob("chunk_*"))) == 1
-    monkeypatch.setattr(machine_sim, "simulate_machine_experiments", real)
+    monkeypatch.setattr(machine_sim, "machine_experiment", real)
     resumed = simulate_machine_to_file(out, 2, seed=1, motion="lifts", workers=1, progress=False)
     fresh = simulate_machine_dataset(2, seed=1, motion="lifts")
     pd.testing.assert_frame_equal(read_dataset(out).frame, fresh.frame)

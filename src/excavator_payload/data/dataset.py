@@ -36,6 +36,8 @@ class Dataset:
 
     frame: pd.DataFrame
     meta: dict = field(default_factory=dict)
+    #: The file it was read from (None if made in memory); outputs must never overwrite it.
+    source: object = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         name = self.meta.get("sensor_set")
@@ -127,6 +129,17 @@ class Dataset:
             raise DatasetError("the dataset has no 'payload' column (a field log?): the true "
                                "payload is needed here")
         return self.frame.groupby("experiment", sort=False)["payload"].first().to_numpy(dtype=float)
+
+    def fingerprint(self) -> str:
+        """SHA-256 (hex, 16 characters) of the experiment numbers, times and signals: estimates
+        files carry it so that they are never judged against another dataset."""
+        import hashlib
+
+        h = hashlib.sha256()
+        h.update(self.frame["experiment"].to_numpy().astype(np.int64).tobytes())
+        h.update(np.ascontiguousarray(self.frame["time"].to_numpy(dtype=float)).tobytes())
+        h.update(np.ascontiguousarray(self.signals()).tobytes())
+        return h.hexdigest()[:16]
 
     def machine(self):
         """The :class:`~excavator_payload.model.machine.Machine` that generated the data, if known."""

@@ -13,6 +13,7 @@ import json
 import os
 import tempfile
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import pandas as pd
@@ -30,6 +31,55 @@ from excavator_payload.data.schema import (
     get_sensor_set,
 )
 from excavator_payload.errors import DatasetError
+from excavator_payload.model.machine import MAX_PAYLOAD
+
+
+def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), kind: str = "file",
+                      option: str = "--out", replaces: Sequence[str] = ()) -> Path:
+    """Refuse, before any work is done, an output path that cannot be written or would destroy data.
+
+    Parameters
+    ----------
+    path : output file or folder.
+    inputs : files and folders the command reads: the output must be none of them, nor inside
+        an input folder, nor contain an input.
+    kind : ``"file"`` (must not be an existing folder) or ``"folder"`` (must not be a file).
+    option : the option's name, for the message.
+    replaces : for a folder, the names inside it the command overwrites or deletes (an input
+        there is refused too).
+
+    Raises
+    ------
+    DatasetError
+        With one line saying what is wrong.
+    """
+    path = Path(path)
+    if str(path).strip() == "":
+        raise DatasetError(f"{option}: give a path")
+    target = path.resolve()
+    for raw in inputs:
+        if raw is None:
+            continue
+        source = Path(raw).resolve()
+        same = target == source or (path.exists() and Path(raw).exists() and os.path.samefile(path, raw))
+        inside_replaced = any(source == target / name or (target / name) in source.parents
+                              for name in replaces)
+        if same or source in target.parents or inside_replaced:
+            raise DatasetError(f"{option} '{path}' is (or overlaps) the input '{raw}': refusing to "
+                               "overwrite it; choose another path")
+    if kind == "file" and path.is_dir():
+        raise DatasetError(f"{option} '{path}' is a folder; give a file name")
+    if kind == "folder" and path.exists() and not path.is_dir():
+        raise DatasetError(f"{option} '{path}' is a file; give a folder")
+    # The nearest existing ancestor must be a writable folder (checked now, not after training).
+    parent = target if kind == "folder" else target.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise DatasetError(f"{option} '{path}': '{parent}' is a file, not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise DatasetError(f"{option} '{path}': no permission to write there")
+    return path
 
 
 def atomic_write_table(table: pa.Table, path: str | Path) -> None:
@@ -110,7 +160,7 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
     if validate:
         validate_frame(frame, source=str(path), sensor_set=sensors)
     meta = {**meta, "sensor_set": sensors.name}
-    return Dataset(frame.reset_index(drop=True), meta)
+    return Dataset(frame.reset_index(drop=True), meta, source=path)
 
 
 def _sensor_set_of(frame: pd.DataFrame, meta: dict, source: str) -> SensorSet:
@@ -158,6 +208,14 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
             raise DatasetError(f"{source}: column '{c}' has NaN or infinite values")
     if has_payload and (frame["payload"] < 0).any():
         raise DatasetError(f"{source}: column 'payload' has negative masses (kg)")
+    if has_payload and (frame["payload"] > MAX_PAYLOAD).any():
+        raise DatasetError(f"{source}: column 'payload' reaches {frame['payload'].max():.4g} kg, more "
+                           f"than any excavator lifts ({MAX_PAYLOAD:g} kg)")
+    # Every experiment's rows must be one block: estimators reset where the number changes.
+    changes = int(np.count_nonzero(exp[1:] != exp[:-1])) + 1
+    if changes != len(pd.unique(exp)):
+        raise DatasetError(f"{source}: rows are not grouped by experiment (an experiment's samples "
+                           "are split by another's); sort by experiment, then time")
     for c in sensors.signals:
         values = frame[c].to_numpy(dtype=float)
         finite = values[np.isfinite(values)]
@@ -175,6 +233,16 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
     times = grouped["time"]
     if not (times.apply(lambda t: bool(np.all(np.diff(t.to_numpy()) > 0)))).all():
         raise DatasetError(f"{source}: 'time' must increase strictly within each experiment")
+    # Time in milliseconds, or data of another rate labelled as this sensor set, would pass
+    # every column check and give every sample a "gap" (or wrong physics): check the rate.
+    same = exp[1:] == exp[:-1]
+    steps = np.diff(frame["time"].to_numpy(dtype=float))[same]
+    if steps.size:
+        period = float(np.median(steps))
+        if not 0.8 * sensors.sample_period <= period <= 1.25 * sensors.sample_period:
+            raise DatasetError(f"{source}: samples are {period:.4g} s apart, but the {sensors.name} "
+                               f"sensor set samples at {sensors.sample_rate:g} Hz "
+                               f"({sensors.sample_period:g} s); is 'time' in seconds?")
     if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
 

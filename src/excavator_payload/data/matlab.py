@@ -58,7 +58,9 @@ def dataset_to_cells(dataset: Dataset) -> np.ndarray:
                 "LA = boom, UA = dipper (angle relative to the boom)")
         cells[0, i] = {
             "input": rows[list(SIGNALS)].to_numpy(dtype=float) * TO_THESIS_UNITS,
-            "output": rows[["payload"]].to_numpy(dtype=float),
+            # A field log has no true payload: NaN, as MATLAB marks a missing value.
+            "output": (rows[["payload"]].to_numpy(dtype=float) if "payload" in rows.columns
+                       else np.full((len(rows), 1), np.nan)),
             "time": rows[["time"]].to_numpy(dtype=float),
             "input_names": _cell_row(INPUT_NAMES),
             "input_unit": _cell_row(INPUT_UNITS),
@@ -77,10 +79,17 @@ def export_mat(dataset: Dataset, path: str | Path) -> None:
         If the dataset is empty or the file cannot be written.
     """
     path = Path(path)
+    if dataset.sensor_set.signals != SIGNALS:
+        raise DatasetError(f"the thesis' MATLAB layout holds the thesis sensor set, not "
+                           f"'{dataset.sensor_set.name}'")
     if dataset.n_experiments == 0:
         raise DatasetError("the dataset has no experiments to export")
     if path.is_dir():
         raise DatasetError(f"output '{path}' is a folder; give a file name such as data.mat")
+    if dataset.source is not None:
+        from excavator_payload.data.io import check_output_path
+
+        check_output_path(path, inputs=[dataset.source])
     cells = dataset_to_cells(dataset)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

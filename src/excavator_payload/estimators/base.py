@@ -13,10 +13,46 @@ Each estimator declares the sensor sets it runs on (:attr:`Estimator.SENSOR_SETS
 :mod:`excavator_payload.data.schema`); ``fit`` takes the set of its dataset, and from then on
 signal vectors are in that set's column order and a dataset of another set gets one clear line.
 
-Input checking is done once, here, so every estimator reacts the same way: a sample with a
-missing or NaN signal, or an angle outside the machine's range, is *not* used and the step
-returns the last estimate with a status saying why; a gap in time (more than 1.5 sample
-periods) calls :meth:`Estimator._on_gap` (by default a reset) and is reported as ``gap``.
+Input checking is done once, here, so every estimator reacts the same way. A streaming
+:meth:`Estimator.step` never raises on bad data and never returns a non-finite estimate as
+``ok``; every result carries the estimate's one-sigma uncertainty (``StepResult.sigma``, kg).
+
+Outlier rejection (table-driven, so that it ports to C as three small tables)
+------------------------------------------------------------------------------
+Every sample passes three checks, in this order; a sample that fails one is *not used*: the
+step returns the last estimate (and its sigma) with the status of the check.
+
+1. **Readable** (``invalid_input``): every signal present and finite, time finite.
+2. **Plausible** (``out_of_range``): each signal inside ``[low, high]`` of
+   :func:`plausibility_limits`: ``±SensorSet.plausible_abs`` tightened by the machine file
+   through :data:`MACHINE_RULES`: the angle ranges, and ``|torque| ≤``
+   :data:`TORQUE_LIMIT_FACTOR` ``×`` the joint's torque limit. Estimators without a machine
+   model (the networks) take the machine of their training data. The limits are saved with the
+   model (``estimator.json``, key ``plausibility``).
+3. **Statistically consistent** (``rejected_outlier``): an estimator with a noise model
+   returns the normalised squared innovation of the sample from :meth:`Estimator._innovation`
+   (Kalman filters: :math:`\nu^\top S^{-1}\nu` of all their measurements at the prior;
+   inverse-dynamics least squares: the torque residual at the current estimate against its
+   covariance); the sample is rejected when it exceeds the chi-square quantile of
+   :data:`GATE_PROBABILITY` (10⁻⁶ per sample: about one false rejection in 14 hours at 20 Hz).
+   The filter state is not updated; the next used sample bridges the hole like a short gap
+   (the filters restart their kinematic states and keep the payload). After
+   :data:`MAX_CONSECUTIVE_REJECTIONS` rejections in a row the estimator does not lock itself
+   out: it re-initialises (the payload may really have changed), uses the sample, reports
+   ``reinitialised`` and widens its gate to the data. The gate also widens slowly
+   (:data:`GATE_SCALE_RATE`) while accepted innovations run larger than the noise model says,
+   so a machine model a few percent wrong costs a few rejections, not a lock-out; it never
+   narrows below the chi-square quantile. ``Estimator.gating = False`` turns the gate off (to
+   study the bare estimator).
+
+The state itself is watched too: an estimator whose state is no longer finite
+(:meth:`Estimator._state_finite`) or that produced a non-finite ``ok`` estimate restarts and
+reports ``state_reset``.
+
+Samples that are not used leave a hole in time, so the next used sample sees a gap: a gap in
+time (more than 1.5 sample periods, or time going back) calls :meth:`Estimator._on_gap` (by
+default a reset; the filters and least squares keep their payload belief over a short gap)
+and is reported as ``gap``.
 """
 
 from __future__ import annotations
@@ -24,6 +60,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import os
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from enum import Enum
@@ -35,7 +72,7 @@ import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import THESIS_SENSORS, SensorSet, get_sensor_set
-from excavator_payload.errors import EstimatorError
+from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.model.machine import Machine, load_machine
 
 SAVE_FORMAT = "excavator-payload-estimator"
@@ -52,13 +89,84 @@ class Status(str, Enum):
     NO_DATA = "no_data"          #: no sample seen since the last reset
     GAP = "gap"                  #: time jumped; the estimator restarted
     INVALID = "invalid_input"    #: a signal was missing, NaN or infinite: sample ignored
-    OUT_OF_RANGE = "out_of_range"  #: an angle outside the machine's range: sample ignored
+    OUT_OF_RANGE = "out_of_range"  #: a signal outside its plausibility limits: sample ignored
+    REJECTED = "rejected_outlier"  #: inconsistent with the noise model (gate): sample ignored
+    REINITIALISED = "reinitialised"  #: restarted after too many rejections in a row; sample used
+    STATE_RESET = "state_reset"  #: the estimator's state went non-finite: restarted
 
 
 @dataclass(frozen=True)
 class StepResult:
-    estimate: float  # kg; NaN when there is no estimate yet
+    """One streaming result.
+
+    Attributes
+    ----------
+    estimate : float
+        Payload, kg; NaN when there is no estimate yet.
+    status : Status
+        What the estimate means (see :class:`Status`).
+    sigma : float
+        One-sigma uncertainty of ``estimate``, kg; NaN where the estimator cannot tell. How each
+        estimator computes it is in its ``_estimate_sigma`` docstring (filters: square root of the payload
+        covariance; least squares: of its inverse information; networks: the spread of their
+        validation residuals).
+    """
+
+    estimate: float
     status: Status
+    sigma: float = math.nan
+
+
+#: Probability, per sample, that a good sample is rejected by the statistical gate.
+GATE_PROBABILITY = 1e-6
+#: After this many consecutive rejections the estimator re-initialises instead of rejecting.
+MAX_CONSECUTIVE_REJECTIONS = 5
+#: The gate widens (never narrows below 1) to ``GATE_SCALE_HEADROOM`` × the recent accepted
+#: innovations' share of the threshold, an exponential average with this weight per sample.
+GATE_SCALE_RATE = 0.05
+GATE_SCALE_HEADROOM = 4.0
+#: A torque beyond this multiple of the machine's torque limit is not physical.
+TORQUE_LIMIT_FACTOR = 1.5
+#: Machine-file rules that tighten ``SensorSet.plausible_abs``: signal -> (rule, machine field).
+#: ``range``: the field is a ``(low, high)`` pair; ``abs_limit``: ``|value| ≤ TORQUE_LIMIT_FACTOR
+#: × field``. A rule whose signal is not in the sensor set does not apply.
+MACHINE_RULES: dict[str, tuple[str, str]] = {
+    "boom_angle": ("range", "boom_angle_range"),
+    "dipper_angle": ("range", "dipper_angle_range"),
+    "boom_torque": ("abs_limit", "boom_torque_limit"),
+    "dipper_torque": ("abs_limit", "dipper_torque_limit"),
+}
+
+_CHI2: dict[int, float] = {}
+
+
+def gate_threshold(dof: int) -> float:
+    """Chi-square quantile of ``1 - GATE_PROBABILITY`` with ``dof`` degrees of freedom."""
+    if dof not in _CHI2:
+        from scipy.stats import chi2
+
+        _CHI2[dof] = float(chi2.isf(GATE_PROBABILITY, dof))
+    return _CHI2[dof]
+
+
+def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` per signal of ``sensor_set`` (its order) from the tables above."""
+    high = np.array([float(sensor_set.plausible_abs[s]) for s in sensor_set.signals])
+    low = -high
+    if machine is not None:
+        for signal, (rule, field_name) in MACHINE_RULES.items():
+            if signal not in sensor_set.signals:
+                continue
+            i = sensor_set.index(signal)
+            value = getattr(machine, field_name, None)
+            if value is None:  # a kind of machine file without this field
+                continue
+            if rule == "range":
+                low[i], high[i] = max(low[i], value[0]), min(high[i], value[1])
+            else:
+                limit = TORQUE_LIMIT_FACTOR * float(value)
+                low[i], high[i] = max(low[i], -limit), min(high[i], limit)
+    return low, high
 
 
 @dataclass(frozen=True)
@@ -121,6 +229,11 @@ class Estimator(ABC):
                             and o.type is not str else options.get(k, o.default))
                         for k, o in self.OPTIONS.items()}
         for k, o in self.OPTIONS.items():
+            value = self.options[k]
+            if o.type is float and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                        and math.isfinite(value)):
+                raise EstimatorError(f"{self.name}: option --{k.replace('_', '-')} must be a finite "
+                                     f"number, got {value!r}")
             if o.choices is not None and self.options[k] not in o.choices:
                 raise EstimatorError(f"{self.name}: option --{k.replace('_', '-')} must be one of "
                                      f"{', '.join(map(str, o.choices))}, got {self.options[k]!r}")
@@ -134,9 +247,19 @@ class Estimator(ABC):
         #: The sensor set of the data it was fitted on (the thesis set until then).
         self.sensor_set: SensorSet = THESIS_SENSORS
         self.fitted = False
+        #: Doubts about the fit (too little data …), one line each; the CLI prints them.
+        self.fit_warnings: list[str] = []
+        #: Whether the statistical gate is on (turn off only to study the bare estimator).
+        self.gating = True
+        #: Plausibility limits per signal (see :func:`plausibility_limits`), set by fit/load.
+        self.plausible_low: np.ndarray | None = None
+        self.plausible_high: np.ndarray | None = None
         self._last_time: float | None = None
         self._last_estimate = math.nan
+        self._last_sigma = math.nan
         self._n_seen = 0
+        self._n_rejected = 0
+        self._gate_scale = 1.0
 
     # -- to implement ----------------------------------------------------------------------
     @abstractmethod
@@ -166,11 +289,32 @@ class Estimator(ABC):
         """Called when time jumps by more than 1.5 sample periods: restart by default."""
         self._reset()
 
+    def _innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
+        """Normalised squared innovation of a sample and its degrees of freedom, or None.
+
+        Called before :meth:`_step` on every plausible sample; the base class rejects the
+        sample when the value exceeds :func:`gate_threshold`. None (the default) means the
+        estimator has no noise model to judge a sample with, or is not ready to.
+        """
+        return None
+
+    def _estimate_sigma(self) -> float:
+        """One-sigma uncertainty of the current estimate, kg (NaN: unknown)."""
+        return math.nan
+
+    def _state_finite(self) -> bool:
+        """Whether the internal state is still finite (a NaN/inf state is reset by the base)."""
+        return True
+
     # -- protocol --------------------------------------------------------------------------
     def fit(self, dataset: Dataset) -> "Estimator":
         """Fit to ``dataset`` and return ``self``."""
         self.sensor_set = self._check_sensor_set(dataset)
+        self.fit_warnings = []
         self._fit(dataset)
+        # Networks have no machine of their own: their limits come from the data's machine.
+        self.plausible_low, self.plausible_high = plausibility_limits(
+            self.sensor_set, self.machine if self.machine is not None else _dataset_machine(dataset))
         self.fitted = True
         self.reset()
         return self
@@ -187,50 +331,98 @@ class Estimator(ABC):
         """Start a new experiment (streaming)."""
         self._last_time = None
         self._last_estimate = math.nan
+        self._last_sigma = math.nan
         self._n_seen = 0
+        self._n_rejected = 0
+        self._gate_scale = 1.0
         self._reset()
 
     def step(self, sample: Mapping[str, float]) -> StepResult:
         """Consume one sample (a mapping with ``time`` and the signals of the sensor set).
 
-        Never raises for bad data: the status says what happened.
+        Never raises for bad data: the status says what happened (see the module docstring).
         """
         if not self.fitted:
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
         try:
             time = float(sample["time"])
             values = np.array([float(sample[s]) for s in self.sensor_set.signals])
-        except (KeyError, TypeError, ValueError):
-            return StepResult(self._last_estimate, Status.INVALID)
+        except (KeyError, TypeError, ValueError, OverflowError, AttributeError, IndexError):
+            return self._kept(Status.INVALID)
         return self.step_values(time, values)
+
+    def _kept(self, status: Status) -> StepResult:
+        """The last estimate again, with ``status`` (the sample was not used)."""
+        return StepResult(self._last_estimate, status, self._last_sigma)
 
     def step_values(self, time: float, values: np.ndarray) -> StepResult:
         """:meth:`step` for a sample given as ``time`` and an array in ``sensor_set.signals`` order."""
         if not self.fitted:
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
+        try:
+            time = float(time)
+            values = np.asarray(values, dtype=float).reshape(-1)
+        except (TypeError, ValueError, OverflowError):
+            return self._kept(Status.INVALID)
+        if values.shape != (len(self.sensor_set.signals),):
+            return self._kept(Status.INVALID)
         if not (math.isfinite(time) and np.all(np.isfinite(values))):
-            return StepResult(self._last_estimate, Status.INVALID)
-        if self.machine is not None and not self._in_range(values):
-            return StepResult(self._last_estimate, Status.OUT_OF_RANGE)
+            return self._kept(Status.INVALID)
+        if self.plausible_low is None:
+            self.plausible_low, self.plausible_high = plausibility_limits(self.sensor_set, self.machine)
+        if not (np.all(values >= self.plausible_low) and np.all(values <= self.plausible_high)):
+            return self._kept(Status.OUT_OF_RANGE)
         gap = False
         if self._last_time is not None:
             dt = time - self._last_time
             if dt <= 0 or dt > 1.5 * self.sensor_set.sample_period:
-                self._on_gap(time, values)
                 gap = True
+        if gap or self._n_rejected:
+            # A hole in the data (or samples the gate rejected just before): the estimator
+            # bridges it (filters restart their kinematics and keep the payload) or restarts.
+            self._on_gap(time, values)
+        reinitialised = False
+        try:
+            nis = self._innovation(time, values) if self.gating else None
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError):
+            nis = (math.inf, 1)
+        if nis is not None:
+            threshold = gate_threshold(nis[1]) * self._gate_scale
+            if not nis[0] <= threshold:
+                self._n_rejected += 1
+                if self._n_rejected <= MAX_CONSECUTIVE_REJECTIONS:
+                    if not gap:
+                        self._last_time = time  # the sample's slot is used up: no gap after it
+                    return self._kept(Status.REJECTED)
+                # Not one glitch but data the noise model does not describe (the payload
+                # changed, or the model is wrong): start again and widen the gate to it.
+                self._reset()
+                reinitialised = True
+                if math.isfinite(nis[0]):
+                    self._gate_scale = max(self._gate_scale, 2.0 * nis[0] / gate_threshold(nis[1]))
+            elif math.isfinite(nis[0]):
+                # Track how consistent the accepted data are (1 = as the noise model says):
+                # a slightly wrong model widens the gate instead of rejecting good data.
+                ratio = nis[0] / gate_threshold(nis[1]) * GATE_SCALE_HEADROOM
+                self._gate_scale = max(1.0, (1 - GATE_SCALE_RATE) * self._gate_scale
+                                       + GATE_SCALE_RATE * ratio)
+        self._n_rejected = 0
         self._last_time = time
         self._n_seen += 1
         result = self._step(time, values)
-        self._last_estimate = result.estimate
-        if gap:
-            return StepResult(result.estimate, Status.GAP)
-        return result
-
-    def _in_range(self, values: np.ndarray) -> bool:
-        m, sensors = self.machine, self.sensor_set
-        return (m.boom_angle_range[0] <= values[sensors.index("boom_angle")] <= m.boom_angle_range[1]
-                and m.dipper_angle_range[0] <= values[sensors.index("dipper_angle")]
-                <= m.dipper_angle_range[1])
+        sigma = self._estimate_sigma()
+        if not self._state_finite() or (result.status is Status.OK and not math.isfinite(result.estimate)):
+            self._reset()
+            self._last_time = None
+            result, sigma = StepResult(math.nan, Status.STATE_RESET), math.nan
+        elif not math.isfinite(result.estimate):
+            sigma = math.nan
+        self._last_estimate, self._last_sigma = result.estimate, sigma
+        if reinitialised:
+            return StepResult(result.estimate, Status.REINITIALISED, sigma)
+        if gap and result.status is not Status.STATE_RESET:
+            return StepResult(result.estimate, Status.GAP, sigma)
+        return StepResult(result.estimate, result.status, sigma)
 
     def estimate(self, dataset: Dataset) -> pd.DataFrame:
         """Batch estimates: reset at each experiment and step through its samples.
@@ -247,19 +439,23 @@ class Estimator(ABC):
             raise EstimatorError(f"{self.name} was fitted on the {self.sensor_set.name} sensor set; "
                                  f"the data lack its column(s) {', '.join(missing)}")
         est = np.full(len(dataset.frame), np.nan)
+        sigma = np.full(len(dataset.frame), np.nan)
         status = np.empty(len(dataset.frame), dtype=object)
         times = dataset.frame["time"].to_numpy(dtype=float)
         values = dataset.signals(self.sensor_set.signals)
         exp = dataset.frame["experiment"].to_numpy()
         starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
         bounds = np.r_[starts, len(exp)]
+        if len(starts) != len(pd.unique(exp)):
+            raise EstimatorError("the rows are not grouped by experiment (an experiment's samples "
+                                 "are split by another's); sort them by experiment and time")
         for a, b in zip(bounds[:-1], bounds[1:]):
             self.reset()
             for i in range(a, b):
                 r = self.step_values(times[i], values[i])
-                est[i], status[i] = r.estimate, r.status.value
+                est[i], status[i], sigma[i] = r.estimate, r.status.value, r.sigma
         return pd.DataFrame({"experiment": exp, "time": times, "payload_estimate": est,
-                             "status": status})
+                             "status": status, "sigma": sigma})
 
     # -- persistence -----------------------------------------------------------------------
     def save(self, directory: str | Path) -> Path:
@@ -275,14 +471,21 @@ class Estimator(ABC):
             "options": _jsonable(self.options),
             "machine": self.machine.to_dict() if self.machine is not None else None,
             "sensor_set": self.sensor_set.name,
+            "plausibility": ({"low": self.plausible_low.tolist(), "high": self.plausible_high.tolist()}
+                             if self.plausible_low is not None else None),
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
-        tmp = directory / (ARRAYS_FILE + ".tmp.npz")
+        text = json.dumps(config, indent=2)
+        # estimator.json is what makes a folder a model: it goes first and comes back last, so
+        # an interrupted save never leaves old settings beside new arrays (or the reverse).
+        (directory / CONFIG_FILE).unlink(missing_ok=True)
+        tag = f".{os.getpid()}.tmp"  # private temporary names: concurrent saves never share one
+        tmp = directory / (ARRAYS_FILE + tag + ".npz")
         np.savez(tmp, **arrays)
         tmp.replace(directory / ARRAYS_FILE)
-        (directory / (CONFIG_FILE + ".tmp")).write_text(json.dumps(config, indent=2))
-        (directory / (CONFIG_FILE + ".tmp")).replace(directory / CONFIG_FILE)
+        (directory / (CONFIG_FILE + tag)).write_text(text)
+        (directory / (CONFIG_FILE + tag)).replace(directory / CONFIG_FILE)
         return directory
 
     @classmethod
@@ -309,10 +512,20 @@ def _jsonable(obj):
     return obj
 
 
+def _dataset_machine(dataset: Dataset) -> Machine | None:
+    """The machine recorded in a dataset's metadata, if any and valid."""
+    try:
+        return dataset.machine()
+    except (ExcavatorPayloadError, TypeError, ValueError):
+        return None
+
+
 def load_estimator(directory: str | Path, expected: type | None = None) -> Estimator:
     """Load any saved estimator from ``directory``; clear errors for foreign or corrupt folders."""
     directory = Path(directory)
     cfg_path = directory / CONFIG_FILE
+    if directory.exists() and not directory.is_dir():
+        raise EstimatorError(f"'{directory}' is a file, not a saved model folder")
     if not directory.is_dir():
         raise EstimatorError(f"model folder '{directory}' does not exist")
     if not cfg_path.is_file():
@@ -326,24 +539,44 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
     if config.get("version") != SAVE_VERSION:
         raise EstimatorError(f"'{directory}' has save format version {config.get('version')}, "
                              f"this software reads {SAVE_VERSION}")
-    klass = estimator_class(str(config.get("estimator")))
+    name = config.get("estimator")
+    if not isinstance(name, str):
+        raise EstimatorError(f"'{cfg_path}' names no estimator")
+    klass = estimator_class(name)
     if expected is not None and not issubclass(klass, expected):
         raise EstimatorError(f"'{directory}' holds a {klass.name} estimator, not {expected.name}")
+    arrays_path = directory / ARRAYS_FILE
+    if not arrays_path.is_file():
+        raise EstimatorError(f"'{arrays_path}' is missing (incomplete model folder)")
     try:
-        with np.load(directory / ARRAYS_FILE, allow_pickle=False) as npz:
+        with np.load(arrays_path, allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
-    except (OSError, ValueError) as exc:
-        raise EstimatorError(f"'{directory / ARRAYS_FILE}' is missing or corrupt: {exc}") from None
-    machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
+    except Exception as exc:  # zip, zlib, EOF, header and pickle errors all mean: corrupt file
+        raise EstimatorError(f"'{arrays_path}' is corrupt ({type(exc).__name__}); save the model "
+                             "again") from None
+    for key, value in arrays.items():
+        # Training logs may hold NaN (no validation set); everything the estimator computes
+        # with must be finite: NaN weights would estimate NaN forever.
+        if key.startswith("log_"):
+            continue
+        if value.dtype.kind not in "fiubUS" or (value.dtype.kind == "f" and not np.all(np.isfinite(value))):
+            raise EstimatorError(f"'{arrays_path}': array '{key}' is not finite numbers (corrupt or "
+                                 "tampered model folder)")
+    options, state = config.get("options", {}), config.get("state", {})
+    if not isinstance(options, dict) or not isinstance(state, dict):
+        raise EstimatorError(f"'{cfg_path}': 'options' and 'state' must be JSON objects")
     try:
-        est = klass(machine=machine, **config.get("options", {}))
+        machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
+        est = klass(machine=machine, **options)
         # Files saved before sensor sets existed hold the thesis set.
         est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
-        est._restore(config.get("state", {}), arrays)
-    except EstimatorError:
-        raise
-    except (KeyError, ValueError, TypeError) as exc:
-        raise EstimatorError(f"'{directory}' is corrupt or incomplete: {exc!r}") from None
+        est._restore(state, arrays)
+        est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
+    except ExcavatorPayloadError as exc:
+        raise EstimatorError(f"'{directory}' is corrupt or incomplete: {exc}") from None
+    except Exception as exc:  # any other failure to rebuild it from the files: corrupt files
+        raise EstimatorError(f"'{directory}' is corrupt or incomplete: "
+                             f"{type(exc).__name__}: {exc}") from None
     est.fitted = True
     est.reset()
     return est
@@ -356,6 +589,19 @@ def _machine_from_dict(data: dict):
 
         return HydraulicMachine.from_dict(data)
     return Machine.from_dict(data)
+
+
+def _saved_limits(saved, est: Estimator) -> tuple[np.ndarray, np.ndarray]:
+    """Plausibility limits from ``estimator.json`` (older files: computed from the machine)."""
+    n = len(est.sensor_set.signals)
+    if saved is None:
+        return plausibility_limits(est.sensor_set, est.machine)
+    low = np.asarray(saved["low"], dtype=float)
+    high = np.asarray(saved["high"], dtype=float)
+    if low.shape != (n,) or high.shape != (n,) or not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))
+                                                      and np.all(low < high)):
+        raise EstimatorError("its plausibility limits are not finite [low, high] pairs")
+    return low, high
 
 
 # -- registry ------------------------------------------------------------------------------

@@ -7,8 +7,9 @@ from pathlib import Path
 import typer
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
-from excavator_payload.data.io import read_dataset, write_estimates
+from excavator_payload.data.io import check_output_path, read_dataset, write_estimates
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import (
     ESTIMATOR_MODULES,
@@ -42,44 +43,78 @@ def parse_extra_options(args: list[str], name: str) -> dict[str, str]:
     return options
 
 
+#: What each non-``ok`` status of an estimates file means (printed by ``estimate``).
+STATUS_MEANING = {
+    "warming_up": "not enough samples yet (estimate not trusted)",
+    "no_data": "no usable sample yet",
+    "gap": "time jumped; the estimator bridged the hole or restarted",
+    "invalid_input": "a signal was missing, NaN or infinite; sample not used",
+    "out_of_range": "a signal outside its plausible range (machine file); sample not used",
+    "rejected_outlier": "inconsistent with the noise model; sample not used, estimate kept",
+    "reinitialised": "too many rejections in a row; the estimator restarted",
+    "state_reset": "the estimator's state went non-finite; it restarted",
+}
+
+
+def status_breakdown(status) -> str:
+    """``"960 ok, 50 warming_up"``: how many estimates have each status, most common first."""
+    counts = status.value_counts()
+    return ", ".join(f"{int(n)} {name}" for name, n in counts.items())
+
+
 def register(app: typer.Typer) -> None:
     @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
     def train(
         ctx: typer.Context,
         name: str = typer.Argument(..., help=f"Estimator: {', '.join(ESTIMATOR_MODULES)}."),
-        data: Path = typer.Option(..., "--data", help="Training / calibration dataset (Parquet)."),
-        out: Path = typer.Option(..., "--out", help="Folder to save the fitted estimator in."),
+        data: Path = typer.Option(..., "--data", help="Training / calibration dataset (Parquet).",
+                                  metavar="FILE"),
+        out: Path = typer.Option(..., "--out", help="Folder to save the fitted estimator in.",
+                                 metavar="DIR"),
         machine: str = typer.Option(None, "--machine",
                                     help="Machine the estimator believes in: preset name or TOML file "
-                                         "(default: the dataset's machine)."),
+                                         "(default: the dataset's machine).", metavar="NAME|FILE"),
     ) -> None:
         """Fit or train an estimator and save it. Estimator options follow as --name value
         (see `excavator-payload estimators NAME`)."""
         klass = estimator_class(name)
         options = parse_extra_options(list(ctx.args), name)
+        # Everything that can be wrong is checked before minutes of training.
+        check_output_path(out, inputs=[data] + ([machine] if machine and Path(machine).exists() else []),
+                          kind="folder", replaces=("estimator.json", "arrays.npz", "training_log.csv",
+                                                   "training.png"))
         dataset = read_dataset(data)
         if machine is None and klass.NEEDS_MACHINE:
             machine = dataset.machine() or "cat345c"
         est = create_estimator(name, machine=machine, **options)
-        console.print(f"training [bold]{name}[/bold] on {dataset}")
+        console.print(Text.assemble("training ", (name, "bold"), f" on {dataset}"))
         est.fit(dataset)
+        for warning in est.fit_warnings:
+            console.print(Text.assemble(("warning: ", "bold yellow"), warning))
         est.save(out)
-        console.print(f"saved to [bold]{out}[/bold]")
+        console.print(Text.assemble("saved to ", (str(out), "bold")))
 
     @app.command()
     def estimate(
-        model: Path = typer.Option(..., "--model", help="Folder of a saved estimator."),
-        data: Path = typer.Option(..., "--data", help="Dataset to estimate on (Parquet)."),
-        out: Path = typer.Option(..., "--out", help="Estimates file to write (Parquet)."),
+        model: Path = typer.Option(..., "--model", help="Folder of a saved estimator.", metavar="DIR"),
+        data: Path = typer.Option(..., "--data", help="Dataset to estimate on (Parquet; the true "
+                                  "payload column is not needed).", metavar="FILE"),
+        out: Path = typer.Option(..., "--out", help="Estimates file to write (Parquet).", metavar="FILE"),
     ) -> None:
-        """Estimate the payload at every sample: writes experiment, time, payload_estimate, status."""
+        """Estimate the payload at every sample: writes experiment, time, payload_estimate, status
+        and sigma (one-sigma uncertainty, kg)."""
+        check_output_path(out, inputs=[data, model])
         est = load_estimator(model)
         dataset = read_dataset(data)
         frame = est.estimate(dataset)
         write_estimates(frame, out, meta={"estimator": est.name, "model": str(model),
-                                          "data": str(data)})
-        n_ok = int((frame["status"] == "ok").sum())
-        console.print(f"{est.name}: {len(frame)} estimates ({n_ok} ok) written to [bold]{out}[/bold]")
+                                          "data": str(data), "data_fingerprint": dataset.fingerprint()})
+        console.print(Text.assemble(f"{est.name}: {len(frame)} estimates ({status_breakdown(frame['status'])}) "
+                                    "written to ", (str(out), "bold")))
+        seen = [status for status in STATUS_MEANING if (frame["status"] == status).any()]
+        if seen:
+            console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
+                          markup=False, highlight=False)
 
     @app.command()
     def estimators(name: str = typer.Argument(None, help="Show the options of this estimator.")) -> None:
@@ -89,10 +124,11 @@ def register(app: typer.Typer) -> None:
                 console.print(n)
             return
         klass = estimator_class(name)
-        table = Table(title=f"{name} options")
+        table = Table(title=f"{name} options")  # option help is plain text, not markup
         for col in ("option", "type", "default", "help"):
             table.add_column(col)
         for key, opt in klass.OPTIONS.items():
             choices = f" ({'|'.join(map(str, opt.choices))})" if opt.choices else ""
-            table.add_row("--" + key.replace("_", "-"), opt.type.__name__, repr(opt.default), opt.help + choices)
+            table.add_row("--" + key.replace("_", "-"), opt.type.__name__, Text(repr(opt.default)),
+                          Text(opt.help + choices))
         console.print(table)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import math
 from pathlib import Path
 from typing import Sequence
@@ -13,9 +14,11 @@ from rich import box
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.markup import escape
+from rich.text import Text
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.io import read_dataset, read_estimates, read_metadata
+from excavator_payload.data.io import check_output_path, read_dataset, read_estimates, read_metadata
 from excavator_payload.errors import DatasetError, EstimatorError
 from excavator_payload.evaluation.metrics import (
     DEFAULT_DISCARD,
@@ -44,7 +47,8 @@ def estimate_in_chunks(estimator, dataset: Dataset, progress: Progress | None = 
     Estimators reset at every experiment, so chunking gives the same estimates.
     """
     ids = list(dataset.experiment_ids)
-    task = progress.add_task(description, total=len(ids)) if progress is not None else None
+    task = (progress.add_task(escape(description), total=len(ids))  # labels hold paths: not markup
+            if progress is not None else None)
     frames = []
     for start in range(0, len(ids), chunk):
         part = ids[start:start + chunk]
@@ -78,6 +82,9 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
 
     if not models and not estimates:
         raise EstimatorError("nothing to evaluate: give --model DIR and/or --estimates FILE")
+    if not dataset.has_payload:
+        raise DatasetError("the dataset has no 'payload' column (a field log?): judging needs the "
+                           "true payloads")
     evaluations: list[Evaluation] = []
     bounds: dict = {}
     taken: set = set()
@@ -97,9 +104,14 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
                                               bound=bound_for(window),
                                               info={"estimator": name, "options": options,
                                                     "machine": machine, "model": str(model)}))
+    fingerprint = dataset.fingerprint() if estimates else None
     for path in estimates:
         frame = read_estimates(path)
         meta = read_metadata(path)
+        made_on = meta.get("data_fingerprint")
+        if made_on is not None and made_on != fingerprint:
+            raise DatasetError(f"'{path}' holds estimates made on another dataset "
+                               f"({meta.get('data', 'unknown file')}), not on this one")
         name, options, machine = meta.get("estimator"), {}, None
         if meta.get("model"):
             n2, options, machine = _model_options(Path(meta["model"]))
@@ -135,7 +147,7 @@ def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accur
               "conv": "conv: convergence time (s)", "eff": "eff: RMS of error/Cramér–Rao bound",
               "est": "est: judged samples with an estimate"}
     caption = "; ".join(legend[c] for c, _ in columns if c in legend)
-    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, caption=caption)
+    table = Table(title=Text(title), box=box.SIMPLE_HEAD, pad_edge=False, caption=caption)
     for col, _ in columns:
         table.add_column(col, justify="left" if col == "estimator" else "right", no_wrap=True)
 
@@ -147,14 +159,14 @@ def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accur
 
     for ev in evaluations:
         s = ev.summary
-        table.add_row(*[ev.label if key == "estimator" else f(s.get(key), formats.get(key, "{:.3g}"))
+        table.add_row(*[Text(ev.label) if key == "estimator" else f(s.get(key), formats.get(key, "{:.3g}"))
                         for _, key in columns])
     return table
 
 
 def write_json(path: Path, payload: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
     tmp.write_text(json.dumps(to_jsonable(payload), indent=2))
     tmp.replace(path)
 
@@ -165,15 +177,18 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def evaluate(
         data: Path = typer.Option(..., "--data", help="Test dataset with the true payloads (Parquet)."),
-        model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable)."),
+        model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable).", metavar="DIR"),
         estimates: list[Path] = typer.Option([], "--estimates",
                                              help="Estimates file from `estimate` or another tool: columns "
-                                                  "experiment, time, payload_estimate (repeatable)."),
+                                                  "experiment, time, payload_estimate (repeatable).",
+                                             metavar="FILE"),
         discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0,
                                     help="Samples not judged at the start of every experiment (thesis: 81)."),
         json_out: Path = typer.Option(None, "--json", help="Write every figure to this JSON file."),
     ) -> None:
         """Judge estimators on a dataset: MAX/RMS errors (thesis Tables 7.1, 7.2), percentiles, convergence time, share meeting the 1 % requirement, efficiency against the Cramér–Rao bound."""  # noqa: E501
+        if json_out is not None:
+            check_output_path(json_out, inputs=[data, *model, *estimates], option="--json")
         dataset = read_dataset(data)
         with progress_bar() as progress:
             evaluations = evaluate_sources(dataset, model, estimates, discard, progress)
@@ -183,14 +198,15 @@ def register(app: typer.Typer) -> None:
         if json_out is not None:
             write_json(json_out, {"data": str(data), "discard": discard,
                                   "evaluations": [ev.to_dict() for ev in evaluations]})
-            console.print(f"figures written to [bold]{json_out}[/bold]")
+            console.print(Text.assemble("figures written to ", (str(json_out), "bold")))
 
     @app.command()
     def report(
         data: Path = typer.Option(..., "--data", help="Test dataset with the true payloads (Parquet)."),
         out: Path = typer.Option(..., "--out", help="Folder to write report.html, report.md and figures/ in."),
-        model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable)."),
-        estimates: list[Path] = typer.Option([], "--estimates", help="Estimates file (repeatable)."),
+        model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable).", metavar="DIR"),
+        estimates: list[Path] = typer.Option([], "--estimates", help="Estimates file (repeatable).",
+                                             metavar="FILE"),
         discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0, help="Samples not judged at the start."),
         experiments: str = typer.Option(None, "--experiments",
                                         help="Experiments to plot like thesis Figures 7.1–7.12, e.g. '3,17,42' "
@@ -203,6 +219,8 @@ def register(app: typer.Typer) -> None:
         """Write a self-contained HTML report (and Markdown) with tables and figures."""
         from excavator_payload.evaluation.report import build_report
 
+        check_output_path(out, inputs=[data, *model, *estimates, calibration], kind="folder",
+                          replaces=("report.html", "report.md", "evaluation.json", "figures"))
         dataset = read_dataset(data)
         chosen = None
         if experiments:
@@ -232,14 +250,14 @@ def register(app: typer.Typer) -> None:
         paths = build_report(out, dataset, evaluations, title=title, settings=settings, experiments=chosen,
                              calibration=curve, training_dirs=training)
         console.print(summary_table(evaluations))
-        console.print(f"report: [bold]{paths.html}[/bold] (Markdown: {paths.markdown})")
+        console.print(Text.assemble("report: ", (str(paths.html), "bold"), f" (Markdown: {paths.markdown})"))
 
     @app.command()
     def demo(
         out: Path = typer.Option(Path("excavator-payload-demo"), "--out",
                                  help="Folder for datasets, models, cache and the report."),
         scale: str = typer.Option("quick", "--scale",
-                                  help="quick (≈15 min on 2 cores), thesis (the thesis' full sizes) "
+                                  help="quick (≈6 min on 2 cores), thesis (the thesis' full sizes) "
                                        "or tiny (seconds; for tests)."),
         workers: int = typer.Option(None, "--workers", min=1, help="Simulation worker processes (default: all cores)."),
         motion: str = typer.Option("nmpc", "--motion",
@@ -251,5 +269,8 @@ def register(app: typer.Typer) -> None:
         """Simulate, fit every estimator, evaluate and write the report: the thesis end to end."""
         from excavator_payload.evaluation.demo import run_demo
 
+        check_output_path(out, kind="folder")
+        if not 0 <= seed < 2**63:
+            raise DatasetError(f"--seed must be in 0 … 2⁶³−1, got {seed}")
         run_demo(out, scale=scale, workers=workers, motion=motion, seed=seed,
                  only=[s.strip() for s in only.split(",")] if only else None, console=console)

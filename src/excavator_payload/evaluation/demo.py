@@ -13,7 +13,7 @@ it (datasets, fitted models, estimates): a rerun, or a run after an interruption
 what is missing. An estimator that fails is reported with the reason; it does not stop the
 demo.
 
-Scales (:data:`SCALES`): ``quick`` (default; sized for ≈15 minutes on a 2-core machine),
+Scales (:data:`SCALES`): ``quick`` (default; sized for ≈6 minutes on a 2-core machine),
 ``thesis`` (2000 simulated experiments, 100 train / 51 validation / 200 test, as in the
 thesis) and ``tiny`` (seconds; for the test suite).
 """
@@ -23,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import inspect
 import json
+import os
 import shutil
 import time
 import traceback
@@ -32,6 +33,7 @@ from typing import Any, Sequence
 
 import pandas as pd
 from rich.console import Console
+from rich.markup import escape
 
 from excavator_payload import __version__
 from excavator_payload.data.dataset import Dataset
@@ -78,7 +80,7 @@ SCALES: dict[str, Scale] = {
                    net_options={"max_time": 240.0},
                    note="quick: the thesis' split (100 training, 51 validation, 200 test experiments) "
                         "simulated directly instead of drawn from 2000; network training capped at "
-                        "240 s each so that the whole demo fits ≈15 minutes on 2 cores"),
+                        "240 s each (the whole demo takes about 6 minutes on 2 cores)"),
     "thesis": Scale(train=100, validation=51, test=200, calibration=10, lifts=10, pool=2000,
                     note="thesis: 2000 simulated experiments as the thesis' dataset; experiments 0–99 train, "
                          "100–150 validation (appendix A.3), 151–350 test (chapter 7's 200 simulations)"),
@@ -251,12 +253,16 @@ class Demo:
                 shutil.rmtree(folder, ignore_errors=True)
         est = create_estimator(entry.estimator, machine=machine, **options)
         est.fit(fit_data)
-        tmp = folder.with_name(folder.name + ".partial")
+        # A private temporary folder: two demos on one output folder never mix their files.
+        tmp = folder.with_name(f"{folder.name}.partial-{os.getpid()}")
         shutil.rmtree(tmp, ignore_errors=True)
         est.save(tmp)
         _save_training_graph(est, tmp)
         shutil.rmtree(folder, ignore_errors=True)
-        tmp.rename(folder)  # only complete fits are ever cached
+        try:
+            tmp.rename(folder)  # only complete fits are ever cached
+        except OSError:  # another demo cached the same fit in between: keep theirs
+            shutil.rmtree(tmp, ignore_errors=True)
         return est, folder
 
     def estimate(self, entry: Entry, est, folder: Path, test: Dataset, test_key: str) -> pd.DataFrame:
@@ -275,12 +281,25 @@ class Demo:
         return frame
 
 
-def _source_key(obj) -> str:
-    """Hash of the source file defining ``obj``: a changed estimator invalidates its cached fits."""
+#: Parts of the package a fit depends on (whole sub-packages: a change in a shared module such
+#: as ``_kalman.py`` or ``trainbr.py`` must invalidate every cached fit that imports it).
+FIT_SOURCES = ("estimators", "model", "data", "simulation/sensors.py")
+
+
+def _source_key(obj=None) -> str:
+    """Hash of every source file a fit depends on (:data:`FIT_SOURCES`), whatever ``obj`` is."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
     try:
-        return hashlib.sha1(Path(inspect.getsourcefile(obj)).read_bytes()).hexdigest()[:12]
-    except (TypeError, OSError):
+        for part in FIT_SOURCES:
+            path = root / part
+            files = sorted(p for p in path.rglob("*") if p.suffix in (".py", ".toml")) if path.is_dir() else [path]
+            for f in files:
+                digest.update(str(f.relative_to(root)).encode())
+                digest.update(f.read_bytes())
+    except OSError:
         return "unknown"
+    return digest.hexdigest()[:12]
 
 
 def _save_training_graph(est, folder: Path) -> None:
@@ -317,7 +336,7 @@ def _calibration_curve(demo: Demo, data: dict[str, Dataset | None], test: Datase
             path.unlink()
     curve = pd.DataFrame(calibrated.calibration_curve(train, test, counts=counts, machine="cat345c-3pct",
                                                       progress=True))
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     curve.to_csv(tmp, index=False)
     tmp.replace(path)
     return curve
@@ -369,14 +388,14 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
             data["lifts"] = None
             data_keys["lifts"] = "none"
             demo.failures["data: lifts"] = _reason(exc)
-            console.print(f"  [yellow]calibration lifts failed[/yellow]: {_reason(exc)}")
+            console.print(f"  [yellow]calibration lifts failed[/yellow]: {escape(_reason(exc))}")
     demo.timings["data"] = time.perf_counter() - t0
 
     # 2. fit
     console.rule("[bold]2/4 fit / train[/bold]")
     fitted = []
     for i, entry in enumerate(roster, start=1):
-        console.print(f"[bold]{entry.label}[/bold] ({entry.estimator}, {i}/{len(roster)})")
+        console.print(f"[bold]{escape(entry.label)}[/bold] ({entry.estimator}, {i}/{len(roster)})")
         t0 = time.perf_counter()
         try:
             est, folder = demo.fit(entry, data, data_keys)
@@ -386,7 +405,7 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
         except Exception as exc:  # noqa: BLE001 - one estimator must not stop the demo
             demo.failures[entry.label] = "fit: " + _reason(exc)
             _log_failure(demo.out, entry.label, exc)
-            console.print(f"  [red]failed[/red]: {_reason(exc)}")
+            console.print(f"  [red]failed[/red]: {escape(_reason(exc))}")
         demo.timings[f"fit {entry.label}"] = time.perf_counter() - t0
 
     # 3. estimate + evaluate
@@ -409,7 +428,7 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
         except Exception as exc:  # noqa: BLE001
             demo.failures[entry.label] = "estimate: " + _reason(exc)
             _log_failure(demo.out, entry.label, exc)
-            console.print(f"  [red]{entry.label} failed[/red]: {_reason(exc)}")
+            console.print(f"  [red]{escape(entry.label)} failed[/red]: {escape(_reason(exc))}")
         demo.timings[f"estimate {entry.label}"] = time.perf_counter() - t0
 
     curve = None
@@ -421,7 +440,7 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
             raise
         except Exception as exc:  # noqa: BLE001
             demo.failures["calibration curve"] = _reason(exc)
-            console.print(f"  [yellow]calibration curve failed[/yellow]: {_reason(exc)}")
+            console.print(f"  [yellow]calibration curve failed[/yellow]: {escape(_reason(exc))}")
         demo.timings["calibration curve"] = time.perf_counter() - t0
 
     # 4. report
@@ -449,8 +468,8 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
     console.print(summary_table(evaluations, f"Payload accuracy on {test.n_experiments} test experiments "
                                              f"(first {DEFAULT_DISCARD} samples discarded)"))
     for label, reason in demo.failures.items():
-        console.print(f"[red]failed[/red] {label}: {reason}")
-    console.print(f"total {time.perf_counter() - t_start:.0f} s; report: [bold]{paths.html}[/bold]")
+        console.print(f"[red]failed[/red] {escape(label)}: {escape(reason)}")
+    console.print(f"total {time.perf_counter() - t_start:.0f} s; report: [bold]{escape(str(paths.html))}[/bold]")
     return {"report": paths.html, "markdown": paths.markdown, "evaluations": evaluations,
             "failures": dict(demo.failures), "timings": dict(demo.timings)}
 

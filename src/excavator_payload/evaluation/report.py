@@ -18,6 +18,7 @@ from __future__ import annotations
 import base64
 import html
 import json
+import os
 import math
 import platform
 import shutil
@@ -101,6 +102,50 @@ def headline_table(evaluations: Sequence[Evaluation]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+#: What every headline column means (shown under the table in the report).
+HEADLINE_DEFINITIONS: dict[str, str] = {
+    "mean MAX / RMS (kg)": "per test experiment, the largest and the root-mean-square |estimate − true "
+                           "payload| over the judged samples; then the mean (and std) over experiments "
+                           "(thesis Tables 7.1 and 7.2)",
+    "% rated": "the same as a percentage of the machine's rated payload",
+    "mean p95 |e| (kg)": "95th percentile of |error| within each experiment, averaged",
+    "MAX ≤ 1 % rated (share)": "share of experiments whose MAX error meets the industry requirement "
+                               "(1 % of the rated payload); an experiment without estimates fails it",
+    "converged (share)": "share of experiments whose error enters the 1 % band and stays in it until "
+                         "the end of the experiment",
+    "mean convergence time (s)": "over the converged experiments, the time from the experiment's "
+                                 "first sample after which the error stays inside the 1 % band",
+    "efficiency (1 = CRB)": "RMS over the judged samples of error ÷ Cramér–Rao bound for the "
+                            "information the estimator uses: 1 is the best any unbiased estimator "
+                            "can do; 2 means twice the physically possible error",
+    "estimated share": "share of the judged samples at which the estimator gave an estimate at "
+                       "all (not NaN: warming up, or no usable data)",
+}
+
+
+def interpretation(evaluations: Sequence[Evaluation]) -> str:
+    """A few sentences reading the headline table (what the README says, from these numbers)."""
+    lines = []
+    for ev in evaluations:
+        s = ev.summary
+        eff, share = s.get("efficiency", math.nan), s.get("meets_requirement_share", math.nan)
+        if not math.isfinite(s.get("mean_rms", math.nan)):
+            lines.append(f"{ev.label}: no judged estimates.")
+            continue
+        if math.isfinite(eff) and eff <= 1.3:
+            verdict = "at the physical limit: its errors are what the sensor noise allows"
+        elif math.isfinite(eff) and eff <= 10:
+            verdict = f"{eff:.1f}× the physically possible error: room to improve"
+        elif math.isfinite(eff):
+            verdict = (f"{eff:.0f}× the physically possible error: limited by its model or tuning, "
+                       "not by the sensors")
+        else:
+            verdict = "no Cramér–Rao bound for this data"
+        lines.append(f"{ev.label}: {verdict}; {share:.0%} of the experiments meet the 1 % requirement."
+                     if math.isfinite(share) else f"{ev.label}: {verdict}.")
+    return " ".join(lines)
+
+
 def thesis_tables(evaluations: Sequence[Evaluation]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Thesis Tables 7.1 (means) and 7.2 (standard deviations), thesis and ours side by side."""
     ours = {ev.label: ev.summary for ev in evaluations}
@@ -168,6 +213,10 @@ def build_report(out_dir: str | Path, dataset: Dataset, evaluations: Sequence[Ev
              "unbiased estimator can do with the information it uses).")
     sections.append(_Section("Headline", intro + "".join(" " + n for n in notes),
                              table=headline_table(evaluations) if evaluations else None))
+    if evaluations:
+        sections.append(_Section("How to read the headline",
+                                 interpretation(evaluations) + " Columns: "
+                                 + "; ".join(f"{k}: {v}" for k, v in HEADLINE_DEFINITIONS.items()) + "."))
     if failures:
         sections.append(_Section("Estimators that failed",
                                  table=pd.DataFrame({"estimator": list(failures),
@@ -307,6 +356,6 @@ def _render_markdown(title: str, sections: list[_Section], out_dir: Path) -> str
 
 def _atomic_text(path: Path, text: str) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
     tmp.write_text(text, encoding="utf-8")
     tmp.replace(path)

@@ -3,7 +3,8 @@
 The NMPC's interval model, the Kalman filter steps (and, later, the ECU export) are CasADi
 functions of the symbolic arm model. Compiled to C they run 10–15× faster than CasADi's
 virtual machine. :func:`native` compiles once per machine and user, keyed by a hash of the
-generated code, and loads the shared library with :func:`casadi.external`; without a C
+generated code, stores the library's SHA-256 beside it and loads it with :func:`casadi.external`
+only when it still matches (a truncated or altered library is rebuilt, never loaded); without a C
 compiler (or with ``EXCAVATOR_PAYLOAD_NATIVE=0``), or if compiling fails, it returns the
 function itself: the same numbers, slower.
 
@@ -62,7 +63,7 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
     digest = hashlib.sha256((source + " ".join(FLAGS) + ca.__version__).encode()).hexdigest()[:20]
     folder = cache_folder()
     library = folder / f"{name}_{digest}.so"
-    if library.is_file():
+    if verified(library):
         return library
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder) as tmp:
@@ -71,8 +72,40 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
         built = Path(tmp) / library.name
         subprocess.run([cc, *FLAGS, str(c_file), "-o", str(built), "-lm"], check=True,
                        capture_output=True, text=True, timeout=600)
+        checksum = Path(tmp) / (library.name + ".sha256")
+        checksum.write_text(file_sha256(built))
+        # The library first, its checksum second: a library without a matching checksum next
+        # to it is never loaded (a reader in between just builds it again).
         os.replace(built, library)
+        os.replace(checksum, _checksum_path(library))
     return library
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 (hex) of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _checksum_path(library: Path) -> Path:
+    return library.with_name(library.name + ".sha256")
+
+
+def verified(library: Path) -> bool:
+    """Whether ``library`` exists and matches the SHA-256 stored beside it when it was built.
+
+    A truncated or altered shared library must never be loaded: mapping it can kill the process
+    with SIGBUS, which no ``except`` catches. Anything that does not match is rebuilt.
+    """
+    try:
+        if not library.is_file():
+            return False
+        return _checksum_path(library).read_text().strip() == file_sha256(library)
+    except OSError:
+        return False
 
 
 def native(function: ca.Function, *companions: ca.Function) -> ca.Function:

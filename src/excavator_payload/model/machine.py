@@ -14,6 +14,7 @@ centre, ``mass * length**2 / 12``, as in the thesis (appendix A.2).
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from dataclasses import asdict, dataclass
@@ -88,18 +89,25 @@ class Machine:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Machine":
+        if not isinstance(d, dict):
+            raise MachineError(f"a machine must be a table of fields, got {type(d).__name__}")
         d = dict(d)
         for key in ("boom_angle_range", "dipper_angle_range"):
             if key in d:
+                if not isinstance(d[key], (list, tuple)):
+                    raise MachineError(f"machine field '{key}' must be [low, high]")
                 d[key] = tuple(d[key])
-        machine = cls(**d)
+        try:
+            machine = cls(**d)
+        except TypeError as exc:
+            raise MachineError(f"machine fields are wrong: {exc}") from None
         _check_physics(machine)
         return machine
 
     def to_toml(self) -> str:
-        """The machine as a TOML machine file."""
+        """The machine as a TOML machine file (:func:`load_machine` reads it back unchanged)."""
         return (
-            f'name = "{self.name}"\ndescription = "{self.description}"\n\n'
+            f"name = {_toml_string(self.name)}\ndescription = {_toml_string(self.description)}\n\n"
             f"[boom]\nlength = {self.boom_length!r}\nmass = {self.boom_mass!r}\n"
             f"friction = {self.boom_friction!r}\nangle_range = {list(self.boom_angle_range)!r}\n"
             f"torque_limit = {self.boom_torque_limit!r}\n\n"
@@ -110,6 +118,40 @@ class Machine:
             f"[bucket]\nmass = {self.bucket_mass!r}\n\n"
             f"[payload]\nrated = {self.rated_payload!r}\nmax = {self.max_payload!r}\n"
         )
+
+
+def _toml_string(text: str) -> str:
+    """A TOML basic string: JSON's escapes (quotes, backslashes, control characters, \\uXXXX)
+    are TOML's too."""
+    return json.dumps(str(text), ensure_ascii=True)
+
+
+#: The fields a machine file may have, per table ('' = top level); anything else is reported.
+MACHINE_FILE_FIELDS: dict[str, set[str]] = {
+    "": {"name", "description", "boom", "dipper", "bucket", "payload"},
+    "boom": {"length", "mass", "friction", "angle_range", "torque_limit"},
+    "dipper": {"length", "mass", "friction", "angle_range", "torque_limit"},
+    "bucket": {"mass"},
+    "payload": {"rated", "max"},
+}
+#: Largest payload (kg) a machine may declare: beyond any excavator ever built.
+MAX_PAYLOAD = 1.0e6
+
+
+def _check_fields(data: dict, source: str) -> None:
+    """One clear line for a misspelt or unknown field (``torque_limt``), naming the closest."""
+    import difflib
+
+    for table, allowed in MACHINE_FILE_FIELDS.items():
+        content = data if table == "" else data.get(table)
+        if not isinstance(content, dict):
+            continue
+        for key in content:
+            if key not in allowed:
+                where = f"{table}.{key}" if table else key
+                close = difflib.get_close_matches(key, sorted(allowed), n=1)
+                hint = f" (did you mean '{close[0]}'?)" if close else f" (known: {', '.join(sorted(allowed))})"
+                raise MachineError(f"{source}: unknown field '{where}'{hint}")
 
 
 def list_presets() -> list[str]:
@@ -177,13 +219,16 @@ def _machine_from_toml(data: dict, source: str, default_name: str) -> Machine:
             not isinstance(value, list)
             or len(value) != 2
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            or not all(math.isfinite(v) and abs(v) <= 2 * math.pi for v in value)
             or not value[0] < value[1]
         ):
             raise MachineError(
-                f"{source}: field '{tab}.angle_range' must be [low, high] in radians with low < high, "
-                f"got {value!r}"
+                f"{source}: field '{tab}.angle_range' must be [low, high] in radians with "
+                f"-2π ≤ low < high ≤ 2π, got {value!r}"
             )
         return (float(value[0]), float(value[1]))
+
+    _check_fields(data, source)
 
     name = data.get("name", default_name)
     if not isinstance(name, str) or not name:
@@ -210,6 +255,28 @@ def _machine_from_toml(data: dict, source: str, default_name: str) -> Machine:
 
 
 def _check_physics(machine: Machine, source: str = "machine") -> None:
+    """Every field of the right type, finite and physical (a file, or a dict from a model folder)."""
+    if not isinstance(machine.name, str) or not machine.name or not isinstance(machine.description, str):
+        raise MachineError(f"{source}: field 'name' must be a non-empty string")
+    for key, value in asdict(machine).items():
+        if key in ("name", "description"):
+            continue
+        values = value if key.endswith("_range") else (value,)
+        if key.endswith("_range") and len(values) != 2:
+            raise MachineError(f"{source}: field '{key}' must be [low, high]")
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise MachineError(f"{source}: field '{key}' must be a finite number, got {v!r}")
+    for key in ("boom_length", "boom_mass", "dipper_length", "dipper_mass", "bucket_mass",
+                "boom_torque_limit", "dipper_torque_limit", "gravity"):
+        if not getattr(machine, key) > 0:
+            raise MachineError(f"{source}: field '{key}' must be positive")
+    for key in ("boom_angle_range", "dipper_angle_range"):
+        low, high = getattr(machine, key)
+        if not (-2 * math.pi <= low < high <= 2 * math.pi):
+            raise MachineError(f"{source}: field '{key}' must satisfy -2π ≤ low < high ≤ 2π")
+    if not (machine.rated_payload <= MAX_PAYLOAD and machine.max_payload <= MAX_PAYLOAD):
+        raise MachineError(f"{source}: payload.rated and payload.max must be at most {MAX_PAYLOAD:g} kg")
     if machine.boom_friction < 0:
         raise MachineError(f"{source}: field 'boom.friction' must not be negative")
     if machine.dipper_friction < 0:

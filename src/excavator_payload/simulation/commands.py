@@ -33,10 +33,13 @@ def register(app: typer.Typer) -> None:
                                        "hydraulic machine field (default) or none."),
         with_truth: bool = typer.Option(False, "--with-truth", help="Also store the noise-free true_* columns."),
         workers: int = typer.Option(0, "--workers",
-                                    help="Worker processes (0 = all cores). The data do not depend on it."),
+                                    help="Local worker processes (0 = all cores). The data do not depend on it."),
+        scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
+                                      help="Run on this existing Dask cluster (default: $EXCAVATOR_PAYLOAD_SCHEDULER, "
+                                           "else local worker processes)."),
         motion: str = typer.Option(None, "--motion",
                                    help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
-                                        "lifts); for a hydraulic machine nmpc (default), swing, work-cycle, "
+                                        "lifts); for a hydraulic machine swing (default), nmpc, work-cycle, "
                                         "slopes, lifts or trajectory."),
         session: int = typer.Option(0, "--session",
                                     help="Hydraulic machine: working session, draws the sensor offsets "
@@ -50,29 +53,29 @@ def register(app: typer.Typer) -> None:
 
         An interrupted run keeps its finished experiments in OUT.partial/; run the same command again to resume.
         """
-        from excavator_payload.simulation.generate import simulate_to_file, summary
+        from excavator_payload.execution import Execution, interrupted_message
+        from excavator_payload.model.machine import load_machine
+        from excavator_payload.simulation.generate import make_spec, simulate_to_file, summary
 
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
+        # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
+        # a run description; objects travel inside.
+        spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
+                         session=session, trajectory=trajectory)
+        motion, noise = spec.motion, spec.noise.name
         start = time.perf_counter()
-        # -- issue 11 hook: the hydraulic machine's options (simulation/machine_sim.py) --
-        from excavator_payload.model.machine import load_machine
-
-        machine_object = load_machine(machine)
-        extra = {}
-        if getattr(machine_object, "kind", None) == "hydraulic":
-            if noise == "thesis":
-                raise ExcavatorPayloadError("noise preset 'thesis' is the thesis arm's; the machine "
-                                            "sensor set has field (default) or none")
-            noise = noise or "field"
-            motion = motion or ("trajectory" if trajectory is not None else "nmpc")
-            extra = {"session": session, "trajectory": trajectory}
-        elif session or trajectory is not None:
-            raise ExcavatorPayloadError("--session and --trajectory apply to a hydraulic machine only")
-        noise, motion = noise or "thesis", motion or "nmpc"
-        dataset = simulate_to_file(out, experiments, seed=seed, machine=machine_object, noise=noise,
-                                   with_truth=with_truth, workers=workers or None, motion=motion,
-                                   progress=not quiet, **extra)
+        try:
+            with Execution(scheduler, workers or None) as execution:
+                dataset = simulate_to_file(out, experiments, seed=seed, machine=spec.machine,
+                                           noise=spec.noise, with_truth=with_truth, motion=motion,
+                                           progress=not quiet, execution=execution, session=session,
+                                           trajectory=spec.option("trajectory"))
+        except KeyboardInterrupt:
+            # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
+            console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "
+                                              "rerun the same command to resume"), soft_wrap=True)
+            raise typer.Exit(130) from None
         info = summary(dataset, time.perf_counter() - start)
         typer.echo(f"wrote {info['written']} experiments to {out} ({motion}, noise={noise}, seed={seed})")
         skipped = info["skipped"]

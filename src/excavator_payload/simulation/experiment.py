@@ -1,11 +1,16 @@
-"""Turning a simulated motion into the rows of a dataset (sensor sampling + noise)."""
+"""Turning a simulated motion into the rows of a dataset (sensor sampling + noise), and the
+description of a simulated run (:class:`RunSpec`)."""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from excavator_payload.data.schema import SIGNALS, TRUTH_COLUMNS
+from excavator_payload.model.machine import Machine
 from excavator_payload.simulation.sensors import NoisePreset, add_noise
 
 
@@ -27,3 +32,69 @@ def experiment_frame(experiment: int, time: np.ndarray, q: np.ndarray, qd: np.nd
         for i, name in enumerate(TRUTH_COLUMNS):
             data[name] = truth[:, i]
     return pd.DataFrame(data)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """Everything the experiments of one simulated run depend on: small and picklable.
+
+    A worker process (local or on a cluster) simulates experiment ``k`` of the run from this
+    and ``k`` alone, so the data do not depend on where or in which order experiments run.
+
+    Attributes
+    ----------
+    motion : str
+        Motion family, a key of :data:`excavator_payload.simulation.generate.MOTIONS`.
+    seed : int
+        Base seed; experiment ``k`` draws from the streams of ``(seed, k)``.
+    machine : Machine
+        The simulated machine.
+    noise : NoisePreset
+        Sensor noise.
+    with_truth : bool
+        Add the noise-free ``true_*`` columns.
+    n_experiments : int
+        Size of the whole run (the lifts spread their dipper angles over it).
+    frozen_noise_seed : int or None
+        ``None``: independent noise in every experiment. An integer: the *same* noise sequence,
+        drawn from this seed, in every experiment (Simulink's noise block with its seed reused).
+    options : tuple of (name, value) pairs
+        Motion-specific settings (e.g. ``move_time`` of the minimum-jerk moves).
+    """
+
+    motion: str
+    seed: int
+    machine: Machine
+    noise: NoisePreset
+    with_truth: bool = False
+    n_experiments: int = 0
+    frozen_noise_seed: int | None = None
+    options: tuple = ()
+
+    def option(self, name: str, default: Any = None) -> Any:
+        return dict(self.options).get(name, default)
+
+    def to_dict(self) -> dict:
+        """JSON-able description (checkpoint settings, cache keys)."""
+        return {"motion": self.motion, "seed": int(self.seed), "machine": self.machine.to_dict(),
+                "noise": (self.noise.to_dict() if hasattr(self.noise, "to_dict")
+                          else {"name": self.noise.name, "std": dict(self.noise.std)}),
+                "with_truth": bool(self.with_truth), "n_experiments": int(self.n_experiments),
+                "frozen_noise_seed": self.frozen_noise_seed,
+                "options": {str(k): _jsonable_option(v) for k, v in self.options}}
+
+
+def _jsonable_option(value):
+    """An option as JSON: tuples as lists, a replayed trajectory by its content digest."""
+    if isinstance(value, tuple):
+        return list(value)
+    if hasattr(value, "digest"):
+        return {"trajectory": value.source, "digest": value.digest}
+    return value
+
+
+def noise_rng(spec: RunSpec, independent: np.random.Generator) -> np.random.Generator:
+    """The generator of an experiment's sensor noise: its own stream, or the frozen sequence's."""
+    if spec.frozen_noise_seed is None:
+        return independent
+    return np.random.default_rng(int(spec.frozen_noise_seed))

@@ -30,11 +30,11 @@ import pandas as pd
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SAMPLE_RATE
 from excavator_payload.errors import ExcavatorPayloadError
-from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.model.machine import Machine, load_machine
-from excavator_payload.simulation.experiment import experiment_frame
+from excavator_payload.simulation.experiment import RunSpec, experiment_frame, noise_rng
+from excavator_payload.simulation.minimum_jerk import _arm
 from excavator_payload.simulation.scenario import experiment_rngs
-from excavator_payload.simulation.sensors import get_noise_preset
+from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
 
 DEG = math.pi / 180.0
 
@@ -81,8 +81,49 @@ def lift_motion(boom_start: float, boom_end: float, dipper_angle: float, boom_sp
     return t, q, qd, qdd
 
 
+def _lift_levels(spec: RunSpec) -> list[float]:
+    payloads = spec.option("payloads")
+    levels = [0.0, spec.machine.rated_payload] if payloads is None else [float(p) for p in payloads]
+    if not levels or any(not math.isfinite(p) or p < 0 for p in levels):
+        raise ExcavatorPayloadError("simulate_lifts: payloads must be finite and >= 0 kg")
+    return levels
+
+
+def lift_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Rows and metadata of lift ``experiment`` of the run ``spec`` (``spec.n_experiments`` lifts).
+
+    ``spec.options`` may set ``payloads``, ``boom_speed_deg``, ``ramp_time`` and ``margin_deg``
+    (see :func:`simulate_lifts`).
+    """
+    machine = spec.machine
+    boom_speed_deg = float(spec.option("boom_speed_deg", 5.0))
+    ramp_time = float(spec.option("ramp_time", 1.0))
+    margin = float(spec.option("margin_deg", 5.0)) * DEG
+    if not boom_speed_deg > 0:
+        raise ExcavatorPayloadError("simulate_lifts: boom_speed_deg must be > 0")
+    levels = _lift_levels(spec)
+    n_lines = math.ceil(max(spec.n_experiments, experiment + 1) / len(levels))
+    boom_lo, boom_hi = machine.boom_angle_range[0] + margin, machine.boom_angle_range[1] - margin
+    dip_lo, dip_hi = machine.dipper_angle_range[0] + margin, machine.dipper_angle_range[1] - margin
+    dipper_angles = (np.linspace(dip_lo, dip_hi, n_lines) if n_lines > 1
+                     else np.array([(dip_lo + dip_hi) / 2]))
+    speed = boom_speed_deg * DEG
+    t, q, qd, qdd = lift_motion(boom_lo, boom_hi, 0.0, speed, ramp_time)
+    k = experiment
+    payload = levels[k % len(levels)]
+    dipper = float(dipper_angles[k // len(levels)])
+    q[:, 1] = dipper
+    tau = _arm(machine).inverse_dynamics(q, qd, qdd, payload)
+    _, rng_noise = experiment_rngs(spec.seed, k)
+    frame = experiment_frame(k, t, q, qd, qdd, tau, payload, spec.noise, noise_rng(spec, rng_noise),
+                             spec.with_truth)
+    return frame, {"experiment": k, "seed": int(spec.seed), "payload": payload,
+                   "start_pose": [float(boom_lo), dipper], "target_pose": [float(boom_hi), dipper],
+                   "boom_speed": speed, "ramp_time": float(ramp_time), "status": "ok"}
+
+
 def simulate_lifts(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
-                   noise: str = "thesis", with_truth: bool = False,
+                   noise: str | NoisePreset = "thesis", with_truth: bool = False,
                    payloads: Sequence[float] | None = None, boom_speed_deg: float = 5.0,
                    ramp_time: float = 1.0, margin_deg: float = 5.0) -> Dataset:
     """Dataset of slow constant-speed boom lifts (calibration runs of ``quasi-static``).
@@ -106,34 +147,18 @@ def simulate_lifts(n_experiments: int, seed: int = 0, machine: Machine | str = "
     """
     if n_experiments < 1:
         raise ExcavatorPayloadError("simulate_lifts: n_experiments must be at least 1")
-    if not boom_speed_deg > 0:
-        raise ExcavatorPayloadError("simulate_lifts: boom_speed_deg must be > 0")
     machine = load_machine(machine)
-    arm = ArmModel(machine)
     preset = get_noise_preset(noise)
-    levels = [0.0, machine.rated_payload] if payloads is None else [float(p) for p in payloads]
-    if not levels or any(not math.isfinite(p) or p < 0 for p in levels):
-        raise ExcavatorPayloadError("simulate_lifts: payloads must be finite and >= 0 kg")
-    n_lines = math.ceil(n_experiments / len(levels))
-    margin = margin_deg * DEG
-    boom_lo, boom_hi = machine.boom_angle_range[0] + margin, machine.boom_angle_range[1] - margin
-    dip_lo, dip_hi = machine.dipper_angle_range[0] + margin, machine.dipper_angle_range[1] - margin
-    dipper_angles = (np.linspace(dip_lo, dip_hi, n_lines) if n_lines > 1
-                     else np.array([(dip_lo + dip_hi) / 2]))
-    speed = boom_speed_deg * DEG
-    t, q, qd, qdd = lift_motion(boom_lo, boom_hi, 0.0, speed, ramp_time)
+    options = (("boom_speed_deg", float(boom_speed_deg)), ("ramp_time", float(ramp_time)),
+               ("margin_deg", float(margin_deg)))
+    if payloads is not None:
+        options += (("payloads", tuple(float(p) for p in payloads)),)
+    spec = RunSpec("lifts", int(seed), machine, preset, bool(with_truth), int(n_experiments), options=options)
     frames, metas = [], []
     for k in range(n_experiments):
-        payload = levels[k % len(levels)]
-        dipper = float(dipper_angles[k // len(levels)])
-        q_k = q.copy()
-        q_k[:, 1] = dipper
-        tau = arm.inverse_dynamics(q_k, qd, qdd, payload)
-        _, rng_noise = experiment_rngs(seed, k)
-        frames.append(experiment_frame(k, t, q_k, qd, qdd, tau, payload, preset, rng_noise, with_truth))
-        metas.append({"experiment": k, "seed": int(seed), "payload": payload,
-                      "start_pose": [float(boom_lo), dipper], "target_pose": [float(boom_hi), dipper],
-                      "boom_speed": speed, "ramp_time": float(ramp_time), "status": "ok"})
+        frame, meta = lift_experiment(spec, k)
+        frames.append(frame)
+        metas.append(meta)
     meta = {"machine": machine.to_dict(), "noise": preset.name, "motion": "lifts",
             "base_seed": int(seed), "sample_rate": SAMPLE_RATE, "experiments": metas}
     return Dataset(pd.concat(frames, ignore_index=True), meta)

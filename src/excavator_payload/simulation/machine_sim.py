@@ -20,9 +20,10 @@ cannot make them), so that every sample is one the machine can produce.
 
 Reproducibility: experiment ``k`` of run ``seed`` draws its motion and its noise from streams
 of ``(seed, k)`` alone, and the sensor offsets from ``session`` alone, so the data do not depend
-on chunking or worker count. :func:`simulate_machine_experiments` is the narrow entry point a
-parallel executor calls per chunk; :func:`simulate_machine_dataset` and
-:func:`simulate_machine_to_file` run whole datasets (parallel, resumable, atomic).
+on chunking or worker count. :func:`machine_experiment` is the entry of the hydraulic motions in
+:mod:`excavator_payload.simulation.generate`, which runs them in chunks through the execution
+layer like every other simulation (parallel, resumable, atomic);
+:func:`simulate_machine_dataset` and :func:`simulate_machine_to_file` are wrappers of it.
 """
 
 from __future__ import annotations
@@ -30,8 +31,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import shutil
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -247,158 +246,45 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
     return frame, meta
 
 
-def simulate_machine_experiments(first: int, count: int, seed: int, session: int, machine,
-                                 noise, motion: str, with_truth: bool, trajectory=None):
-    """Experiments ``first … first+count−1``: (rows, metadata of the written, skipped ones).
+def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Experiment ``experiment`` of the run ``spec`` (the entry of
+    :data:`excavator_payload.simulation.generate.MACHINE_MOTIONS`): a generated motion, or the
+    trajectory file's experiment at that position."""
+    arm = _arm(spec.machine)
+    offsets = session_offsets(spec.option("session", 0), spec.noise)
+    if spec.motion == "trajectory":
+        from excavator_payload.simulation.trajectory import simulate_trajectory_experiment
 
-    Parameters
-    ----------
-    first, count : int
-        Experiment numbers to simulate (with ``trajectory``: positions in its experiment list).
-    seed : int
-        Base seed of motions and noise; experiment ``k`` uses the streams of ``(seed, k)``.
-    session : int
-        Working session: draws the sensor offsets (independently of ``seed``).
-    machine : HydraulicMachine or dict
-        The machine (a dict from :meth:`HydraulicMachine.to_dict` in worker processes).
-    noise : str or MachineNoise
-        ``field`` or ``none``.
-    motion : str
-        ``nmpc``, ``swing``, ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
-    with_truth : bool
-        Add the ``true_*`` columns.
-    trajectory : Trajectory, optional
-        Prescribed motions (``motion="trajectory"``).
-    """
-    if isinstance(machine, dict):
-        machine = HydraulicMachine.from_dict(machine)
-    noise = get_machine_noise(noise)
-    arm = _arm(machine)
-    offsets = session_offsets(session, noise)
-    frames, metas, skipped = [], [], []
-    for k in range(first, first + count):
-        try:
-            if motion == "trajectory":
-                from excavator_payload.simulation.trajectory import simulate_trajectory_experiment
-
-                frame, meta = simulate_trajectory_experiment(k, seed, arm, noise, offsets, trajectory,
-                                                             with_truth)
-            elif motion == "nmpc":
-                frame, meta = simulate_nmpc_experiment(k, seed, arm, noise, offsets, with_truth)
-            else:
-                frame, meta = simulate_motion_experiment(k, seed, arm, noise, offsets, motion, with_truth)
-        except (ValueError, FloatingPointError, RuntimeError) as exc:
-            reason = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
-            log.warning("experiment %d skipped: %s", k, reason)
-            skipped.append({"experiment": k, "reason": reason})
-            continue
-        frames.append(frame)
-        metas.append(meta)
-    columns = list(MACHINE_SENSORS.columns) + (list(MACHINE_SENSORS.truth_columns) if with_truth else [])
-    frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
-    return frame, metas, skipped
+        return simulate_trajectory_experiment(experiment, spec.seed, arm, spec.noise, offsets,
+                                              spec.option("trajectory"), spec.with_truth)
+    if spec.motion == "nmpc":
+        return simulate_nmpc_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.with_truth)
+    return simulate_motion_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.motion,
+                                      spec.with_truth)
 
 
-# -- whole datasets ---------------------------------------------------------------------------
-def _check(n_experiments, seed, session, workers, motion, machine, trajectory):
-    for name, value, low in (("the number of experiments", n_experiments, 1), ("the seed", seed, 0),
-                             ("the session", session, 0)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-            raise ExcavatorPayloadError(f"{name} must be a whole number ≥ {low}, got {value!r}")
-    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
-                                or workers < 1):
-        raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {workers!r}")
-    if motion not in MOTIONS:
-        raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one "
-                                    f"of {', '.join(MOTIONS)}")
-    if (motion == "trajectory") != (trajectory is not None):
-        raise ExcavatorPayloadError("a trajectory file goes with --motion trajectory (and only with it)")
-    if not isinstance(machine, HydraulicMachine):
-        raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
-
-
-def _resolve(machine, noise, trajectory):
-    from excavator_payload.model.machine import load_machine
-
-    machine = load_machine(machine)
-    noise = get_machine_noise(noise)
-    if trajectory is not None and not hasattr(trajectory, "experiments"):
-        from excavator_payload.simulation.trajectory import read_trajectory
-
-        trajectory = read_trajectory(trajectory)
-    return machine, noise, trajectory
-
-
-def chunk_size_for(n_experiments: int) -> int:
-    """Experiments per chunk: ≈ 40 chunks, 1–50 experiments each (they are cheap)."""
-    return int(min(50, max(1, math.ceil(n_experiments / 40))))
-
-
-def _run(chunks, args, workers, progress, on_done):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    total = sum(c for _, c in chunks)
-    with Progress(TextColumn("simulating"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  disable=not progress) as bar:
-        task = bar.add_task("simulating", total=total)
-        if workers <= 1 or len(chunks) <= 1:
-            for first, count in chunks:
-                on_done(first, simulate_machine_experiments(first, count, *args))
-                bar.advance(task, count)
-            return
-        with ProcessPoolExecutor(max_workers=min(workers, len(chunks))) as pool:
-            futures = {pool.submit(simulate_machine_experiments, first, count, *args): (first, count)
-                       for first, count in chunks}
-            from concurrent.futures import as_completed
-
-            for future in as_completed(futures):
-                first, count = futures[future]
-                on_done(first, future.result())
-                bar.advance(task, count)
-
-
-def _assemble(parts: dict, machine, noise, seed, session, motion, with_truth, trajectory) -> Dataset:
-    frames, metas, skipped = [], [], []
-    for first in sorted(parts):
-        frame, m, s = parts[first]
-        if len(frame):
-            frames.append(frame)
-        metas.extend(m)
-        skipped.extend(s)
-    if not frames:
-        reasons = "; ".join(f"#{s['experiment']}: {s['reason']}" for s in skipped[:3])
-        raise ExcavatorPayloadError(f"every experiment failed, nothing to write ({reasons})")
-    frame = pd.concat(frames, ignore_index=True)
-    frame["experiment"] = frame["experiment"].astype("int64")
-    if not with_truth:
-        frame = frame[[c for c in frame.columns if not c.startswith("true_")]]
-    meta = {"sensor_set": "machine", "machine": machine.to_dict(), "noise": noise.name,
-            "motion": motion, "base_seed": int(seed), "session": int(session),
-            "sample_rate": SAMPLE_RATE, "experiments": metas, "skipped": skipped,
+def dataset_meta(spec) -> dict:
+    """File metadata a hydraulic run adds (session, its true offsets, the trajectory's source)."""
+    session = int(spec.option("session", 0))
+    meta = {"session": session,
             # The true offsets of this session: for checking offset estimation, not for estimators.
-            "true_sensor_offsets": session_offsets(session, noise)}
+            "true_sensor_offsets": session_offsets(session, spec.noise)}
+    trajectory = spec.option("trajectory")
     if trajectory is not None:
         meta["trajectory"] = trajectory.source
-    return Dataset(frame, meta)
+    return meta
 
 
-def _n_and_chunks(n_experiments, first_experiment, trajectory):
-    if trajectory is not None:
-        available = len(trajectory.experiments)
-        n_experiments = min(int(n_experiments), available - first_experiment)
-        if n_experiments < 1:
-            raise ExcavatorPayloadError(f"the trajectory file holds {available} experiment(s)")
-    size = chunk_size_for(n_experiments)
-    end = first_experiment + n_experiments
-    return [(k, min(size, end - k)) for k in range(first_experiment, end, size)]
-
-
+# -- whole datasets: the one simulation pipeline (simulation/generate.py) -----------------------
 def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0,
-                             machine="cat345c-hydraulic", noise="field", motion: str = "work-cycle",
+                             machine="cat345c-hydraulic", noise="field", motion: str | None = None,
                              with_truth: bool = False, workers: int | None = 1,
                              first_experiment: int = 0, trajectory=None,
-                             progress: bool = False) -> Dataset:
+                             progress: bool = False, **execution) -> Dataset:
     """Simulate experiments of a hydraulic machine in memory.
+
+    A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_dataset`
+    (the same chunks, execution layer and reproducibility as every other simulation).
 
     Parameters
     ----------
@@ -410,9 +296,9 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
         A hydraulic machine, preset name or TOML file.
     noise : str
         ``field`` or ``none``.
-    motion : str
-        ``nmpc`` (NMPC swings with slewing, :mod:`.hydraulic_nmpc`), ``swing`` (planned
-        swings), ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
+    motion : str, optional
+        ``swing`` (default), ``nmpc`` (NMPC swings with slewing, :mod:`.hydraulic_nmpc`),
+        ``work-cycle``, ``slopes``, ``lifts`` or ``trajectory``.
     with_truth : bool
         Add the ``true_*`` columns.
     workers : int, optional
@@ -424,108 +310,33 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     progress : bool
         Show a progress bar.
     """
-    machine, noise_preset, trajectory = _resolve(machine, noise, trajectory)
-    _check(n_experiments, seed, session, workers, motion, machine, trajectory)
-    workers = (__import__("os").cpu_count() or 1) if workers is None else int(workers)
-    chunks = _n_and_chunks(n_experiments, int(first_experiment), trajectory)
-    parts: dict = {}
-    args = (int(seed), int(session), machine.to_dict(), noise_preset, motion, with_truth, trajectory)
-    _run(chunks, args, workers, progress, lambda first, result: parts.__setitem__(first, result))
-    return _assemble(parts, machine, noise_preset, seed, session, motion, with_truth, trajectory)
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.generate import simulate_dataset
 
-
-PARTIAL_SUFFIX = ".partial"
-
-
-def partial_folder(out) -> Path:
-    """Folder of the finished chunks of an unfinished :func:`simulate_machine_to_file` run."""
-    out = Path(out)
-    return out.with_name(out.name + PARTIAL_SUFFIX)
-
-
-def _write_chunk(path: Path, result: tuple) -> None:
-    import pyarrow as pa
-
-    from excavator_payload.data.io import atomic_write_table
-    from excavator_payload.data.schema import METADATA_KEY
-
-    frame, metas, skipped = result
-    table = pa.Table.from_pandas(frame.reset_index(drop=True), preserve_index=False)
-    meta = json.dumps({"experiments": metas, "skipped": skipped}).encode()
-    table = table.replace_schema_metadata({**(table.schema.metadata or {}), METADATA_KEY: meta})
-    atomic_write_table(table, path)
-
-
-def _read_chunk(path: Path) -> tuple | None:
-    import pyarrow.parquet as pq
-
-    from excavator_payload.data.schema import METADATA_KEY
-
-    try:
-        table = pq.read_table(path)
-        meta = json.loads(table.schema.metadata[METADATA_KEY])
-    except Exception:  # a damaged checkpoint is simply simulated again
-        log.warning("ignoring unreadable checkpoint %s", path)
-        return None
-    return table.to_pandas(), meta["experiments"], meta["skipped"]
+    machine = load_machine(machine)
+    if not isinstance(machine, HydraulicMachine):
+        raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
+    return simulate_dataset(n_experiments, seed=seed, machine=machine, noise=noise,
+                            with_truth=with_truth, workers=workers, motion=motion,
+                            first_experiment=first_experiment, progress=progress, session=session,
+                            trajectory=trajectory, **execution)
 
 
 def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: int = 0,
-                             machine="cat345c-hydraulic", noise="field", motion: str = "work-cycle",
+                             machine="cat345c-hydraulic", noise="field", motion: str | None = None,
                              with_truth: bool = False, workers: int | None = None, trajectory=None,
-                             progress: bool = True) -> Dataset:
+                             progress: bool = True, **execution) -> Dataset:
     """Simulate and write a dataset (Parquet, atomic); an interrupted run resumes.
 
-    Finished chunks are kept in ``<out>.partial/`` until the file is written; the same command
-    run again simulates only the missing ones. Parameters as :func:`simulate_machine_dataset`.
+    A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_to_file`;
+    parameters as :func:`simulate_machine_dataset`.
     """
-    from excavator_payload.data.io import write_dataset
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.generate import simulate_to_file
 
-    out = Path(out)
-    if out.is_dir():
-        raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
-    machine, noise_preset, trajectory = _resolve(machine, noise, trajectory)
-    _check(n_experiments, seed, session, workers, motion, machine, trajectory)
-    if trajectory is not None and Path(trajectory.source).resolve() == out.resolve():
-        raise DatasetError("the output would overwrite the trajectory file")
-    workers = (__import__("os").cpu_count() or 1) if workers is None else int(workers)
-    chunks = _n_and_chunks(n_experiments, 0, trajectory)
-    folder = partial_folder(out)
-    settings = {"n_experiments": int(n_experiments), "seed": int(seed), "session": int(session),
-                "machine": machine.to_dict(), "noise": noise_preset.name, "motion": motion,
-                "with_truth": bool(with_truth), "trajectory": None if trajectory is None else trajectory.digest,
-                "chunks": chunks}
-    settings = json.loads(json.dumps(settings))
-    run_file = folder / "run.json"
-    parts: dict = {}
-    if run_file.exists():
-        try:
-            previous = json.loads(run_file.read_text())
-        except (OSError, json.JSONDecodeError):
-            previous = None
-        if previous != settings:
-            raise ExcavatorPayloadError(
-                f"'{folder}' holds an unfinished run with other settings; rerun it with the same "
-                "settings to resume, or delete the folder to start afresh")
-        for path in sorted(folder.glob("chunk_*.parquet")):
-            chunk = _read_chunk(path)
-            if chunk is not None:
-                parts[int(path.stem.split("_")[1])] = chunk
-    else:
-        try:
-            folder.mkdir(parents=True, exist_ok=True)
-            run_file.write_text(json.dumps(settings))
-        except OSError as exc:
-            raise DatasetError(f"cannot write next to '{out}': {exc}") from None
-
-    def checkpoint(first, result):
-        _write_chunk(folder / f"chunk_{first:08d}.parquet", result)
-        parts[first] = result
-
-    todo = [c for c in chunks if c[0] not in parts]
-    args = (int(seed), int(session), machine.to_dict(), noise_preset, motion, with_truth, trajectory)
-    _run(todo, args, workers, progress, checkpoint)
-    dataset = _assemble(parts, machine, noise_preset, seed, session, motion, with_truth, trajectory)
-    write_dataset(dataset, out)
-    shutil.rmtree(folder, ignore_errors=True)
-    return dataset
+    machine = load_machine(machine)
+    if not isinstance(machine, HydraulicMachine):
+        raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
+    return simulate_to_file(out, n_experiments, seed=seed, machine=machine, noise=noise,
+                            with_truth=with_truth, workers=workers, motion=motion, progress=progress,
+                            session=session, trajectory=trajectory, **execution)

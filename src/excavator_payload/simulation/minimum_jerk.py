@@ -15,9 +15,9 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import DURATION, SAMPLE_RATE, SAMPLES_PER_EXPERIMENT
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.model.machine import Machine, load_machine
-from excavator_payload.simulation.experiment import experiment_frame
+from excavator_payload.simulation.experiment import RunSpec, experiment_frame, noise_rng
 from excavator_payload.simulation.scenario import experiment_rngs, sample_scenario
-from excavator_payload.simulation.sensors import get_noise_preset
+from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
 
 
 def minimum_jerk(q0: np.ndarray, q1: np.ndarray, t: np.ndarray, move_time: float):
@@ -31,24 +31,54 @@ def minimum_jerk(q0: np.ndarray, q1: np.ndarray, t: np.ndarray, move_time: float
     return pos, vel, acc
 
 
+#: Range of the move durations, s (drawn per experiment).
+MOVE_TIME = (2.5, 4.5)
+#: The minimum-jerk runs draw from the streams of ``seed + SEED_OFFSET``: they differ from NMPC runs.
+SEED_OFFSET = 7_919
+
+_ARMS: dict[str, ArmModel] = {}
+
+
+def _arm(machine: Machine) -> ArmModel:
+    """This process's numeric model of ``machine`` (built once per process)."""
+    key = repr(machine)
+    if key not in _ARMS:
+        _ARMS[key] = ArmModel(machine)
+    return _ARMS[key]
+
+
+def minimum_jerk_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Rows and metadata of minimum-jerk experiment ``experiment`` of the run ``spec``.
+
+    ``spec.options`` may set ``move_time`` (range of the move durations, s).
+    """
+    machine = spec.machine
+    move_time = tuple(spec.option("move_time", MOVE_TIME))
+    t = np.linspace(0.0, DURATION, SAMPLES_PER_EXPERIMENT)
+    sc = sample_scenario(spec.seed, experiment, machine.max_payload)
+    rng_sc, rng_noise = experiment_rngs(spec.seed + SEED_OFFSET, experiment)  # own stream
+    T = float(rng_sc.uniform(*move_time))
+    q, qd, qdd = minimum_jerk(np.array(sc.start_pose), np.array(sc.target_pose), t, T)
+    tau = _arm(machine).inverse_dynamics(q, qd, qdd, sc.payload)
+    frame = experiment_frame(experiment, t, q, qd, qdd, tau, sc.payload, spec.noise,
+                             noise_rng(spec, rng_noise), spec.with_truth)
+    return frame, {**sc.to_dict(), "move_time": T, "status": "ok"}
+
+
 def simulate_minimum_jerk(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
-                          noise: str = "thesis", with_truth: bool = False,
-                          move_time: tuple[float, float] = (2.5, 4.5),
+                          noise: str | NoisePreset = "thesis", with_truth: bool = False,
+                          move_time: tuple[float, float] = MOVE_TIME,
                           first_experiment: int = 0) -> Dataset:
     """Dataset of minimum-jerk swings between the thesis' random start and target poses."""
     machine = load_machine(machine)
-    arm = ArmModel(machine)
     preset = get_noise_preset(noise)
-    t = np.linspace(0.0, DURATION, SAMPLES_PER_EXPERIMENT)
+    spec = RunSpec("minimum-jerk", int(seed), machine, preset, bool(with_truth),
+                   first_experiment + n_experiments, options=(("move_time", tuple(move_time)),))
     frames, metas = [], []
     for k in range(first_experiment, first_experiment + n_experiments):
-        sc = sample_scenario(seed, k, machine.max_payload)
-        rng_sc, rng_noise = experiment_rngs(seed + 7_919, k)  # own stream: differs from NMPC runs
-        T = float(rng_sc.uniform(*move_time))
-        q, qd, qdd = minimum_jerk(np.array(sc.start_pose), np.array(sc.target_pose), t, T)
-        tau = arm.inverse_dynamics(q, qd, qdd, sc.payload)
-        frames.append(experiment_frame(k, t, q, qd, qdd, tau, sc.payload, preset, rng_noise, with_truth))
-        metas.append({**sc.to_dict(), "move_time": T, "status": "ok"})
+        frame, meta = minimum_jerk_experiment(spec, k)
+        frames.append(frame)
+        metas.append(meta)
     meta = {"machine": machine.to_dict(), "noise": preset.name, "motion": "minimum-jerk",
             "base_seed": int(seed), "sample_rate": SAMPLE_RATE, "experiments": metas}
     return Dataset(pd.concat(frames, ignore_index=True), meta)

@@ -92,6 +92,9 @@ def test_wrong_model_gives_the_predicted_bias(mj_dataset_clean):
     wrong = load_machine("cat345c-3pct")
     est = create_estimator("inverse-dynamics", wrong, weighting="torque",
                            eiv_correction=False).fit(mj_dataset_clean)
+    # The bare least squares: on noise-free data a 3 % wrong model's residuals are far beyond
+    # the noise model, and the statistical gate would (rightly) reject some samples.
+    est.gating = False
     bias = _final_estimates(mj_dataset_clean, est.estimate(mj_dataset_clean))
     # Prediction from the symbolic model: m = Σ φ'(τ - τ0') / Σ φ'φ' (equal torque variances).
     arm = ArmModel(wrong)
@@ -140,12 +143,30 @@ def test_forgetting_follows_a_payload_change(mj_dataset_clean):
     finals = {}
     for lam in (1.0, 0.9):
         est = create_estimator("inverse-dynamics", "cat345c", forgetting=lam).fit(ds)
+        est.gating = False  # the bare least squares (the gate would restart it, see below)
         results = [est.step(row) for row in stream.to_dict("records")]
         finals[lam] = results[-1].estimate
         assert all(r.status is Status.OK for r in results)
     m1, m2 = first["payload"].iloc[0], second["payload"].iloc[0]
     assert abs(finals[0.9] - m2) < 0.5  # old data weigh 0.9**101 ≈ 2e-5
     assert abs(finals[1.0] - m2) > 0.2 * abs(m2 - m1)  # without forgetting the old payload lingers
+
+
+def test_gate_notices_a_payload_change_and_restarts(mj_dataset_clean):
+    """A new payload without a pause: a few samples are rejected, then the estimator restarts
+    (status reinitialised) instead of locking itself out, and finds the new payload."""
+    ds = mj_dataset_clean
+    (_, first), (_, second) = list(ds.experiments())[:2]
+    second = second.copy()
+    second["time"] += first["time"].iloc[-1] + 0.05
+    stream = pd.concat([first, second]).to_dict("records")
+    est = create_estimator("inverse-dynamics", "cat345c").fit(ds)
+    results = [est.step(row) for row in stream]
+    statuses = [r.status for r in results[101:]]
+    assert statuses[:5] == [Status.REJECTED] * 5 and statuses[5] is Status.REINITIALISED
+    assert all(r.estimate == results[100].estimate for r in results[101:106])  # estimate kept
+    assert abs(results[-1].estimate - second["payload"].iloc[0]) < 0.5
+    assert results[-1].status is Status.OK and 0 < results[-1].sigma < 1.0
 
 
 def test_warming_up_until_the_uncertainty_is_small():

@@ -212,8 +212,16 @@ def kalman_model(machine: Machine, abs_payload: bool) -> KalmanModel:
 
 @lru_cache(maxsize=16)
 def ekf_step_function(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
+    """:func:`ekf_step_symbolic`, compiled to C when a compiler is available."""
+    return native(ekf_step_symbolic(machine, abs_payload, torque_channel))
+
+
+@lru_cache(maxsize=16)
+def ekf_step_symbolic(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
     r"""One whole EKF step (update with :math:`y_k`, then prediction with :math:`u_k`) as one
-    compiled CasADi function, so a 20 Hz step costs one call instead of dozens of numpy calls.
+    CasADi function (compiled by :func:`ekf_step_function`; exported to C for an ECU by
+    :mod:`excavator_payload.runtime.export_c`), so a 20 Hz step costs one call instead of dozens
+    of numpy calls.
 
     Inputs ``x, P`` (prior), ``y`` (4 or 6), ``u``, ``a``, ``Q`` (5×5), ``R`` (4×4),
     ``torque_cov``, ``accel_cov`` (2×2). Output: one dense vector
@@ -263,9 +271,42 @@ def ekf_step_function(machine: Machine, abs_payload: bool, torque_channel: bool)
     P_next = 0.5 * (P_next + P_next.T)
     packed = ca.cse(ca.densify(ca.vertcat(x_post, ca.vec(P_post), x_next, ca.vec(P_next))))
     tag = _c_name(machine.name) + ("_abs" if abs_payload else "") + ("_tau" if torque_channel else "")
-    return native(ca.Function(f"ekf_step_{tag}", [x, P, y, u, a, Q0, R_qqd, torque_cov, accel_cov],
-                              [packed], ["x", "P", "y", "u", "a", "Q", "R", "torque_cov", "accel_cov"],
-                              ["packed"]))
+    return ca.Function(f"ekf_step_{tag}", [x, P, y, u, a, Q0, R_qqd, torque_cov, accel_cov],
+                       [packed], ["x", "P", "y", "u", "a", "Q", "R", "torque_cov", "accel_cov"],
+                       ["packed"])
+
+
+@lru_cache(maxsize=16)
+def gate_function(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
+    r"""Normalised innovation squared of a sample at the prior, as one compiled function.
+
+    Inputs ``x, P, y`` (4 or 6), ``a``, ``R`` (4×4), ``torque_cov``, ``accel_cov``; output
+    :math:`\nu^\top S^{-1}\nu` with :math:`\nu = y - h(x)` and :math:`S = HPH^\top +
+    \mathrm{blockdiag}(R, \Sigma_\tau + M\Sigma_a M^\top)` (angles and rates only without the
+    torque channel). The statistical gate of the filters (see :mod:`excavator_payload.estimators.base`).
+    """
+    model = kalman_model(machine, abs_payload)
+    n_y = 6 if torque_channel else 4
+    x = ca.SX.sym("x", N_STATE)
+    P = ca.SX.sym("P", N_STATE, N_STATE)
+    y = ca.SX.sym("y", n_y)
+    a = ca.SX.sym("a", 2)
+    R_qqd = ca.SX.sym("R", 4, 4)
+    torque_cov = ca.SX.sym("torque_cov", 2, 2)
+    accel_cov = ca.SX.sym("accel_cov", 2, 2)
+    h = model.measurement(x, a)[:n_y]
+    H = ca.jacobian(h, x)
+    R = ca.SX.zeros(n_y, n_y)
+    R[:4, :4] = R_qqd
+    if torque_channel:
+        M = ca.reshape(kalman_mass_matrix(model)(x), 2, 2)
+        R[4:, 4:] = torque_cov + M @ accel_cov @ M.T
+    S = H @ P @ H.T + R
+    nu = y - h
+    nis = nu.T @ scaled_solve(S, nu, S)
+    tag = _c_name(machine.name) + ("_abs" if abs_payload else "") + ("_tau" if torque_channel else "")
+    return native(ca.Function(f"kalman_gate_{tag}", [x, P, y, a, R_qqd, torque_cov, accel_cov],
+                              [ca.cse(nis)], ["x", "P", "y", "a", "R", "torque_cov", "accel_cov"], ["nis"]))
 
 
 def joseph_update(x, P, innovation, H, R):

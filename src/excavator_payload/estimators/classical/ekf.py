@@ -90,11 +90,12 @@ class KalmanEstimatorBase(Estimator):
     def _fit(self, dataset: Dataset) -> None:
         if self.options["tuning"] == "thesis":
             self.tuning = kf.thesis_tuning(self.machine)
-            return
-        noise = kf.dataset_noise(dataset, self.options["noise"])
-        angle_trunc, rate_trunc = kf.euler_truncation_std(dataset)
-        self.tuning = kf.consistent_tuning(self.machine, noise, angle_trunc, rate_trunc,
-                                           self.options["payload_walk"])
+        else:
+            noise = kf.dataset_noise(dataset, self.options["noise"])
+            angle_trunc, rate_trunc = kf.euler_truncation_std(dataset)
+            self.tuning = kf.consistent_tuning(self.machine, noise, angle_trunc, rate_trunc,
+                                               self.options["payload_walk"])
+        self._build_gate()
 
     def _reset(self) -> None:
         self._x = None
@@ -140,6 +141,27 @@ class KalmanEstimatorBase(Estimator):
         x[kf.PAYLOAD] = min(max(x[kf.PAYLOAD], self._bounds[0]), self._bounds[1])
         return True
 
+    # -- gate, uncertainty, state watch (see estimators.base) --------------------------------
+    def _innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
+        r"""Normalised innovation squared of all the filter's measurements at the prior.
+
+        :math:`\nu^\top S^{-1}\nu` with :math:`\nu = y_k - h(\bar x_k)` and
+        :math:`S = H\bar P H^\top + R` (angles and rates; with the ``consistent`` tuning also the
+        torques, :math:`R^{(2)} = \Sigma_\tau + M\Sigma_a M^\top`); chi-square with 4 or 6
+        degrees of freedom for a sample the noise model describes.
+        """
+        if self._x is None:
+            return None
+        nis = float(self._gate.evaluate(self._x, self._P, values[self._gate_y], values[kf.ACCELS])[0])
+        return nis, len(self._gate_y)
+
+    def _estimate_sigma(self) -> float:
+        """Square root of the payload's posterior variance, kg (thesis tuning: not calibrated)."""
+        return self._posterior_std
+
+    def _state_finite(self) -> bool:
+        return self._x is None or bool(np.all(np.isfinite(self._x)) and np.all(np.isfinite(self._P)))
+
     @property
     def payload_std(self) -> float:
         """The filter's posterior standard deviation of the payload (kg) at the last sample."""
@@ -147,7 +169,7 @@ class KalmanEstimatorBase(Estimator):
 
     # -- persistence -----------------------------------------------------------------------
     #: Compiled functions and their buffers: rebuilt, not pickled (multiprocessing, deepcopy).
-    _RUNTIME = ("_step_function", "_sigma", "_terms")
+    _RUNTIME = ("_step_function", "_sigma", "_terms", "_gate")
 
     def __getstate__(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k not in self._RUNTIME}
@@ -158,6 +180,18 @@ class KalmanEstimatorBase(Estimator):
 
     def _build_runtime(self) -> None:
         """(Re)create the compiled functions the filter steps with."""
+        self._build_gate()
+
+    def _build_gate(self) -> None:
+        """The compiled statistical gate, with its constant covariances written once."""
+        tuning = self.tuning
+        if tuning is None:
+            return
+        self._gate = kf.BufferedFunction(kf.gate_function(self.machine, self.options["tuning"] == "thesis",
+                                                          tuning.torque_channel))
+        for i, value in enumerate((tuning.R, tuning.torque_cov, tuning.accel_cov)):
+            self._gate.set_input(4 + i, value)
+        self._gate_y = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
 
     def _config(self) -> dict:
         return self.tuning.config()
@@ -170,6 +204,7 @@ class KalmanEstimatorBase(Estimator):
         if self.tuning.name != self.options["tuning"]:
             raise EstimatorError(f"saved {self.name} is inconsistent: option --tuning "
                                  f"{self.options['tuning']} but covariances of '{self.tuning.name}'")
+        self._build_gate()
 
 
 @register
@@ -209,6 +244,7 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
         for i, value in enumerate((tuning.Q, tuning.R, tuning.torque_cov, tuning.accel_cov)):
             self._step_function.set_input(5 + i, value)
         self._y_index = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
+        self._build_gate()
 
     # Positions in the packed step output [x_post, P_post, x_next, P_next].
     _POST_DIAG = np.array([5 + 6 * i for i in range(5)])

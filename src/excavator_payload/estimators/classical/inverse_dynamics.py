@@ -228,7 +228,8 @@ def sensor_variances(noise, torque_floor: float = TORQUE_STD_FLOOR) -> np.ndarra
 
 
 def information_terms(values, theta_empty, theta_payload, variances, weight_payload: float,
-                      weighting: str = "full", eiv_correction: bool = True) -> tuple[float, float]:
+                      weighting: str = "full", eiv_correction: bool = True,
+                      trig=math) -> tuple[float, float]:
     r"""One sample's contribution :math:`(\Delta N, \Delta I)` to the estimating equation.
 
     ``values`` is the sample in :data:`SIGNALS` order as Python floats; the arithmetic is plain
@@ -242,12 +243,12 @@ def information_terms(values, theta_empty, theta_payload, variances, weight_payl
         \Sigma_x)` (the traces only with ``eiv_correction``).
     """
     q1, qd1, qdd1, q2, qd2, qdd2, t1, t2 = values
-    s1 = math.sin(q1)
-    c1 = math.cos(q1)
-    s2 = math.sin(q2)
-    c2 = math.cos(q2)
-    s12 = math.sin(q1 + q2)
-    c12 = math.cos(q1 + q2)
+    s1 = trig.sin(q1)
+    c1 = trig.cos(q1)
+    s2 = trig.sin(q2)
+    c2 = trig.cos(q2)
+    s12 = trig.sin(q1 + q2)
+    c12 = trig.cos(q1 + q2)
     A0, B0, C0, D0, E0, F1, F2 = theta_empty
     a, b, c, d, e = theta_payload
     (ya1, _), (yb, _), (yc1, yc2), _, _, _, _ = _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2)
@@ -286,6 +287,42 @@ def information_terms(values, theta_empty, theta_payload, variances, weight_payl
             d_num += v * (w1 * j0[k][0] + w2 * j0[k][1])
             d_info -= v * (w1 * f1 + w2 * f2)
     return d_num, d_info
+
+
+def residual_nis(values, theta_empty, theta_payload, variances, payload: float,
+                 payload_var: float) -> float:
+    r"""Normalised squared torque residual of one sample at the current payload estimate.
+
+    :math:`r^\top (R + \varphi\varphi^\top \sigma_m^2)^{-1} r` with
+    :math:`r = \tau - \tau_0 - m\varphi` and :math:`R = \Sigma_\tau + J\Sigma_x J^\top` the
+    sensors' full residual covariance (whatever the ``weighting`` option): chi-square with 2
+    degrees of freedom for a sample the noise model describes. Plain float math, as
+    :func:`information_terms`.
+    """
+    q1, qd1, qdd1, q2, qd2, qdd2, t1, t2 = values
+    s1, c1, s2, c2 = math.sin(q1), math.cos(q1), math.sin(q2), math.cos(q2)
+    s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+    A0, B0, C0, D0, E0, F1, F2 = theta_empty
+    a, b, c, d, e = theta_payload
+    (ya1, _), (yb, _), (yc1, yc2), _, _, _, _ = _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2)
+    p1 = a * ya1 + b * yb + c * yc1 + d * c1 + e * c12
+    p2 = b * yb + c * yc2 + e * c12
+    r1 = t1 - (A0 * ya1 + B0 * yb + C0 * yc1 + D0 * c1 + E0 * c12 + F1 * qd1) - payload * p1
+    r2 = t2 - (B0 * yb + C0 * yc2 + E0 * c12 + F2 * qd2) - payload * p2
+    j0 = _jacobian(A0, B0, C0, D0, E0, F1, F2, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2)
+    jp = _jacobian(a, b, c, d, e, 0.0, 0.0, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2)
+    R11 = variances[6] + payload_var * p1 * p1
+    R22 = variances[7] + payload_var * p2 * p2
+    R12 = payload_var * p1 * p2
+    for k in range(6):
+        v = variances[k]
+        g1 = j0[k][0] + payload * jp[k][0]
+        g2 = j0[k][1] + payload * jp[k][1]
+        R11 += v * g1 * g1
+        R22 += v * g2 * g2
+        R12 += v * g1 * g2
+    det = R11 * R22 - R12 * R12
+    return (R22 * r1 * r1 - 2.0 * R12 * r1 * r2 + R11 * r2 * r2) / det
 
 
 @register
@@ -439,6 +476,32 @@ class InverseDynamicsEstimator(Estimator):
         estimate = self._num / self._info
         status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
         return StepResult(estimate, status)
+
+    # -- gate, uncertainty, state watch (see estimators.base) --------------------------------
+    def _innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
+        """The sample's torque residual at the current estimate (:func:`residual_nis`), 2 dof.
+
+        On the machine sensor set the kernel regresses the sample at the centre of its
+        differentiator window, which was admitted ``half_window`` samples ago, so there is no
+        per-sample statistical gate yet: only the plausibility limits guard it (issue 12).
+        """
+        if self._info <= 0.0 or self._pressure is not None:
+            return None
+        payload = min(max(self._num / self._info, 0.0), self._max_payload)
+        return residual_nis(values.tolist(), self._th0, self._th1, self._var, payload, 1.0 / self._info), 2
+
+    def _estimate_sigma(self) -> float:
+        """Standard deviation of the estimate from the accumulated information, kg (I^{-1/2})."""
+        return 1.0 / math.sqrt(self._info) if self._info > 0 else math.nan
+
+    def _state_finite(self) -> bool:
+        return math.isfinite(self._num) and math.isfinite(self._info)
+
+    def _on_gap(self, time: float, values: np.ndarray) -> None:
+        """Samples are independent equations: a gap of up to 1 s keeps the sums, a longer one
+        (or time going back: a new lift) restarts."""
+        if self._last_time is None or not 0.0 < time - self._last_time <= 1.0:
+            self._reset()
 
     @property
     def uncertainty(self) -> float:

@@ -52,6 +52,8 @@ from excavator_payload.estimators.base import Estimator, Option, Status, StepRes
 DEG = math.pi / 180.0
 #: Calibration lifts whose dipper angles differ by less than this share one map line, rad.
 DIPPER_MERGE = 0.5 * DEG
+#: Fewer map lines (dipper angles) than this per reference payload get a warning at fit.
+MIN_MAP_LINES = 3
 
 
 def local_linear(x: np.ndarray, y: np.ndarray, nodes: np.ndarray, half_width: float) -> np.ndarray:
@@ -173,6 +175,13 @@ class QuasiStaticEstimator(Estimator):
                                      "more dipper angles")
             dipper_nodes.append(np.array([np.mean([d for d, _ in g]) for g in groups]))
             maps.append(np.array([np.mean([line for _, line in g], axis=0) for g in groups]))
+        few = [f"{level:g} kg: {len(nodes)}" for level, nodes in zip(levels, dipper_nodes)
+               if len(nodes) < MIN_MAP_LINES]
+        if few:
+            self.fit_warnings.append(
+                f"quasi-static: few calibration dipper angles ({'; '.join(few)}); between and beyond "
+                "them the map is a straight-line guess and estimates can be several payloads off. "
+                f"Calibrate with lifts at {MIN_MAP_LINES} or more dipper angles per reference payload")
         if not self._maps_separated(maps, dipper_nodes, boom_nodes):
             raise EstimatorError("quasi-static: the rated map is not above (or below) the empty map "
                                  "everywhere, so the maps cannot be interpolated; check the "

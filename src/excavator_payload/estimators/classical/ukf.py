@@ -124,6 +124,7 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
         abs_payload = self.options["tuning"] == "thesis"
         self._sigma = kf.BufferedFunction(kf.sigma_point_function(self.machine, abs_payload, 2 * N + 1))
         self._terms = kf.kalman_model(self.machine, abs_payload).evaluator()
+        self._build_gate()
 
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
         """The 2n+1 sigma points as the columns of an (n, 2n+1) array."""

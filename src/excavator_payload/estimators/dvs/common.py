@@ -18,6 +18,8 @@ n_{l-1}`, row-major) then :math:`b_l`.
 
 from __future__ import annotations
 
+import math
+
 import re
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
@@ -66,6 +68,8 @@ def parse_int_list(raw: Any, what: str) -> list[int]:
                     raise ValueError
                 if step <= 0:
                     raise ValueError
+                if (hi - lo) // step > MAX_LIST:
+                    raise EstimatorError(f"{what}: {raw!r} has more than {MAX_LIST} entries")
                 out.extend(range(lo, hi + 1, step))
             else:
                 out.append(int(part))
@@ -74,10 +78,22 @@ def parse_int_list(raw: Any, what: str) -> list[int]:
     return out
 
 
+#: Longest list an option may expand to (delays, layers).
+MAX_LIST = 1000
+#: Largest layer and largest delay accepted: far beyond any payload network, small enough that
+#: a typo cannot ask for terabytes.
+MAX_LAYER_SIZE = 1000
+MAX_DELAY = 1000
+#: Most weights a network may have: trainbr solves an (n × n) system per epoch (8·n² bytes).
+MAX_WEIGHTS = {"trainbr": 5000, "adam": 1_000_000}
+
+
 def parse_hidden(raw: Any) -> list[int]:
     sizes = parse_int_list(raw, "--hidden")
     if any(s <= 0 for s in sizes):
         raise EstimatorError(f"--hidden: layer sizes must be positive, got {raw!r}")
+    if any(s > MAX_LAYER_SIZE for s in sizes) or len(sizes) > 20:
+        raise EstimatorError(f"--hidden: at most 20 layers of at most {MAX_LAYER_SIZE} neurons, got {raw!r}")
     return sizes
 
 
@@ -87,6 +103,8 @@ def parse_delays(raw: Any) -> list[int]:
         raise EstimatorError("--delays: give at least one delay (e.g. '0:5')")
     if any(d < 0 for d in delays) or len(set(delays)) != len(delays):
         raise EstimatorError(f"--delays: delays must be distinct and non-negative, got {raw!r}")
+    if max(delays) > MAX_DELAY:
+        raise EstimatorError(f"--delays: at most {MAX_DELAY} samples, got {raw!r}")
     return sorted(delays)
 
 
@@ -397,12 +415,31 @@ class NeuralEstimator(Estimator):
         for key in ("epochs", "train_experiments"):
             if int(o[key]) < 1:
                 raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be at least 1")
-        if int(o["validation_experiments"]) < 0 or float(o["max_time"]) < 0:
+        if int(o["validation_experiments"]) < 0 or not float(o["max_time"]) >= 0:
             raise EstimatorError(f"{self.name}: --validation-experiments and --max-time must be ≥ 0")
+        if not 0 <= int(o["seed"]) < 2**63:
+            raise EstimatorError(f"{self.name}: --seed must be in 0 … 2⁶³−1, got {o['seed']}")
+        if not (math.isfinite(float(o["learning_rate"])) and float(o["learning_rate"]) > 0):
+            raise EstimatorError(f"{self.name}: --learning-rate must be a positive number, got "
+                                 f"{o['learning_rate']}")
+        if int(o["epochs"]) > 10**7 or int(o["validation_patience"]) < 0:
+            raise EstimatorError(f"{self.name}: --epochs must be at most 10⁷ and "
+                                 "--validation-patience ≥ 0")
         self.weights: np.ndarray | None = None
         self.input_scaler: Scaler | None = None
         self.output_scaler: Scaler | None = None
         self.training_log: TrainingLog | None = None
+        #: RMS error (kg) on the validation (else training) experiments: the ``sigma`` of a step.
+        self.residual_std = math.nan
+        self.residual_source = ""
+
+    def _check_size(self) -> None:
+        """One clear line instead of an attempt to allocate gigabytes."""
+        n, limit = self._n_weights(), MAX_WEIGHTS[self.options["trainer"]]
+        if n > limit:
+            raise EstimatorError(f"{self.name}: {n} weights is more than the {limit} that "
+                                 f"--trainer {self.options['trainer']} can train here; use smaller "
+                                 "--hidden / --delays (the thesis' nets have a few hundred)")
 
     # -- hooks -----------------------------------------------------------------------------
     @property
@@ -450,6 +487,7 @@ class NeuralEstimator(Estimator):
                 [self.output_scaler.transform(y[:, None])[:, 0] for y in ys])
 
     def _fit(self, dataset: Dataset) -> None:
+        self._check_size()
         train, val = self.split_experiments(dataset)
         o = self.options
         scaling = o["scaling"]
@@ -496,15 +534,41 @@ class NeuralEstimator(Estimator):
                 f"{self.name}: {log.trainer} stopped after {log.epoch[-1]} epochs ({log.stop_reason}) "
                 f"in {log.seconds:.1f} s; training SSE {log.sse[-1]:.4g} over {log.n_errors} targets "
                 f"(scaled), effective parameters γ {log.gamma[-1]:.1f} of {log.n_parameters}, "
-                f"validation SSE {log.returned_validation_sse:.4g}"
+                + (f"validation SSE {log.returned_validation_sse:.4g}"
+                   if math.isfinite(log.returned_validation_sse) else
+                   "no validation experiments (every experiment was used for training, so "
+                   "nothing guards against overfitting: give more experiments than "
+                   "--train-experiments)")
                 + (f" (weights of epoch {log.best_epoch}, the lowest validation error)"
                    if log.best_epoch >= 0 else ""))
+
+    def fit(self, dataset: Dataset) -> "NeuralEstimator":
+        """Train (see :meth:`_fit`), then measure the spread of the net's errors for ``sigma``."""
+        super().fit(dataset)
+        train, val = self.split_experiments(dataset)
+        judged = val if val is not None else train
+        frame = self.estimate(judged)
+        truth = judged.frame["payload"].to_numpy(float)
+        ok = (frame["status"] == "ok").to_numpy()
+        errors = frame["payload_estimate"].to_numpy(float)[ok] - truth[ok]
+        self.residual_std = float(np.sqrt(np.mean(errors**2))) if errors.size else math.nan
+        self.residual_source = "validation" if val is not None else "training"
+        self.reset()
+        return self
+
+    def _estimate_sigma(self) -> float:
+        """RMS error of the net on its validation experiments (training experiments when it had
+        none: then optimistic), kg; a net has no uncertainty of its own, this is its typical
+        error on data like its training data."""
+        return self.residual_std
 
     # -- persistence -----------------------------------------------------------------------
     def _config(self) -> dict:
         log = self.training_log
         return {"input_names": list(self.input_names), "n_weights": int(self.weights.size),
-                "training": log.summary() if log is not None else None}
+                "training": log.summary() if log is not None else None,
+                "residual_std": self.residual_std if math.isfinite(self.residual_std) else None,
+                "residual_source": self.residual_source}
 
     def _arrays(self) -> dict[str, np.ndarray]:
         arrays = {"weights": self.weights, **self.input_scaler.to_arrays("input"),
@@ -525,7 +589,14 @@ class NeuralEstimator(Estimator):
         self.output_scaler = Scaler.from_arrays(arrays, "output", scaling)
         if self.input_scaler.center.shape != (self.n_inputs,):
             raise EstimatorError(f"{self.name}: saved input scaling does not match the inputs")
+        if not (np.all(np.isfinite(self.input_scaler.center)) and np.all(np.isfinite(self.input_scaler.gain))
+                and np.all(np.isfinite(self.output_scaler.center))
+                and np.all(np.isfinite(self.output_scaler.gain))):
+            raise EstimatorError(f"{self.name}: saved scaling is not finite")
         self.weights = weights
+        spread = config.get("residual_std")
+        self.residual_std = float(spread) if isinstance(spread, (int, float)) and spread >= 0 else math.nan
+        self.residual_source = str(config.get("residual_source", ""))
         summary = config.get("training") or {}
         if "log_epoch" in arrays:
             import pandas as pd

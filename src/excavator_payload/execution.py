@@ -1,0 +1,280 @@
+"""The one execution layer: every embarrassingly parallel job of the package runs through here.
+
+Simulation chunks (:mod:`excavator_payload.simulation.generate`), study cells
+(:mod:`excavator_payload.evaluation.study`) and whatever else splits into independent tasks are
+handed to :meth:`Execution.map`, which runs them on a `Dask <https://distributed.dask.org>`_
+cluster and calls back, in the calling process, as each task finishes (so that the caller can
+checkpoint it), with a progress bar.
+
+Where the tasks run
+-------------------
+* ``scheduler`` given (``--scheduler tcp://HOST:PORT`` on the command line) or the environment
+  variable :data:`SCHEDULER_ENV` set: on that existing cluster, started with Dask's own
+  ``dask scheduler`` and ``dask worker tcp://HOST:PORT`` commands (the workers need this package
+  importable, e.g. installed in the same environment).
+* otherwise: a local cluster of worker processes, one single-threaded worker per core (or
+  ``workers``), started on first use and shut down when the :class:`Execution` closes. Dask's
+  worker processes watch their parent: they exit with it, even after ``kill -9``.
+* a job of one task, or ``workers=1`` without a scheduler, runs in this process: starting a
+  cluster costs 1–3 s, more than small jobs take.
+
+A task lost with a dead worker is run again on another one (Dask does that); a task that raises
+is retried ``retries`` times before its error reaches the caller. Results never depend on where
+or in which order tasks run: the tasks themselves must be deterministic functions of their
+arguments (every simulated experiment draws from its own random streams).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+from excavator_payload.errors import ExcavatorPayloadError
+
+log = logging.getLogger(__name__)
+
+#: Environment variable naming the Dask scheduler to use when ``--scheduler`` is not given.
+SCHEDULER_ENV = "EXCAVATOR_PAYLOAD_SCHEDULER"
+#: How often a task that raised is run again before its error reaches the caller.
+DEFAULT_RETRIES = 2
+#: Dask settings of the local workers: no statistical profiler (it samples the task's stack
+#: every 10 ms, a cost for the Python-heavy NMPC loop, for a dashboard nobody looks at).
+LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+#: Seconds to wait for an existing scheduler to answer.
+CONNECT_TIMEOUT = 20.0
+
+
+class SchedulerError(ExcavatorPayloadError):
+    """A scheduler address is malformed or the scheduler cannot be reached."""
+
+
+@dataclass(frozen=True)
+class Shared:
+    """An argument several tasks receive: sent to the cluster once, not once per task."""
+
+    value: Any
+
+
+def scheduler_address(scheduler: str | None = None) -> str | None:
+    """The scheduler to use: ``scheduler``, else ``$EXCAVATOR_PAYLOAD_SCHEDULER``, else ``None``.
+
+    ``HOST:PORT`` gets the ``tcp://`` prefix.
+
+    Raises
+    ------
+    SchedulerError
+        If the address has no port.
+    """
+    address = (scheduler if scheduler is not None else os.environ.get(SCHEDULER_ENV, "")).strip()
+    if not address:
+        return None
+    if "://" not in address:
+        address = "tcp://" + address
+    host_port = address.split("://", 1)[1]
+    host, _, port = host_port.rpartition(":")
+    if not host or not port.isdigit():
+        raise SchedulerError(f"scheduler address '{address}' must look like tcp://HOST:PORT")
+    return address
+
+
+def default_workers() -> int:
+    """Local worker processes by default: one per core this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _quiet_dask() -> None:
+    """Dask logs every started worker, lost connection and retry on the console: keep errors only."""
+    for name in ("distributed", "dask"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+@dataclass
+class Execution:
+    """Where and how parallel jobs run; use as a context manager so that a cluster it starts
+    is shut down.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://HOST:PORT``); default
+        ``$EXCAVATOR_PAYLOAD_SCHEDULER``, else a local cluster.
+    workers : int, optional
+        Worker processes of the local cluster (default: one per core). Ignored with a scheduler.
+    retries : int
+        Times a task that raised is run again.
+    """
+
+    scheduler: str | None = None
+    workers: int | None = None
+    retries: int = DEFAULT_RETRIES
+    _client: Any = field(default=None, init=False, repr=False)
+    _cluster: Any = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.scheduler = scheduler_address(self.scheduler)
+        if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, int)
+                                         or self.workers < 1):
+            raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {self.workers!r}")
+        if self.workers is None:
+            self.workers = default_workers()
+
+    # -- lifetime -----------------------------------------------------------------------------
+    def __enter__(self) -> "Execution":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Disconnect, and stop the local cluster if this object started one."""
+        client, cluster = self._client, self._cluster
+        self._client = self._cluster = None
+        for thing in (client, cluster):
+            if thing is not None:
+                try:
+                    thing.close()
+                except Exception:  # noqa: BLE001 - shutting down: nothing left to save
+                    log.debug("error while closing %r", thing, exc_info=True)
+
+    @property
+    def where(self) -> str:
+        """Where the tasks run, for messages."""
+        if self.scheduler:
+            return f"Dask scheduler {self.scheduler}"
+        return f"{self.workers} local worker process(es)"
+
+    def runs_in_process(self, n_tasks: int) -> bool:
+        """Whether a job of ``n_tasks`` tasks runs in this process (no cluster)."""
+        return self.scheduler is None and (self.workers == 1 or n_tasks <= 1)
+
+    @property
+    def client(self):
+        """The ``distributed.Client`` (connecting or starting the local cluster on first use)."""
+        if self._client is None:
+            self._client = self._connect()
+        return self._client
+
+    def _connect(self):
+        _quiet_dask()
+        from distributed import Client, LocalCluster
+
+        if self.scheduler:
+            try:
+                return Client(self.scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
+            except (OSError, TimeoutError) as exc:
+                raise SchedulerError(f"cannot reach the Dask scheduler at {self.scheduler}: "
+                                     f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        import dask
+
+        with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG):
+            # Without a dashboard the scheduler still serves health checks, on another port if
+            # 8787 is taken (a second cluster): nothing the user needs to hear about.
+            warnings.filterwarnings("ignore", message="Port .* is already in use")
+            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None, silence_logs=logging.ERROR)
+        return Client(self._cluster, set_as_default=False)
+
+    # -- running ------------------------------------------------------------------------------
+    def map(self, function: Callable, tasks: Sequence[tuple], *, on_done: Callable[[int, Any], None] | None = None,
+            weights: Sequence[int] | None = None, description: str = "working", progress: bool = True,
+            console=None) -> list:
+        """Run ``function(*task)`` for every task; call ``on_done(index, result)`` as each finishes.
+
+        Parameters
+        ----------
+        function : callable
+            Importable, module-level function (it is pickled by reference for the workers).
+        tasks : sequence of tuple
+            Arguments of each call. A :class:`Shared` argument is sent to the cluster once and
+            every task that names the same object receives it.
+        on_done : callable, optional
+            Called in this process, in the order tasks finish, with the task's index and result
+            (checkpoint there: a later interruption keeps it).
+        weights : sequence of int, optional
+            Progress units of each task (e.g. its experiment count); default 1 each.
+        description : str
+            Label of the progress bar.
+        progress : bool
+            Show the progress bar.
+
+        Returns
+        -------
+        list
+            The results, in the order of ``tasks``.
+
+        Raises
+        ------
+        KeyboardInterrupt
+            On Ctrl-C: the unfinished tasks are cancelled; the finished ones went to ``on_done``.
+        """
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        tasks = [tuple(t) for t in tasks]
+        weights = [1] * len(tasks) if weights is None else [int(w) for w in weights]
+        results: list = [None] * len(tasks)
+        columns = [TextColumn("[progress.description]{task.description}"), BarColumn(),
+                   MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
+        kwargs = {"console": console} if console is not None else {}
+        with Progress(*columns, disable=not progress, transient=False, **kwargs) as bar:
+            bar_task = bar.add_task(description, total=sum(weights))
+
+            def finished(index, result):
+                results[index] = result
+                if on_done is not None:
+                    on_done(index, result)
+                bar.advance(bar_task, weights[index])
+
+            if not tasks:
+                return results
+            if self.runs_in_process(len(tasks)):
+                for index, task in enumerate(tasks):
+                    finished(index, function(*(a.value if isinstance(a, Shared) else a for a in task)))
+                return results
+            self._map_on_cluster(function, tasks, finished)
+        return results
+
+    def _map_on_cluster(self, function, tasks, finished) -> None:
+        from distributed import as_completed
+
+        client = self.client
+        scattered: dict[int, Any] = {}
+
+        def resolve(arg):
+            if not isinstance(arg, Shared):
+                return arg
+            if id(arg.value) not in scattered:
+                # A list is scattered element by element: wrap the value so that it travels whole.
+                scattered[id(arg.value)] = client.scatter([arg.value], hash=False)[0]
+            return scattered[id(arg.value)]
+
+        futures = {}
+        try:
+            for index, task in enumerate(tasks):
+                future = client.submit(function, *(resolve(a) for a in task), pure=False,
+                                       retries=self.retries)
+                futures[future] = index
+            for future in as_completed(list(futures), loop=client.loop):
+                index = futures[future]
+                finished(index, future.result())
+        except BaseException:
+            # Ctrl-C or a task that failed for good: stop the rest; the finished ones are kept.
+            try:
+                client.cancel(list(futures), force=True)
+            except Exception:  # noqa: BLE001 - the cluster may be gone already
+                pass
+            raise
+        finally:
+            futures.clear()
+            scattered.clear()
+
+
+def interrupted_message(what: str = "finished work is kept; rerun the same command to resume") -> str:
+    """The one line the commands print on Ctrl-C."""
+    return f"[red]interrupted[/red] ({what})"

@@ -1,0 +1,180 @@
+"""``excavator-payload can-run``, ``can-replay``, ``can-record`` and ``export``."""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from pathlib import Path
+
+import typer
+from rich.console import Console
+
+from excavator_payload.errors import DatasetError, EstimatorError
+
+console = Console()
+err_console = Console(stderr=True)
+
+DBC_HELP = ("The sensors' DBC file (default: the sensor set's generated J1939 DBC, see "
+            "`excavator-payload can-dbc`). Needs --signal-map.")
+MAP_HELP = ("TOML map from our signal names to (message, signal, factor, offset) in --dbc; "
+            "factor and offset convert the DBC's unit to SI.")
+
+
+def _codec(estimator, dbc_file, signal_map):
+    from excavator_payload.runtime.dbc import SignalCodec
+
+    return SignalCodec.from_files(estimator.sensor_set, dbc_file, signal_map)
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("can-dbc")
+    def can_dbc(
+        sensor_set: str = typer.Option("thesis", "--sensor-set", help="Sensor set: thesis or machine."),
+        out: Path = typer.Option(None, "--out", help="Write the DBC here (default: print it)."),
+    ) -> None:
+        """Print or write the J1939 DBC generated from a sensor set."""
+        from excavator_payload.data.schema import get_sensor_set
+        from excavator_payload.runtime.dbc import generate_dbc
+
+        text = generate_dbc(get_sensor_set(sensor_set))
+        if out is None:
+            typer.echo(text, nl=False)
+            return
+        tmp = out.with_name(out.name + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(out)
+        console.print(f"wrote [bold]{out}[/bold]")
+
+    @app.command("can-record")
+    def can_record(
+        data: Path = typer.Option(..., "--data", help="Dataset (Parquet) to turn into frames."),
+        out: Path = typer.Option(..., "--out", help="CAN log to write: .asc, .blf, .log, .csv or .trc."),
+        dbc_file: Path = typer.Option(None, "--dbc", help=DBC_HELP),
+        signal_map: Path = typer.Option(None, "--signal-map", help=MAP_HELP),
+    ) -> None:
+        """Turn a dataset into a CAN log (every sample as its sensor frames, experiments apart)."""
+        from excavator_payload.data.io import read_dataset
+        from excavator_payload.runtime.dbc import SignalCodec
+        from excavator_payload.runtime.record import record_dataset
+
+        if out.resolve() == data.resolve():
+            raise DatasetError("--out must not be the input dataset")
+        dataset = read_dataset(data)
+        codec = SignalCodec.from_files(dataset.sensor_set, dbc_file, signal_map)
+        info = record_dataset(dataset, out, codec, progress=True)
+        console.print(f"{info['frames']} frames of {info['samples']} samples "
+                      f"({info['experiments']} experiments, {info['duration']:.1f} s of bus time) "
+                      f"written to [bold]{out}[/bold]")
+
+    @app.command("can-replay")
+    def can_replay(
+        log: Path = typer.Option(..., "--log", help="Recorded CAN log: .asc, .blf, .log, .csv or .trc."),
+        model: Path = typer.Option(..., "--model", help="Folder of a saved estimator."),
+        out: Path = typer.Option(..., "--out", help="Estimates file to write (Parquet)."),
+        dbc_file: Path = typer.Option(None, "--dbc", help=DBC_HELP),
+        signal_map: Path = typer.Option(None, "--signal-map", help=MAP_HELP),
+        segment_gap: float = typer.Option(2.0, "--segment-gap",
+                                          help="A silence longer than this (s) starts a new experiment."),
+    ) -> None:
+        """Replay a CAN log through the payload sensor; write the estimates as Parquet."""
+        from excavator_payload.data.io import write_estimates
+        from excavator_payload.estimators.base import load_estimator
+        from excavator_payload.runtime.can_sensor import PayloadSensor
+        from excavator_payload.runtime.replay import replay_log
+
+        if out.resolve() == log.resolve():
+            raise DatasetError("--out must not be the input log")
+        if not segment_gap > 0:
+            raise DatasetError("--segment-gap must be positive")
+        est = load_estimator(model)
+        sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map))
+        frame = replay_log(log, sensor, segment_gap, progress=True)
+        write_estimates(frame, out, meta={"estimator": est.name, "model": str(model), "log": str(log)})
+        n_ok = int((frame["status"] == "ok").sum())
+        c = sensor.counters
+        console.print(f"{est.name}: {len(frame)} estimates ({n_ok} ok) in {frame['experiment'].nunique()} "
+                      f"segment(s) from {c['frames']} frames ({c['ignored']} ignored, "
+                      f"{c['bad_frames']} bad) written to [bold]{out}[/bold]")
+
+    @app.command("can-run")
+    def can_run(
+        interface: str = typer.Option(..., "--interface", help="python-can interface: socketcan, "
+                                      "pcan, kvaser, vector, virtual, …"),
+        channel: str = typer.Option(..., "--channel", help="Channel of the interface, e.g. can0."),
+        model: Path = typer.Option(..., "--model", help="Folder of a saved estimator."),
+        bitrate: int = typer.Option(None, "--bitrate", help="Bit rate, if the interface needs one "
+                                    "(J1939: 250000 or 500000)."),
+        dbc_file: Path = typer.Option(None, "--dbc", help=DBC_HELP),
+        signal_map: Path = typer.Option(None, "--signal-map", help=MAP_HELP),
+        stale_after: float = typer.Option(None, "--stale-after", help="Status 'stale' after this many "
+                                          "seconds without a sample (default: 3 sample periods)."),
+        duration: float = typer.Option(None, "--duration", help="Stop after this many seconds "
+                                       "(default: run until SIGINT/SIGTERM)."),
+    ) -> None:
+        """Run the payload sensor on a CAN bus: read sensor frames, publish PayloadEstimate and
+        VehicleWeight at the sensor rate, until stopped (Ctrl-C / SIGTERM)."""
+        import can
+
+        from excavator_payload.estimators.base import load_estimator
+        from excavator_payload.runtime.can_sensor import PayloadSensor, run_bus
+        from excavator_payload.runtime.dbc import CanConfigError
+
+        logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(message)s")
+        est = load_estimator(model)
+        sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map), stale_after)
+        kwargs = {"bitrate": bitrate} if bitrate else {}
+        try:
+            bus = can.Bus(interface=interface, channel=channel, **kwargs)
+        except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
+            raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: "
+                                 f"{exc}") from None
+        stop = threading.Event()
+        handlers = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                handlers[sig] = signal.signal(sig, lambda *_: stop.set())
+        timer = threading.Timer(duration, stop.set) if duration else None
+        if timer:
+            timer.start()
+        console.print(f"{est.name} on {interface}:{channel} ({est.sensor_set.name} sensors, "
+                      f"{est.sensor_set.sample_rate:g} Hz); Ctrl-C stops")
+        try:
+            counters = run_bus(bus, sensor, stop)
+        finally:
+            if timer:
+                timer.cancel()
+            for sig, handler in handlers.items():
+                signal.signal(sig, handler)
+            bus.shutdown()
+        console.print("stopped: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
+
+    @app.command("export")
+    def export(
+        model: Path = typer.Option(..., "--model", help="Folder of a saved estimator."),
+        fmt: str = typer.Option(..., "--format", help="c (inverse-dynamics, calibrated, ekf, net1, "
+                                "net2) or onnx (net1, net2)."),
+        out: Path = typer.Option(..., "--out", help="Folder to write the files into."),
+        precision: str = typer.Option("float64", "--precision", help="C only: float64 (double) or "
+                                      "float32 (single-precision FPUs)."),
+    ) -> None:
+        """Export a trained estimator as C99 source for an ECU, or as ONNX."""
+        from excavator_payload.estimators.base import load_estimator
+
+        if precision not in ("float64", "float32"):
+            raise EstimatorError("--precision must be float64 or float32")
+        est = load_estimator(model)
+        if fmt == "c":
+            from excavator_payload.runtime.export_c import export_c
+
+            files = export_c(est, out, precision=precision)
+        elif fmt == "onnx":
+            if precision != "float64":
+                raise EstimatorError("--precision applies to --format c only")
+            from excavator_payload.runtime.export_onnx import export_onnx
+
+            files = export_onnx(est, out)
+        else:
+            raise EstimatorError(f"--format must be c or onnx, got {fmt!r}")
+        for f in files:
+            console.print(f"wrote [bold]{f}[/bold]")

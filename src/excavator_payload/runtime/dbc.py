@@ -1,0 +1,570 @@
+r"""CAN database (DBC) of a sensor set, J1939 style, and the codec between frames and signals.
+
+The DBC is *generated* from a :class:`~excavator_payload.data.schema.SensorSet` (never kept by
+hand), so every sensor set gets one (``runtime/dbc/<set>.dbc`` ship with the package; a test
+checks they equal what :func:`generate_dbc` writes now).
+
+J1939 conventions (as cantools reads them)
+------------------------------------------
+* 29-bit extended frame ids ``priority << 26 | PGN << 8 | source address``; database attribute
+  ``ProtocolType "J1939"``, message attribute ``VFrameFormat`` = ``J1939PG``, node attribute
+  ``NmStationAddress``; little-endian (Intel) unsigned signals with an offset.
+* Sensor signals go in *proprietary B* PGNs 0xFF00, 0xFF01, … (PDU format 0xFF: broadcast,
+  group extension = the message number) from the node ``ArmSensors`` (source address
+  :data:`SENSOR_ADDRESS`). No standard SPN exists for joint angles, rates, accelerations,
+  torques or cylinder pressures of an excavator arm, so each gets an SPN from the range J1939
+  reserves for manufacturer-specific parameters (520192–524287), in column order.
+* The payload goes out from ``PayloadEcu`` (:data:`ESTIMATOR_ADDRESS`) twice:
+  ``PayloadEstimate`` (proprietary B PGN :data:`ESTIMATE_PGN`: payload 0.5 kg/bit, status, one-
+  sigma uncertainty 0.5 kg/bit) and the standard ``VehicleWeight`` PGN 65258 (0xFEEA), whose
+  layout is SPN 928 axle location (8 bit), SPN 180 axle weight (0.5 kg/bit), SPN 181 trailer
+  weight and SPN 182 cargo weight (2 kg/bit each). The payload is the *cargo* weight there
+  (never negative: clamped at 0); axle and trailer weight are sent as "not available".
+* Raw values at the top of a J1939 signal's range are indicators, not data: for an ``n``-bit
+  signal, raw values above ``0xFA·2^(n-8) + 2^(n-8) - 1`` (``0xFAFF`` for 16 bits) mean "error"
+  (``0xFE..``) or "not available" (``0xFF..``). The codec decodes them, and any value outside
+  the signal's ``[min|max]``, as NaN: the estimator then reports the sample as invalid.
+
+Scale and offset
+----------------
+Each SI unit has a documented resolution (:data:`RESOLUTION`, chosen so that quantisation is at
+least ten times below the thesis sensor noise: angles 10⁻⁵ rad against 1.7·10⁻⁴ rad of noise,
+torques 1 N·m against 1000 N·m). A signal spans ``±plausible_abs`` of its sensor set (offset
+``-plausible_abs``), and is 16 bits long if that range fits the 16-bit J1939 data range at the
+resolution, else 32 bits. Messages are filled with signals in column order, 8 bytes each.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import cantools
+import numpy as np
+
+from excavator_payload.data.schema import SensorSet, get_sensor_set
+from excavator_payload.errors import ExcavatorPayloadError
+
+
+class CanConfigError(ExcavatorPayloadError):
+    """A DBC file or signal map is missing, malformed or does not fit the sensor set."""
+
+
+#: Resolution (one raw bit) of every SI unit the sensor sets use.
+RESOLUTION: dict[str, float] = {
+    "rad": 1e-5,        # 0.00057°; thesis angle noise 1.7e-4 rad
+    "rad/s": 1e-5,      # thesis rate noise 5.6e-5 rad/s
+    "rad/s^2": 1e-5,    # thesis acceleration noise 1.7e-4 rad/s²
+    "N*m": 1.0,         # thesis torque noise 1000 N·m
+    "Pa": 100.0,        # 1 mbar; pressure transducers are ±0.5 % of 400 bar = 2 bar
+}
+#: J1939 priority of the sensor and estimate messages (6: the default of broadcast data).
+PRIORITY = 6
+#: Source addresses (J1939 self-configurable address range 128–247).
+SENSOR_ADDRESS = 0xA0
+ESTIMATOR_ADDRESS = 0xA1
+SENSOR_NODE = "ArmSensors"
+ESTIMATOR_NODE = "PayloadEcu"
+#: First proprietary B PGN of the sensor messages; the estimate's own PGN.
+FIRST_SENSOR_PGN = 0xFF00
+ESTIMATE_PGN = 0xFF80
+ESTIMATE_MESSAGE = "PayloadEstimate"
+#: Standard J1939 "Vehicle Weight" PGN.
+VEHICLE_WEIGHT_PGN = 65258
+VEHICLE_WEIGHT_MESSAGE = "VehicleWeight"
+#: First manufacturer-specific SPN (J1939-71 reserves 520192–524287).
+FIRST_PROPRIETARY_SPN = 520192
+#: Payload estimate: resolution and the lowest value it can carry (estimates may be negative).
+PAYLOAD_RESOLUTION = 0.5
+PAYLOAD_OFFSET = -2000.0
+DBC_FOLDER = "dbc"
+
+
+def valid_raw_max(bits: int) -> int:
+    """Largest raw value that is data (not an error / not-available indicator), J1939-71."""
+    if bits < 8:
+        return (1 << bits) - 1
+    if bits == 8:
+        return 0xFA
+    return (0xFA << (bits - 8)) | ((1 << (bits - 8)) - 1)
+
+
+def not_available(bits: int) -> int:
+    """The raw value meaning "not available" (all ones)."""
+    return (1 << bits) - 1
+
+
+def error_indicator(bits: int) -> int:
+    """The raw value meaning "error" (0xFE followed by zeros... as J1939-71: 0xFE00 for 16 bits)."""
+    if bits < 8:
+        return (1 << bits) - 1
+    return 0xFE << (bits - 8)
+
+
+def dbc_name(signal: str) -> str:
+    """CamelCase DBC name of a column name: ``boom_angle`` -> ``BoomAngle``."""
+    return "".join(part.capitalize() for part in signal.split("_"))
+
+
+def frame_id(pgn: int, source_address: int, priority: int = PRIORITY) -> int:
+    """29-bit J1939 frame id of a PDU2 (broadcast) PGN."""
+    return (priority << 26) | (pgn << 8) | source_address
+
+
+# -- layout ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SignalLayout:
+    """Where one sensor-set signal sits in the generated DBC."""
+
+    signal: str          # column name
+    name: str            # DBC name
+    message: str
+    start: int           # bit
+    bits: int
+    scale: float
+    offset: float
+    minimum: float
+    maximum: float
+    unit: str
+    spn: int
+
+
+@dataclass(frozen=True)
+class MessageLayout:
+    name: str
+    pgn: int
+    frame_id: int
+    signals: tuple[SignalLayout, ...]
+
+
+def signal_bits(span: float, resolution: float) -> int:
+    """16 if ``span / resolution`` raw steps fit the 16-bit J1939 data range, else 32."""
+    steps = math.ceil(span / resolution - 1e-9)
+    for bits in (16, 32):
+        if steps <= valid_raw_max(bits):
+            return bits
+    raise CanConfigError(f"a span of {span:g} at resolution {resolution:g} needs more than 32 bits")
+
+
+def sensor_layout(sensor_set: SensorSet) -> list[MessageLayout]:
+    """Messages of the sensor set's signals, in column order (see the module docstring)."""
+    messages: list[MessageLayout] = []
+    current: list[SignalLayout] = []
+    used = 0
+
+    def close() -> None:
+        nonlocal current, used
+        k = len(messages)
+        name = f"{sensor_set.name.capitalize()}Sensors{k + 1}"
+        pgn = FIRST_SENSOR_PGN + k
+        fixed = tuple(SignalLayout(**{**s.__dict__, "message": name}) for s in current)
+        messages.append(MessageLayout(name, pgn, frame_id(pgn, SENSOR_ADDRESS), fixed))
+        current, used = [], 0
+
+    for i, signal in enumerate(sensor_set.signals):
+        unit = sensor_set.units[signal]
+        if unit not in RESOLUTION:
+            raise CanConfigError(f"no CAN resolution defined for unit {unit!r} (signal {signal})")
+        resolution = RESOLUTION[unit]
+        limit = float(sensor_set.plausible_abs[signal])
+        bits = signal_bits(2 * limit, resolution)
+        if used + bits > 64:
+            close()
+        current.append(SignalLayout(signal, dbc_name(signal), "", used, bits, resolution, -limit,
+                                    -limit, limit, unit, FIRST_PROPRIETARY_SPN + i))
+        used += bits
+    if current:
+        close()
+    return messages
+
+
+def status_names() -> list[str]:
+    """Status codes on the bus: the estimators' :class:`Status` enum in order, then ``stale``
+    (the sensor fell silent; only the CAN runtime knows that) unless the enum has it."""
+    from excavator_payload.estimators.base import Status
+
+    names = [s.value for s in Status]
+    if STALE not in names:
+        names.append(STALE)
+    return names
+
+
+STALE = "stale"
+
+
+# -- DBC text ------------------------------------------------------------------------------------
+def _g(x: float) -> str:
+    """A number as DBC text (shortest round-trip repr, no trailing .0 for integers)."""
+    text = repr(float(x))
+    return text[:-2] if text.endswith(".0") else text
+
+
+def _sg(s: SignalLayout | tuple, receiver: str) -> str:
+    name, start, bits, scale, offset, lo, hi, unit = s
+    return (f' SG_ {name} : {start}|{bits}@1+ ({_g(scale)},{_g(offset)}) [{_g(lo)}|{_g(hi)}] '
+            f'"{unit}" {receiver}')
+
+
+def generate_dbc(sensor_set: SensorSet | str) -> str:
+    """The DBC text of a sensor set (deterministic: the same set gives the same text)."""
+    sensors = get_sensor_set(sensor_set)
+    layout = sensor_layout(sensors)
+    statuses = status_names()
+    lines = [
+        'VERSION ""',
+        "",
+        "NS_ :",
+        "\tCM_",
+        "\tBA_DEF_",
+        "\tBA_",
+        "\tVAL_",
+        "\tBA_DEF_DEF_",
+        "",
+        "BS_:",
+        "",
+        f"BU_: {SENSOR_NODE} {ESTIMATOR_NODE}",
+        "",
+    ]
+    cycle_ms = int(round(1000.0 / sensors.sample_rate))
+    comments = [f'CM_ "Generated by excavator-payload from the {sensors.name} sensor set: '
+                f'{sensors.description}. Do not edit: regenerate.";',
+                f'CM_ BU_ {SENSOR_NODE} "The sensors of the {sensors.name} set, sampled at '
+                f'{_g(sensors.sample_rate)} Hz.";',
+                f'CM_ BU_ {ESTIMATOR_NODE} "The payload virtual sensor.";']
+    attributes = []
+    spns = []
+    for m in layout:
+        lines.append(f"BO_ {m.frame_id | 0x80000000} {m.name}: 8 {SENSOR_NODE}")
+        for s in m.signals:
+            lines.append(_sg((s.name, s.start, s.bits, s.scale, s.offset, s.minimum, s.maximum,
+                              s.unit), ESTIMATOR_NODE))
+            comments.append(f'CM_ SG_ {m.frame_id | 0x80000000} {s.name} "{s.signal} ({s.unit}), '
+                            f'{_g(s.scale)} {s.unit}/bit; raw above {valid_raw_max(s.bits):#x} '
+                            f'= error / not available.";')
+            spns.append(f'BA_ "SPN" SG_ {m.frame_id | 0x80000000} {s.name} {s.spn};')
+        attributes.append(f'BA_ "VFrameFormat" BO_ {m.frame_id | 0x80000000} 3;')
+        attributes.append(f'BA_ "GenMsgCycleTime" BO_ {m.frame_id | 0x80000000} {cycle_ms};')
+        lines.append("")
+
+    est_id = frame_id(ESTIMATE_PGN, ESTIMATOR_ADDRESS) | 0x80000000
+    payload_max = PAYLOAD_OFFSET + PAYLOAD_RESOLUTION * valid_raw_max(16)
+    sigma_max = PAYLOAD_RESOLUTION * valid_raw_max(16)
+    lines += [f"BO_ {est_id} {ESTIMATE_MESSAGE}: 8 {ESTIMATOR_NODE}",
+              _sg(("Payload", 0, 16, PAYLOAD_RESOLUTION, PAYLOAD_OFFSET, PAYLOAD_OFFSET, payload_max,
+                   "kg"), SENSOR_NODE),
+              _sg(("PayloadStatus", 16, 8, 1, 0, 0, len(statuses) - 1, ""), SENSOR_NODE),
+              _sg(("PayloadSigma", 24, 16, PAYLOAD_RESOLUTION, 0, 0, sigma_max, "kg"), SENSOR_NODE),
+              ""]
+    comments += [
+        f'CM_ SG_ {est_id} Payload "Payload estimate, {_g(PAYLOAD_RESOLUTION)} kg/bit; 0xFFFF = no '
+        f'estimate yet.";',
+        f'CM_ SG_ {est_id} PayloadStatus "What the estimate means (see the value table).";',
+        f'CM_ SG_ {est_id} PayloadSigma "One-sigma uncertainty of the estimate; 0xFFFF = not '
+        f'available.";',
+    ]
+    vw_id = frame_id(VEHICLE_WEIGHT_PGN, ESTIMATOR_ADDRESS) | 0x80000000
+    lines += [f"BO_ {vw_id} {VEHICLE_WEIGHT_MESSAGE}: 8 {ESTIMATOR_NODE}",
+              _sg(("AxleLocation", 0, 8, 1, 0, 0, 250, ""), SENSOR_NODE),
+              _sg(("AxleWeight", 8, 16, 0.5, 0, 0, 0.5 * valid_raw_max(16), "kg"), SENSOR_NODE),
+              _sg(("TrailerWeight", 24, 16, 2, 0, 0, 2.0 * valid_raw_max(16), "kg"), SENSOR_NODE),
+              _sg(("CargoWeight", 40, 16, 2, 0, 0, 2.0 * valid_raw_max(16), "kg"), SENSOR_NODE),
+              ""]
+    comments.append(f'CM_ SG_ {vw_id} CargoWeight "The payload in the bucket (never negative).";')
+    for msg_id in (est_id, vw_id):
+        attributes.append(f'BA_ "VFrameFormat" BO_ {msg_id} 3;')
+        attributes.append(f'BA_ "GenMsgCycleTime" BO_ {msg_id} {cycle_ms};')
+    spns += [f'BA_ "SPN" SG_ {est_id} Payload {FIRST_PROPRIETARY_SPN + 4000};',
+             f'BA_ "SPN" SG_ {est_id} PayloadStatus {FIRST_PROPRIETARY_SPN + 4001};',
+             f'BA_ "SPN" SG_ {est_id} PayloadSigma {FIRST_PROPRIETARY_SPN + 4002};',
+             f'BA_ "SPN" SG_ {vw_id} AxleLocation 928;',
+             f'BA_ "SPN" SG_ {vw_id} AxleWeight 180;',
+             f'BA_ "SPN" SG_ {vw_id} TrailerWeight 181;',
+             f'BA_ "SPN" SG_ {vw_id} CargoWeight 182;']
+    lines += comments
+    lines += [
+        'BA_DEF_  "ProtocolType" STRING ;',
+        'BA_DEF_ BO_  "VFrameFormat" ENUM  "StandardCAN","ExtendedCAN","reserved","J1939PG";',
+        'BA_DEF_ BO_  "GenMsgCycleTime" INT 0 65535;',
+        'BA_DEF_ SG_  "SPN" INT 0 524287;',
+        'BA_DEF_ BU_  "NmStationAddress" INT 0 255;',
+        'BA_DEF_DEF_  "ProtocolType" "";',
+        'BA_DEF_DEF_  "VFrameFormat" "J1939PG";',
+        'BA_DEF_DEF_  "GenMsgCycleTime" 0;',
+        'BA_DEF_DEF_  "SPN" 0;',
+        'BA_DEF_DEF_  "NmStationAddress" 254;',
+        'BA_ "ProtocolType" "J1939";',
+        f'BA_ "NmStationAddress" BU_ {SENSOR_NODE} {SENSOR_ADDRESS};',
+        f'BA_ "NmStationAddress" BU_ {ESTIMATOR_NODE} {ESTIMATOR_ADDRESS};',
+        *attributes,
+        *spns,
+        f"VAL_ {est_id} PayloadStatus " + " ".join(f'{i} "{n}"' for i, n in enumerate(statuses)) + " ;",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def shipped_dbc_path(sensor_set: SensorSet | str) -> Path:
+    """Path of the DBC shipped in the package for a sensor set."""
+    name = get_sensor_set(sensor_set).name
+    return Path(str(resources.files("excavator_payload.runtime") / DBC_FOLDER / f"{name}.dbc"))
+
+
+def write_shipped_dbcs() -> list[Path]:
+    """Regenerate the shipped DBC files (developers: after changing a sensor set)."""
+    from excavator_payload.data.schema import SENSOR_SETS
+
+    paths = []
+    for sensors in SENSOR_SETS.values():
+        path = shipped_dbc_path(sensors)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(generate_dbc(sensors))
+        paths.append(path)
+    return paths
+
+
+def load_dbc(path: str | Path) -> cantools.database.can.Database:
+    """A DBC file as a cantools database (one clear line if it cannot be read)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CanConfigError(f"DBC file '{path}' does not exist")
+    try:
+        return cantools.database.load_file(str(path), database_format="dbc", strict=True)
+    except Exception as exc:  # cantools raises many types for bad files
+        raise CanConfigError(f"'{path}' is not a readable DBC file: {exc}") from None
+
+
+@lru_cache(maxsize=8)
+def sensor_set_database(name: str) -> cantools.database.can.Database:
+    """The generated DBC of a sensor set (by name), parsed."""
+    return cantools.database.load_string(generate_dbc(name), database_format="dbc", strict=True)
+
+
+def is_j1939(db) -> bool:
+    """Whether the database declares ``ProtocolType "J1939"``."""
+    try:
+        attr = db.dbc.attributes.get("ProtocolType") if db.dbc is not None else None
+    except AttributeError:
+        return False
+    return attr is not None and str(attr.value) == "J1939"
+
+
+# -- codec -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SignalSource:
+    """Where one of our signals comes from: ``value_SI = factor * dbc_value + offset``."""
+
+    message: str
+    signal: str
+    factor: float = 1.0
+    offset: float = 0.0
+
+
+class SignalCodec:
+    """Frames <-> signals of a sensor set, through a DBC and a signal map.
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+    database : cantools Database
+        The DBC that describes the sensor frames.
+    sources : mapping
+        Our signal name -> :class:`SignalSource` in that DBC (for the generated DBC: each
+        signal's own message and CamelCase name, factor 1).
+    """
+
+    def __init__(self, sensor_set: SensorSet, database, sources: Mapping[str, SignalSource]):
+        self.sensor_set = sensor_set
+        self.database = database
+        self.sources = dict(sources)
+        missing = [s for s in sensor_set.signals if s not in self.sources]
+        if missing:
+            raise CanConfigError(f"the signal map does not say where {', '.join(missing)} come from")
+        self.j1939 = is_j1939(database)
+        self.messages: dict[str, object] = {}
+        self._by_message: dict[str, list[tuple[int, SignalSource]]] = {}
+        for i, signal in enumerate(sensor_set.signals):
+            src = self.sources[signal]
+            try:
+                message = database.get_message_by_name(src.message)
+            except KeyError:
+                raise CanConfigError(f"{signal}: message {src.message!r} is not in the DBC") from None
+            try:
+                message.get_signal_by_name(src.signal)
+            except KeyError:
+                raise CanConfigError(f"{signal}: message {src.message!r} has no signal "
+                                     f"{src.signal!r}") from None
+            if not (math.isfinite(src.factor) and src.factor != 0 and math.isfinite(src.offset)):
+                raise CanConfigError(f"{signal}: the unit factor must be finite and non-zero")
+            self.messages[src.message] = message
+            self._by_message.setdefault(src.message, []).append((i, src))
+        self._by_id = {m.frame_id: m for m in self.messages.values()}
+        self._by_pgn = {_pgn(m.frame_id): m for m in self.messages.values()
+                        if m.is_extended_frame} if self.j1939 else {}
+
+    @classmethod
+    def for_sensor_set(cls, sensor_set: SensorSet | str) -> "SignalCodec":
+        """The codec of the generated (shipped) DBC of a sensor set."""
+        sensors = get_sensor_set(sensor_set)
+        db = sensor_set_database(sensors.name)
+        sources = {s.signal: SignalSource(s.message, s.name)
+                   for m in sensor_layout(sensors) for s in m.signals}
+        return cls(sensors, db, sources)
+
+    @classmethod
+    def from_files(cls, sensor_set: SensorSet, dbc: str | Path | None,
+                   signal_map: str | Path | None) -> "SignalCodec":
+        """Codec of a user's DBC and TOML signal map (both None: the generated DBC)."""
+        if dbc is None and signal_map is None:
+            return cls.for_sensor_set(sensor_set)
+        if dbc is None or signal_map is None:
+            raise CanConfigError("--dbc and --signal-map go together (the map says which DBC signal "
+                                 "is which of ours)")
+        return cls(sensor_set, load_dbc(dbc), read_signal_map(signal_map))
+
+    # -- which frames ------------------------------------------------------------------------
+    @property
+    def message_names(self) -> list[str]:
+        """The messages that carry the sensor set's signals."""
+        return list(self.messages)
+
+    def message_of(self, arbitration_id: int):
+        """The sensor message with this frame id (J1939: any source address), or None."""
+        message = self._by_id.get(arbitration_id)
+        if message is None and self._by_pgn:
+            message = self._by_pgn.get(_pgn(arbitration_id))
+        return message
+
+    # -- decoding ------------------------------------------------------------------------------
+    def decode(self, message, data: bytes) -> list[tuple[int, float]]:
+        """(signal index, SI value) of every one of our signals in a frame of ``message``.
+
+        A frame of the wrong length, a J1939 error / not-available raw value or a value outside
+        the signal's DBC range gives NaN for the signals concerned (never an exception).
+        """
+        targets = self._by_message[message.name]
+        if len(data) != message.length:
+            return [(i, math.nan) for i, _ in targets]
+        try:
+            raw = message.decode(bytes(data), decode_choices=False, scaling=False)
+        except Exception:  # a frame cantools cannot decode is a bad frame, not a crash
+            return [(i, math.nan) for i, _ in targets]
+        out = []
+        for i, src in targets:
+            sig = message.get_signal_by_name(src.signal)
+            value = raw.get(src.signal)
+            if value is None:
+                out.append((i, math.nan))
+                continue
+            if self.j1939 and not sig.is_float and int(value) > valid_raw_max(sig.length):
+                out.append((i, math.nan))
+                continue
+            phys = float(value) * sig.scale + sig.offset
+            if ((sig.minimum is not None and phys < sig.minimum - 0.5 * abs(sig.scale))
+                    or (sig.maximum is not None and phys > sig.maximum + 0.5 * abs(sig.scale))):
+                out.append((i, math.nan))
+                continue
+            out.append((i, src.factor * phys + src.offset))
+        return out
+
+    # -- encoding ------------------------------------------------------------------------------
+    def encode(self, values: Sequence[float]) -> list[tuple[int, bytes, bool]]:
+        """Frames ``(frame id, data, extended)`` of one sample (signals in column order).
+
+        A non-finite value is sent as "not available", a value outside the DBC range as the
+        J1939 error indicator (or clipped in a non-J1939 DBC).
+        """
+        frames = []
+        for name, message in self.messages.items():
+            raw: dict[str, int | float] = {}
+            for i, src in self._by_message[name]:
+                sig = message.get_signal_by_name(src.signal)
+                raw[src.signal] = self._raw(sig, (float(values[i]) - src.offset) / src.factor)
+            for sig in message.signals:  # signals of the message that are not ours
+                if sig.name not in raw:
+                    raw[sig.name] = not_available(sig.length) if self.j1939 else 0
+            data = message.encode(raw, scaling=False, strict=False, padding=True)
+            frames.append((message.frame_id, data, message.is_extended_frame))
+        return frames
+
+    def _raw(self, sig, value: float) -> int | float:
+        if sig.is_float:
+            return value
+        if sig.is_signed:
+            bottom, top = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
+        else:
+            bottom, top = 0, valid_raw_max(sig.length) if self.j1939 else (1 << sig.length) - 1
+        if not math.isfinite(value):
+            return not_available(sig.length) if self.j1939 and not sig.is_signed else 0
+        raw = round((value - sig.offset) / sig.scale)
+        lo = sig.minimum if sig.minimum is not None else -math.inf
+        hi = sig.maximum if sig.maximum is not None else math.inf
+        if raw < bottom or raw > top or value < lo - abs(sig.scale) / 2 or value > hi + abs(sig.scale) / 2:
+            if self.j1939 and not sig.is_signed:
+                return error_indicator(sig.length)
+            raw = min(max(raw, bottom), top)
+        return int(raw)
+
+    def quantise(self, values: np.ndarray) -> np.ndarray:
+        """What the receiver decodes from ``values`` (rows of samples): encode then decode."""
+        values = np.atleast_2d(np.asarray(values, dtype=float))
+        out = np.full_like(values, np.nan)
+        for r, row in enumerate(values):
+            for fid, data, _ in self.encode(row):
+                message = self._by_id[fid]
+                for i, v in self.decode(message, data):
+                    out[r, i] = v
+        return out
+
+
+def _pgn(arbitration_id: int) -> int:
+    """PGN of a 29-bit J1939 id (PDU1: destination address dropped)."""
+    pgn = (arbitration_id >> 8) & 0x3FFFF
+    if ((pgn >> 8) & 0xFF) < 240:
+        pgn &= 0x3FF00
+    return pgn
+
+
+def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
+    """Read a TOML signal map.
+
+    Format (one table per signal of the sensor set; ``factor``/``offset`` convert the DBC's
+    unit to SI, ``SI = factor * dbc_value + offset``, default 1 and 0)::
+
+        [signals.boom_angle]
+        message = "ArmAngles"
+        signal = "BoomAngleDeg"
+        factor = 0.017453292519943295   # deg -> rad
+    """
+    import tomllib
+
+    path = Path(path)
+    if not path.is_file():
+        raise CanConfigError(f"signal map '{path}' does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CanConfigError(f"signal map '{path}' is not valid TOML: {exc}") from None
+    table = data.get("signals")
+    if not isinstance(table, dict) or not table:
+        raise CanConfigError(f"signal map '{path}' has no [signals.<name>] tables")
+    out = {}
+    for name, entry in table.items():
+        if not isinstance(entry, dict) or not {"message", "signal"} <= set(entry):
+            raise CanConfigError(f"signal map '{path}': [signals.{name}] needs 'message' and 'signal'")
+        try:
+            out[name] = SignalSource(str(entry["message"]), str(entry["signal"]),
+                                     float(entry.get("factor", 1.0)), float(entry.get("offset", 0.0)))
+        except (TypeError, ValueError):
+            raise CanConfigError(f"signal map '{path}': [signals.{name}] factor/offset must be "
+                                 "numbers") from None
+    return out
+
+
+def estimate_database():
+    """The database that holds the PayloadEstimate and VehicleWeight messages (any set's)."""
+    return sensor_set_database("thesis")
+

@@ -1,0 +1,208 @@
+"""The execution layer: where tasks run, shared arguments, retries, lost workers, clean shutdown,
+and the same simulated bits in this process, on a local cluster and on a cluster started with
+``dask scheduler`` / ``dask worker``."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+import excavator_payload
+from excavator_payload.execution import SCHEDULER_ENV, Execution, SchedulerError, Shared, scheduler_address
+from excavator_payload.simulation.generate import simulate_dataset
+
+SRC = str(Path(excavator_payload.__file__).resolve().parents[1])
+
+
+# -- task functions (module level: the workers import them by name) -----------------------------
+def pid_and_square(x):
+    return os.getpid(), x * x
+
+
+def length_of(shared, extra):
+    return len(shared) + extra
+
+
+def fail_first_time(marker):
+    """Raises on the first call (leaving a marker file), succeeds afterwards."""
+    marker = Path(marker)
+    if not marker.exists():
+        marker.write_text("failed once")
+        raise RuntimeError("transient failure")
+    return "ok"
+
+
+def die_first_time(marker):
+    """Kills its own worker process on the first call: the task must be rerun elsewhere."""
+    marker = Path(marker)
+    if not marker.exists():
+        marker.write_text(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+    return os.getpid()
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """One local cluster of two worker processes for this module."""
+    with Execution(workers=2) as execution:
+        execution.client.wait_for_workers(2, timeout=60)
+        yield execution
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    # A zombie (exited, not yet reaped) is not alive either.
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
+
+
+def _wait_dead(pids, timeout=20.0) -> list[int]:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        alive = [p for p in pids if _alive(p)]
+        if not alive:
+            return []
+        time.sleep(0.2)
+    return [p for p in pids if _alive(p)]
+
+
+# -- addresses --------------------------------------------------------------------------------
+def test_scheduler_address_from_argument_or_environment(monkeypatch):
+    monkeypatch.delenv(SCHEDULER_ENV, raising=False)
+    assert scheduler_address(None) is None
+    assert scheduler_address("10.0.0.5:8786") == "tcp://10.0.0.5:8786"
+    monkeypatch.setenv(SCHEDULER_ENV, "tcp://head:8786")
+    assert scheduler_address(None) == "tcp://head:8786"
+    assert scheduler_address("other:1") == "tcp://other:1"  # the option wins
+    with pytest.raises(SchedulerError, match="HOST:PORT"):
+        scheduler_address("no-port")
+
+
+def test_unreachable_scheduler_is_a_clear_error(monkeypatch):
+    monkeypatch.setattr("excavator_payload.execution.CONNECT_TIMEOUT", 1.0)
+    with Execution("tcp://127.0.0.1:9") as execution, pytest.raises(SchedulerError, match="cannot reach"):
+        execution.map(pid_and_square, [(1,), (2,)], progress=False)
+
+
+def test_bad_worker_count():
+    with pytest.raises(excavator_payload.errors.ExcavatorPayloadError, match="workers"):
+        Execution(workers=0)
+
+
+# -- in this process ----------------------------------------------------------------------------
+def test_one_worker_or_one_task_runs_in_this_process():
+    with Execution(workers=1) as execution:
+        results = execution.map(pid_and_square, [(2,), (3,)], progress=False)
+        assert execution._cluster is None
+    assert results == [(os.getpid(), 4), (os.getpid(), 9)]
+    with Execution(workers=2) as execution:
+        assert execution.map(length_of, [(Shared([1, 2]), 1)], progress=False) == [3]
+        assert execution._cluster is None
+
+
+# -- on a local cluster ------------------------------------------------------------------------
+def test_results_in_task_order_and_callbacks_as_they_finish(cluster):
+    seen = []
+    results = cluster.map(pid_and_square, [(k,) for k in range(6)], progress=False,
+                          on_done=lambda i, r: seen.append(i))
+    assert [r[1] for r in results] == [k * k for k in range(6)]
+    assert sorted(seen) == list(range(6))
+    assert os.getpid() not in {r[0] for r in results}
+
+
+def test_shared_arguments_reach_every_task(cluster):
+    big = list(range(1000))
+    assert cluster.map(length_of, [(Shared(big), k) for k in range(3)], progress=False) == [1000, 1001, 1002]
+
+
+def test_a_failing_task_is_retried(cluster, tmp_path):
+    assert cluster.map(fail_first_time, [(str(tmp_path / "m1"),), (str(tmp_path / "m2"),)],
+                       progress=False) == ["ok", "ok"]
+
+
+def test_a_task_whose_worker_dies_is_rerun(cluster, tmp_path):
+    marker = tmp_path / "died"
+    pids = cluster.map(die_first_time, [(str(marker),), (str(tmp_path / "other"),)], progress=False)
+    assert int(marker.read_text()) not in pids  # the first attempt's worker is gone
+    cluster.client.wait_for_workers(2, timeout=60)  # the nanny started a new one
+
+
+def test_same_bits_on_a_local_cluster(cluster):
+    here = simulate_dataset(3, seed=31, workers=1, noise="thesis", with_truth=True, progress=False)
+    there = simulate_dataset(3, seed=31, noise="thesis", with_truth=True, progress=False, execution=cluster)
+    pd.testing.assert_frame_equal(here.frame, there.frame, check_exact=True)
+
+
+def test_workers_do_not_outlive_the_execution():
+    with Execution(workers=2) as execution:
+        execution.map(pid_and_square, [(1,), (2,)], progress=False)
+        pids = list(execution.client.run(os.getpid).values())
+    assert pids and _wait_dead(pids) == []
+
+
+def test_workers_die_with_a_killed_parent(tmp_path):
+    """kill -9 of the command leaves no worker process behind."""
+    script = textwrap.dedent(f"""
+        import json, os, sys, time
+        sys.path.insert(0, {SRC!r})
+        from excavator_payload.execution import Execution
+        if __name__ == "__main__":
+            with Execution(workers=2) as ex:
+                ex.client.wait_for_workers(2, timeout=60)
+                print(json.dumps(list(ex.client.run(os.getpid).values())), flush=True)
+                time.sleep(120)
+    """)
+    path = tmp_path / "parent.py"
+    path.write_text(script)
+    parent = subprocess.Popen([sys.executable, str(path)], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = json.loads(parent.stdout.readline())
+    finally:
+        parent.kill()
+        parent.wait(timeout=30)
+    assert len(pids) == 2 and _wait_dead(pids) == []
+
+
+# -- a cluster started from the command line -----------------------------------------------------
+def test_same_bits_on_a_scheduler_and_worker_started_with_the_dask_command(tmp_path):
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([SRC, os.environ.get("PYTHONPATH", "")])}
+    address_file = tmp_path / "scheduler.json"
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0",
+                               "--no-dashboard", "--scheduler-file", str(address_file)],
+                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.monotonic() + 30
+        while not address_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        address = json.loads(address_file.read_text())["address"]
+        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nworkers", "2",
+                                       "--nthreads", "1", "--no-dashboard"],
+                                      env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        with Execution(address) as execution:
+            execution.client.wait_for_workers(2, timeout=60)
+            there = simulate_dataset(3, seed=31, noise="thesis", with_truth=True, progress=False,
+                                     execution=execution)
+            assert os.getpid() not in execution.client.run(os.getpid).values()
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+    here = simulate_dataset(3, seed=31, workers=1, noise="thesis", with_truth=True, progress=False)
+    pd.testing.assert_frame_equal(here.frame, there.frame, check_exact=True)
+    assert here.meta["experiments"][0]["payload"] == there.meta["experiments"][0]["payload"]
