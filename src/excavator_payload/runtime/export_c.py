@@ -776,6 +776,8 @@ static int ep_model_innovation(const ep_state *s, ep_real time, const ep_real v[
             }
         }
     }
+#else
+    (void)ep_model_innovation;  /* compiled but unused: the gate is off */
 #endif"""
     else:
         gate_defs = "/* no noise model: no statistical gate (Estimator._innovation is None) */"
