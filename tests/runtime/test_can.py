@@ -58,6 +58,34 @@ def test_record_replay_equals_batch(tmp_path, swings, estimator, suffix):
                   - exact["payload_estimate"].to_numpy()[ok]).max() < dbc.PAYLOAD_RESOLUTION
 
 
+def test_replay_equals_batch_with_the_gate_and_publishes_sigma(tmp_path, swings, estimator):
+    """Torque glitches through the CAN sensor: the same rejections, re-initialisation and sigma
+    as batch ``estimate``, and ``PayloadSigma`` in the published frame."""
+    codec = SignalCodec.for_sensor_set(swings.sensor_set)
+    frame = swings.frame.copy()
+    ids = list(swings.experiment_ids)
+    first = frame.index[frame["experiment"] == ids[0]]
+    second = frame.index[frame["experiment"] == ids[1]]
+    frame.loc[first[[40, 60]], "boom_torque"] += 1e5                 # 100 sigma of torque noise
+    frame.loc[second[30:38], "dipper_torque"] -= 1e5                 # a run: lock-out guard
+    glitched = Dataset(frame, swings.meta)
+    log = tmp_path / "glitched.blf"
+    record_dataset(glitched, log)
+    sensor = PayloadSensor(estimator)
+    out = replay_log(log, sensor)
+    batch = estimator.estimate(quantised(glitched, codec))
+    assert list(out["status"]) == list(batch["status"])
+    assert {"rejected_outlier", "reinitialised"} <= set(batch["status"])
+    np.testing.assert_allclose(out["payload_estimate"], batch["payload_estimate"], rtol=1e-12)
+    np.testing.assert_allclose(out["payload_sigma"], batch["sigma"], rtol=1e-12)
+    assert np.isfinite(batch["sigma"]).sum() > 250
+    # the last output goes out with its sigma, at the DBC's resolution
+    last = sensor.last_output
+    payload, status, sigma = sensor.encoder.decode(sensor.frames(last)[0])
+    assert status == last.status and math.isfinite(last.sigma)
+    assert abs(sigma - last.sigma) <= dbc.PAYLOAD_RESOLUTION
+
+
 def _frames(codec, values, t):
     return [can.Message(timestamp=t, arbitration_id=fid, data=data, is_extended_id=ext)
             for fid, data, ext in codec.encode(values)]

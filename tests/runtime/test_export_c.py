@@ -1,5 +1,7 @@
 """C export: compiles cleanly under strict C99, equals Python's estimate (double: 1e-6 relative,
-float: 0.1 kg), status codes included, on simulated experiments with faults injected."""
+float: 0.1 kg), status codes and ``ep_sigma`` included, on simulated experiments with faults
+injected and on hostile streams (glitches, non-finite and huge values, time going back, gaps,
+a run of glitches long enough to re-initialise)."""
 
 import re
 
@@ -9,10 +11,11 @@ import pytest
 from excavator_payload.cli import main
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
-from excavator_payload.estimators.base import Status, create_estimator
+from excavator_payload.estimators.base import Status, create_estimator, gate_threshold
 from excavator_payload.runtime.c_harness import build, c_compiler
 from excavator_payload.runtime.export_c import export_c
 from excavator_payload.simulation.generate import simulate_dataset
+from excavator_payload.simulation.sensors import get_noise_preset
 
 pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
 
@@ -41,6 +44,63 @@ def faulty(swings):
     return Dataset(frame, swings.meta)
 
 
+@pytest.fixture(scope="module")
+def hostile(swings):
+    """The swings as an ECU may see them: isolated torque glitches of 10, 100 and 1000 noise
+    sigmas (the gate's rejected_outlier), NaN, ±inf, 1e308 (invalid or implausible), 1e30 (finite
+    even in float, implausible), time going back, a 0.2 s and a 2 s gap, and a run of eight
+    glitches (five rejections, then the lock-out guard re-initialises)."""
+    frame = swings.frame.copy()
+    std = get_noise_preset("thesis").std
+    ids = list(swings.experiment_ids)
+    rows = {e: frame.index[frame["experiment"] == e] for e in ids}
+    r0, r1, r2, r3 = (rows[e] for e in ids)
+    for k, factor in zip((40, 50, 60), (10, 100, 1000)):
+        frame.loc[r0[k], "boom_torque"] += factor * std["boom_torque"]
+    frame.loc[r0[70], "dipper_torque"] -= 100 * std["dipper_torque"]
+    frame.loc[r0[30], "boom_angle"] = np.nan
+    frame.loc[r0[31], "dipper_rate"] = np.inf
+    frame.loc[r0[32], "boom_accel"] = -np.inf
+    frame.loc[r0[33], "dipper_torque"] = 1e308
+    frame.loc[r0[34], "boom_torque"] = -1e30
+    frame.loc[r1[45], "time"] = frame.loc[r1[44], "time"] - 0.5      # time goes back
+    frame.loc[r1[46], "time"] = np.nan
+    frame.loc[r2[30:38], "dipper_torque"] += 1000 * std["dipper_torque"]  # lock-out path
+    frame.loc[r2[60], "boom_torque"] += 30 * std["boom_torque"]
+    drop = list(r3[20:24]) + list(r3[50:90])                          # 0.2 s and 2 s gaps
+    frame = frame.drop(index=drop).reset_index(drop=True)
+    return Dataset(frame, swings.meta)
+
+
+def _as_float32(dataset):
+    """What a single-precision ECU receives: time and signals rounded to float."""
+    frame = dataset.frame.copy()
+    columns = ["time", *dataset.sensor_set.signals]
+    with np.errstate(over="ignore"):
+        frame[columns] = frame[columns].to_numpy(dtype=np.float32).astype(float)
+    return Dataset(frame, dataset.meta)
+
+
+def _assert_c_equals_python(est, c_file, dataset, folder, single, round_inputs=False, extra_flags=()):
+    """C statuses, estimates and ep_sigma equal Python's ``estimate`` sample by sample."""
+    reference = _as_float32(dataset) if round_inputs else dataset
+    py = est.estimate(reference)
+    want, want_sigma = py["payload_estimate"].to_numpy(), py["sigma"].to_numpy()
+    want_status = np.array([CODES[s] for s in py["status"]])
+    got, status, sigma = build(c_file, folder, single=single, extra_flags=extra_flags).run(dataset)
+    np.testing.assert_array_equal(status, want_status)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_array_equal(np.isnan(sigma), np.isnan(want_sigma))
+    ok, ok_sigma = ~np.isnan(want), ~np.isnan(want_sigma)
+    if single:
+        assert np.abs(got[ok] - want[ok]).max(initial=0.0) <= 0.1
+        np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-4)
+    else:
+        np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-6)
+    return py
+
+
 def _models(swings):
     yield "inverse-dynamics", create_estimator("inverse-dynamics").fit(swings)
     yield "calibrated", create_estimator("calibrated", machine="cat345c-3pct").fit(swings)
@@ -63,15 +123,43 @@ def test_c_equals_python(name, models, faulty, tmp_path):
     want = py["payload_estimate"].to_numpy()
     want_status = np.array([CODES[s] for s in py["status"]])
     assert len(set(want_status)) >= 4  # the faults exercise several statuses
-    for single, tol in ((False, None), (True, 0.1)):
-        got, status = build(paths[1], tmp_path / "build", single=single).run(faulty)
-        np.testing.assert_array_equal(status, want_status)
-        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
-        ok = ~np.isnan(want)
-        if tol is None:
-            np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6, atol=1e-6)
-        else:
-            assert np.abs(got[ok] - want[ok]).max() <= tol
+    assert not np.isnan(want).all()
+    for single in (False, True):
+        _assert_c_equals_python(est, paths[1], faulty, tmp_path / "build", single)
+
+
+@pytest.mark.parametrize("name", ["inverse-dynamics", "calibrated", "ekf", "ekf-thesis", "net1", "net2"])
+def test_c_equals_python_on_hostile_streams(name, models, hostile, tmp_path):
+    est = models[name]
+    paths = export_c(est, tmp_path / "export")
+    py = None
+    for single in (False, True):
+        # in float the ECU sees float inputs (1e308 is inf there): Python gets the same stream
+        py = _assert_c_equals_python(est, paths[1], hostile, tmp_path / "build", single,
+                                     round_inputs=single)
+    seen = set(py["status"])
+    assert {"invalid_input", "out_of_range", "gap"} <= seen
+    # the models whose gate sees the torques (the thesis-tuned EKF gates angles and rates only,
+    # with its Q = 1e6 I nothing is ever out of its gate)
+    if name in ("inverse-dynamics", "calibrated", "ekf"):
+        assert {"rejected_outlier", "reinitialised"} <= seen
+        assert np.isfinite(py["sigma"]).any()
+
+
+def test_gate_off_and_constants(models, hostile, tmp_path):
+    """-DEP_GATING=0 is ``Estimator.gating = False``; the gate's quantile is scipy's."""
+    est = models["inverse-dynamics"]
+    paths = export_c(est, tmp_path / "export")
+    source = paths[1].read_text()
+    threshold = float(re.search(r"#define EP_GATE_THRESHOLD EP_C\((.*)\)", source).group(1))
+    assert threshold == gate_threshold(2)
+    est.gating = False
+    try:
+        py = _assert_c_equals_python(est, paths[1], hostile, tmp_path / "off", False,
+                                     extra_flags=("-DEP_GATING=0",))
+    finally:
+        est.gating = True
+    assert "rejected_outlier" not in set(py["status"])
 
 
 def test_interface_and_purity(models, tmp_path):
@@ -91,7 +179,7 @@ def test_interface_and_purity(models, tmp_path):
     # the generated CasADi code leaves no public symbol behind
     c_id = export_c(models["ekf"], tmp_path / "ekf")[1].read_text()
     public = re.findall(r"^(?!static)(?:int|void|double|float|ep_real|const) [\w *]*\w+\(", c_id, re.M)
-    assert sorted(p.split("(")[0].split()[-1] for p in public) == ["ep_reset", "ep_step"]
+    assert sorted(p.split("(")[0].split()[-1] for p in public) == ["ep_reset", "ep_sigma", "ep_step"]
 
 
 def test_export_errors_and_cli(models, swings, tmp_path):

@@ -63,6 +63,8 @@ int main(int argc, char **argv)
                 for (j = 0; j < EP_N_SIGNALS; ++j) v[j] = (ep_real)rows[i][j + 1];
                 sink += (double)ep_step(&s, (ep_real)rows[i][0], v, &est);
                 if (est == est) sink += (double)est;
+                est = ep_sigma(&s);  /* the sigma accessor is part of a published sample */
+                if (est == est) sink += (double)est;
             }
         }
         printf("%.6f %g\n", 1e9 * (double)(clock() - t0) / CLOCKS_PER_SEC / ((double)reps * n), sink);
@@ -74,7 +76,7 @@ int main(int argc, char **argv)
         if (starts[i]) ep_reset(&s);
         for (j = 0; j < EP_N_SIGNALS; ++j) v[j] = (ep_real)rows[i][j + 1];
         status = ep_step(&s, (ep_real)rows[i][0], v, &est);
-        printf("%.17g %d\n", (double)est, status);
+        printf("%.17g %d %.17g\n", (double)est, status, (double)ep_sigma(&s));
     }
     return 0;
 }
@@ -119,13 +121,14 @@ class CBuild:
         return int(subprocess.run([str(self.binary), "size"], check=True, capture_output=True,
                                   text=True).stdout)
 
-    def run(self, dataset: Dataset, signals=None) -> tuple[np.ndarray, np.ndarray]:
-        """Estimates and status codes of every sample (reset at each experiment)."""
+    def run(self, dataset: Dataset, signals=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Estimates, status codes and ``ep_sigma`` of every sample (reset at each experiment)."""
         out = subprocess.run([str(self.binary)], input=_rows(dataset, signals), check=True,
                              capture_output=True, text=True, timeout=120).stdout.split()
-        est = np.array([float(v) for v in out[0::2]])
-        status = np.array([int(v) for v in out[1::2]])
-        return est, status
+        est = np.array([float(v) for v in out[0::3]])
+        status = np.array([int(v) for v in out[1::3]])
+        sigma = np.array([float(v) for v in out[2::3]])
+        return est, status, sigma
 
     def bench(self, dataset: Dataset, repetitions: int) -> float:
         """Mean time of one ``ep_step``, ns (CPU time over all samples × repetitions)."""

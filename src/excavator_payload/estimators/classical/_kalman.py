@@ -278,6 +278,12 @@ def ekf_step_symbolic(machine: Machine, abs_payload: bool, torque_channel: bool)
 
 @lru_cache(maxsize=16)
 def gate_function(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
+    """:func:`gate_symbolic`, compiled to C when a compiler is available."""
+    return native(gate_symbolic(machine, abs_payload, torque_channel))
+
+
+@lru_cache(maxsize=16)
+def gate_symbolic(machine: Machine, abs_payload: bool, torque_channel: bool) -> ca.Function:
     r"""Normalised innovation squared of a sample at the prior, as one compiled function.
 
     Inputs ``x, P, y`` (4 or 6), ``a``, ``R`` (4×4), ``torque_cov``, ``accel_cov``; output
@@ -305,8 +311,8 @@ def gate_function(machine: Machine, abs_payload: bool, torque_channel: bool) -> 
     nu = y - h
     nis = nu.T @ scaled_solve(S, nu, S)
     tag = _c_name(machine.name) + ("_abs" if abs_payload else "") + ("_tau" if torque_channel else "")
-    return native(ca.Function(f"kalman_gate_{tag}", [x, P, y, a, R_qqd, torque_cov, accel_cov],
-                              [ca.cse(nis)], ["x", "P", "y", "a", "R", "torque_cov", "accel_cov"], ["nis"]))
+    return ca.Function(f"kalman_gate_{tag}", [x, P, y, a, R_qqd, torque_cov, accel_cov],
+                       [ca.cse(nis)], ["x", "P", "y", "a", "R", "torque_cov", "accel_cov"], ["nis"])
 
 
 def joseph_update(x, P, innovation, H, R):

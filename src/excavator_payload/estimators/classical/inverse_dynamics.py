@@ -113,6 +113,8 @@ BASE_PARAMETER_NAMES = ("A", "B", "C", "D", "E", "boom_friction", "dipper_fricti
 PAYLOAD_PARAMETER_NAMES = ("l1^2", "l2^2", "l1*l2", "g*l1", "g*l2")
 #: Kinematic signals, in :data:`SIGNALS` order (the order of the Jacobian's columns).
 KINEMATIC_SIGNALS = SIGNALS[:6]
+#: A time gap up to this long (s) keeps the least-squares sums; a longer one restarts.
+MAX_BRIDGED_GAP = 1.0
 #: Torque standard deviation used when a noise preset has none (noise-free data), N·m: keeps
 #: the weights finite; it only scales the reported uncertainty, not the estimate.
 TORQUE_STD_FLOOR = 1.0
@@ -290,18 +292,18 @@ def information_terms(values, theta_empty, theta_payload, variances, weight_payl
 
 
 def residual_nis(values, theta_empty, theta_payload, variances, payload: float,
-                 payload_var: float) -> float:
+                 payload_var: float, trig=math) -> float:
     r"""Normalised squared torque residual of one sample at the current payload estimate.
 
     :math:`r^\top (R + \varphi\varphi^\top \sigma_m^2)^{-1} r` with
     :math:`r = \tau - \tau_0 - m\varphi` and :math:`R = \Sigma_\tau + J\Sigma_x J^\top` the
     sensors' full residual covariance (whatever the ``weighting`` option): chi-square with 2
     degrees of freedom for a sample the noise model describes. Plain float math, as
-    :func:`information_terms`.
+    :func:`information_terms` (``trig=casadi`` builds the C export's copy of it).
     """
     q1, qd1, qdd1, q2, qd2, qdd2, t1, t2 = values
-    s1, c1, s2, c2 = math.sin(q1), math.cos(q1), math.sin(q2), math.cos(q2)
-    s12, c12 = math.sin(q1 + q2), math.cos(q1 + q2)
+    s1, c1, s2, c2 = trig.sin(q1), trig.cos(q1), trig.sin(q2), trig.cos(q2)
+    s12, c12 = trig.sin(q1 + q2), trig.cos(q1 + q2)
     A0, B0, C0, D0, E0, F1, F2 = theta_empty
     a, b, c, d, e = theta_payload
     (ya1, _), (yb, _), (yc1, yc2), _, _, _, _ = _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2)
@@ -500,7 +502,7 @@ class InverseDynamicsEstimator(Estimator):
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Samples are independent equations: a gap of up to 1 s keeps the sums, a longer one
         (or time going back: a new lift) restarts."""
-        if self._last_time is None or not 0.0 < time - self._last_time <= 1.0:
+        if self._last_time is None or not 0.0 < time - self._last_time <= MAX_BRIDGED_GAP:
             self._reset()
 
     @property
