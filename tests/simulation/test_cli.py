@@ -91,7 +91,7 @@ def test_real_ctrl_c_on_a_local_cluster_keeps_chunks_and_leaves_no_worker(tmp_pa
     folder = tmp_path / "d.parquet.partial"
     deadline = time.monotonic() + 120
     children = []
-    while time.monotonic() < deadline and not list(folder.glob("chunk_*.parquet")):
+    while time.monotonic() < deadline and not list(folder.glob("chunk_*.parquet")) and proc.poll() is None:
         children = psutil.Process(proc.pid).children(recursive=True) or children
         time.sleep(0.2)
     children = psutil.Process(proc.pid).children(recursive=True) or children
