@@ -28,7 +28,10 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
@@ -86,6 +89,28 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+@contextmanager
+def _interrupts_ignored():
+    """Ctrl-C is ignored while the local workers start: they inherit that (a terminal's Ctrl-C
+    reaches every process of the group; the command, not its workers, handles it)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def dask_setup(worker) -> None:
+    """Dask preload hook, run by every local worker as it starts (also one its nanny restarts
+    after a crash): the workers ignore Ctrl-C; the command stops them itself, without a
+    traceback from each worker."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _quiet_dask() -> None:
@@ -172,12 +197,13 @@ class Execution:
                                      f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
         import dask
 
-        with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG):
+        with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG), _interrupts_ignored():
             # Without a dashboard the scheduler still serves health checks, on another port if
             # 8787 is taken (a second cluster): nothing the user needs to hear about.
             warnings.filterwarnings("ignore", message="Port .* is already in use")
             self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None, silence_logs=logging.ERROR)
+                                         dashboard_address=None, silence_logs=logging.ERROR,
+                                         preload=[__name__])
         return Client(self._cluster, set_as_default=False)
 
     # -- running ------------------------------------------------------------------------------

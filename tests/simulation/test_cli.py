@@ -65,3 +65,45 @@ def test_bad_scheduler_address_is_one_line(tmp_path, capsys):
     assert main(["simulate", "-n", "2", "--out", str(tmp_path / "x.parquet"), "--scheduler", "nowhere"]) == 2
     err = capsys.readouterr().err
     assert "tcp://HOST:PORT" in err and "Traceback" not in err
+
+
+def test_real_ctrl_c_on_a_local_cluster_keeps_chunks_and_leaves_no_worker(tmp_path):
+    """SIGINT to the whole process group, as a terminal's Ctrl-C: exit 130 with the message, the
+    finished chunks kept, and no worker process left behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    import psutil
+
+    import excavator_payload
+
+    src = str(Path(excavator_payload.__file__).resolve().parents[1])
+    out = tmp_path / "d.parquet"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-c", "from excavator_payload.cli import run; run()", "simulate",
+                             "-n", "80", "--out", str(out), "--workers", "2", "--quiet"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    folder = tmp_path / "d.parquet.partial"
+    deadline = time.monotonic() + 120
+    children = []
+    while time.monotonic() < deadline and not list(folder.glob("chunk_*.parquet")) and proc.poll() is None:
+        children = psutil.Process(proc.pid).children(recursive=True) or children
+        time.sleep(0.2)
+    children = psutil.Process(proc.pid).children(recursive=True) or children
+    assert list(folder.glob("chunk_*.parquet")), "no chunk finished in time"
+    os.killpg(proc.pid, signal.SIGINT)
+    try:
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "rerun the same command to resume" in err and "Traceback" not in err
+    assert list(folder.glob("chunk_*.parquet")) and not out.exists()
+    gone, alive = psutil.wait_procs(children, timeout=20)
+    assert not alive
