@@ -70,6 +70,9 @@ class KalmanEstimatorBase(Estimator):
 
     OPTIONS = COMMON_OPTIONS
     NEEDS_MACHINE = True
+    #: On the machine sensor set (a hydraulic machine) the kernel is
+    #: :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman`.
+    SENSOR_SETS = ("thesis", "machine")
 
     def __init__(self, machine=None, **options):
         super().__init__(machine, **options)
@@ -84,10 +87,22 @@ class KalmanEstimatorBase(Estimator):
         self._P: np.ndarray | None = None
         self._n_filtered = 0
         self._posterior_std = math.nan
-        self._bounds = kf.payload_bounds(self.machine)
+        self._machine_filter = None  # the machine sensor set's kernel, once fitted on such data
+        if not self._hydraulic:
+            self._bounds = kf.payload_bounds(self.machine)
+
+    @property
+    def _hydraulic(self) -> bool:
+        return getattr(self.machine, "kind", None) == "hydraulic"
 
     # -- fitting ---------------------------------------------------------------------------
     def _fit(self, dataset: Dataset) -> None:
+        if dataset.sensor_set.name == "machine":
+            self._fit_machine_set(dataset)
+            return
+        if self._hydraulic:
+            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
+                                 "with machine-sensor-set data")
         if self.options["tuning"] == "thesis":
             self.tuning = kf.thesis_tuning(self.machine)
             return
@@ -96,11 +111,51 @@ class KalmanEstimatorBase(Estimator):
         self.tuning = kf.consistent_tuning(self.machine, noise, angle_trunc, rate_trunc,
                                            self.options["payload_walk"])
 
+    # -- machine sensor set ----------------------------------------------------------------
+    def _fit_machine_set(self, dataset: Dataset) -> None:
+        from excavator_payload.estimators.classical import _kalman_machine as km
+
+        if not self._hydraulic:
+            raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
+                                 f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
+        if self.options["tuning"] != "consistent":
+            raise EstimatorError(f"{self.name}: the thesis tuning belongs to the thesis sensor set; "
+                                 "use --tuning consistent on machine-sensor-set data")
+        tuning = km.machine_tuning(dataset, self.options["noise"], self.options["payload_walk"])
+        self._machine_filter = self._make_machine_filter(tuning)
+
+    def _make_machine_filter(self, tuning):
+        from excavator_payload.estimators.classical import _kalman_machine as km
+
+        return km.MachineKalman(self.machine, tuning, unscented=False)
+
+    def _machine_step(self, values: np.ndarray) -> StepResult:
+        """One sample of the machine-set kernel, with the same status rules as the thesis set."""
+        mk = self._machine_filter
+        if not mk.step(values):
+            return StepResult(self._last_estimate, Status.INVALID)
+        self._n_filtered += 1
+        self._posterior_std = mk.payload_std
+        estimate = mk.estimate
+        if (self._n_filtered <= self.options["warmup_samples"]
+                or self._posterior_std > self.options["converged_std"]):
+            return StepResult(estimate, Status.WARMING_UP)
+        return StepResult(estimate, Status.OK)
+
+    def _in_range(self, values: np.ndarray) -> bool:
+        if not self._hydraulic:
+            return super()._in_range(values)
+        ranges = self.machine.angle_ranges
+        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
+        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
+
     def _reset(self) -> None:
         self._x = None
         self._P = None
         self._n_filtered = 0  # samples since the filter (re)started (a gap restarts it too)
         self._posterior_std = math.nan
+        if self._machine_filter is not None:
+            self._machine_filter.reset()
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Bridge a short gap (missing or rejected samples); restart after a long one.
@@ -111,6 +166,12 @@ class KalmanEstimatorBase(Estimator):
         the random walk over the gap, :math:`P_{mm} \\mathrel{+}= \\sigma_w^2 \\Delta t`.
         """
         dt = time - self._last_time if self._last_time is not None else math.inf
+        if self._machine_filter is not None:
+            if self._machine_filter.x is None or not 0.0 < dt <= self.options["max_gap"]:
+                self._reset()
+            else:
+                self._machine_filter.restart_kinematics(values, dt)
+            return
         if self._x is None or not 0.0 < dt <= self.options["max_gap"]:
             self._reset()
             return
@@ -160,12 +221,23 @@ class KalmanEstimatorBase(Estimator):
         """(Re)create the compiled functions the filter steps with."""
 
     def _config(self) -> dict:
+        if self._machine_filter is not None:
+            return self._machine_filter.tuning.config()
         return self.tuning.config()
 
     def _arrays(self) -> dict[str, np.ndarray]:
+        if self._machine_filter is not None:
+            return self._machine_filter.tuning.arrays()
         return self.tuning.arrays()
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        if config.get("sensor_set") == "machine":
+            from excavator_payload.estimators.classical import _kalman_machine as km
+
+            if not self._hydraulic:
+                raise EstimatorError(f"saved {self.name} of the machine sensor set has no hydraulic machine")
+            self._machine_filter = self._make_machine_filter(km.MachineTuning.restore(config, arrays))
+            return
         self.tuning = kf.Tuning.restore(config, arrays)
         if self.tuning.name != self.options["tuning"]:
             raise EstimatorError(f"saved {self.name} is inconsistent: option --tuning "
@@ -197,7 +269,8 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
         super()._restore(config, arrays)
-        self._build_runtime()
+        if self._machine_filter is None:
+            self._build_runtime()
 
     def _build_runtime(self) -> None:
         tuning = self.tuning
@@ -215,6 +288,8 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
     _NEXT_DIAG = _POST_DIAG + 30
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
+        if self._machine_filter is not None:
+            return self._machine_step(values)
         if self._x is None:
             self._x, self._P = kf.initial_state(self.tuning, values)
         packed = self._step_function.evaluate(self._x, self._P, values[self._y_index],

@@ -120,7 +120,15 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
             raise EstimatorError("ukf: α²(n + κ) must be positive; increase --alpha or --kappa")
         self._build_runtime()
 
+    def _make_machine_filter(self, tuning):
+        from excavator_payload.estimators.classical import _kalman_machine as km
+
+        return km.MachineKalman(self.machine, tuning, unscented=True, alpha=self.options["alpha"],
+                                beta=self.options["beta"], kappa=self.options["kappa"])
+
     def _build_runtime(self) -> None:
+        if self._hydraulic:  # the machine-set kernel builds its own functions
+            return
         abs_payload = self.options["tuning"] == "thesis"
         self._sigma = kf.BufferedFunction(kf.sigma_point_function(self.machine, abs_payload, 2 * N + 1))
         self._terms = kf.kalman_model(self.machine, abs_payload).evaluator()
@@ -138,6 +146,8 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
         return f, h
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
+        if self._machine_filter is not None:
+            return self._machine_step(values)
         tuning = self.tuning
         y, u, a = kf.sample_parts(values, tuning)
         n_y = len(y)
