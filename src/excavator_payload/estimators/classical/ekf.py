@@ -36,6 +36,13 @@ first ``warmup_samples`` samples and, for the ``consistent`` tuning (whose P is 
 while the payload's posterior standard deviation exceeds ``converged_std`` kg. A step whose
 result is not finite is discarded (state kept) and reported ``invalid_input``. A time gap up
 to ``max_gap`` seconds keeps the payload estimate (see :meth:`KalmanEstimatorBase._on_gap`).
+
+On the machine sensor set (a hydraulic machine; pressures and IMUs, no torques, no
+accelerations) the filter is :class:`~excavator_payload.estimators.classical._kalman_machine.
+MachineKalman`: angles, rates and accelerations are states of a white-jerk model, the piston
+forces are measurements through the symbolic hydraulic model (``--tuning consistent`` only, from
+the machine noise preset and the training data's jerk). :attr:`KalmanEstimatorBase.payload_std`
+is the payload's posterior standard deviation on both sets.
 """
 
 from __future__ import annotations

@@ -45,6 +45,10 @@ With the ``thesis`` tuning the UKF is faithful but useless: :math:`Q = 10^6 I` p
 at ±10³ rad/s and ±10³ kg per step, where the arm model is nothing like the arm (the EKF only
 linearises at the mean, so the same Q merely makes it trust the measurements). It stays finite
 and is kept for comparison only.
+
+On the machine sensor set the UKF is the machine-set kernel of the EKF
+(:mod:`._kalman_machine`, 12 states) with the piston-force update done on 25 sigma points; the
+process model there is linear, so its prediction is the Kalman one.
 """
 
 from __future__ import annotations
