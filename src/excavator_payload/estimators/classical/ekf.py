@@ -67,6 +67,10 @@ COMMON_OPTIONS = {
     "warmup_samples": Option(int, 5, "samples reported as warming_up after a (re)start"),
     "converged_std": Option(float, 50.0, "consistent: warming_up until the payload's posterior "
                             "standard deviation is below this, kg"),
+    "low_speed": Option(str, "skip", "machine sensor set: a cylinder near standstill, where "
+                        "stiction holds an unknown force, is skipped once the payload is known to "
+                        "--converged-std (before: down-weighted), or always down-weighted",
+                        ("skip", "downweight")),
     "max_gap": Option(float, 1.0, "a time gap up to this long (s) keeps the payload estimate "
                       "(angles and rates restart from the new sample); a longer one restarts the filter"),
 }
@@ -134,7 +138,8 @@ class KalmanEstimatorBase(Estimator):
     def _make_machine_filter(self, tuning):
         from excavator_payload.estimators.classical import _kalman_machine as km
 
-        return km.MachineKalman(self.machine, tuning, unscented=False)
+        return km.MachineKalman(self.machine, tuning, unscented=False, low_speed=self.options["low_speed"],
+                                skip_std=self.options["converged_std"])
 
     def _machine_step(self, values: np.ndarray) -> StepResult:
         """One sample of the machine-set kernel, with the same status rules as the thesis set."""

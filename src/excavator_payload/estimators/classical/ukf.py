@@ -128,7 +128,9 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
         from excavator_payload.estimators.classical import _kalman_machine as km
 
         return km.MachineKalman(self.machine, tuning, unscented=True, alpha=self.options["alpha"],
-                                beta=self.options["beta"], kappa=self.options["kappa"])
+                                beta=self.options["beta"], kappa=self.options["kappa"],
+                                low_speed=self.options["low_speed"],
+                                skip_std=self.options["converged_std"])
 
     def _build_runtime(self) -> None:
         if self._hydraulic:  # the machine-set kernel builds its own functions
