@@ -26,7 +26,13 @@ over one sample :math:`T`,
 
 with jerk density :math:`s_j` sized from the training data (:func:`jerk_density`), and the
 payload a slow random walk (``--payload-walk`` kg/√s). The slew angle does not enter the
-dynamics (only its rate and acceleration do), so it is not a state.
+dynamics (only its rate and acceleration do), so it is not a state. The slew rate is a known
+input in the sense that it is measured, not modelled: it is a state only so that the filter
+also gives its derivative, the slew acceleration, which the arm's inertial torques need.
+Accelerations are never measured on a machine: the white-jerk chains estimate them from the
+IMU rates *and* the pressures jointly (the force update corrects them too), without the lag of
+a causal differentiator and without the half-window delay of the centred one
+(:mod:`.pressure_regression`).
 
 Known inputs
 ------------
