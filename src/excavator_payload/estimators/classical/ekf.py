@@ -36,6 +36,13 @@ first ``warmup_samples`` samples and, for the ``consistent`` tuning (whose P is 
 while the payload's posterior standard deviation exceeds ``converged_std`` kg. A step whose
 result is not finite is discarded (state kept) and reported ``invalid_input``. A time gap up
 to ``max_gap`` seconds keeps the payload estimate (see :meth:`KalmanEstimatorBase._on_gap`).
+
+On the machine sensor set (a hydraulic machine; pressures and IMUs, no torques, no
+accelerations) the filter is :class:`~excavator_payload.estimators.classical._kalman_machine.
+MachineKalman`: angles, rates and accelerations are states of a white-jerk model, the piston
+forces are measurements through the symbolic hydraulic model (``--tuning consistent`` only, from
+the machine noise preset and the training data's jerk). :attr:`KalmanEstimatorBase.payload_std`
+is the payload's posterior standard deviation on both sets.
 """
 
 from __future__ import annotations
@@ -60,6 +67,10 @@ COMMON_OPTIONS = {
     "warmup_samples": Option(int, 5, "samples reported as warming_up after a (re)start"),
     "converged_std": Option(float, 50.0, "consistent: warming_up until the payload's posterior "
                             "standard deviation is below this, kg"),
+    "low_speed": Option(str, "skip", "machine sensor set: a cylinder near standstill, where "
+                        "stiction holds an unknown force, is skipped once the payload is known to "
+                        "--converged-std (before: down-weighted), or always down-weighted",
+                        ("skip", "downweight")),
     "max_gap": Option(float, 1.0, "a time gap up to this long (s) keeps the payload estimate "
                       "(angles and rates restart from the new sample); a longer one restarts the filter"),
 }
@@ -70,6 +81,9 @@ class KalmanEstimatorBase(Estimator):
 
     OPTIONS = COMMON_OPTIONS
     NEEDS_MACHINE = True
+    #: On the machine sensor set (a hydraulic machine) the kernel is
+    #: :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman`.
+    SENSOR_SETS = ("thesis", "machine")
 
     def __init__(self, machine=None, **options):
         super().__init__(machine, **options)
@@ -84,10 +98,22 @@ class KalmanEstimatorBase(Estimator):
         self._P: np.ndarray | None = None
         self._n_filtered = 0
         self._posterior_std = math.nan
-        self._bounds = kf.payload_bounds(self.machine)
+        self._machine_filter = None  # the machine sensor set's kernel, once fitted on such data
+        if not self._hydraulic:
+            self._bounds = kf.payload_bounds(self.machine)
+
+    @property
+    def _hydraulic(self) -> bool:
+        return getattr(self.machine, "kind", None) == "hydraulic"
 
     # -- fitting ---------------------------------------------------------------------------
     def _fit(self, dataset: Dataset) -> None:
+        if dataset.sensor_set.name == "machine":
+            self._fit_machine_set(dataset)
+            return
+        if self._hydraulic:
+            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
+                                 "with machine-sensor-set data")
         if self.options["tuning"] == "thesis":
             self.tuning = kf.thesis_tuning(self.machine)
         else:
@@ -97,11 +123,52 @@ class KalmanEstimatorBase(Estimator):
                                                self.options["payload_walk"])
         self._build_gate()
 
+    # -- machine sensor set ----------------------------------------------------------------
+    def _fit_machine_set(self, dataset: Dataset) -> None:
+        from excavator_payload.estimators.classical import _kalman_machine as km
+
+        if not self._hydraulic:
+            raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
+                                 f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
+        if self.options["tuning"] != "consistent":
+            raise EstimatorError(f"{self.name}: the thesis tuning belongs to the thesis sensor set; "
+                                 "use --tuning consistent on machine-sensor-set data")
+        tuning = km.machine_tuning(dataset, self.options["noise"], self.options["payload_walk"])
+        self._machine_filter = self._make_machine_filter(tuning)
+
+    def _make_machine_filter(self, tuning):
+        from excavator_payload.estimators.classical import _kalman_machine as km
+
+        return km.MachineKalman(self.machine, tuning, unscented=False, low_speed=self.options["low_speed"],
+                                skip_std=self.options["converged_std"])
+
+    def _machine_step(self, values: np.ndarray) -> StepResult:
+        """One sample of the machine-set kernel, with the same status rules as the thesis set."""
+        mk = self._machine_filter
+        if not mk.step(values):
+            return StepResult(self._last_estimate, Status.INVALID)
+        self._n_filtered += 1
+        self._posterior_std = mk.payload_std
+        estimate = mk.estimate
+        if (self._n_filtered <= self.options["warmup_samples"]
+                or self._posterior_std > self.options["converged_std"]):
+            return StepResult(estimate, Status.WARMING_UP)
+        return StepResult(estimate, Status.OK)
+
+    def _in_range(self, values: np.ndarray) -> bool:
+        if not self._hydraulic:
+            return super()._in_range(values)
+        ranges = self.machine.angle_ranges
+        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
+        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
+
     def _reset(self) -> None:
         self._x = None
         self._P = None
         self._n_filtered = 0  # samples since the filter (re)started (a gap restarts it too)
         self._posterior_std = math.nan
+        if self._machine_filter is not None:
+            self._machine_filter.reset()
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Bridge a short gap (missing or rejected samples); restart after a long one.
@@ -112,6 +179,12 @@ class KalmanEstimatorBase(Estimator):
         the random walk over the gap, :math:`P_{mm} \\mathrel{+}= \\sigma_w^2 \\Delta t`.
         """
         dt = time - self._last_time if self._last_time is not None else math.inf
+        if self._machine_filter is not None:
+            if self._machine_filter.x is None or not 0.0 < dt <= self.options["max_gap"]:
+                self._reset()
+            else:
+                self._machine_filter.restart_kinematics(values, dt)
+            return
         if self._x is None or not 0.0 < dt <= self.options["max_gap"]:
             self._reset()
             return
@@ -194,12 +267,23 @@ class KalmanEstimatorBase(Estimator):
         self._gate_y = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
 
     def _config(self) -> dict:
+        if self._machine_filter is not None:
+            return self._machine_filter.tuning.config()
         return self.tuning.config()
 
     def _arrays(self) -> dict[str, np.ndarray]:
+        if self._machine_filter is not None:
+            return self._machine_filter.tuning.arrays()
         return self.tuning.arrays()
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        if config.get("sensor_set") == "machine":
+            from excavator_payload.estimators.classical import _kalman_machine as km
+
+            if not self._hydraulic:
+                raise EstimatorError(f"saved {self.name} of the machine sensor set has no hydraulic machine")
+            self._machine_filter = self._make_machine_filter(km.MachineTuning.restore(config, arrays))
+            return
         self.tuning = kf.Tuning.restore(config, arrays)
         if self.tuning.name != self.options["tuning"]:
             raise EstimatorError(f"saved {self.name} is inconsistent: option --tuning "
@@ -232,7 +316,8 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
         super()._restore(config, arrays)
-        self._build_runtime()
+        if self._machine_filter is None:
+            self._build_runtime()
 
     def _build_runtime(self) -> None:
         tuning = self.tuning
@@ -251,6 +336,8 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
     _NEXT_DIAG = _POST_DIAG + 30
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
+        if self._machine_filter is not None:
+            return self._machine_step(values)
         if self._x is None:
             self._x, self._P = kf.initial_state(self.tuning, values)
         packed = self._step_function.evaluate(self._x, self._P, values[self._y_index],

@@ -26,6 +26,15 @@ every lift covers, each lift's torque is smoothed by a local-linear fit (triangu
 width one grid step); the lines of one reference payload, ordered by their dipper angle, form its
 map.
 
+Machine sensor set
+------------------
+A machine measures no joint torque; as the patent does, the boom's load is the boom cylinder's
+piston force :math:`F = p_h A_h - p_r A_r` (head pressure times head area minus rod pressure
+times annulus area, areas from the hydraulic machine file), mapped over boom and dipper angle
+from the calibration lifts (``excavator-payload simulate --machine cat345c-hydraulic --motion
+lifts``) exactly as the torque is on the thesis set. Nothing else changes: the map ignores
+bucket angle, slewing, tilt, accelerations and friction (what the dynamic estimators model).
+
 Estimation (``step``)
 ---------------------
 ``--averaging cumulative`` (default) reports the running mean of the per-sample values since the
@@ -78,6 +87,8 @@ class QuasiStaticEstimator(Estimator):
     """Two characteristic boom-torque maps (empty, rated) and linear interpolation between them."""
 
     name = "quasi-static"
+    #: On the machine sensor set the mapped load is the boom cylinder's piston force.
+    SENSOR_SETS = ("thesis", "machine")
     OPTIONS = {
         "grid_step": Option(float, 2.0, "boom-angle spacing of the maps, degrees"),
         "speed_tolerance": Option(float, 0.05, "a lift's constant-speed part starts and ends where "
@@ -102,7 +113,28 @@ class QuasiStaticEstimator(Estimator):
         self.boom_nodes = np.zeros(0)
         self.dipper_nodes: list[np.ndarray] = []
         self.maps: list[np.ndarray] = []
+        #: Boom cylinder (head, rod) areas, m², on the machine sensor set (None: boom torque).
+        self.boom_areas: tuple[float, float] | None = None
         self._reset()
+
+    @property
+    def _hydraulic(self) -> bool:
+        return getattr(self.machine, "kind", None) == "hydraulic"
+
+    def _boom_load(self, rows) -> np.ndarray:
+        """The mapped load of a lift's rows: boom torque (thesis set) or boom piston force, N."""
+        if self.boom_areas is None:
+            return rows["boom_torque"].to_numpy(float)
+        head, rod = self.boom_areas
+        return (rows["boom_head_pressure"].to_numpy(float) * head
+                - rows["boom_rod_pressure"].to_numpy(float) * rod)
+
+    def _in_range(self, values: np.ndarray) -> bool:
+        if not self._hydraulic:
+            return super()._in_range(values)
+        ranges = self.machine.angle_ranges
+        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
+        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     # -- calibration -----------------------------------------------------------------------
     def _lift_part(self, exp_id: int, rows) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -116,7 +148,7 @@ class QuasiStaticEstimator(Estimator):
         boom = rows["boom_angle"].to_numpy(float)
         rate = rows["boom_rate"].to_numpy(float)
         dipper = rows["dipper_angle"].to_numpy(float)
-        torque = rows["boom_torque"].to_numpy(float)
+        torque = self._boom_load(rows)
         finite = (np.isfinite(time) & np.isfinite(boom) & np.isfinite(rate) & np.isfinite(dipper)
                   & np.isfinite(torque))
         time, boom, rate, dipper, torque = (a[finite] for a in (time, boom, rate, dipper, torque))
@@ -137,6 +169,17 @@ class QuasiStaticEstimator(Estimator):
         return boom[use], torque[use], float(np.mean(dipper[use])), speed
 
     def _fit(self, dataset: Dataset) -> None:
+        self.boom_areas = None
+        if dataset.sensor_set.name == "machine":
+            if not self._hydraulic:
+                raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic "
+                                     f"machine file, not '{self.machine.name}' (e.g. --machine "
+                                     "cat345c-hydraulic)")
+            cylinder = self.machine.boom_cylinder
+            self.boom_areas = (float(cylinder.head_area), float(cylinder.rod_area))
+        elif self._hydraulic:
+            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
+                                 "with machine-sensor-set data")
         lifts = [(i, *self._lift_part(i, rows)) for i, rows in dataset.experiments()]
         payloads = dataset.payloads
         if not np.all(np.isfinite(payloads)):
@@ -211,6 +254,13 @@ class QuasiStaticEstimator(Estimator):
         self._gate = bool(self.options["speed_gate"])
         self._speed = float(self.calibration_speed)
         self._speed_tol = float(self.options["speed_tolerance"]) * abs(self._speed)
+        sensors = self.sensor_set
+        self._i_boom, self._i_boom_rate, self._i_dipper, self._i_dipper_rate = sensors.indices(
+            ("boom_angle", "boom_rate", "dipper_angle", "dipper_rate"))
+        if self.boom_areas is None:
+            self._i_load = (sensors.index("boom_torque"),)
+        else:
+            self._i_load = tuple(sensors.indices(("boom_head_pressure", "boom_rod_pressure")))
 
     def _lookup(self, level: int, boom: float, dipper: float) -> float | None:
         """Bilinear interpolation of map ``level`` at (boom, dipper); None outside the map."""
@@ -238,9 +288,14 @@ class QuasiStaticEstimator(Estimator):
         self._count = 0
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
-        boom, dipper, torque = float(values[0]), float(values[3]), float(values[6])
-        if self._gate and (abs(float(values[1]) - self._speed) > self._speed_tol
-                           or abs(float(values[4])) > self._speed_tol):
+        boom, dipper = float(values[self._i_boom]), float(values[self._i_dipper])
+        if self.boom_areas is None:
+            torque = float(values[self._i_load[0]])
+        else:  # machine sensor set: the boom piston force plays the torque's part
+            torque = (float(values[self._i_load[0]]) * self.boom_areas[0]
+                      - float(values[self._i_load[1]]) * self.boom_areas[1])
+        if self._gate and (abs(float(values[self._i_boom_rate]) - self._speed) > self._speed_tol
+                           or abs(float(values[self._i_dipper_rate])) > self._speed_tol):
             held = self._last_estimate  # not at the calibration speed: keep the last value
             return StepResult(held, Status.NO_DATA if math.isnan(held) else Status.OK)
         refs = self.reference_torques(boom, dipper)
@@ -256,8 +311,11 @@ class QuasiStaticEstimator(Estimator):
 
     # -- persistence -----------------------------------------------------------------------
     def _config(self) -> dict:
-        return {"reference_payloads": list(self.reference_payloads),
-                "calibration_speed": self.calibration_speed}
+        config = {"reference_payloads": list(self.reference_payloads),
+                  "calibration_speed": self.calibration_speed}
+        if self.boom_areas is not None:
+            config["boom_areas"] = list(self.boom_areas)
+        return config
 
     def _arrays(self) -> dict[str, np.ndarray]:
         return {"boom_nodes": self.boom_nodes,
@@ -268,6 +326,8 @@ class QuasiStaticEstimator(Estimator):
         refs = config["reference_payloads"]
         self.reference_payloads = (float(refs[0]), float(refs[1]))
         self.calibration_speed = float(config["calibration_speed"])
+        areas = config.get("boom_areas")
+        self.boom_areas = None if areas is None else (float(areas[0]), float(areas[1]))
         self.boom_nodes = np.asarray(arrays["boom_nodes"], float)
         self.dipper_nodes = [np.asarray(arrays["empty_dipper_nodes"], float),
                              np.asarray(arrays["rated_dipper_nodes"], float)]

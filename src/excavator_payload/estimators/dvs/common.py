@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import SIGNALS
+from excavator_payload.data.schema import SENSOR_SETS, THESIS_SENSORS, SensorSet
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option
 from excavator_payload.estimators.dvs.trainbr import LOG_COLUMNS, TrainingLog, train_adam, train_br
@@ -36,6 +36,10 @@ from excavator_payload.estimators.dvs.trainbr import LOG_COLUMNS, TrainingLog, t
 #: The thesis' network inputs (appendix A.3 ``Input='[1 2 4 5 7 8]'``): angles, rates, torques.
 THESIS_INPUTS: tuple[str, ...] = ("boom_angle", "boom_rate", "dipper_angle", "dipper_rate",
                                   "boom_torque", "dipper_torque")
+#: Default inputs per sensor set: the thesis' six signals; on a machine every signal it has
+#: (angles, rates, slew rate, inclinations and all six pressures).
+DEFAULT_INPUTS: dict[str, tuple[str, ...]] = {"thesis": THESIS_INPUTS,
+                                               "machine": SENSOR_SETS["machine"].signals}
 SCALINGS = ("mapminmax", "mapstd")
 TRAINERS = ("trainbr", "adam")
 
@@ -108,22 +112,28 @@ def parse_delays(raw: Any) -> list[int]:
     return sorted(delays)
 
 
-def parse_inputs(raw: Any) -> list[str]:
-    """Signal names (comma separated), ``all``, or MATLAB's 1-based column numbers (``'1,2,4'``)."""
+def parse_inputs(raw: Any, sensor_set: SensorSet = THESIS_SENSORS) -> list[str]:
+    """Signal names (comma separated), ``all``, ``default`` or MATLAB's 1-based column numbers
+    (``'1,2,4'``), of the signals of ``sensor_set``."""
+    signals = sensor_set.signals
     items = list(raw) if isinstance(raw, (list, tuple)) else \
         [p for p in re.split(r"[,\s;]+", str(raw).strip().strip("[]")) if p]
     if items == ["all"]:
-        return list(SIGNALS)
+        return list(signals)
+    if items == ["default"]:
+        return list(DEFAULT_INPUTS.get(sensor_set.name, signals))
     names: list[str] = []
     for item in items:
         item = str(item).strip()
         if item.isdigit():
             k = int(item)
-            if not 1 <= k <= len(SIGNALS):
-                raise EstimatorError(f"--inputs: column number {k} is not in 1…{len(SIGNALS)}")
-            item = SIGNALS[k - 1]
-        if item not in SIGNALS:
-            raise EstimatorError(f"--inputs: unknown signal {item!r}; choose from {', '.join(SIGNALS)}")
+            if not 1 <= k <= len(signals):
+                raise EstimatorError(f"--inputs: column number {k} is not in 1…{len(signals)} "
+                                     f"(the {sensor_set.name} sensor set)")
+            item = signals[k - 1]
+        if item not in signals:
+            raise EstimatorError(f"--inputs: unknown signal {item!r} of the {sensor_set.name} sensor "
+                                 f"set; choose from {', '.join(signals)}")
         names.append(item)
     if not names or len(set(names)) != len(names):
         raise EstimatorError(f"--inputs: give distinct signal names, got {raw!r}")
@@ -359,8 +369,10 @@ def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Optio
     options = {
         "hidden": Option(str, hidden, "hidden layer sizes, e.g. '10,10,10'"),
         "delays": Option(str, delays, "input delays in samples, MATLAB style, e.g. '0:5' or '0,1,2'"),
-        "inputs": Option(str, ",".join(THESIS_INPUTS),
-                         "input signals (comma separated names, 'all', or 1-based column numbers)"),
+        "inputs": Option(str, "default",
+                         "input signals of the data's sensor set (comma separated names, 'all', "
+                         "1-based column numbers, or 'default': the thesis' six signals on the "
+                         "thesis set, every signal on the machine set)"),
         "scaling": Option(str, "mapminmax", "input/output scaling", SCALINGS),
         "trainer": Option(str, "trainbr", "training algorithm", TRAINERS),
         "epochs": Option(int, 700, "maximum training epochs (MATLAB: 1000; capped so that net1 on "
@@ -404,14 +416,26 @@ class NeuralEstimator(Estimator):
 
     NEEDS_MACHINE = False
     OPTIONS = neural_options()
+    #: The inputs are resolved against the sensor set of the data (:meth:`_use_sensor_set`).
+    SENSOR_SETS = ("thesis", "machine")
 
     def __init__(self, machine=None, **options: Any) -> None:
         super().__init__(machine=machine, **options)
         o = self.options
         self.hidden_sizes = parse_hidden(o["hidden"])
         self.delay_list = parse_delays(o["delays"])
-        self.input_names = parse_inputs(o["inputs"])
-        self.input_index = np.array([SIGNALS.index(n) for n in self.input_names])
+        # Until fit() names the sensor set, the inputs are those of the thesis set, or of the
+        # first set that has them all (unknown everywhere: one clear error now, not at fit).
+        error = None
+        for sensors in (THESIS_SENSORS, *(s for s in SENSOR_SETS.values() if s is not THESIS_SENSORS)):
+            try:
+                self.input_names = parse_inputs(o["inputs"], sensors)
+                self.input_index = np.array(sensors.indices(self.input_names))
+                break
+            except EstimatorError as exc:
+                error = error or exc
+        else:
+            raise error
         for key in ("epochs", "train_experiments"):
             if int(o[key]) < 1:
                 raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be at least 1")
@@ -440,6 +464,25 @@ class NeuralEstimator(Estimator):
             raise EstimatorError(f"{self.name}: {n} weights is more than the {limit} that "
                                  f"--trainer {self.options['trainer']} can train here; use smaller "
                                  "--hidden / --delays (the thesis' nets have a few hundred)")
+
+    def _use_sensor_set(self, sensors: SensorSet) -> None:
+        """Resolve ``--inputs`` against the signals of ``sensors`` (the data's sensor set)."""
+        names = parse_inputs(self.options["inputs"], sensors)
+        changed = names != self.input_names
+        self.input_names = names
+        self.input_index = np.array(sensors.indices(names))
+        if changed:
+            self._inputs_changed()
+
+    def _inputs_changed(self) -> None:
+        """Hook: the number of inputs changed (subclasses rebuild what depends on it)."""
+
+    def _in_range(self, values: np.ndarray) -> bool:
+        if getattr(self.machine, "kind", None) != "hydraulic":
+            return super()._in_range(values)
+        ranges = self.machine.angle_ranges
+        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
+        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     # -- hooks -----------------------------------------------------------------------------
     @property
@@ -487,7 +530,8 @@ class NeuralEstimator(Estimator):
                 [self.output_scaler.transform(y[:, None])[:, 0] for y in ys])
 
     def _fit(self, dataset: Dataset) -> None:
-        self._check_size()
+        self._use_sensor_set(self.sensor_set)
+        self._check_size()  # after the inputs are known: their number sizes the first layer
         train, val = self.split_experiments(dataset)
         o = self.options
         scaling = o["scaling"]
@@ -580,6 +624,7 @@ class NeuralEstimator(Estimator):
         return arrays
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        self._use_sensor_set(self.sensor_set)
         scaling = self.options["scaling"]
         weights = np.asarray(arrays["weights"], dtype=np.float64)
         if weights.shape != (self._n_weights(),):
@@ -620,14 +665,14 @@ class NeuralEstimator(Estimator):
 
     # -- helpers for subclasses --------------------------------------------------------------
     def _scale_input(self, values: np.ndarray) -> np.ndarray:
-        """The network's input vector from a SIGNALS-ordered sample (scaled)."""
+        """The network's input vector from a sample in sensor-set order (scaled)."""
         return (values[self.input_index] - self.input_scaler.center) * self.input_scaler.gain
 
     def _unscale_output(self, y: float) -> float:
         return float(y / self.output_scaler.gain[0] + self.output_scaler.center[0])
 
 
-__all__ = ["THESIS_INPUTS", "SCALINGS", "TRAINERS", "Scaler", "mlp_sizes", "n_weights", "mlp_layers",
+__all__ = ["THESIS_INPUTS", "DEFAULT_INPUTS", "SCALINGS", "TRAINERS", "Scaler", "mlp_sizes", "n_weights", "mlp_layers",
            "nguyen_widrow_init", "mlp_forward", "mlp_output_jacobian", "mlp_forward_numpy", "delay_windows", "DelayLine",
            "experiment_bounds", "experiment_arrays", "neural_options", "NeuralEstimator",
            "parse_int_list", "parse_hidden", "parse_delays", "parse_inputs"]

@@ -39,7 +39,6 @@ from typing import Sequence
 import numpy as np
 import torch
 
-from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Status, StepResult, register
 from excavator_payload.estimators.dvs.common import (
@@ -94,10 +93,10 @@ class TimeDelayNetwork(NeuralEstimator):
                         for W, b in mlp_layers(np.asarray(w, dtype=np.float64), self._layer_sizes())]
         # Streaming form, same function: the input scaling is folded into the first layer
         # (W₁·((x − c)∘g) + b₁ = (W₁ diag g) x + (b₁ − W₁ (c∘g))) and the output scaling into
-        # the last; the first layer reads ALL eight signals of the last L = max(delay)+1
+        # the last; the first layer reads ALL signals of the sensor set over the last L = max(delay)+1
         # samples, oldest first, straight from a doubled ring buffer (zero columns for unused
         # signals and delays). That leaves two slice copies and the matrix products per sample.
-        n_sig = len(SIGNALS)
+        n_sig = len(self.sensor_set.signals)
         L = max(self.delay_list) + 1
         W1, b1 = self._layers[0]
         gain, center = self.input_scaler.gain, self.input_scaler.center
@@ -112,6 +111,7 @@ class TimeDelayNetwork(NeuralEstimator):
         g_out, c_out = self.output_scaler.gain[0], self.output_scaler.center[0]
         self._stream_layers = [(W1_stream, b1_stream), *self._layers[1:-1], (WL[0] / g_out, bL[0] / g_out + c_out)]
         self._stream_length = L
+        self._n_signals = n_sig
         self._buffer = np.zeros(2 * L * n_sig)
         self._reset()
 
@@ -121,7 +121,7 @@ class TimeDelayNetwork(NeuralEstimator):
             self._count = 0
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
-        L, n_sig = self._stream_length, len(SIGNALS)
+        L, n_sig = self._stream_length, self._n_signals
         p = self._newest = (self._newest + 1) % L
         # each sample is written twice, L blocks apart, so the last L samples are always the
         # contiguous slice [p+1, p+L] (oldest first)

@@ -562,6 +562,9 @@ class RecurrentNetwork(NeuralEstimator):
     def _structure(self) -> RecurrentStructure:
         raise NotImplementedError
 
+    def _inputs_changed(self) -> None:
+        self.structure = self._structure()
+
     def _n_weights(self) -> int:
         return self.structure.n_weights
 
