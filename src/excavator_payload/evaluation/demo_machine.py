@@ -1,0 +1,154 @@
+"""``excavator-payload demo --machine cat345c-hydraulic``: the whole study on the hydraulic machine.
+
+As a service technician would set the weighing up:
+
+1. **session A** — calibration motions with known payloads (empty bucket and known weights:
+   0, 2500, 5000 kg in turn), made as trajectory files of swing motions (slewing included) and
+   pushed through the simulator (``--motion trajectory``);
+2. ``calibrated`` identified from them, starting from ``cat345c-hydraulic-3pct``;
+3. **session B** (other sensor offsets) — a short empty-bucket motion: ``zero``;
+4. **session B** — test motions (swings with slewing, operator-like work cycles, work cycles on
+   a 5° slope); every estimator that runs on the machine sensor set
+   (``estimator_class(name).SENSOR_SETS``, read at run time) is fitted on the calibration data
+   and judged against the same tests, beside the Cramér–Rao bound of
+   :mod:`~excavator_payload.evaluation.crb_machine`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.data.dataset import Dataset
+
+#: Known payloads of the calibration motions, cycled (kg).
+CALIBRATION_PAYLOADS = (0.0, 2500.0, 5000.0)
+SESSION_CALIBRATION, SESSION_WORK = 1, 2
+ANGLE_COLUMNS = ("boom_angle", "dipper_angle", "bucket_angle", "slew_angle")
+
+
+def motion_trajectory(n: int, seed: int, payloads, machine="cat345c-hydraulic", motion="swing",
+                      slope_deg: float | None = None) -> pd.DataFrame:
+    """A trajectory table of ``n`` generated motions with the given payloads (cycled).
+
+    The motions are those the simulator draws (true angles, noise-free); the payloads are the
+    technician's known weights; ``slope_deg`` puts the machine on a slope of that angle
+    (pitch, in a direction drawn per experiment).
+    """
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    ds = simulate_dataset(n, seed=seed, machine=machine, motion=motion, noise="none", with_truth=True,
+                          workers=1, progress=False)
+    rows = []
+    rng = np.random.default_rng(seed)
+    for k, (exp, frame) in enumerate(ds.experiments()):
+        t = pd.DataFrame({"experiment": k, "time": frame["time"].to_numpy(float)})
+        for c in ANGLE_COLUMNS:
+            t[c] = frame["true_" + c].to_numpy(float)
+        t["payload"] = float(payloads[k % len(payloads)])
+        if slope_deg is not None:
+            direction = rng.uniform(0, 2 * math.pi)
+            t["ground_pitch"] = math.radians(slope_deg) * math.cos(direction)
+            t["ground_roll"] = math.radians(slope_deg) * math.sin(direction)
+        rows.append(t)
+    return pd.concat(rows, ignore_index=True)
+
+
+def simulate_trajectory(table: pd.DataFrame, seed: int, session: int, machine="cat345c-hydraulic") -> Dataset:
+    """Machine-sensor-set data of a trajectory table in working session ``session``."""
+    from excavator_payload.simulation.generate import simulate_dataset
+    from excavator_payload.simulation.trajectory import trajectory_from_frame
+
+    traj = trajectory_from_frame(table)
+    return simulate_dataset(len(traj.experiments), seed=seed, machine=machine, motion="trajectory",
+                            trajectory=traj, session=session, with_truth=True, workers=1, progress=False)
+
+
+def calibration_data(n: int = 10, seed: int = 100, machine="cat345c-hydraulic") -> Dataset:
+    """``n`` calibration motions with known payloads, session A."""
+    return simulate_trajectory(motion_trajectory(n, seed, CALIBRATION_PAYLOADS, machine), seed,
+                               SESSION_CALIBRATION, machine)
+
+
+def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
+    """One empty-bucket swing, session B (the zero check)."""
+    return simulate_trajectory(motion_trajectory(1, seed, (0.0,), machine), seed, SESSION_WORK, machine)
+
+
+def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str, Dataset]:
+    """Session-B test data: swings with slewing, work cycles, work cycles on a 5° slope."""
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    common = dict(machine=machine, session=SESSION_WORK, with_truth=True, workers=1, progress=False)
+    sets = {"swing": simulate_dataset(n, seed=seed, motion="swing", **common),
+            "work-cycle": before_release(simulate_dataset(n, seed=seed + 1, motion="work-cycle", **common))}
+    rated = 5000.0
+    rng = np.random.default_rng(seed + 2)
+    payloads = rng.uniform(0, rated, n)
+    sets["slope-5deg"] = simulate_trajectory(
+        motion_trajectory(n, seed + 2, payloads, machine, motion="swing", slope_deg=5.0), seed + 2,
+        SESSION_WORK, machine)
+    return sets
+
+
+def before_release(dataset: Dataset) -> Dataset:
+    """Each work cycle up to the dump (the load leaves the bucket there: the payload column is
+    the load carried, which a weighing judged after the dump would wrongly blame)."""
+    meta = dataset.experiment_meta()
+    f = dataset.frame
+    keep = np.ones(len(f), bool)
+    exp, time = f["experiment"].to_numpy(), f["time"].to_numpy(float)
+    for k, m in meta.items():
+        if m.get("release"):
+            keep &= ~((exp == k) & (time >= float(m["release"][0])))
+    return Dataset(f[keep].reset_index(drop=True), dataset.meta)
+
+
+def machine_estimators() -> list[str]:
+    """Registered estimators that declare the machine sensor set (read at run time)."""
+    from excavator_payload.estimators.base import estimator_class, estimator_names
+
+    return [n for n in estimator_names() if "machine" in estimator_class(n).SENSOR_SETS]
+
+
+def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="cat345c-hydraulic-3pct",
+                   progress: bool = True, options: dict | None = None) -> dict:
+    """Fit every estimator in ``names`` on the calibration data (``calibrated`` also zeroed)."""
+    from excavator_payload.estimators.base import estimator_class
+    from excavator_payload.estimators.classical import calibrated_machine
+
+    fitted, failures = {}, {}
+    for name in names:
+        klass = estimator_class(name)
+        try:
+            est = klass(prior_machine if klass.NEEDS_MACHINE else None, **(options or {}).get(name, {}))
+            est.fit(calibration)
+            if name == "calibrated":
+                calibrated_machine.zero(est, zero)
+            fitted[name] = est
+        except Exception as exc:  # noqa: BLE001 - one estimator failing must not stop the study
+            failures[name] = f"{type(exc).__name__}: {exc}"
+    return {"fitted": fitted, "failures": failures}
+
+
+def judge(estimator, dataset: Dataset, label: str, bound: np.ndarray | None):
+    """Evaluation (metrics.evaluate_estimates) of one estimator on one test set."""
+    from excavator_payload.evaluation.metrics import evaluate_estimates
+
+    return evaluate_estimates(dataset, estimator.estimate(dataset), label=label, bound=bound,
+                              with_bound=bound is not None)
+
+
+def summary_row(evaluation, rated: float = 5000.0) -> dict:
+    pe = evaluation.per_experiment
+    max_err = pe["max_error"].to_numpy(float)
+    rms = pe["rms_error"].to_numpy(float)
+    return {"mean_max_kg": float(np.mean(max_err)), "mean_rms_kg": float(np.mean(rms)),
+            "within_1pct": float(np.mean(max_err <= 0.01 * rated)),
+            "within_0.5pct": float(np.mean(max_err <= 0.005 * rated)),
+            "within_0.25pct": float(np.mean(max_err <= 0.0025 * rated)),
+            "efficiency": float(evaluation.summary.get("efficiency", math.nan)),
+            "n_test": int(len(pe))}
