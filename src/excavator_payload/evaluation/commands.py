@@ -87,6 +87,15 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
             bounds[window] = dataset_bound(dataset, window)
         return bounds[window]
 
+    if dataset.sensor_set.name == "machine":  # issue 12: the bound from a calibrated model given
+        from excavator_payload.evaluation.crb_machine import dataset_machine_bound
+
+        for model in models:
+            machine_bound = dataset_machine_bound(dataset, load_estimator(model))
+            if machine_bound is not None:
+                bounds = {w: machine_bound for w in (None, *range(1, 2001))}
+                break
+
     for model in models:
         est = load_estimator(model)
         name, options, machine = est.name, est.options, est.machine.name if est.machine else None

@@ -144,7 +144,7 @@ def residual_function() -> ca.Function:
     # ∂r/∂q̈ carries the differentiator's noise into the residual (weights)
     inertia = ca.sum2(ca.jacobian(r, qdd) ** 2)
     return ca.Function("cal_machine_residual", [x, qdd, payload, p_file, z],
-                       [r, ca.jacobian(r, z), lever, speed, stiction, inertia])
+                       [r, ca.jacobian(r, z), lever, speed, stiction, inertia, ca.jacobian(r, payload)])
 
 
 #: Samples each side of the centred differentiator in calibration (0.3 s: the lifts are slow,
@@ -232,7 +232,8 @@ class MachineCalibration:
         fm = f.map(n, "serial")
         out = fm(values.T, qdd.T, payload[None, :], np.repeat(self.p_file[:, None], n, 1),
                  np.repeat(z[:, None], n, 1))
-        r, J, lever, speed, stiction, inertia = (np.asarray(o) for o in out)
+        r, J, lever, speed, stiction, inertia, dr_dm = (np.asarray(o) for o in out)
+        self._payload_sensitivity = dr_dm.T  # ∂r/∂m = -φ (n, 3), for the Cramér–Rao bound
         nz = len(z)
         J = J.reshape(3, n, nz).transpose(1, 0, 2)
         self._inertia = inertia.T
