@@ -256,8 +256,16 @@ def register(app: typer.Typer) -> None:
         seed: int = typer.Option(2024, "--seed", help="Base seed of all simulated data."),
         only: str = typer.Option(None, "--only",
                                  help="Comma-separated estimator labels to run (default: all), e.g. 'Net1,EKF_ideal'."),
+        machine: str = typer.Option(None, "--machine",
+                                    help="A hydraulic machine (e.g. cat345c-hydraulic): the calibrate → zero → "
+                                         "weigh study on the machine sensor set instead of the thesis'."),
     ) -> None:
         """Simulate, fit every estimator, evaluate and write the report: the thesis end to end."""
+        if machine is not None:  # issue 12: the study on the hydraulic machine
+            from excavator_payload.evaluation.demo_machine import run_machine_demo
+
+            run_machine_demo(out, machine=machine, scale=scale, seed=seed, console=console)
+            return
         from excavator_payload.evaluation.demo import run_demo
 
         run_demo(out, scale=scale, workers=workers, motion=motion, seed=seed,

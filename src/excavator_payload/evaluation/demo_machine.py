@@ -27,6 +27,8 @@ from excavator_payload.data.dataset import Dataset
 #: Known payloads of the calibration motions, cycled (kg).
 CALIBRATION_PAYLOADS = (0.0, 2500.0, 5000.0)
 SESSION_CALIBRATION, SESSION_WORK = 1, 2
+#: Samples not judged at the start of each test experiment: the first second at 100 Hz.
+DISCARD = 100
 ANGLE_COLUMNS = ("boom_angle", "dipper_angle", "bucket_angle", "slew_angle")
 
 
@@ -97,7 +99,7 @@ def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str,
 def before_release(dataset: Dataset) -> Dataset:
     """Each work cycle up to the dump (the load leaves the bucket there: the payload column is
     the load carried, which a weighing judged after the dump would wrongly blame)."""
-    meta = dataset.experiment_meta()
+    meta = dataset.experiment_meta
     f = dataset.frame
     keep = np.ones(len(f), bool)
     exp, time = f["experiment"].to_numpy(), f["time"].to_numpy(float)
@@ -139,7 +141,7 @@ def judge(estimator, dataset: Dataset, label: str, bound: np.ndarray | None):
     from excavator_payload.evaluation.metrics import evaluate_estimates
 
     return evaluate_estimates(dataset, estimator.estimate(dataset), label=label, bound=bound,
-                              with_bound=bound is not None)
+                              with_bound=bound is not None, discard=DISCARD)
 
 
 def summary_row(evaluation, rated: float = 5000.0) -> dict:
@@ -152,3 +154,113 @@ def summary_row(evaluation, rated: float = 5000.0) -> dict:
             "within_0.25pct": float(np.mean(max_err <= 0.0025 * rated)),
             "efficiency": float(evaluation.summary.get("efficiency", math.nan)),
             "n_test": int(len(pe))}
+
+
+#: Sizes per ``--scale``: calibration motions, test experiments per test set.
+MACHINE_SCALES = {"tiny": (3, 2), "quick": (10, 20), "thesis": (10, 200)}
+
+
+def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
+    """(estimator copy, test data) pairs, each ignoring one effect (the cost-of-each-effect table).
+
+    * ``slewing``: the slew rate is not given to the estimator (zero);
+    * ``tilt``: the house inclination is not given (the estimator believes level ground);
+    * ``friction``: the seal friction of the model set to zero;
+    * ``offsets``: the sensor offsets not corrected (no calibration or zero of them);
+    * ``uncalibrated 3 % file``: the machine file as it is, no calibration (offsets neither).
+    """
+    import copy
+
+    from excavator_payload.estimators.classical import calibrated_machine as cm
+
+    def variant(edit_z=None, columns=()):
+        est = copy.deepcopy(estimator)
+        if edit_z is not None:
+            edit_z(est.calibration.z)
+            cm._install(est, est.calibration)
+        data = test
+        if columns:
+            frame = test.frame.copy()
+            for c in columns:
+                frame[c] = est.calibration.offset_vector()[list(cm.SIGNALS).index(c)]
+            data = Dataset(frame, test.meta)
+        return est, data
+
+    n_delta = len(cm.CALIBRATED_PARAMETERS)
+    friction = [cm.CALIBRATED_PARAMETERS.index(p) for p in cm.FRICTION_PARAMETERS]
+
+    def no_friction(z):
+        z[friction] = -1.0  # p = p_file · (1 + δ) = 0
+
+    def no_offsets(z):
+        z[n_delta:] = 0.0
+
+    def uncalibrated(z):
+        z[:] = 0.0
+
+    return {"none ignored": variant(), "slewing": variant(columns=("slew_rate",)),
+            "tilt": variant(columns=("house_pitch", "house_roll")), "friction": variant(no_friction),
+            "offsets": variant(no_offsets), "uncalibrated 3 % file": variant(uncalibrated)}
+
+
+def markdown_table(table: pd.DataFrame) -> str:
+    """A Markdown table (numbers to 3 significant digits), without the tabulate package."""
+    def cell(v):
+        return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+    head = "| " + " | ".join(table.columns) + " |"
+    rule = "|" + "|".join("---" for _ in table.columns) + "|"
+    body = ["| " + " | ".join(cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    return "\n".join([head, rule, *body])
+
+
+def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str = "quick", seed: int = 2024,
+                     console=None) -> dict:
+    """The whole study on the hydraulic machine (module doc); writes ``results.csv`` and
+    ``report.md`` to ``out`` and returns the results table and failures."""
+    from excavator_payload.data.io import write_dataset
+    from excavator_payload.errors import ExcavatorPayloadError
+    from excavator_payload.evaluation.crb_machine import dataset_machine_bound
+    from excavator_payload.model.machine import load_machine
+
+    if scale not in MACHINE_SCALES:
+        raise ExcavatorPayloadError(f"--scale must be one of {', '.join(MACHINE_SCALES)} for the machine demo")
+    if getattr(load_machine(machine), "kind", None) != "hydraulic":
+        raise ExcavatorPayloadError(f"demo --machine needs a hydraulic machine, '{machine}' is not one")
+    n_cal, n_test = MACHINE_SCALES[scale]
+    out = Path(out)
+    (out / "data").mkdir(parents=True, exist_ok=True)
+    say = console.print if console is not None else (lambda *a, **k: None)
+    say(f"simulating: {n_cal} calibration motions (session {SESSION_CALIBRATION}), zero check and "
+        f"3 × {n_test} test motions (session {SESSION_WORK})")
+    cal = calibration_data(n_cal, seed, machine)
+    zero = zero_data(seed + 1, machine)
+    tests = test_sets(n_test, seed + 2, machine)
+    for name, ds in {"calibration": cal, "zero": zero, **tests}.items():
+        write_dataset(ds, out / "data" / f"{name}.parquet")
+    names = machine_estimators()
+    say(f"fitting: {', '.join(names)} (from cat345c-hydraulic-3pct)")
+    fit = fit_estimators(cal, zero, names)
+    rows = []
+    reference = fit["fitted"].get("calibrated")
+    for set_name, ds in tests.items():
+        bound = dataset_machine_bound(ds, reference) if reference is not None else None
+        for name, est in fit["fitted"].items():
+            try:
+                rows.append({"test": set_name, "estimator": name,
+                             **summary_row(judge(est, ds, name, bound))})
+            except Exception as exc:  # noqa: BLE001
+                fit["failures"][f"{name} on {set_name}"] = f"{type(exc).__name__}: {exc}"
+    table = pd.DataFrame(rows)
+    table.to_csv(out / "results.csv", index=False)
+    lines = ["# Weighing on the hydraulic machine", "",
+             f"Calibrated from `cat345c-hydraulic-3pct` with {n_cal} motions of known payload "
+             f"(session {SESSION_CALIBRATION}), zeroed on one empty-bucket swing and tested on "
+             f"{n_test} experiments per set (session {SESSION_WORK}); first second not judged; work "
+             "cycles judged up to the dump.", "",
+             markdown_table(table) if len(table) else "(no results)", ""]
+    if fit["failures"]:
+        lines += ["Failures:", ""] + [f"- {k}: {v}" for k, v in fit["failures"].items()]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    say(f"report: {out / 'report.md'}")
+    return {"table": table, "failures": fit["failures"]}
