@@ -203,7 +203,7 @@ def test_cli_simulates_replays_and_plots(tmp_path):
 def test_thesis_estimators_refuse_the_machine_set_in_one_line(tmp_path, capsys):
     data = tmp_path / "lifts.parquet"
     simulate_machine_to_file(data, 1, motion="lifts", workers=1, progress=False)
-    for name in ("calibrated", "ekf", "quasi-static", "net1"):
+    for name in ("ekf", "quasi-static", "net1"):  # calibrated runs on the machine set (issue 12)
         assert main(["train", name, "--data", str(data), "--out", str(tmp_path / name)]) == 2
         err = capsys.readouterr().err
         assert "does not run on" in err and "Traceback" not in err
