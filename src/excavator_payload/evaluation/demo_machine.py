@@ -157,7 +157,7 @@ def summary_row(evaluation, rated: float = 5000.0) -> dict:
 
 
 #: Sizes per ``--scale``: calibration motions, test experiments per test set.
-MACHINE_SCALES = {"tiny": (3, 2), "quick": (10, 20), "thesis": (10, 200)}
+MACHINE_SCALES = {"tiny": (2, 1), "quick": (10, 20), "thesis": (10, 200)}
 
 
 def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
