@@ -120,3 +120,12 @@ def test_regressor_is_the_jacobian_of_the_symbolic_residual():
         dz[k] = h
         r2 = cal.evaluate(x, qdd, np.array([1000.0]), z + dz)[0]
         np.testing.assert_allclose((r2 - r) / h, J[:, :, k], rtol=1e-3, atol=1e-6 * np.abs(J).max())
+
+
+def test_inverse_dynamics_needs_no_noise_preset_on_the_machine_set(setup):
+    """Data without metadata: the pressure noise is estimated (second differences), near the
+    field preset's 30 kPa white noise (ripple aliasing adds a little)."""
+    meta = {k: v for k, v in setup["test"].meta.items() if k != "noise"}
+    est = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(Dataset(setup["test"].frame, meta))
+    assert est.noise_name == "estimated"
+    assert 2.5e4 < est._pressure_noise[0] < 5e4

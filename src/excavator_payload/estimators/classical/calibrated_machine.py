@@ -163,6 +163,19 @@ def rate_variance(dataset: Dataset) -> float:
     return float(np.median(d2**2) / 0.4549 / 6)  # median of χ²₁ = 0.4549
 
 
+def pressure_noise_from_data(dataset: Dataset) -> float:
+    """White noise of the pressure transmitters (Pa) from second differences of the measured
+    pressures (as :func:`rate_variance`): needs no known payload, so any data will do; it sees
+    the white noise and the aliased pump ripple, as the estimator does."""
+    cols = [SIGNALS[i] for i in PRESSURES]
+    x = dataset.frame[cols].to_numpy(float)
+    d2 = np.diff(x, 2, axis=0)
+    d2 = d2[np.all(np.isfinite(d2), axis=1)]
+    if len(d2) < 10:
+        return DEFAULT_PRESSURE_STD
+    return float(np.sqrt(np.median(d2**2) / 0.4549 / 6))
+
+
 def accel_variance(dataset: Dataset, half_window: int) -> float:
     """Variance of the differentiated accelerations from the rates' own white noise.
 
