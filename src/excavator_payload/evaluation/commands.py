@@ -82,19 +82,21 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
     bounds: dict = {}
     taken: set = set()
 
-    def bound_for(window):
-        if window not in bounds:
-            bounds[window] = dataset_bound(dataset, window)
-        return bounds[window]
-
+    machine_bound = None
     if dataset.sensor_set.name == "machine":  # issue 12: the bound from a calibrated model given
         from excavator_payload.evaluation.crb_machine import dataset_machine_bound
 
         for model in models:
             machine_bound = dataset_machine_bound(dataset, load_estimator(model))
             if machine_bound is not None:
-                bounds = {w: machine_bound for w in (None, *range(1, 2001))}
                 break
+
+    def bound_for(window):
+        if machine_bound is not None:  # the machine set's bound is of the whole history
+            return machine_bound
+        if window not in bounds:
+            bounds[window] = dataset_bound(dataset, window)
+        return bounds[window]
 
     for model in models:
         est = load_estimator(model)

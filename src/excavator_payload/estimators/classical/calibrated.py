@@ -128,7 +128,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),
         "prior_std": Option(float, 0.1, "relative prior std of each base parameter around the "
                             "machine file's value (machine sensor set: 0.05 is used when left at 0.1)"),
-        "low_speed": Option(str, "downweight", "machine sensor set: samples near standstill "
+        "low_speed": Option(str, "skip", "machine sensor set: joints near standstill "
                             "(stiction) are modelled, down-weighted or skipped",
                             ("model", "downweight", "skip")),
     }
