@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import math
 import time
 from pathlib import Path
 
@@ -27,32 +26,6 @@ from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound
-
-DEG = math.pi / 180
-
-
-def hand_made_trajectory(n: int, seed: int) -> pd.DataFrame:
-    """Operator-like motions written here by hand (no generator of the project): moves of the
-    boom, dipper, bucket and slew as smoothed ramps with pauses and small corrections."""
-    rng = np.random.default_rng(seed)
-    rows = []
-    for k in range(n):
-        t = np.arange(0, 14.0, 0.05)
-        pose = np.array([0 * DEG, -90 * DEG, -70 * DEG, 0.0])
-        q = np.tile(pose, (len(t), 1))
-        moves = [(1.0, 0, rng.uniform(15, 30) * DEG, 2.5), (1.5, 3, rng.uniform(40, 120) * DEG, 4.0),
-                 (5.5, 1, rng.uniform(3, 8) * DEG, 0.8),        # correction after a pause
-                 (7.5, 0, -rng.uniform(2, 5) * DEG, 0.6),       # small trim of the boom
-                 (9.0, 2, rng.uniform(10, 25) * DEG, 1.5),
-                 (11.0, 3, -rng.uniform(10, 30) * DEG, 2.0)]
-        for start, joint, delta, duration in moves:
-            s = np.clip((t - start) / duration, 0, 1)
-            q[:, joint] += delta * (3 * s**2 - 2 * s**3)
-        rows.append(pd.DataFrame({"experiment": k, "time": t, "boom_angle": q[:, 0], "dipper_angle": q[:, 1],
-                                  "bucket_angle": q[:, 2], "slew_angle": q[:, 3],
-                                  "payload": rng.uniform(0, 5000)}))
-    return pd.concat(rows, ignore_index=True)
-
 
 def evaluate(est, ds, bound):
     return dm.summary_row(dm.judge(est, ds, est.name, bound))
@@ -69,7 +42,7 @@ def main() -> None:
     cal = dm.calibration_data(10, a.seed)
     zero = dm.zero_data(a.seed + 1)
     tests = dm.test_sets(a.n_test, a.seed + 2)
-    hand = hand_made_trajectory(a.n_test, a.seed + 3)
+    hand = dm.hand_made_trajectory(a.n_test, a.seed + 3)
     hand.to_parquet(a.out / "hand_made_trajectory.parquet")
     tests["hand-made trajectory"] = dm.simulate_trajectory(hand, a.seed + 3, dm.SESSION_WORK)
     for name, ds in {"calibration": cal, "zero": zero, **tests}.items():

@@ -4,6 +4,11 @@ A short empty-bucket motion re-estimates the sensor offsets that drifted since c
 (:func:`excavator_payload.estimators.classical.calibrated_machine.zero_offsets`); everything
 else the calibration identified stays. The result goes to a new model folder: the calibrated
 one is never overwritten (``--out`` equal to ``--model`` is refused).
+
+The motion should move the boom, the dipper and the bucket: offsets are read from moving
+joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
+pressures only (measured on 15 session-B swings, mean MAX: 276 kg after a lift, 85 kg after an
+empty swing).
 """
 
 from __future__ import annotations

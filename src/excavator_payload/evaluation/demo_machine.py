@@ -59,6 +59,30 @@ def motion_trajectory(n: int, seed: int, payloads, machine="cat345c-hydraulic", 
     return pd.concat(rows, ignore_index=True)
 
 
+def hand_made_trajectory(n: int, seed: int) -> pd.DataFrame:
+    """Operator-like motions written here by hand (no generator of the project makes them):
+    moves of the boom, dipper, bucket and slew as smoothed ramps, with pauses and small
+    corrections; payloads uniform in 0…5 t."""
+    deg = math.pi / 180
+    rng = np.random.default_rng(seed)
+    rows = []
+    for k in range(n):
+        t = np.arange(0, 14.0, 0.05)
+        q = np.tile(np.array([0.0, -90 * deg, -70 * deg, 0.0]), (len(t), 1))
+        moves = [(1.0, 0, rng.uniform(15, 30) * deg, 2.5), (1.5, 3, rng.uniform(40, 120) * deg, 4.0),
+                 (5.5, 1, rng.uniform(3, 8) * deg, 0.8),        # a correction after a pause
+                 (7.5, 0, -rng.uniform(2, 5) * deg, 0.6),       # a small trim of the boom
+                 (9.0, 2, rng.uniform(10, 25) * deg, 1.5),
+                 (11.0, 3, -rng.uniform(10, 30) * deg, 2.0)]
+        for start, joint, delta, duration in moves:
+            s = np.clip((t - start) / duration, 0, 1)
+            q[:, joint] += delta * (3 * s**2 - 2 * s**3)
+        rows.append(pd.DataFrame({"experiment": k, "time": t, "boom_angle": q[:, 0], "dipper_angle": q[:, 1],
+                                  "bucket_angle": q[:, 2], "slew_angle": q[:, 3],
+                                  "payload": rng.uniform(0, 5000)}))
+    return pd.concat(rows, ignore_index=True)
+
+
 def simulate_trajectory(table: pd.DataFrame, seed: int, session: int, machine="cat345c-hydraulic") -> Dataset:
     """Machine-sensor-set data of a trajectory table in working session ``session``."""
     from excavator_payload.simulation.generate import simulate_dataset
@@ -238,6 +262,12 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
     tests = test_sets(n_test, seed + 2, machine)
     for name, ds in {"calibration": cal, "zero": zero, **tests}.items():
         write_dataset(ds, out / "data" / f"{name}.parquet")
+    # trajectory files for the CLI flow (simulate --motion trajectory --trajectory FILE)
+    (out / "trajectories").mkdir(exist_ok=True)
+    motion_trajectory(n_cal, seed, CALIBRATION_PAYLOADS, machine).to_parquet(
+        out / "trajectories" / "calibration.parquet")
+    motion_trajectory(1, seed + 1, (0.0,), machine).to_parquet(out / "trajectories" / "zero_check.parquet")
+    hand_made_trajectory(max(n_test, 2), seed + 3).to_parquet(out / "trajectories" / "hand_made.parquet")
     names = machine_estimators()
     say(f"fitting: {', '.join(names)} (from cat345c-hydraulic-3pct)")
     fit = fit_estimators(cal, zero, names)
