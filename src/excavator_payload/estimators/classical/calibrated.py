@@ -144,6 +144,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         self.calibration = None  # machine sensor set: a calibrated_machine.MachineCalibration
 
     def _fit(self, dataset: Dataset) -> None:
+        self.calibration, self._range_cache = None, None  # a refit starts afresh
         if dataset.sensor_set.name == "machine":
             from excavator_payload.estimators.classical import calibrated_machine
 
