@@ -117,6 +117,12 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     ``fit(dataset)`` takes experiments with *known* payloads (``--experiments N``: the first N
     only), starts from the machine file (``--machine``, e.g. the wrong ``cat345c-3pct``) and
     identifies the twelve base parameters; estimation then equals ``inverse-dynamics``.
+
+    On machine-sensor-set data (a hydraulic machine file, e.g. ``cat345c-hydraulic-3pct``) it
+    identifies the physical parameters, seal friction, sensor offsets and pressure noise instead
+    (:mod:`~excavator_payload.estimators.classical.calibrated_machine`); ``excavator-payload
+    zero`` re-estimates the offsets later. One-sigma uncertainty of the current estimate:
+    :attr:`uncertainty` (kg).
     """
 
     name = "calibrated"
