@@ -85,6 +85,9 @@ def _register_commands() -> None:
     evaluation_commands.register(app)
     study_commands.register(app)
     runtime_commands.register(app)
+    from excavator_payload.estimators import zero_commands  # issue 12: check zero
+
+    zero_commands.register(app)
 
 
 _register_commands()

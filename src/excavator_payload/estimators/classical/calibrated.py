@@ -117,16 +117,26 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     ``fit(dataset)`` takes experiments with *known* payloads (``--experiments N``: the first N
     only), starts from the machine file (``--machine``, e.g. the wrong ``cat345c-3pct``) and
     identifies the twelve base parameters; estimation then equals ``inverse-dynamics``.
+
+    On machine-sensor-set data (a hydraulic machine file, e.g. ``cat345c-hydraulic-3pct``) it
+    identifies the physical parameters, seal friction, sensor offsets and pressure noise instead
+    (:mod:`~excavator_payload.estimators.classical.calibrated_machine`); ``excavator-payload
+    zero`` re-estimates the offsets later. One-sigma uncertainty of the current estimate:
+    :attr:`uncertainty` (kg).
     """
 
     name = "calibrated"
-    #: The machine sensor set is issue 12's calibration, not done yet: thesis set only.
-    SENSOR_SETS = ("thesis",)
+    #: On the machine sensor set the identification is
+    #: :mod:`~excavator_payload.estimators.classical.calibrated_machine` (dispatch below).
+    SENSOR_SETS = ("thesis", "machine")
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
         "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),
         "prior_std": Option(float, 0.1, "relative prior std of each base parameter around the "
-                            "machine file's value"),
+                            "machine file's value (machine sensor set: 0.05 is used when left at 0.1)"),
+        "low_speed": Option(str, "skip", "machine sensor set: joints near standstill "
+                            "(stiction) are modelled, down-weighted or skipped",
+                            ("model", "downweight", "skip")),
     }
 
     def __init__(self, machine=None, **options) -> None:
@@ -137,8 +147,15 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             raise EstimatorError(f"{self.name}: option --prior-std must be > 0")
         self.parameter_covariance = np.zeros((12, 12))
         self.calibration_experiments: list[int] = []
+        self.calibration = None  # machine sensor set: a calibrated_machine.MachineCalibration
 
     def _fit(self, dataset: Dataset) -> None:
+        self.calibration, self._range_cache = None, None  # a refit starts afresh
+        if dataset.sensor_set.name == "machine":
+            from excavator_payload.estimators.classical import calibrated_machine
+
+            calibrated_machine.fit_estimator(self, dataset)
+            return
         self._set_noise(self._noise_from(dataset))
         n = self.options["experiments"]
         ids = list(dataset.experiment_ids)
@@ -165,13 +182,39 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             "prior": prior, "identified": value, "std": np.sqrt(np.diag(self.parameter_covariance)),
         })
 
+    def _in_range(self, values: np.ndarray) -> bool:
+        if self.calibration is None:
+            return super()._in_range(values)
+        if getattr(self, "_range_cache", None) is None:  # streaming: index and ranges once
+            index = [self.sensor_set.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle")]
+            ranges = np.asarray(self.machine.angle_ranges, float)
+            self._range_cache = (index, [(float(lo), float(hi)) for lo, hi in ranges])
+        index, ranges = self._range_cache
+        for i, (lo, hi) in zip(index, ranges):
+            if not lo <= values[i] <= hi:
+                return False
+        return True
+
     def _config(self) -> dict:
+        if self.calibration is not None:
+            from excavator_payload.estimators.classical import calibrated_machine
+
+            return calibrated_machine.config(self)
         return {**super()._config(), "calibration_experiments": self.calibration_experiments}
 
     def _arrays(self) -> dict[str, np.ndarray]:
+        if self.calibration is not None:
+            from excavator_payload.estimators.classical import calibrated_machine
+
+            return calibrated_machine.arrays(self)
         return {**super()._arrays(), "parameter_covariance": self.parameter_covariance}
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        if config.get("kernel") == "calibrated_machine":
+            from excavator_payload.estimators.classical import calibrated_machine
+
+            calibrated_machine.restore(self, config, arrays)
+            return
         super()._restore(config, arrays)
         self.parameter_covariance = np.asarray(arrays["parameter_covariance"], float)
         self.calibration_experiments = [int(i) for i in config.get("calibration_experiments", [])]

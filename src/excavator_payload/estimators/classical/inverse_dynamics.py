@@ -396,9 +396,13 @@ class InverseDynamicsEstimator(Estimator):
         name = self.options["noise"]
         if name == "auto":
             name = dataset.meta.get("noise")
-            if name is None:
-                raise EstimatorError(f"{self.name}: the training data names no noise preset; "
-                                     "pass --noise field|none")
+        if name is None:  # issue 12: no preset named, the pressure noise is estimated from the data
+            from excavator_payload.estimators.classical.calibrated_machine import pressure_noise_from_data
+
+            self.noise_name = "estimated"
+            self._pressure_noise = (pressure_noise_from_data(dataset), 0.0)
+            self._build_pressure_kernel()
+            return
         preset = get_machine_noise(name)
         self.noise_name = preset.name
         self._pressure_noise = (preset.pressure_noise, preset.ripple_fraction)

@@ -1,0 +1,123 @@
+r"""Cramér–Rao bound on the payload for the machine sensor set, nuisances accounted for.
+
+On the machine the payload is weighed through the pressure residual of each arm joint
+(:mod:`~excavator_payload.estimators.classical.calibrated_machine`),
+
+.. math:: r_j = \text{count}_j\,\partial l_j/\partial q_j\,\big((\tilde p_h - o_h)A_h
+          - (\tilde p_r - o_r)A_r - F_{f,j}(\nu)\big) - \tau_{0,j} - m\,\varphi_j,
+
+whose noise is the pressure transmitters' white noise through the cylinder geometry,
+:math:`\operatorname{var} r_j = \text{lever}_j^2 (A_h^2 + A_r^2)\sigma_p^2`, plus, near
+standstill, the stiction the friction model cannot know (:math:`(\text{breakaway torque})^2/3`,
+fading with speed). Besides the payload :math:`m` an estimator must also know the *nuisance*
+parameters :math:`\nu`: the seal friction (Coulomb, load coefficient, viscous of each cylinder)
+and the sensor offsets :math:`o`. It learns them from calibration (and the zero check), with the
+posterior covariance :math:`C_\nu` the calibration left; that is prior information
+:math:`C_\nu^{-1}`. The Fisher information of :math:`\theta = (m, \nu)` from an experiment's
+samples up to :math:`k` is
+
+.. math:: F_k = \sum_{i \le k} \frac{\partial r_i}{\partial\theta}^\top W_i
+          \frac{\partial r_i}{\partial\theta} + \begin{bmatrix}0 & 0\\ 0 & C_\nu^{-1}\end{bmatrix},
+
+and the bound on the payload is the Schur complement
+:math:`\sigma_m \ge (F_{mm} - F_{m\nu}F_{\nu\nu}^{-1}F_{\nu m})^{-1/2}`: what the nuisances
+still unknown cost. The Jacobians are those of the calibration (CasADi, the symbolic model),
+evaluated at the model's identified parameters on the true signals where the dataset has them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.classical import calibrated_machine as cm
+
+
+def nuisance_indices() -> np.ndarray:
+    """Indices in z of the nuisances: friction parameters and sensor offsets."""
+    n_delta = len(cm.CALIBRATED_PARAMETERS)
+    friction = [cm.CALIBRATED_PARAMETERS.index(p) for p in cm.FRICTION_PARAMETERS]
+    return np.r_[friction, np.arange(n_delta, n_delta + len(cm.OFFSET_SIGNALS))].astype(int)
+
+
+def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
+                  pressure_std: float | None = None, half_window: int = 5,
+                  nuisances: bool = True) -> np.ndarray:
+    """Lower bound on the payload error's std (kg) at every row of ``dataset``.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data with the true ``payload`` column.
+    calibration : MachineCalibration
+        The identified machine (parameters, offsets and their covariance).
+    pressure_std : float, optional
+        White pressure noise, Pa; default the dataset's noise preset where it names one, else
+        the calibration's estimate.
+    nuisances : bool
+        False: the payload alone (friction and offsets known exactly).
+    """
+    from excavator_payload.simulation.machine_sensors import get_machine_noise
+
+    if dataset.sensor_set.name != "machine":
+        raise EstimatorError("the machine bound needs machine-sensor-set data")
+    if pressure_std is None:
+        name = dataset.meta.get("noise")
+        pressure_std = get_machine_noise(name).pressure_noise if name else calibration.pressure_std
+    f = dataset.frame
+    signals = list(cm.SIGNALS)
+    if dataset.has_truth and all("true_" + s in f for s in signals):
+        # true signals plus the model's offsets: the residual function subtracts them again
+        values = f[["true_" + s for s in signals]].to_numpy(float) + calibration.offset_vector()
+        qdd = f[["true_boom_accel", "true_dipper_accel", "true_bucket_accel", "true_slew_accel"]].to_numpy(float)
+    else:
+        values = f[signals].to_numpy(float)
+        qdd = cm.accelerations(dataset, half_window)
+    payload = f["payload"].to_numpy(float)
+    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1) & np.isfinite(payload)
+    out = np.full(len(f), np.nan)
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return out
+    r, J, lever, speed, stiction = calibration.evaluate(values[idx], qdd[idx], payload[idx], calibration.z)
+    accel_var, calibration.accel_var = calibration.accel_var, 0.0
+    try:  # true accelerations: no differentiator noise in the bound
+        w = calibration.weights(lever, speed, stiction, "downweight", float(pressure_std))
+    finally:
+        calibration.accel_var = accel_var
+    phi = calibration._payload_sensitivity  # ∂r/∂m, set by evaluate
+    cols = nuisance_indices() if nuisances else np.zeros(0, int)
+    C = calibration.covariance[np.ix_(cols, cols)]
+    # nuisances in units of their calibration std: F stays well conditioned (Pa beside 1e-2)
+    scale = np.sqrt(np.maximum(np.diag(C), 1e-300)) if len(cols) else np.zeros(0)
+    G = np.concatenate([phi[..., None], J[:, :, cols] * scale], axis=2)  # (n, 3, 1 + nν)
+    G = np.nan_to_num(G)
+    w = np.where(np.isfinite(w), w, 0.0)
+    info = np.einsum("nja,nj,njb->nab", G, w, G)
+    prior = np.zeros((1 + len(cols), 1 + len(cols)))
+    if len(cols):
+        prior[1:, 1:] = np.linalg.pinv(C / np.outer(scale, scale), hermitian=True)
+    exp = f["experiment"].to_numpy()[idx]
+    starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
+        F = np.cumsum(info[a:b], axis=0) + prior
+        Fmm = F[:, 0, 0]
+        if len(cols):
+            Fmn = F[:, 0, 1:]
+            Fnn = F[:, 1:, 1:]
+            schur = Fmm - np.einsum("na,na->n", Fmn, np.linalg.solve(Fnn, Fmn[..., None])[..., 0])
+        else:
+            schur = Fmm
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[idx[a:b]] = 1.0 / np.sqrt(np.maximum(schur, 0.0))
+    return out
+
+
+def dataset_machine_bound(dataset: Dataset, estimator) -> np.ndarray | None:
+    """The bound for ``dataset`` given a fitted model; ``None`` when the model has no machine
+    calibration (only ``calibrated`` fitted on the machine sensor set carries one)."""
+    cal = getattr(estimator, "calibration", None)
+    if cal is None or dataset.sensor_set.name != "machine" or "payload" not in dataset.frame:
+        return None
+    return machine_bound(dataset, cal, half_window=estimator.options.get("half_window", 5))

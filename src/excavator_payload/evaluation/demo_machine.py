@@ -1,0 +1,296 @@
+"""``excavator-payload demo --machine cat345c-hydraulic``: the whole study on the hydraulic machine.
+
+As a service technician would set the weighing up:
+
+1. **session A** — calibration motions with known payloads (empty bucket and known weights:
+   0, 2500, 5000 kg in turn), made as trajectory files of swing motions (slewing included) and
+   pushed through the simulator (``--motion trajectory``);
+2. ``calibrated`` identified from them, starting from ``cat345c-hydraulic-3pct``;
+3. **session B** (other sensor offsets) — a short empty-bucket motion: ``zero``;
+4. **session B** — test motions (swings with slewing, operator-like work cycles, work cycles on
+   a 5° slope); every estimator that runs on the machine sensor set
+   (``estimator_class(name).SENSOR_SETS``, read at run time) is fitted on the calibration data
+   and judged against the same tests, beside the Cramér–Rao bound of
+   :mod:`~excavator_payload.evaluation.crb_machine`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.data.dataset import Dataset
+
+#: Known payloads of the calibration motions, cycled (kg).
+CALIBRATION_PAYLOADS = (0.0, 2500.0, 5000.0)
+SESSION_CALIBRATION, SESSION_WORK = 1, 2
+#: Samples not judged at the start of each test experiment: the first second at 100 Hz.
+DISCARD = 100
+ANGLE_COLUMNS = ("boom_angle", "dipper_angle", "bucket_angle", "slew_angle")
+
+
+def motion_trajectory(n: int, seed: int, payloads, machine="cat345c-hydraulic", motion="swing",
+                      slope_deg: float | None = None) -> pd.DataFrame:
+    """A trajectory table of ``n`` generated motions with the given payloads (cycled).
+
+    The motions are those the simulator draws (true angles, noise-free); the payloads are the
+    technician's known weights; ``slope_deg`` puts the machine on a slope of that angle
+    (pitch, in a direction drawn per experiment).
+    """
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    ds = simulate_dataset(n, seed=seed, machine=machine, motion=motion, noise="none", with_truth=True,
+                          workers=1, progress=False)
+    rows = []
+    rng = np.random.default_rng(seed)
+    for k, (exp, frame) in enumerate(ds.experiments()):
+        t = pd.DataFrame({"experiment": k, "time": frame["time"].to_numpy(float)})
+        for c in ANGLE_COLUMNS:
+            t[c] = frame["true_" + c].to_numpy(float)
+        t["payload"] = float(payloads[k % len(payloads)])
+        if slope_deg is not None:
+            direction = rng.uniform(0, 2 * math.pi)
+            t["ground_pitch"] = math.radians(slope_deg) * math.cos(direction)
+            t["ground_roll"] = math.radians(slope_deg) * math.sin(direction)
+        rows.append(t)
+    return pd.concat(rows, ignore_index=True)
+
+
+def hand_made_trajectory(n: int, seed: int) -> pd.DataFrame:
+    """Operator-like motions written here by hand (no generator of the project makes them):
+    moves of the boom, dipper, bucket and slew as smoothed ramps, with pauses and small
+    corrections; payloads uniform in 0…5 t."""
+    deg = math.pi / 180
+    rng = np.random.default_rng(seed)
+    rows = []
+    for k in range(n):
+        t = np.arange(0, 14.0, 0.05)
+        q = np.tile(np.array([0.0, -90 * deg, -70 * deg, 0.0]), (len(t), 1))
+        moves = [(1.0, 0, rng.uniform(15, 30) * deg, 2.5), (1.5, 3, rng.uniform(40, 120) * deg, 4.0),
+                 (5.5, 1, rng.uniform(3, 8) * deg, 0.8),        # a correction after a pause
+                 (7.5, 0, -rng.uniform(2, 5) * deg, 0.6),       # a small trim of the boom
+                 (9.0, 2, rng.uniform(10, 25) * deg, 1.5),
+                 (11.0, 3, -rng.uniform(10, 30) * deg, 2.0)]
+        for start, joint, delta, duration in moves:
+            s = np.clip((t - start) / duration, 0, 1)
+            q[:, joint] += delta * (3 * s**2 - 2 * s**3)
+        rows.append(pd.DataFrame({"experiment": k, "time": t, "boom_angle": q[:, 0], "dipper_angle": q[:, 1],
+                                  "bucket_angle": q[:, 2], "slew_angle": q[:, 3],
+                                  "payload": rng.uniform(0, 5000)}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def simulate_trajectory(table: pd.DataFrame, seed: int, session: int, machine="cat345c-hydraulic") -> Dataset:
+    """Machine-sensor-set data of a trajectory table in working session ``session``."""
+    from excavator_payload.simulation.generate import simulate_dataset
+    from excavator_payload.simulation.trajectory import trajectory_from_frame
+
+    traj = trajectory_from_frame(table)
+    return simulate_dataset(len(traj.experiments), seed=seed, machine=machine, motion="trajectory",
+                            trajectory=traj, session=session, with_truth=True, workers=1, progress=False)
+
+
+def calibration_data(n: int = 10, seed: int = 100, machine="cat345c-hydraulic") -> Dataset:
+    """``n`` calibration motions with known payloads, session A."""
+    return simulate_trajectory(motion_trajectory(n, seed, CALIBRATION_PAYLOADS, machine), seed,
+                               SESSION_CALIBRATION, machine)
+
+
+def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
+    """One empty-bucket swing, session B (the zero check)."""
+    return simulate_trajectory(motion_trajectory(1, seed, (0.0,), machine), seed, SESSION_WORK, machine)
+
+
+def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str, Dataset]:
+    """Session-B test data: swings with slewing, work cycles, work cycles on a 5° slope."""
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    common = dict(machine=machine, session=SESSION_WORK, with_truth=True, workers=1, progress=False)
+    sets = {"swing": simulate_dataset(n, seed=seed, motion="swing", **common),
+            "work-cycle": before_release(simulate_dataset(n, seed=seed + 1, motion="work-cycle", **common))}
+    rated = 5000.0
+    rng = np.random.default_rng(seed + 2)
+    payloads = rng.uniform(0, rated, n)
+    sets["slope-5deg"] = simulate_trajectory(
+        motion_trajectory(n, seed + 2, payloads, machine, motion="swing", slope_deg=5.0), seed + 2,
+        SESSION_WORK, machine)
+    return sets
+
+
+def before_release(dataset: Dataset) -> Dataset:
+    """Each work cycle up to the dump (the load leaves the bucket there: the payload column is
+    the load carried, which a weighing judged after the dump would wrongly blame)."""
+    meta = dataset.experiment_meta
+    f = dataset.frame
+    keep = np.ones(len(f), bool)
+    exp, time = f["experiment"].to_numpy(), f["time"].to_numpy(float)
+    for k, m in meta.items():
+        if m.get("release"):
+            keep &= ~((exp == k) & (time >= float(m["release"][0])))
+    return Dataset(f[keep].reset_index(drop=True), dataset.meta)
+
+
+def machine_estimators() -> list[str]:
+    """Registered estimators that declare the machine sensor set (read at run time)."""
+    from excavator_payload.estimators.base import estimator_class, estimator_names
+
+    return [n for n in estimator_names() if "machine" in estimator_class(n).SENSOR_SETS]
+
+
+def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="cat345c-hydraulic-3pct",
+                   progress: bool = True, options: dict | None = None) -> dict:
+    """Fit every estimator in ``names`` on the calibration data (``calibrated`` also zeroed)."""
+    from excavator_payload.estimators.base import estimator_class
+    from excavator_payload.estimators.classical import calibrated_machine
+
+    fitted, failures = {}, {}
+    for name in names:
+        klass = estimator_class(name)
+        try:
+            est = klass(prior_machine if klass.NEEDS_MACHINE else None, **(options or {}).get(name, {}))
+            est.fit(calibration)
+            if name == "calibrated":
+                calibrated_machine.zero(est, zero)
+            fitted[name] = est
+        except Exception as exc:  # noqa: BLE001 - one estimator failing must not stop the study
+            failures[name] = f"{type(exc).__name__}: {exc}"
+    return {"fitted": fitted, "failures": failures}
+
+
+def judge(estimator, dataset: Dataset, label: str, bound: np.ndarray | None):
+    """Evaluation (metrics.evaluate_estimates) of one estimator on one test set."""
+    from excavator_payload.evaluation.metrics import evaluate_estimates
+
+    return evaluate_estimates(dataset, estimator.estimate(dataset), label=label, bound=bound,
+                              with_bound=bound is not None, discard=DISCARD)
+
+
+def summary_row(evaluation, rated: float = 5000.0) -> dict:
+    pe = evaluation.per_experiment
+    max_err = pe["max_error"].to_numpy(float)
+    rms = pe["rms_error"].to_numpy(float)
+    return {"mean_max_kg": float(np.mean(max_err)), "mean_rms_kg": float(np.mean(rms)),
+            "within_1pct": float(np.mean(max_err <= 0.01 * rated)),
+            "within_0.5pct": float(np.mean(max_err <= 0.005 * rated)),
+            "within_0.25pct": float(np.mean(max_err <= 0.0025 * rated)),
+            "efficiency": float(evaluation.summary.get("efficiency", math.nan)),
+            "n_test": int(len(pe))}
+
+
+#: Sizes per ``--scale``: calibration motions, test experiments per test set.
+MACHINE_SCALES = {"tiny": (2, 1), "quick": (10, 20), "thesis": (10, 200)}
+
+
+def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
+    """(estimator copy, test data) pairs, each ignoring one effect (the cost-of-each-effect table).
+
+    * ``slewing``: the slew rate is not given to the estimator (zero);
+    * ``tilt``: the house inclination is not given (the estimator believes level ground);
+    * ``friction``: the seal friction of the model set to zero;
+    * ``offsets``: the sensor offsets not corrected (no calibration or zero of them);
+    * ``uncalibrated 3 % file``: the machine file as it is, no calibration (offsets neither).
+    """
+    import copy
+
+    from excavator_payload.estimators.classical import calibrated_machine as cm
+
+    def variant(edit_z=None, columns=()):
+        est = copy.deepcopy(estimator)
+        if edit_z is not None:
+            edit_z(est.calibration.z)
+            cm._install(est, est.calibration)
+        data = test
+        if columns:
+            frame = test.frame.copy()
+            for c in columns:
+                frame[c] = est.calibration.offset_vector()[list(cm.SIGNALS).index(c)]
+            data = Dataset(frame, test.meta)
+        return est, data
+
+    n_delta = len(cm.CALIBRATED_PARAMETERS)
+    friction = [cm.CALIBRATED_PARAMETERS.index(p) for p in cm.FRICTION_PARAMETERS]
+
+    def no_friction(z):
+        z[friction] = -1.0  # p = p_file · (1 + δ) = 0
+
+    def no_offsets(z):
+        z[n_delta:] = 0.0
+
+    def uncalibrated(z):
+        z[:] = 0.0
+
+    return {"none ignored": variant(), "slewing": variant(columns=("slew_rate",)),
+            "tilt": variant(columns=("house_pitch", "house_roll")), "friction": variant(no_friction),
+            "offsets": variant(no_offsets), "uncalibrated 3 % file": variant(uncalibrated)}
+
+
+def markdown_table(table: pd.DataFrame) -> str:
+    """A Markdown table (numbers to 3 significant digits), without the tabulate package."""
+    def cell(v):
+        return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+    head = "| " + " | ".join(table.columns) + " |"
+    rule = "|" + "|".join("---" for _ in table.columns) + "|"
+    body = ["| " + " | ".join(cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    return "\n".join([head, rule, *body])
+
+
+def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str = "quick", seed: int = 2024,
+                     console=None) -> dict:
+    """The whole study on the hydraulic machine (module doc); writes ``results.csv`` and
+    ``report.md`` to ``out`` and returns the results table and failures."""
+    from excavator_payload.data.io import write_dataset
+    from excavator_payload.errors import ExcavatorPayloadError
+    from excavator_payload.evaluation.crb_machine import dataset_machine_bound
+    from excavator_payload.model.machine import load_machine
+
+    if scale not in MACHINE_SCALES:
+        raise ExcavatorPayloadError(f"--scale must be one of {', '.join(MACHINE_SCALES)} for the machine demo")
+    if getattr(load_machine(machine), "kind", None) != "hydraulic":
+        raise ExcavatorPayloadError(f"demo --machine needs a hydraulic machine, '{machine}' is not one")
+    n_cal, n_test = MACHINE_SCALES[scale]
+    out = Path(out)
+    (out / "data").mkdir(parents=True, exist_ok=True)
+    say = console.print if console is not None else (lambda *a, **k: None)
+    say(f"simulating: {n_cal} calibration motions (session {SESSION_CALIBRATION}), zero check and "
+        f"3 × {n_test} test motions (session {SESSION_WORK})")
+    cal = calibration_data(n_cal, seed, machine)
+    zero = zero_data(seed + 1, machine)
+    tests = test_sets(n_test, seed + 2, machine)
+    for name, ds in {"calibration": cal, "zero": zero, **tests}.items():
+        write_dataset(ds, out / "data" / f"{name}.parquet")
+    # trajectory files for the CLI flow (simulate --motion trajectory --trajectory FILE)
+    (out / "trajectories").mkdir(exist_ok=True)
+    motion_trajectory(n_cal, seed, CALIBRATION_PAYLOADS, machine).to_parquet(
+        out / "trajectories" / "calibration.parquet")
+    motion_trajectory(1, seed + 1, (0.0,), machine).to_parquet(out / "trajectories" / "zero_check.parquet")
+    hand_made_trajectory(max(n_test, 2), seed + 3).to_parquet(out / "trajectories" / "hand_made.parquet")
+    names = machine_estimators()
+    say(f"fitting: {', '.join(names)} (from cat345c-hydraulic-3pct)")
+    fit = fit_estimators(cal, zero, names)
+    rows = []
+    reference = fit["fitted"].get("calibrated")
+    for set_name, ds in tests.items():
+        bound = dataset_machine_bound(ds, reference) if reference is not None else None
+        for name, est in fit["fitted"].items():
+            try:
+                rows.append({"test": set_name, "estimator": name,
+                             **summary_row(judge(est, ds, name, bound))})
+            except Exception as exc:  # noqa: BLE001
+                fit["failures"][f"{name} on {set_name}"] = f"{type(exc).__name__}: {exc}"
+    table = pd.DataFrame(rows)
+    table.to_csv(out / "results.csv", index=False)
+    lines = ["# Weighing on the hydraulic machine", "",
+             f"Calibrated from `cat345c-hydraulic-3pct` with {n_cal} motions of known payload "
+             f"(session {SESSION_CALIBRATION}), zeroed on one empty-bucket swing and tested on "
+             f"{n_test} experiments per set (session {SESSION_WORK}); first second not judged; work "
+             "cycles judged up to the dump.", "",
+             markdown_table(table) if len(table) else "(no results)", ""]
+    if fit["failures"]:
+        lines += ["Failures:", ""] + [f"- {k}: {v}" for k, v in fit["failures"].items()]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    say(f"report: {out / 'report.md'}")
+    return {"table": table, "failures": fit["failures"]}

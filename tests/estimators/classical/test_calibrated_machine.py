@@ -1,0 +1,131 @@
+"""calibrated on the machine sensor set: identification from known-payload motions, zero, noise."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.base import create_estimator, load_estimator
+from excavator_payload.estimators.classical import calibrated_machine as cm
+from excavator_payload.evaluation import demo_machine as dm
+from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.model.machine import load_machine
+
+PRIOR = "cat345c-hydraulic-3pct"
+
+
+@pytest.fixture(scope="module")
+def setup():
+    """3 calibration swings (0, 2500, 5000 kg) in session 1, an empty swing and 2 test swings
+    in session 2, and the calibrated + zeroed estimator."""
+    cal = dm.calibration_data(3, seed=5)
+    zero = dm.zero_data(seed=6)
+    test = dm.test_sets(2, seed=7)["swing"]
+    est = create_estimator("calibrated", PRIOR).fit(cal)
+    calibrated = copy.deepcopy(est)
+    cm.zero(est, zero)
+    return dict(cal=cal, zero=zero, test=test, calibrated=calibrated, zeroed=est)
+
+
+def mean_abs_error(est, ds):
+    e = est.estimate(ds)["payload_estimate"].to_numpy() - ds.frame["payload"].to_numpy()
+    judged = ds.frame.groupby("experiment").cumcount().to_numpy() >= dm.DISCARD
+    return float(np.nanmean(np.abs(e[judged])))
+
+
+def test_calibration_fits_the_machine_better_than_the_file(setup):
+    """The identified machine explains the calibration data better than the 3 % file does."""
+    est = setup["calibrated"]
+    cal = est.calibration
+    values, qdd, payload = cm.calibration_arrays(setup["cal"], cm.CALIBRATION_HALF_WINDOW)
+
+    def cost(z):  # weighted squared residuals of the moving joints (what calibration fits)
+        r, _, lever, speed, stiction = cal.evaluate(values, qdd, payload, z)
+        return np.nansum(cal.weights(lever, speed, stiction, "skip", cal.pressure_std) * r**2)
+
+    assert cost(cal.z) < 0.5 * cost(np.zeros_like(cal.z))
+    # and weighs the calibration session's motions better than the file as it is
+    uncalibrated = copy.deepcopy(est)
+    uncalibrated.calibration.z[:] = 0.0
+    cm._install(uncalibrated, uncalibrated.calibration)
+    assert mean_abs_error(est, setup["cal"]) < 0.5 * mean_abs_error(uncalibrated, setup["cal"])
+
+
+def test_noise_is_estimated_from_the_residuals_without_metadata(setup):
+    """No noise preset in the data: the pressure noise comes from the calibration residuals
+    (the field preset's white noise is 30 kPa; ripple and dynamics add to what the estimator
+    sees)."""
+    meta = {k: v for k, v in setup["cal"].meta.items() if k != "noise"}
+    est = create_estimator("calibrated", PRIOR, experiments=2).fit(Dataset(setup["cal"].frame, meta))
+    assert 2e4 < est.calibration.pressure_std < 3e5
+    assert est.noise_name == "estimated"
+
+
+def test_zero_removes_the_session_offsets(setup):
+    """Session 2 has other offsets: without the zero the calibrated model is biased, after it
+    the error is several times smaller; the parameters stay as calibrated."""
+    before = mean_abs_error(setup["calibrated"], setup["test"])
+    after = mean_abs_error(setup["zeroed"], setup["test"])
+    assert after < 0.6 * before
+    n = len(cm.CALIBRATED_PARAMETERS)
+    np.testing.assert_array_equal(setup["zeroed"].calibration.z[:n], setup["calibrated"].calibration.z[:n])
+    assert not np.allclose(setup["zeroed"].calibration.z[n:], setup["calibrated"].calibration.z[n:])
+
+
+def test_zero_refuses_a_loaded_bucket_and_other_models(setup):
+    loaded = setup["cal"].subset([1])
+    with pytest.raises(EstimatorError, match="empty bucket"):
+        cm.zero(copy.deepcopy(setup["zeroed"]), loaded)
+    other = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(setup["zero"])
+    with pytest.raises(EstimatorError, match="calibrated"):
+        cm.zero(other, setup["zero"])
+
+
+def test_save_load_round_trip_and_streaming(setup, tmp_path):
+    est = setup["zeroed"]
+    est.save(tmp_path / "m")
+    back = load_estimator(tmp_path / "m")
+    a = est.estimate(setup["test"])["payload_estimate"].to_numpy()
+    b = back.estimate(setup["test"])["payload_estimate"].to_numpy()
+    np.testing.assert_allclose(a, b, equal_nan=True)
+    assert np.isfinite(back.uncertainty) and back.uncertainty < 100
+
+
+def test_low_speed_choices_differ_and_bad_ones_are_refused(setup):
+    results = {}
+    for low in cm.LOW_SPEED_CHOICES:
+        est = copy.deepcopy(setup["zeroed"])
+        est.options["low_speed"] = low
+        cm._install(est, est.calibration)
+        results[low] = mean_abs_error(est, setup["test"])
+    assert len(set(np.round(list(results.values()), 6))) == 3
+    with pytest.raises(EstimatorError, match="low-speed"):
+        create_estimator("calibrated", PRIOR, low_speed="sometimes")
+
+
+def test_regressor_is_the_jacobian_of_the_symbolic_residual():
+    """The calibration's Jacobian equals finite differences of its residual."""
+    arm = HydraulicArmModel(load_machine(PRIOR), compiled=False)
+    cal = cm.MachineCalibration(arm)
+    rng = np.random.default_rng(0)
+    x = np.array([[0.3, -1.5, -1.0, 0.1, -0.05, 0.2, 0.3, 0.01, -0.02, 1.2e7, 1.5e6, 8e6, 2e6, 5e6, 1.6e6]])
+    qdd = np.array([[0.2, -0.1, 0.3, 0.1]])
+    z = rng.normal(0, 0.02, len(cal.z)) * cal.prior_std(1.0)
+    r, J, *_ = cal.evaluate(x, qdd, np.array([1000.0]), z)
+    for k in (0, 10, 30, 50, len(cal.z) - 5):
+        h = 1e-6 * max(1.0, cal.prior_std(1.0)[k] * 10)
+        dz = np.zeros_like(z)
+        dz[k] = h
+        r2 = cal.evaluate(x, qdd, np.array([1000.0]), z + dz)[0]
+        np.testing.assert_allclose((r2 - r) / h, J[:, :, k], rtol=1e-3, atol=1e-6 * np.abs(J).max())
+
+
+def test_inverse_dynamics_needs_no_noise_preset_on_the_machine_set(setup):
+    """Data without metadata: the pressure noise is estimated (second differences), near the
+    field preset's 30 kPa white noise (ripple aliasing adds a little)."""
+    meta = {k: v for k, v in setup["test"].meta.items() if k != "noise"}
+    est = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(Dataset(setup["test"].frame, meta))
+    assert est.noise_name == "estimated"
+    assert 2.5e4 < est._pressure_noise[0] < 5e4
