@@ -298,18 +298,24 @@ class Estimator(ABC):
 
         Called before :meth:`_step` on every plausible sample; the base class rejects the
         sample when the value exceeds :func:`gate_threshold`. None means the estimator cannot
-        judge the sample (yet). By default: the borrowed gate's (see :meth:`_borrows_gate`).
+        judge the sample (yet), the default. An estimator that borrows its gate (see
+        :meth:`_borrows_gate`) is judged by the sentinel instead.
         """
+        return None
+
+    def _gate_innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
+        """The borrowed gate's innovation if there is one, else the estimator's own."""
         if self._sentinel is not None:
             return self._sentinel._innovation(time, values)
-        return None
+        return self._innovation(time, values)
 
     def _borrows_gate(self) -> bool:
         """Whether this instance gates its samples with a sentinel: inverse-dynamics least
         squares on the machine and noise preset of the training data, run beside it. For
         estimators that have no noise model of their own (networks, the quasi-static map, the
-        thesis' EKF tuning). Only on the thesis sensor set (torques measured)."""
-        return self.BORROWS_GATE and self.sensor_set.name == "thesis"
+        thesis' EKF tuning), and for any estimator that believes another machine than the one
+        its training data came from. Only on the thesis sensor set (torques measured)."""
+        return self.BORROWS_GATE
 
     def _on_skip(self, time: float, values: np.ndarray) -> None:
         """Called before the sample that follows samples the gate rejected (before that sample
@@ -348,8 +354,13 @@ class Estimator(ABC):
         self.fit_warnings = []
         self._fit(dataset)
         self._sentinel_source = None
-        if self._borrows_gate():
-            machine = self.machine if self.machine is not None else _dataset_machine(dataset)
+        data_machine = _dataset_machine(dataset)
+        # The gate judges the data, so it uses the physics the data came from: an estimator
+        # that believes another machine (EKF₃%, uncalibrated inverse dynamics) borrows it.
+        believes_other = (self.machine is not None and data_machine is not None
+                          and data_machine.to_dict() != self.machine.to_dict())
+        if self.sensor_set.name == "thesis" and (self._borrows_gate() or believes_other):
+            machine = data_machine if data_machine is not None else self.machine
             noise = dataset.meta.get("noise")
             if machine is not None and noise:
                 self._sentinel_source = {"machine": machine.to_dict(), "noise": str(noise)}
@@ -446,7 +457,7 @@ class Estimator(ABC):
             self._on_skip(time, values)  # samples the gate rejected just before this one
         reinitialised = False
         try:
-            nis = self._innovation(time, values) if self.gating else None
+            nis = self._gate_innovation(time, values) if self.gating else None
         except (ArithmeticError, ValueError, np.linalg.LinAlgError):
             nis = (math.inf, 1)
         if nis is not None:

@@ -150,17 +150,15 @@ class KalmanEstimatorBase(Estimator):
         torques, :math:`R^{(2)} = \Sigma_\tau + M\Sigma_a M^\top`); chi-square with 4 or 6
         degrees of freedom for a sample the noise model describes.
         """
-        if self.tuning.name == "thesis":
-            # Q = 10⁶·I makes S enormous and the torques are inputs, not measurements: the
-            # thesis tuning has no usable noise model, so it borrows the gate of inverse dynamics.
-            return super()._innovation(time, values)
         if self._x is None:
             return None
         nis = float(self._gate.evaluate(self._x, self._P, values[self._gate_y], values[kf.ACCELS])[0])
         return nis, len(self._gate_y)
 
     def _borrows_gate(self) -> bool:
-        return self.options["tuning"] == "thesis" and self.sensor_set.name == "thesis"
+        # Q = 10⁶·I makes S enormous and the torques are inputs, not measurements: the thesis
+        # tuning has no usable noise model, so it borrows the gate of inverse dynamics.
+        return self.options["tuning"] == "thesis"
 
     def _estimate_sigma(self) -> float:
         """Square root of the payload's posterior variance, kg (thesis tuning: not calibrated)."""
