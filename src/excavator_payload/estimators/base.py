@@ -33,10 +33,15 @@ step returns the last estimate (and its sigma) with the status of the check.
    returns the normalised squared innovation of the sample from :meth:`Estimator._innovation`
    (Kalman filters: :math:`\nu^\top S^{-1}\nu` of all their measurements at the prior;
    inverse-dynamics least squares: the torque residual at the current estimate against its
-   covariance); the sample is rejected when it exceeds the chi-square quantile of
+   covariance; estimators without a noise model of their own, networks, the quasi-static
+   map and the thesis' EKF tuning, and any estimator that believes another machine than the
+   one its training data came from, *borrow* the inverse-dynamics residual on the training
+   data's machine and noise preset, see :meth:`Estimator._borrows_gate`); the sample is
+   rejected when it exceeds the chi-square quantile of
    :data:`GATE_PROBABILITY` (10⁻⁶ per sample: about one false rejection in 14 hours at 20 Hz).
    The filter state is not updated; the next used sample bridges the hole like a short gap
-   (the filters restart their kinematic states and keep the payload). After
+   (the filters restart their kinematic states and keep the payload; delay lines and running
+   means get the rejected slots interpolated between the neighbouring samples). After
    :data:`MAX_CONSECUTIVE_REJECTIONS` rejections in a row the estimator does not lock itself
    out: it re-initialises (the payload may really have changed), uses the sample, reports
    ``reinitialised`` and widens its gate to the data. The gate also widens slowly
@@ -49,7 +54,7 @@ The state itself is watched too: an estimator whose state is no longer finite
 (:meth:`Estimator._state_finite`) or that produced a non-finite ``ok`` estimate restarts and
 reports ``state_reset``.
 
-Samples that are not used leave a hole in time, so the next used sample sees a gap: a gap in
+Samples that fail checks 1 or 2 leave a hole in time, so the next used sample sees a gap: a gap in
 time (more than 1.5 sample periods, or time going back) calls :meth:`Estimator._on_gap` (by
 default a reset; the filters and least squares keep their payload belief over a short gap)
 and is reported as ``gap``.
