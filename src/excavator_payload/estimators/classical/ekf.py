@@ -116,6 +116,7 @@ class KalmanEstimatorBase(Estimator):
             self._reset()
             return
         x0, P0 = kf.initial_state(self.tuning, values)
+        x0[:4] = values[kf.MEASURED]  # mid-experiment the sample is the best start (thesis tuning too)
         payload, payload_var = self._x[kf.PAYLOAD], self._P[kf.PAYLOAD, kf.PAYLOAD]
         self._x = x0
         self._x[kf.PAYLOAD] = payload
