@@ -330,6 +330,12 @@ BAD_MODELS: dict[str, tuple[Callable, str | None]] = {
                           "plausibility"),
     "json-net-tuning": (_model_edit(_json_edit(lambda c: c["options"].__setitem__("hidden", "100000")), "net1"),
                         None),
+    "json-sentinel-text": (_model_edit(_json_edit(lambda c: c.__setitem__("gate_sentinel", "x")), "net1"),
+                           "gate_sentinel"),
+    "json-sentinel-machine-inf": (_model_edit(_json_edit(
+        lambda c: c["gate_sentinel"]["machine"].__setitem__("dipper_mass", float("inf"))), "net1"), "dipper_mass"),
+    "json-sentinel-noise": (_model_edit(_json_edit(lambda c: c["gate_sentinel"].__setitem__("noise", "loud")),
+                                        "net1"), "loud"),
     "ekf-tuning-mismatch": (_model_edit(_json_edit(lambda c: c["options"].__setitem__("tuning", "thesis")), "ekf"),
                             "inconsistent"),
 }

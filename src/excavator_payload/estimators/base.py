@@ -33,10 +33,15 @@ step returns the last estimate (and its sigma) with the status of the check.
    returns the normalised squared innovation of the sample from :meth:`Estimator._innovation`
    (Kalman filters: :math:`\nu^\top S^{-1}\nu` of all their measurements at the prior;
    inverse-dynamics least squares: the torque residual at the current estimate against its
-   covariance); the sample is rejected when it exceeds the chi-square quantile of
+   covariance; estimators without a noise model of their own, networks, the quasi-static
+   map and the thesis' EKF tuning, and any estimator that believes another machine than the
+   one its training data came from, *borrow* the inverse-dynamics residual on the training
+   data's machine and noise preset, see :meth:`Estimator._borrows_gate`); the sample is
+   rejected when it exceeds the chi-square quantile of
    :data:`GATE_PROBABILITY` (10⁻⁶ per sample: about one false rejection in 14 hours at 20 Hz).
    The filter state is not updated; the next used sample bridges the hole like a short gap
-   (the filters restart their kinematic states and keep the payload). After
+   (the filters restart their kinematic states and keep the payload; delay lines and running
+   means get the rejected slots interpolated between the neighbouring samples). After
    :data:`MAX_CONSECUTIVE_REJECTIONS` rejections in a row the estimator does not lock itself
    out: it re-initialises (the payload may really have changed), uses the sample, reports
    ``reinitialised`` and widens its gate to the data. The gate also widens slowly
@@ -49,7 +54,7 @@ The state itself is watched too: an estimator whose state is no longer finite
 (:meth:`Estimator._state_finite`) or that produced a non-finite ``ok`` estimate restarts and
 reports ``state_reset``.
 
-Samples that are not used leave a hole in time, so the next used sample sees a gap: a gap in
+Samples that fail checks 1 or 2 leave a hole in time, so the next used sample sees a gap: a gap in
 time (more than 1.5 sample periods, or time going back) calls :meth:`Estimator._on_gap` (by
 default a reset; the filters and least squares keep their payload belief over a short gap)
 and is reported as ``gap``.
@@ -218,6 +223,9 @@ class Estimator(ABC):
     NEEDS_MACHINE: ClassVar[bool] = True
     #: Names of the sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`) it runs on.
     SENSOR_SETS: ClassVar[tuple[str, ...]] = ("thesis",)
+    #: Whether it borrows its statistical gate (it has no noise model of its own), see
+    #: :meth:`_borrows_gate`.
+    BORROWS_GATE: ClassVar[bool] = False
 
     def __init__(self, machine: Machine | str | None = None, **options: Any) -> None:
         unknown = sorted(set(options) - set(self.OPTIONS))
@@ -251,6 +259,11 @@ class Estimator(ABC):
         self.fit_warnings: list[str] = []
         #: Whether the statistical gate is on (turn off only to study the bare estimator).
         self.gating = True
+        #: Inverse dynamics on the training data's machine and noise, run beside an estimator
+        #: without a noise model of its own only to gate its samples (None: no borrowed gate).
+        self._sentinel: Estimator | None = None
+        self._sentinel_source: dict | None = None
+        self._last_used: tuple[float, np.ndarray] | None = None
         #: Plausibility limits per signal (see :func:`plausibility_limits`), set by fit/load.
         self.plausible_low: np.ndarray | None = None
         self.plausible_high: np.ndarray | None = None
@@ -293,10 +306,47 @@ class Estimator(ABC):
         """Normalised squared innovation of a sample and its degrees of freedom, or None.
 
         Called before :meth:`_step` on every plausible sample; the base class rejects the
-        sample when the value exceeds :func:`gate_threshold`. None (the default) means the
-        estimator has no noise model to judge a sample with, or is not ready to.
+        sample when the value exceeds :func:`gate_threshold`. None means the estimator cannot
+        judge the sample (yet), the default. An estimator that borrows its gate (see
+        :meth:`_borrows_gate`) is judged by the sentinel instead.
         """
         return None
+
+    def _gate_innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
+        """The borrowed gate's innovation if there is one, else the estimator's own."""
+        if self._sentinel is not None:
+            return self._sentinel._innovation(time, values)
+        return self._innovation(time, values)
+
+    def _borrows_gate(self) -> bool:
+        """Whether this instance gates its samples with a sentinel: inverse-dynamics least
+        squares on the machine and noise preset of the training data, run beside it. For
+        estimators that have no noise model of their own (networks, the quasi-static map, the
+        thesis' EKF tuning), and for any estimator that believes another machine than the one
+        its training data came from. Only on the thesis sensor set (torques measured)."""
+        return self.BORROWS_GATE
+
+    def _on_skip(self, time: float, values: np.ndarray) -> None:
+        """Called before the sample that follows samples the gate rejected (before that sample
+        is judged itself): bridge the hole like a short gap by default."""
+        self._on_gap(time, values)
+
+    def _fill_rejected(self, time: float, values: np.ndarray) -> None:
+        """Called once a sample is accepted after samples the gate rejected, before it is
+        used; nothing by default (see :meth:`_interpolate_rejected`)."""
+
+    def _interpolate_rejected(self, time: float, values: np.ndarray) -> None:
+        """Step the rejected samples' slots with values interpolated between the last used
+        sample and this one: for estimators whose state needs evenly spaced samples (delay
+        lines) or every sample (running means). The slots' results are not reported."""
+        if self._last_used is None:
+            return
+        last_time, last = self._last_used
+        period = self.sensor_set.sample_period
+        missing = min(int(round((time - last_time) / period)) - 1, MAX_CONSECUTIVE_REJECTIONS)
+        for k in range(1, missing + 1):
+            w = k / (missing + 1)
+            self._step(last_time + k * period, last + w * (values - last))
 
     def _estimate_sigma(self) -> float:
         """One-sigma uncertainty of the current estimate, kg (NaN: unknown)."""
@@ -312,12 +362,38 @@ class Estimator(ABC):
         self.sensor_set = self._check_sensor_set(dataset)
         self.fit_warnings = []
         self._fit(dataset)
+        self._sentinel_source = None
+        data_machine = _dataset_machine(dataset)
+        # The gate judges the data, so it uses the physics the data came from: an estimator
+        # that believes another machine (EKF₃%, uncalibrated inverse dynamics) borrows it.
+        believes_other = (self.machine is not None and data_machine is not None
+                          and data_machine.to_dict() != self.machine.to_dict())
+        if self.sensor_set.name == "thesis" and (self._borrows_gate() or believes_other):
+            machine = data_machine if data_machine is not None else self.machine
+            noise = dataset.meta.get("noise")
+            if machine is not None and noise:
+                self._sentinel_source = {"machine": machine.to_dict(), "noise": str(noise)}
+        self._build_sentinel()
         # Networks have no machine of their own: their limits come from the data's machine.
         self.plausible_low, self.plausible_high = plausibility_limits(
             self.sensor_set, self.machine if self.machine is not None else _dataset_machine(dataset))
         self.fitted = True
         self.reset()
         return self
+
+    def _build_sentinel(self) -> None:
+        """(Re)create the borrowed gate from :attr:`_sentinel_source` (see :meth:`_borrows_gate`)."""
+        self._sentinel = None
+        if not self._sentinel_source:
+            return
+        from excavator_payload.estimators.classical.inverse_dynamics import InverseDynamicsEstimator
+
+        sentinel = InverseDynamicsEstimator(Machine.from_dict(self._sentinel_source["machine"]))
+        sentinel._set_noise(self._sentinel_source["noise"])
+        sentinel.sensor_set = self.sensor_set
+        sentinel.fitted = True
+        sentinel.reset()
+        self._sentinel = sentinel
 
     def _check_sensor_set(self, dataset: Dataset) -> SensorSet:
         """The dataset's sensor set, if this estimator runs on it (one clear line otherwise)."""
@@ -335,6 +411,9 @@ class Estimator(ABC):
         self._n_seen = 0
         self._n_rejected = 0
         self._gate_scale = 1.0
+        self._last_used = None
+        if self._sentinel is not None:
+            self._sentinel.reset()
         self._reset()
 
     def step(self, sample: Mapping[str, float]) -> StepResult:
@@ -377,13 +456,17 @@ class Estimator(ABC):
             dt = time - self._last_time
             if dt <= 0 or dt > 1.5 * self.sensor_set.sample_period:
                 gap = True
-        if gap or self._n_rejected:
-            # A hole in the data (or samples the gate rejected just before): the estimator
-            # bridges it (filters restart their kinematics and keep the payload) or restarts.
+        if gap:
+            # A hole in the data: the estimator bridges it (filters restart their kinematics
+            # and keep the payload) or restarts.
             self._on_gap(time, values)
+            if self._sentinel is not None:
+                self._sentinel._on_gap(time, values)
+        elif self._n_rejected:
+            self._on_skip(time, values)  # samples the gate rejected just before this one
         reinitialised = False
         try:
-            nis = self._innovation(time, values) if self.gating else None
+            nis = self._gate_innovation(time, values) if self.gating else None
         except (ArithmeticError, ValueError, np.linalg.LinAlgError):
             nis = (math.inf, 1)
         if nis is not None:
@@ -397,6 +480,8 @@ class Estimator(ABC):
                 # Not one glitch but data the noise model does not describe (the payload
                 # changed, or the model is wrong): start again and widen the gate to it.
                 self._reset()
+                if self._sentinel is not None:
+                    self._sentinel._reset()
                 reinitialised = True
                 if math.isfinite(nis[0]):
                     self._gate_scale = max(self._gate_scale, 2.0 * nis[0] / gate_threshold(nis[1]))
@@ -406,10 +491,15 @@ class Estimator(ABC):
                 ratio = nis[0] / gate_threshold(nis[1]) * GATE_SCALE_HEADROOM
                 self._gate_scale = max(1.0, (1 - GATE_SCALE_RATE) * self._gate_scale
                                        + GATE_SCALE_RATE * ratio)
+        if self._n_rejected and not reinitialised:
+            self._fill_rejected(time, values)
         self._n_rejected = 0
         self._last_time = time
         self._n_seen += 1
         result = self._step(time, values)
+        self._last_used = (time, values)
+        if self._sentinel is not None:
+            self._sentinel._step(time, values)
         sigma = self._estimate_sigma()
         if not self._state_finite() or (result.status is Status.OK and not math.isfinite(result.estimate)):
             self._reset()
@@ -473,6 +563,7 @@ class Estimator(ABC):
             "sensor_set": self.sensor_set.name,
             "plausibility": ({"low": self.plausible_low.tolist(), "high": self.plausible_high.tolist()}
                              if self.plausible_low is not None else None),
+            "gate_sentinel": self._sentinel_source,
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
@@ -572,6 +663,13 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
         est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
         est._restore(state, arrays)
         est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
+        source = config.get("gate_sentinel")
+        if source is not None:
+            if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)
+                    and isinstance(source.get("noise"), str)):
+                raise EstimatorError("its 'gate_sentinel' must hold a machine and a noise preset")
+            est._sentinel_source = source
+            est._build_sentinel()
     except ExcavatorPayloadError as exc:
         raise EstimatorError(f"'{directory}' is corrupt or incomplete: {exc}") from None
     except Exception as exc:  # any other failure to rebuild it from the files: corrupt files

@@ -283,6 +283,17 @@ class QuasiStaticEstimator(Estimator):
         return None if lo is None or hi is None else (lo, hi)
 
     # -- streaming -------------------------------------------------------------------------
+    #: The map has no noise model: it borrows the gate of its calibration data's physics.
+    BORROWS_GATE = True
+
+    def _on_skip(self, time: float, values: np.ndarray) -> None:
+        """Nothing before the next sample is judged; see :meth:`_fill_rejected`."""
+
+    def _fill_rejected(self, time: float, values: np.ndarray) -> None:
+        """A rejected sample's place in the running mean gets the value interpolated between
+        its neighbours (leaving it out would shift a mean that moves through the swing)."""
+        self._interpolate_rejected(time, values)
+
     def _reset(self) -> None:
         self._sum = 0.0
         self._count = 0

@@ -418,6 +418,8 @@ class NeuralEstimator(Estimator):
     OPTIONS = neural_options()
     #: The inputs are resolved against the sensor set of the data (:meth:`_use_sensor_set`).
     SENSOR_SETS = ("thesis", "machine")
+    #: A network has no noise model: it borrows the gate of its training data's physics.
+    BORROWS_GATE = True
 
     def __init__(self, machine=None, **options: Any) -> None:
         super().__init__(machine=machine, **options)
@@ -599,6 +601,14 @@ class NeuralEstimator(Estimator):
         self.residual_source = "validation" if val is not None else "training"
         self.reset()
         return self
+
+    def _on_skip(self, time: float, values: np.ndarray) -> None:
+        """Nothing before the next sample is judged; see :meth:`_fill_rejected`."""
+
+    def _fill_rejected(self, time: float, values: np.ndarray) -> None:
+        """Samples the gate rejected: the delay lines get values interpolated between their
+        neighbours in their place (a net's window must stay evenly spaced), not a restart."""
+        self._interpolate_rejected(time, values)
 
     def _estimate_sigma(self) -> float:
         """RMS error of the net on its validation experiments (training experiments when it had
