@@ -206,3 +206,12 @@ def test_same_bits_on_a_scheduler_and_worker_started_with_the_dask_command(tmp_p
     here = simulate_dataset(3, seed=31, workers=1, noise="thesis", with_truth=True, progress=False)
     pd.testing.assert_frame_equal(here.frame, there.frame, check_exact=True)
     assert here.meta["experiments"][0]["payload"] == there.meta["experiments"][0]["payload"]
+
+
+def test_absurd_worker_count_is_one_clear_error(tmp_path, capsys):
+    """`--workers 100000` must not try to start 100000 processes."""
+    from excavator_payload.cli import main
+
+    out = tmp_path / "never-written.parquet"
+    assert main(["simulate", "-n", "2", "--workers", "100000", "--out", str(out), "--quiet"]) == 2
+    assert "at most" in capsys.readouterr().err and not out.exists()

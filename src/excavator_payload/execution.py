@@ -83,6 +83,11 @@ def scheduler_address(scheduler: str | None = None) -> str | None:
     return address
 
 
+#: Local worker processes per core at most: more only cost memory and start-up time (each
+#: builds its own compiled solvers), never speed, for these CPU-bound tasks.
+MAX_LOCAL_WORKERS_PER_CORE = 4
+
+
 def default_workers() -> int:
     """Local worker processes by default: one per core this process may use."""
     try:
@@ -117,6 +122,8 @@ def _quiet_dask() -> None:
     """Dask logs every started worker, lost connection and retry on the console: keep errors only."""
     for name in ("distributed", "dask"):
         logging.getLogger(name).setLevel(logging.ERROR)
+    # A slow disk under load is no news for the user of a command-line tool.
+    warnings.filterwarnings("ignore", message="Creating scratch directories is taking")
 
 
 @dataclass
@@ -148,6 +155,12 @@ class Execution:
             raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {self.workers!r}")
         if self.workers is None:
             self.workers = default_workers()
+        limit = MAX_LOCAL_WORKERS_PER_CORE * default_workers()
+        if self.scheduler is None and self.workers > limit:
+            raise ExcavatorPayloadError(
+                f"--workers {self.workers}: at most {limit} local worker processes here "
+                f"({MAX_LOCAL_WORKERS_PER_CORE} per core of {default_workers()}); more cost memory, "
+                "not speed. For more, run on a cluster with --scheduler")
 
     # -- lifetime -----------------------------------------------------------------------------
     def __enter__(self) -> "Execution":
