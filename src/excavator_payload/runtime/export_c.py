@@ -44,8 +44,24 @@ What is generated from what
   (:func:`~excavator_payload.estimators.classical._kalman.gate_symbolic`); initialisation,
   clamping, status and gap bridging are written here, mirroring
   :mod:`~excavator_payload.estimators.classical.ekf`.
-* ``net1``/``ffnn``/``net2`` have no noise model, hence no gate; their sigma is the constant
-  RMS validation error the fit measured (``residual_std``).
+* The borrowed gate (base.py, :meth:`Estimator._borrows_gate`): an estimator without a noise
+  model of its own (``net1``/``ffnn``/``net2``, ``ekf`` with the thesis tuning) or one that
+  believes another machine than its training data's (``calibrated`` on a wrong machine) is
+  judged by its sentinel, inverse-dynamics least squares on the training data's machine and
+  noise. The C runs the sentinel beside the model (``ep_gate_step``, information form) with its
+  base parameters and sensor variances as constant arrays, and CasADi generates its
+  :func:`~excavator_payload.estimators.classical.inverse_dynamics.information_terms` and
+  :func:`~excavator_payload.estimators.classical.inverse_dynamics.residual_nis` (2 degrees of
+  freedom) from those very functions; like the Python sentinel (never stepped through
+  ``step_values``, so it keeps no time) it restarts on every gap and on a re-initialisation.
+  The EKF's sentinel computes in double as the filter does, the others in ``ep_real``.
+* ``Estimator._on_skip``/``_fill_rejected``: before the sample after gate-rejected ones the
+  model bridges the hole like a gap (filters, least squares), or, for the networks, does
+  nothing and, once that sample is accepted, steps the rejected slots (at most
+  :data:`MAX_CONSECUTIVE_REJECTIONS`) with values interpolated between the last used sample
+  and this one (``Estimator._interpolate_rejected``), so their delay lines stay evenly spaced.
+* ``net1``/``ffnn``/``net2``: their sigma is the constant RMS validation error the fit
+  measured (``residual_std``).
 * ``net1`` (and ``ffnn``): weights as constant arrays, the input scaling folded into the first
   layer and the output scaling into the last (as the Python streaming code does), the delay
   line a doubled ring buffer in the state.
@@ -975,7 +991,7 @@ static int ep_model_innovation(const ep_state *s, ep_real time, const ep_real v[
                 }}
                 /* not one glitch but data the noise model does not describe: start again
                  * and widen the gate to it */
-                ep_model_reset(s);{gate_reset}
+                ep_model_reset(s);{gate_reset.replace(chr(10), chr(10) + " " * 12)}
                 reinitialised = 1;
                 if (isfinite(nis)) {{
                     ep_real widened = EP_C(2.0) * nis / EP_GATE_THRESHOLD;
