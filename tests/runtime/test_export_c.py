@@ -139,11 +139,51 @@ def test_c_equals_python_on_hostile_streams(name, models, hostile, tmp_path):
                                      round_inputs=single)
     seen = set(py["status"])
     assert {"invalid_input", "out_of_range", "gap"} <= seen
-    # the models whose gate sees the torques (the thesis-tuned EKF gates angles and rates only,
-    # with its Q = 1e6 I nothing is ever out of its gate)
-    if name in ("inverse-dynamics", "calibrated", "ekf"):
-        assert {"rejected_outlier", "reinitialised"} <= seen
-        assert np.isfinite(py["sigma"]).any()
+    # every model is gated: by its own noise model or by the borrowed one (the thesis-tuned
+    # EKF and the networks), so glitches are rejected and a run of them re-initialises
+    assert {"rejected_outlier", "reinitialised"} <= seen
+    assert np.isfinite(py["sigma"]).any()
+    # samples used right after rejected ones: the EKF bridges, the networks interpolate the
+    # rejected slots (the equality above checks that C does the same)
+    status = list(py["status"])
+    assert any(a == "rejected_outlier" and b == "ok" for a, b in zip(status, status[1:]))
+
+
+def _c_array_values(source, name):
+    body = re.search(rf"{name}\[\d+\] = \{{(.*?)\}};", source, re.S).group(1)
+    return np.array([float(re.sub(r"EP_C\((.*)\)", r"\1", x.strip())) for x in body.split(",")])
+
+
+@pytest.mark.parametrize("name", ["inverse-dynamics", "calibrated", "ekf", "ekf-thesis", "net1", "net2"])
+def test_borrowed_gate_constants(name, models, tmp_path):
+    """The sentinel's base parameters and variances are the Python sentinel's; a model with
+    a noise model of its own (on its data's machine) carries no sentinel."""
+    est = models[name]
+    source = export_c(est, tmp_path)[1].read_text()
+    if est._sentinel is None:
+        assert name in ("inverse-dynamics", "ekf")
+        assert "ep_gate_step" not in source
+        return
+    sentinel = est._sentinel
+    for array, want in (("EP_GATE_THETA_EMPTY", sentinel.theta_empty),
+                        ("EP_GATE_THETA_PAYLOAD", sentinel.theta_payload),
+                        ("EP_GATE_VARIANCES", sentinel.variances)):
+        np.testing.assert_array_equal(_c_array_values(source, array), np.asarray(want, float))
+    threshold = float(re.search(r"#define EP_GATE_THRESHOLD EP_C\((.*)\)", source).group(1))
+    assert threshold == gate_threshold(2)
+
+
+def test_borrowed_gate_off(models, hostile, tmp_path):
+    """-DEP_GATING=0 turns the borrowed gate off too (the sentinel still follows)."""
+    est = models["net1"]
+    paths = export_c(est, tmp_path / "export")
+    est.gating = False
+    try:
+        py = _assert_c_equals_python(est, paths[1], hostile, tmp_path / "off", False,
+                                     extra_flags=("-DEP_GATING=0",))
+    finally:
+        est.gating = True
+    assert "rejected_outlier" not in set(py["status"])
 
 
 def test_gate_off_and_constants(models, hostile, tmp_path):
