@@ -101,6 +101,22 @@ MATH_FUNCTIONS = ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", 
 
 
 # -- C text helpers ---------------------------------------------------------------------------------
+
+#: The hidden layer of every exported network (net1/ffnn and net2 share it).
+_TANH_LAYER_C = """
+/* a_out = tanh(W a_in + b), W row-major (rows x cols) */
+static void ep_tanh_layer(const ep_real *W, const ep_real *b, int rows, int cols,
+                          const ep_real *a_in, ep_real *a_out)
+{
+    int r, c;
+    for (r = 0; r < rows; ++r) {
+        ep_real z = b[r];
+        const ep_real *w = W + r * cols;
+        for (c = 0; c < cols; ++c) z += w[c] * a_in[c];
+        a_out[r] = EP_MATH(tanh)(z);
+    }
+}"""
+
 def c_number(value: float, cast: bool = True) -> str:
     """A constant as C text: full double precision, cast to ep_real (float constant in single)
     unless ``cast`` is False (a double constant)."""
@@ -687,19 +703,7 @@ def _time_delay_model(est) -> CModel:
         defs.append(c_array(f"EP_B{k + 1}", b))
     defs.append(c_array("EP_W_OUT", w_out))
     defs.append(f"#define EP_B_OUT {c_number(b_out)}")
-    defs.append("""
-/* a_out = tanh(W a_in + b), W row-major (rows x cols) */
-static void ep_tanh_layer(const ep_real *W, const ep_real *b, int rows, int cols,
-                          const ep_real *a_in, ep_real *a_out)
-{
-    int r, c;
-    for (r = 0; r < rows; ++r) {
-        ep_real z = b[r];
-        const ep_real *w = W + r * cols;
-        for (c = 0; c < cols; ++c) z += w[c] * a_in[c];
-        a_out[r] = EP_MATH(tanh)(z);
-    }
-}""")
+    defs.append(_TANH_LAYER_C)
     calls = []
     sizes = [L * n_sig, *hidden]
     for k in range(len(stream)):
@@ -775,19 +779,7 @@ def _narx_model(est) -> CModel:
     for k, (W, b) in enumerate(layers):
         defs.append(c_array(f"EP_W{k + 1}", W))
         defs.append(c_array(f"EP_B{k + 1}", b))
-    defs.append("""
-/* a_out = tanh(W a_in + b), W row-major (rows x cols) */
-static void ep_tanh_layer(const ep_real *W, const ep_real *b, int rows, int cols,
-                          const ep_real *a_in, ep_real *a_out)
-{
-    int r, c;
-    for (r = 0; r < rows; ++r) {
-        ep_real z = b[r];
-        const ep_real *w = W + r * cols;
-        for (c = 0; c < cols; ++c) z += w[c] * a_in[c];
-        a_out[r] = EP_MATH(tanh)(z);
-    }
-}""")
+    defs.append(_TANH_LAYER_C)
     calls = [f"    ep_tanh_layer(EP_W1, EP_B1, {hidden[0]}, EP_N_X, x, a);"]
     for k in range(1, len(hidden)):
         src, dst = ("a", "b") if k % 2 == 1 else ("b", "a")
