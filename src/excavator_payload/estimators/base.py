@@ -274,6 +274,11 @@ class Estimator(ABC):
         self._n_rejected = 0
         self._gate_scale = 1.0
 
+    @property
+    def _hydraulic(self) -> bool:
+        """Whether the machine the estimator believes in is a hydraulic machine (issue 11)."""
+        return getattr(self.machine, "kind", None) == "hydraulic"
+
     # -- to implement ----------------------------------------------------------------------
     @abstractmethod
     def _fit(self, dataset: Dataset) -> None:

@@ -150,7 +150,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         self.calibration = None  # machine sensor set: a calibrated_machine.MachineCalibration
 
     def _fit(self, dataset: Dataset) -> None:
-        self.calibration, self._range_cache = None, None  # a refit starts afresh
+        self.calibration = None  # a refit starts afresh
         if dataset.sensor_set.name == "machine":
             from excavator_payload.estimators.classical import calibrated_machine
 
@@ -182,18 +182,6 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             "prior": prior, "identified": value, "std": np.sqrt(np.diag(self.parameter_covariance)),
         })
 
-    def _in_range(self, values: np.ndarray) -> bool:
-        if self.calibration is None:
-            return super()._in_range(values)
-        if getattr(self, "_range_cache", None) is None:  # streaming: index and ranges once
-            index = [self.sensor_set.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle")]
-            ranges = np.asarray(self.machine.angle_ranges, float)
-            self._range_cache = (index, [(float(lo), float(hi)) for lo, hi in ranges])
-        index, ranges = self._range_cache
-        for i, (lo, hi) in zip(index, ranges):
-            if not lo <= values[i] <= hi:
-                return False
-        return True
 
     def _config(self) -> dict:
         if self.calibration is not None:

@@ -102,9 +102,6 @@ class KalmanEstimatorBase(Estimator):
         if not self._hydraulic:
             self._bounds = kf.payload_bounds(self.machine)
 
-    @property
-    def _hydraulic(self) -> bool:
-        return getattr(self.machine, "kind", None) == "hydraulic"
 
     # -- fitting ---------------------------------------------------------------------------
     def _fit(self, dataset: Dataset) -> None:
@@ -155,12 +152,6 @@ class KalmanEstimatorBase(Estimator):
             return StepResult(estimate, Status.WARMING_UP)
         return StepResult(estimate, Status.OK)
 
-    def _in_range(self, values: np.ndarray) -> bool:
-        if not self._hydraulic:
-            return super()._in_range(values)
-        ranges = self.machine.angle_ranges
-        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
-        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     def _reset(self) -> None:
         self._x = None

@@ -372,9 +372,6 @@ class InverseDynamicsEstimator(Estimator):
         self._prepare()
         self._reset()
 
-    @property
-    def _hydraulic(self) -> bool:
-        return getattr(self.machine, "kind", None) == "hydraulic"
 
     def _build_pressure_kernel(self) -> None:
         from excavator_payload.estimators.classical.pressure_regression import PressureRegression
@@ -454,12 +451,6 @@ class InverseDynamicsEstimator(Estimator):
         if self._pressure is not None:
             self._pressure.reset()
 
-    def _in_range(self, values: np.ndarray) -> bool:
-        if not self._hydraulic:
-            return super()._in_range(values)
-        ranges = self.machine.angle_ranges
-        angles = values[[self.sensor_set.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle")]]
-        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         if self._pressure is not None:

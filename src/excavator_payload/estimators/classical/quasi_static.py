@@ -117,9 +117,6 @@ class QuasiStaticEstimator(Estimator):
         self.boom_areas: tuple[float, float] | None = None
         self._reset()
 
-    @property
-    def _hydraulic(self) -> bool:
-        return getattr(self.machine, "kind", None) == "hydraulic"
 
     def _boom_load(self, rows) -> np.ndarray:
         """The mapped load of a lift's rows: boom torque (thesis set) or boom piston force, N."""
@@ -129,12 +126,6 @@ class QuasiStaticEstimator(Estimator):
         return (rows["boom_head_pressure"].to_numpy(float) * head
                 - rows["boom_rod_pressure"].to_numpy(float) * rod)
 
-    def _in_range(self, values: np.ndarray) -> bool:
-        if not self._hydraulic:
-            return super()._in_range(values)
-        ranges = self.machine.angle_ranges
-        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
-        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     # -- calibration -----------------------------------------------------------------------
     def _lift_part(self, exp_id: int, rows) -> tuple[np.ndarray, np.ndarray, float, float]:

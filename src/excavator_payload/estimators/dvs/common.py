@@ -479,12 +479,6 @@ class NeuralEstimator(Estimator):
     def _inputs_changed(self) -> None:
         """Hook: the number of inputs changed (subclasses rebuild what depends on it)."""
 
-    def _in_range(self, values: np.ndarray) -> bool:
-        if getattr(self.machine, "kind", None) != "hydraulic":
-            return super()._in_range(values)
-        ranges = self.machine.angle_ranges
-        angles = values[self.sensor_set.indices(("boom_angle", "dipper_angle", "bucket_angle"))]
-        return bool(np.all((ranges[:, 0] <= angles) & (angles <= ranges[:, 1])))
 
     # -- hooks -----------------------------------------------------------------------------
     @property
