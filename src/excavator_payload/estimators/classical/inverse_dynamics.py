@@ -8,11 +8,15 @@ The arm's torques are affine in the payload (:mod:`excavator_payload.model.dynam
 so with measured kinematics and torques the payload is a linear regression (the approach of the
 thesis' ref. [40], "A Method for Payload Estimation in Excavators"), here made noise-aware.
 
-Base-parameter (closed-form) model
-----------------------------------
-Working the Lagrangian of appendix A.1 out by hand (boom and dipper uniform bars, bucket plus
-payload a point mass :math:`m_3 = m_b + m` at the dipper tip) gives the torques as a linear
-combination of seven *base parameters* :math:`\theta = (A, B, C, D, E, \beta_1, \beta_2)`,
+Base-parameter model, generated from the symbolic one
+-----------------------------------------------------
+The torques are a linear combination of seven *base parameters*
+:math:`\theta = (A, B, C, D, E, \beta_1, \beta_2)`, :math:`\tau = Y(x)\,\theta`, with a regressor
+:math:`Y` that holds no machine parameter. Nothing of it is written out here: the symbolic model
+(:mod:`excavator_payload.model.dynamics`) generates :math:`Y` (the payload column
+:math:`\varphi = \partial\tau/\partial m` is a quadratic form in the lengths and gravity whose
+coefficients are the first five columns; the friction columns are :math:`\partial\tau/\partial
+\beta_i`) and solves for :math:`\theta_0` of a machine. For the thesis' arm they work out to
 
 .. math::
 
@@ -20,28 +24,27 @@ combination of seven *base parameters* :math:`\theta = (A, B, C, D, E, \beta_1, 
               + C\,[c_2(2\ddot q_1 + \ddot q_2) - s_2(2\dot q_1\dot q_2 + \dot q_2^2)]
               + D c_1 + E c_{12} + \beta_1 \dot q_1 \\
     \tau_2 &= B(\ddot q_1 + \ddot q_2) + C\,[c_2\ddot q_1 + s_2\dot q_1^2] + E c_{12}
-              + \beta_2 \dot q_2
+              + \beta_2 \dot q_2, \\
+    A &= \tfrac13 m_1 l_1^2 + (m_2 + m_3) l_1^2, \quad
+    B = \tfrac13 m_2 l_2^2 + m_3 l_2^2, \quad
+    C = (\tfrac12 m_2 + m_3) l_1 l_2, \\
+    D &= g(\tfrac12 m_1 + m_2 + m_3) l_1, \quad
+    E = g(\tfrac12 m_2 + m_3) l_2
 
-i.e. :math:`\tau = Y(x)\,\theta` with
-
-.. math::
-
-    A &= \tfrac13 m_1 l_1^2 + (m_2 + m_3) l_1^2, &
-    B &= \tfrac13 m_2 l_2^2 + m_3 l_2^2, &
-    C &= (\tfrac12 m_2 + m_3) l_1 l_2, \\
-    D &= g(\tfrac12 m_1 + m_2 + m_3) l_1, &
-    E &= g(\tfrac12 m_2 + m_3) l_2 .
-
-Every one of :math:`A \dots E` is affine in :math:`m_3`, so
+(a test checks the solved :math:`\theta_0` against this hand calculation). Every one of
+:math:`A \dots E` is affine in :math:`m_3 = m_b + m`, so
 :math:`\theta = \theta_0 + m\,[\theta_1; 0, 0]` with the *payload parameters*
 :math:`\theta_1 = (l_1^2, l_2^2, l_1 l_2, g l_1, g l_2)`; hence
 
 .. math:: \tau_0 = Y(x)\,\theta_0, \qquad \varphi = Y_{1:5}(x)\,\theta_1 .
 
-:func:`base_parameters` gives :math:`(\theta_0, \theta_1)` of a machine, :func:`base_regressor`
-evaluates :math:`Y` on arrays; the test suite proves that :math:`Y\theta_0` and
-:math:`Y_{1:5}\theta_1` equal the symbolic ``ArmModel.torque_empty`` and ``payload_regressor``
-(the symbolic model stays the source; this closed form is what makes ``step`` fast).
+The estimator's kernels (:func:`information_function`, :func:`nis_function`: the sample's
+information terms and gate statistic, with the Jacobians :math:`\partial\tau/\partial x` by
+CasADi's automatic differentiation) are CasADi functions of :math:`(x, \theta_0, \theta_1)` built
+on :math:`Y`, compiled to C once per user (:mod:`excavator_payload.model.codegen`) and called
+through CasADi's buffer interface, so that ``step`` stays in the tens of microseconds; the
+calibrated estimator identifies :math:`(\theta_0, \theta_1)` with the same regressor, and the C
+export generates its code from the same functions.
 
 Noise: total residual covariance and errors in variables
 --------------------------------------------------------
@@ -53,8 +56,8 @@ q}, \sigma^2_{\ddot q})`), so to first order
           J_k = \frac{\partial \tau}{\partial x}\Big|_{\tilde x_k, \hat m},
 
 with total covariance :math:`R_k = \Sigma_\tau + J_k\Sigma_x J_k^\top` (2×2: the same angle
-error moves both joint torques, hence the off-diagonal term). The Jacobian is closed-form, linear
-in the base parameters: :math:`J = J_0 + \hat m J_\varphi`. The weight is
+error moves both joint torques, hence the off-diagonal term). The Jacobian (automatic differentiation of
+:math:`Y\theta`) is linear in the base parameters: :math:`J = J_0 + \hat m J_\varphi`. The weight is
 :math:`W_k = R_k^{-1}` (``--weighting full``; ``diagonal`` keeps each joint's own total
 variance only; ``torque`` ignores the kinematic noise, :math:`W = \Sigma_\tau^{-1}`).
 
