@@ -50,7 +50,7 @@ def main() -> None:
                   f"of {len(share)} (max {share.max():.2f}); retries {sum(m['n_retries'] for m in metas)}")
 
 
-def plausibility(per_session: int, sessions: int) -> None:
+def plausibility(per_session: int = 25, sessions: int = 8) -> None:
     from excavator_payload.data.schema import MACHINE_SENSORS
     from excavator_payload.estimators.base import plausibility_limits
     from excavator_payload.model.machine import load_machine
