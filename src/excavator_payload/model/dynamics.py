@@ -27,6 +27,11 @@ Lagrangian (appendix A.1)
 The torques are affine in the payload: :math:`\tau = \tau_0(q,\dot q,\ddot q) + m\,\varphi(q,\dot
 q,\ddot q)` with the *payload regressor* :math:`\varphi = \partial\tau/\partial m`.
 
+Both are linear in seven lumped *base parameters*: :math:`\tau = Y(q,\dot q,\ddot q)\,(\theta_0
++ m\,[\theta_1; 0; 0])`, with the base regressor :math:`Y` generated here from the torque
+(:func:`_base_form`) and :math:`\theta_0` solved for a machine (:meth:`ArmModel.base_parameters`):
+the inverse-dynamics and calibrated estimators work on this form.
+
 Numeric evaluation
 ------------------
 :class:`ArmModel` binds a :class:`~excavator_payload.model.machine.Machine` to the symbolic
@@ -201,6 +206,15 @@ def _cols(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a.reshape(-1, a.shape[-1]).T)
 
 
+def base_regressor(q, qd, qdd) -> np.ndarray:
+    """The base regressor Y(q, q̇, q̈) on arrays, shape (..., 2, 7): τ = Y θ, joint on axis -2."""
+    arrays = [np.asarray(a, dtype=float) for a in (q, qd, qdd)]
+    lead = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
+    cols = [_cols(np.broadcast_to(a, lead + a.shape[-1:])) for a in arrays]
+    out = np.asarray(symbolic().functions["base_regressor"](*cols)).T  # CasADi stacks the 2×7 blocks
+    return out.reshape(lead + (len(BASE_PARAMETER_NAMES), 2)).swapaxes(-1, -2)
+
+
 class ArmModel:
     """Numeric arm dynamics of one machine, evaluated in batches.
 
@@ -285,7 +299,7 @@ class ArmModel:
         (exact: the empty-arm torques lie in the span of the base regressor, which is checked).
         """
         q, qd, qdd = (BASE_POINTS[:, i:i + 2] for i in (0, 2, 4))
-        Y = self.base_regressor(q, qd, qdd).reshape(-1, len(BASE_PARAMETER_NAMES))
+        Y = base_regressor(q, qd, qdd).reshape(-1, len(BASE_PARAMETER_NAMES))
         tau0 = self.torque_empty(q, qd, qdd).reshape(-1)
         theta_empty = np.linalg.lstsq(Y, tau0, rcond=None)[0]
         misfit = np.abs(Y @ theta_empty - tau0).max()
@@ -294,18 +308,6 @@ class ArmModel:
                                f"(misfit {misfit:.3g} N·m)")
         theta_payload = np.asarray(self._f["payload_parameters"](self.p), dtype=float).reshape(-1)
         return theta_empty, theta_payload
-
-    def base_regressor(self, q, qd, qdd):
-        """The base regressor Y(q, q̇, q̈), shape (..., 2, 7): τ = Y θ, joint on axis -2."""
-        out = self._call_free("base_regressor", [q, qd, qdd], 2 * len(BASE_PARAMETER_NAMES))
-        return out.reshape(out.shape[:-1] + (len(BASE_PARAMETER_NAMES), 2)).swapaxes(-1, -2)
-
-    def _call_free(self, name: str, joint_args: list[np.ndarray], out_dim: int) -> np.ndarray:
-        """A function without machine parameters on a batch (see :meth:`_call`)."""
-        arrays = [np.asarray(a, dtype=float) for a in joint_args]
-        lead = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
-        out = self._f[name](*(_cols(np.broadcast_to(a, lead + a.shape[-1:])) for a in arrays))
-        return np.asarray(out).T.reshape(lead + (out_dim,))
 
     def casadi_function(self, name: str) -> ca.Function:
         """The symbolic function ``name`` with this machine's parameters substituted.

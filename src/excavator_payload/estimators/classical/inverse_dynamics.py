@@ -114,6 +114,7 @@ from excavator_payload.model.dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
     ArmModel,
+    base_regressor,
     symbolic,
 )
 from excavator_payload.model.machine import Machine
@@ -269,23 +270,12 @@ def _values_columns(q, qd, qdd, tau=None) -> tuple[np.ndarray, tuple[int, ...]]:
     return np.ascontiguousarray(columns), lead
 
 
-def base_regressor(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """The regressor Y(q, q̇, q̈), shape (..., 2, 7), so that τ = Y θ (joint on axis -2)."""
-    q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
-    lead = np.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
-    Y = symbolic().functions["base_regressor"]
-    cols = [np.ascontiguousarray(np.broadcast_to(a, lead + (2,)).reshape(-1, 2).T) for a in (q, qd, qdd)]
-    out = np.asarray(Y(*cols)).T  # (N*7, 2): CasADi stacks the 2×7 blocks side by side
-    n_theta = len(BASE_PARAMETER_NAMES)
-    return out.reshape(lead + (n_theta, 2)).swapaxes(-1, -2)
-
-
 def torque_jacobian(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """∂τ/∂(q1, q̇1, q̈1, q2, q̇2, q̈2) of τ = Y θ (θ of length 7), shape (..., 2, 6)."""
     theta = np.asarray(theta, dtype=float)
-    values, lead = _values_columns(q, qd, qdd)
-    lead = np.broadcast_shapes(lead, theta.shape[:-1])
-    values, _ = _values_columns(*(np.broadcast_to(np.asarray(a, float), lead + (2,)) for a in (q, qd, qdd)))
+    q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
+    lead = np.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
+    values, _ = _values_columns(*(np.broadcast_to(a, lead + (2,)) for a in (q, qd, qdd)))
     thetas = np.ascontiguousarray(np.broadcast_to(theta, lead + theta.shape[-1:]).reshape(-1, theta.shape[-1]).T)
     out = np.asarray(_batch_functions()[1](values, thetas)).T  # (N, 12), column-major 2×6
     return out.reshape(lead + (len(KINEMATIC_SIGNALS), 2)).swapaxes(-1, -2)
