@@ -204,7 +204,10 @@ class HydraulicNMPC:
         opts = {"qpsol": s.qp_solver, "hess_lag": hess_lag, "hessian_approximation": "exact",
                 "qpsol_options": qp_options.get(s.qp_solver, {"error_on_fail": False}),
                 "print_header": False, "print_iteration": False, "print_status": False,
-                "print_time": False, "error_on_fail": False}
+                "print_time": False, "error_on_fail": False,
+                # a line-search trial pose outside the cylinders' geometry evaluates to NaN: the
+                # SQP rejects that step itself (results count fallbacks); no console warning
+                "show_eval_warnings": False}
         nlp = {"x": w, "p": params, "f": cost, "g": g}
         self._sqp = ca.nlpsol("hyd_nmpc", "sqpmethod", nlp, {**opts, "max_iter": s.sqp_iterations})
         self._sqp_cold = ca.nlpsol("hyd_nmpc_cold", "sqpmethod", nlp, {**opts, "max_iter": s.cold_iterations})

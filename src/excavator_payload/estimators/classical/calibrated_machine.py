@@ -47,7 +47,9 @@ demo_machine`); the ``lifts`` motion moves the boom only and identifies little e
 Accelerations are derived as in ``inverse-dynamics``: the centred least-squares slope of the
 measured rates (in calibration over ±15 samples, Savitzky–Golay of order 1: the rate noise
 through a ±5 window is ≈ 8 kN·m on the boom, five times the pressure noise; while weighing the
-option ``--half-window``, 5 by default, through a ring buffer).
+option ``--half-window``, 3 by default, through a ring buffer; on 60 validation experiments
+per family, within 1 % for ±2 / 3 / 4 / 5 samples: NMPC swings 98 / 97 / 93 / 90 %, work cycles
+80 / 75 / 73 / 73 %, slowly starting swings 25 / 37 / 48 / 52 %).
 
 Sensor noise from the data
 --------------------------

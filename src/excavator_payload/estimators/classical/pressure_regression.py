@@ -13,7 +13,7 @@ with the torques from the pressures, :math:`\tau_j = \text{count}_j\,\partial l_
 * **accelerations** (of boom, dipper, bucket and slew) by a *centred* smoothing differentiator
   of the measured rates: the least-squares slope over ``2·half_window + 1`` samples. Centred,
   it has no lag (a causal filtered derivative lags and biases the inertial torques); the price
-  is that the estimate refers to the sample ``half_window + 1`` samples back (60 ms by
+  is that the estimate refers to the sample ``half_window + 1`` samples back (40 ms by
   default; the one more is the outlier test's look-ahead);
 * **ground tilt** from the house IMU: at slew angle 0 the house's pitch and roll are those of
   the ground frame (:func:`ground_tilt`); the slew angle itself does not enter the dynamics
