@@ -28,7 +28,8 @@ from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound
 
 def evaluate(est, ds, bound):
-    return dm.summary_row(dm.judge(est, ds, est.name, bound))
+    reach = dm.attainable(ds, bound, 0.01 * dm.RATED_PAYLOAD) if bound is not None else None
+    return dm.summary_row(dm.judge(est, ds, est.name, bound), dm.RATED_PAYLOAD, reach)
 
 
 def main() -> None:
@@ -68,14 +69,14 @@ def main() -> None:
         est = copy.deepcopy(ref)
         est.options["low_speed"] = low
         cm._install(est, est.calibration)
-        for set_name in ("work-cycle", "hand-made trajectory", "swing"):
+        for set_name in ("work-cycle", "hand-made trajectory", "nmpc"):
             rows.append({"low_speed": low, "test": set_name,
                          **evaluate(est, tests[set_name], bounds[set_name])})
             print(rows[-1], flush=True)
     pd.DataFrame(rows).to_csv(a.out / "low_speed.csv", index=False)
 
     rows = []
-    for set_name in ("swing", "slope-5deg"):
+    for set_name in ("nmpc", "slope-5deg"):
         for effect, (est, data) in dm.effect_variants(ref, tests[set_name]).items():
             rows.append({"ignored": effect, "test": set_name, **evaluate(est, data, bounds[set_name])})
             print(rows[-1], flush=True)
@@ -91,11 +92,11 @@ def main() -> None:
         else:
             est = CalibratedEstimator("cat345c-hydraulic-3pct", experiments=count).fit(cal)
         cm.zero(est, zero)
-        rows.append({"calibration_motions": count, **evaluate(est, tests["swing"], bounds["swing"])})
+        rows.append({"calibration_motions": count, **evaluate(est, tests["nmpc"], bounds["nmpc"])})
         print(rows[-1], flush=True)
     pd.DataFrame(rows).to_csv(a.out / "calibration_curve.csv", index=False)
 
-    ds = tests["swing"]
+    ds = tests["nmpc"]
     values = ds.signals(ref.sensor_set.signals)
     times = ds.frame["time"].to_numpy(float)
     n = min(3000, len(values))

@@ -41,3 +41,35 @@ def test_no_bound_without_a_machine_calibration(model_and_test):
     _, test = model_and_test
     other = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(test)
     assert dataset_machine_bound(test, other) is None
+
+
+def test_a_standstill_counts_once_not_per_sample(model_and_test):
+    """Stiction is one unknown per standstill episode: the information of a stopped cylinder's
+    samples is capped (Schur complement of the shared stiction), below the per-sample model."""
+    from excavator_payload.evaluation.crb_machine import _episode_information
+
+    rng = np.random.default_rng(0)
+    n, d = 400, 4
+    G = rng.normal(size=(n, 3, d))
+    w = np.full((n, 3), 2.0)
+    still = np.zeros((n, 3), bool)
+    still[:300, 0] = True  # joint 0 stands still for 300 samples
+    stiction = np.full((n, 3), 0.5)
+    removed = np.cumsum(_episode_information(G, w, still, stiction), axis=0)
+    full = np.cumsum(np.einsum("nja,nj,njb->nab", G, w, G), axis=0)
+    kept = full - removed
+    assert np.allclose(removed[300:], removed[299])  # nothing more after the episode ends
+    assert np.all(np.linalg.eigvalsh(removed[299]) >= -1e-9)  # it only removes information
+    assert np.all(np.linalg.eigvalsh(kept[299]) >= -1e-9)
+    # the removed information is exactly the episode's share along its mean direction
+    S = (w[:300, 0, None] * G[:300, 0]).sum(0)
+    assert np.allclose(removed[299], np.outer(S, S) / (w[:300, 0].sum() + 3 / 0.25))
+
+
+def test_episodes_make_a_slow_start_harder_to_weigh(model_and_test):
+    est, test = model_and_test
+    episodes = machine_bound(test, est.calibration)
+    independent = machine_bound(test, est.calibration, stiction_episodes=False)
+    t = test.frame["time"].to_numpy(float)
+    early = (t > 0.5) & (t < 1.0) & np.isfinite(episodes) & np.isfinite(independent)
+    assert np.median(episodes[early] / independent[early]) > 1.5

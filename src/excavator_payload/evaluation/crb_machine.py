@@ -35,15 +35,16 @@ from excavator_payload.estimators.classical import calibrated_machine as cm
 
 
 def nuisance_indices() -> np.ndarray:
-    """Indices in z of the nuisances: friction parameters and sensor offsets."""
+    """Indices in z of the nuisances: friction parameters, sensor offsets and IMU dynamics."""
     n_delta = len(cm.CALIBRATED_PARAMETERS)
     friction = [cm.CALIBRATED_PARAMETERS.index(p) for p in cm.FRICTION_PARAMETERS]
-    return np.r_[friction, np.arange(n_delta, n_delta + len(cm.OFFSET_SIGNALS))].astype(int)
+    n_rest = len(cm.OFFSET_SIGNALS) + len(cm.IMU_PARAMETERS)
+    return np.r_[friction, np.arange(n_delta, n_delta + n_rest)].astype(int)
 
 
 def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
                   pressure_std: float | None = None, half_window: int = 5,
-                  nuisances: bool = True) -> np.ndarray:
+                  nuisances: bool = True, stiction_episodes: bool = True) -> np.ndarray:
     """Lower bound on the payload error's std (kg) at every row of ``dataset``.
 
     Parameters
@@ -57,6 +58,11 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
         the calibration's estimate.
     nuisances : bool
         False: the payload alone (friction and offsets known exactly).
+    stiction_episodes : bool
+        True (default): a cylinder standing still holds one unknown stiction force for the
+        whole standstill (:func:`_episode_information`); False: as independent noise of
+        variance (breakaway)²/3 on every slow sample, which counts a long standstill as many
+        independent measurements and so overstates what standing still tells.
     """
     from excavator_payload.simulation.machine_sensors import get_machine_noise
 
@@ -84,8 +90,13 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
     accel_var, calibration.accel_var = calibration.accel_var, 0.0
     try:  # true accelerations: no differentiator noise in the bound
         w = calibration.weights(lever, speed, stiction, "downweight", float(pressure_std))
+        w_white = calibration.weights(lever, speed, stiction, "model", float(pressure_std))
     finally:
         calibration.accel_var = accel_var
+    v_s = np.array([c.stribeck_velocity for c in calibration.arm.machine.cylinders])
+    still = np.abs(speed) < 3 * v_s
+    if stiction_episodes:  # white weights; the shared stiction enters per episode below
+        w = np.where(still, w_white, w)
     phi = calibration._payload_sensitivity  # ∂r/∂m, set by evaluate
     cols = nuisance_indices() if nuisances else np.zeros(0, int)
     C = calibration.covariance[np.ix_(cols, cols)]
@@ -94,14 +105,16 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
     G = np.concatenate([phi[..., None], J[:, :, cols] * scale], axis=2)  # (n, 3, 1 + nν)
     G = np.nan_to_num(G)
     w = np.where(np.isfinite(w), w, 0.0)
-    info = np.einsum("nja,nj,njb->nab", G, w, G)
     prior = np.zeros((1 + len(cols), 1 + len(cols)))
     if len(cols):
         prior[1:, 1:] = np.linalg.pinv(C / np.outer(scale, scale), hermitian=True)
     exp = f["experiment"].to_numpy()[idx]
     starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
     for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
-        F = np.cumsum(info[a:b], axis=0) + prior
+        info = np.einsum("nja,nj,njb->nab", G[a:b], w[a:b], G[a:b])  # one experiment at a time
+        if stiction_episodes:
+            info -= _episode_information(G[a:b], w[a:b], still[a:b], stiction[a:b])
+        F = np.cumsum(info, axis=0) + prior
         Fmm = F[:, 0, 0]
         if len(cols):
             Fmn = F[:, 0, 1:]
@@ -111,6 +124,36 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
             schur = Fmm
         with np.errstate(divide="ignore", invalid="ignore"):
             out[idx[a:b]] = 1.0 / np.sqrt(np.maximum(schur, 0.0))
+    return out
+
+
+def _episode_information(G, w, still, stiction) -> np.ndarray:
+    r"""Per-sample increments of the information a standstill episode's shared stiction removes.
+
+    While joint :math:`j`'s cylinder stands still its friction :math:`s_E` is one unknown
+    within ± the breakaway torque :math:`b` (uniform: variance :math:`b^2/3`) for the whole
+    episode :math:`E`, not fresh noise on every sample. Marginalising it from the episode's
+    samples so far (Schur complement) removes
+
+    .. math:: \frac{S_E S_E^\top}{W_E + 3/b^2}, \qquad S_E = \sum_{k \in E} w_k g_k,\;
+              W_E = \sum_{k \in E} w_k,
+
+    from the information: a long standstill tells little more than a short one. Returned as
+    increments (n, d, d), so that their cumulative sum is the removal up to each sample.
+    """
+    n, _, d = G.shape
+    out = np.zeros((n, d, d))
+    for j in range(G.shape[1]):
+        s = still[:, j]
+        edges = np.flatnonzero(np.diff(np.r_[0, s.astype(int), 0]))
+        for start, stop in zip(edges[0::2], edges[1::2]):
+            a = w[start:stop, j, None] * G[start:stop, j, :]
+            S = np.cumsum(a, axis=0)
+            W = np.cumsum(w[start:stop, j])
+            b = float(np.nanmax(np.abs(stiction[start:stop, j])))
+            c = 3.0 / max(b * b, 1e-300)
+            removed = np.einsum("na,nb->nab", S, S) / (W + c)[:, None, None]
+            out[start:stop] += np.diff(removed, axis=0, prepend=np.zeros((1, d, d)))
     return out
 
 

@@ -29,6 +29,8 @@ CALIBRATION_PAYLOADS = (0.0, 2500.0, 5000.0)
 SESSION_CALIBRATION, SESSION_WORK = 1, 2
 #: Samples not judged at the start of each test experiment: the first second at 100 Hz.
 DISCARD = 100
+#: Rated payload of the hydraulic preset (kg): the issue's 1 % is 50 kg.
+RATED_PAYLOAD = 5000.0
 ANGLE_COLUMNS = ("boom_angle", "dipper_angle", "bucket_angle", "slew_angle")
 
 
@@ -105,17 +107,19 @@ def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
 
 
 def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str, Dataset]:
-    """Session-B test data: swings with slewing, work cycles, work cycles on a 5° slope."""
+    """Session-B test data: NMPC swings with slewing (the issue's target motions), planned swings
+    (which start slowly), work cycles, swings on a 5° slope."""
     from excavator_payload.simulation.generate import simulate_dataset
 
     common = dict(machine=machine, session=SESSION_WORK, with_truth=True, workers=1, progress=False)
-    sets = {"swing": simulate_dataset(n, seed=seed, motion="swing", **common),
+    sets = {"nmpc": simulate_dataset(n, seed=seed + 3, motion="nmpc", **common),
+            "swing": simulate_dataset(n, seed=seed, motion="swing", **common),
             "work-cycle": before_release(simulate_dataset(n, seed=seed + 1, motion="work-cycle", **common))}
     rated = 5000.0
     rng = np.random.default_rng(seed + 2)
     payloads = rng.uniform(0, rated, n)
     sets["slope-5deg"] = simulate_trajectory(
-        motion_trajectory(n, seed + 2, payloads, machine, motion="swing", slope_deg=5.0), seed + 2,
+        motion_trajectory(n, seed + 2, payloads, machine, motion="nmpc", slope_deg=5.0), seed + 2,
         SESSION_WORK, machine)
     return sets
 
@@ -181,16 +185,44 @@ def judge(estimator, dataset: Dataset, label: str, bound: np.ndarray | None):
                               with_bound=bound is not None, discard=DISCARD)
 
 
-def summary_row(evaluation, rated: float = 5000.0) -> dict:
+def attainable(dataset: Dataset, bound: np.ndarray, tolerance: float, discard: int = DISCARD) -> pd.Series:
+    """Per experiment: could an efficient estimator keep its MAX error within ``tolerance``?
+
+    True where twice the Cramér–Rao bound (a 95 % interval of an unbiased estimator that
+    reaches it) stays within the tolerance over the whole judged window. Where it is False the
+    motion itself (a slow start, a long standstill) does not carry the information, whatever
+    the estimator.
+    """
+    f = dataset.frame
+    exp = f["experiment"].to_numpy()
+    out = {}
+    starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
+        judged = np.asarray(bound[a + discard:b], float)
+        judged = judged[np.isfinite(judged)]
+        out[int(exp[a])] = bool(len(judged)) and bool(2 * judged.max() <= tolerance)
+    return pd.Series(out, dtype=bool)
+
+
+def summary_row(evaluation, rated: float = 5000.0, attainable_1pct: pd.Series | None = None) -> dict:
+    """Mean MAX / RMS, shares within 1 / 0.5 / 0.25 % of rated, efficiency; with
+    ``attainable_1pct`` (:func:`attainable`) also the share of experiments where 1 % is
+    physically attainable and the estimator's share within 1 % among them."""
     pe = evaluation.per_experiment
     max_err = pe["max_error"].to_numpy(float)
     rms = pe["rms_error"].to_numpy(float)
-    return {"mean_max_kg": float(np.mean(max_err)), "mean_rms_kg": float(np.mean(rms)),
-            "within_1pct": float(np.mean(max_err <= 0.01 * rated)),
-            "within_0.5pct": float(np.mean(max_err <= 0.005 * rated)),
-            "within_0.25pct": float(np.mean(max_err <= 0.0025 * rated)),
-            "efficiency": float(evaluation.summary.get("efficiency", math.nan)),
-            "n_test": int(len(pe))}
+    row = {"mean_max_kg": float(np.mean(max_err)), "mean_rms_kg": float(np.mean(rms)),
+           "within_1pct": float(np.mean(max_err <= 0.01 * rated)),
+           "within_0.5pct": float(np.mean(max_err <= 0.005 * rated)),
+           "within_0.25pct": float(np.mean(max_err <= 0.0025 * rated)),
+           "efficiency": float(evaluation.summary.get("efficiency", math.nan)),
+           "n_test": int(len(pe))}
+    if attainable_1pct is not None:
+        ok = attainable_1pct.reindex(pe["experiment"].to_numpy()).fillna(False).to_numpy(bool)
+        row["attainable_1pct"] = float(np.mean(ok))
+        row["within_1pct_where_attainable"] = (float(np.mean(max_err[ok] <= 0.01 * rated))
+                                               if ok.any() else math.nan)
+    return row
 
 
 #: Sizes per ``--scale``: calibration motions, test experiments per test set.
@@ -204,6 +236,7 @@ def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
     * ``tilt``: the house inclination is not given (the estimator believes level ground);
     * ``friction``: the seal friction of the model set to zero;
     * ``offsets``: the sensor offsets not corrected (no calibration or zero of them);
+    * ``IMU dynamics``: the IMUs' output lag and acceleration leak not corrected;
     * ``uncalibrated 3 % file``: the machine file as it is, no calibration (offsets neither).
     """
     import copy
@@ -235,7 +268,11 @@ def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
     def uncalibrated(z):
         z[:] = 0.0
 
+    def no_imu_dynamics(z):
+        z[n_delta + len(cm.OFFSET_SIGNALS):] = 0.0
+
     return {"none ignored": variant(), "slewing": variant(columns=("slew_rate",)),
+            "IMU dynamics": variant(no_imu_dynamics),
             "tilt": variant(columns=("house_pitch", "house_roll")), "friction": variant(no_friction),
             "offsets": variant(no_offsets), "uncalibrated 3 % file": variant(uncalibrated)}
 
@@ -269,7 +306,7 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
     (out / "data").mkdir(parents=True, exist_ok=True)
     say = console.print if console is not None else (lambda *a, **k: None)
     say(f"simulating: {n_cal} calibration motions (session {SESSION_CALIBRATION}), zero check and "
-        f"3 × {n_test} test motions (session {SESSION_WORK})")
+        f"4 × {n_test} test motions (session {SESSION_WORK})")
     cal = calibration_data(n_cal, seed, machine)
     from excavator_payload.simulation.generate import simulate_dataset
 
@@ -292,10 +329,11 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
     reference = fit["fitted"].get("calibrated")
     for set_name, ds in tests.items():
         bound = dataset_machine_bound(ds, reference) if reference is not None else None
+        reach = attainable(ds, bound, 0.01 * RATED_PAYLOAD) if bound is not None else None
         for name, est in fit["fitted"].items():
             try:
                 rows.append({"test": set_name, "estimator": name,
-                             **summary_row(judge(est, ds, name, bound))})
+                             **summary_row(judge(est, ds, name, bound), RATED_PAYLOAD, reach)})
             except Exception as exc:  # noqa: BLE001
                 fit["failures"][f"{name} on {set_name}"] = f"{type(exc).__name__}: {exc}"
     table = pd.DataFrame(rows)

@@ -129,3 +129,33 @@ def test_inverse_dynamics_needs_no_noise_preset_on_the_machine_set(setup):
     est = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(Dataset(setup["test"].frame, meta))
     assert est.noise_name == "estimated"
     assert 2.5e4 < est._pressure_noise[0] < 5e4
+
+
+def test_imu_dynamics_correction_is_a_lead_and_a_leak_removal():
+    """The kernel's IMU correction: with lag τ a measured angle is late by τ·rate and a rate by
+    τ·acceleration; a link IMU's leak reads k × its absolute angular acceleration as tilt."""
+    from excavator_payload.model.hydraulic import HydraulicArmModel
+    from excavator_payload.model.machine import load_machine
+
+    p = HydraulicArmModel(load_machine("cat345c-hydraulic"), compiled=False).p
+    f = cm.kernel_function()
+    x = np.zeros(len(cm.SIGNALS))
+    x[list(cm.ANGLES)] = [0.6, -1.7, -1.2]
+    x[list(cm.RATES)] = [0.2, -0.3, 0.4, 0.5]
+    x[list(cm.PRESSURES)] = [12e6, 2e6, 9e6, 3e6, 6e6, 2e6]
+    qdd = np.array([1.0, -0.5, 2.0, 0.3])
+    zero_offsets = np.zeros(len(cm.SIGNALS))
+    lag, k = 0.01, 0.004
+    shifted = x.copy()
+    shifted[list(cm.ANGLES)] += lag * x[list(cm.RATES)][:3]
+    shifted[list(cm.RATES)] += lag * qdd
+    a = np.asarray(f(x, qdd, p, zero_offsets, [lag, 0, 0, 0, 0])).ravel()
+    b = np.asarray(f(shifted, qdd, p, zero_offsets, np.zeros(5))).ravel()
+    assert np.allclose(a, b, rtol=1e-12, atol=1e-9)
+    leak = x.copy()
+    leak[cm.ANGLES[1]] -= k * (qdd[0] + qdd[1])  # dipper IMU: its link's absolute acceleration
+    leak[cm.ANGLES[2]] += k * (qdd[0] + qdd[1])  # the bucket angle is relative to the dipper
+    a = np.asarray(f(x, qdd, p, zero_offsets, [0, 0, k, 0, 0])).ravel()
+    b = np.asarray(f(leak, qdd, p, zero_offsets, np.zeros(5))).ravel()
+    assert np.allclose(a, b, rtol=1e-12, atol=1e-9)
+    assert not np.allclose(a, np.asarray(f(x, qdd, p, zero_offsets, np.zeros(5))).ravel())
