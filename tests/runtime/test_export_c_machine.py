@@ -3,6 +3,7 @@ on pressure + IMU data): compiles cleanly under strict C99 and equals Python's `
 (double: 1e-6 relative, float: 0.1 kg), status codes and ``ep_sigma`` included, on simulated
 machine experiments with faults injected."""
 
+import copy
 import re
 
 import numpy as np
@@ -13,6 +14,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import create_estimator
+from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.runtime.c_harness import c_compiler
 from excavator_payload.runtime.export_c import export_c
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
@@ -82,16 +84,20 @@ def test_c_equals_python_on_the_machine_set(name, machine_models, machine_faulty
 
 
 def test_physics_is_generated_with_the_fitted_parameters(machine_models, tmp_path):
-    """The kernel is CasADi's code with the parameters as constants: no parameter vector
-    input, and the calibrated export carries the identified offsets (not the file's zeros)."""
+    """The kernel is CasADi's code with the parameters, offsets and IMU dynamics as constants:
+    it takes only the sample and the derived accelerations, and another calibration (other
+    offsets) gives other code."""
     est = machine_models["calibrated-skip"]
-    source = export_c(est, tmp_path)[1].read_text()
-    assert "static int ep_pressure_regression(" in source
-    body = re.search(r"EP_OFFSET\[15\] = \{(.*?)\};", source, re.S).group(1)
-    offsets = np.array([float(re.sub(r"EP_C\((.*)\)", r"\1", x.strip())) for x in body.split(",")])
-    np.testing.assert_array_equal(offsets, est.calibration.offset_vector())
-    assert np.any(offsets != 0)
-    assert "EP_OFFSET" not in export_c(machine_models["inverse-dynamics"], tmp_path / "id")[1].read_text()
+    source = export_c(est, tmp_path / "a")[1].read_text()
+    kernel = re.search(r"static int ep_pressure_regression\(.*?\n}", source, re.S).group(0)
+    assert re.findall(r"arg\[(\d+)\]", kernel) and set(re.findall(r"arg\[(\d+)\]", kernel)) == {"0", "1"}
+    assert np.any(est.calibration.offset_vector() != 0)
+    other = copy.deepcopy(est)
+    other.calibration.z[len(cm.CALIBRATED_PARAMETERS)] += 1e5  # the boom head pressure's offset
+    cm._install(other, other.calibration)
+    other_kernel = re.search(r"static int ep_pressure_regression\(.*?\n}",
+                             export_c(other, tmp_path / "b")[1].read_text(), re.S).group(0)
+    assert other_kernel != kernel
 
 
 def test_machine_set_export_errors_and_cli(machine_models, machine_swings, tmp_path):
