@@ -46,8 +46,15 @@ What is generated from what
   ``calibrated_machine._corrected_signals`` with the identified offsets and IMU dynamics as
   constants; ``inverse-dynamics``: the ground tilt from the house IMU); the ring buffer of
   ``2·half_window + 1`` samples, the centred least-squares slope of the rates, the weights and
-  ``--low-speed`` rule, the recursive sums, status, sigma and gap rule are ported here. No statistical gate (the Python has none on this
-  sensor set: the regressed sample is the window's centre, admitted half a window earlier).
+  ``--low-speed`` rule, the recursive sums, status, sigma and gap rule are ported here. No
+  statistical gate (the Python has none on this sensor set: the regressed sample is the
+  window's centre, admitted half a window earlier).
+* ``ekf`` fitted on the machine sensor set: one step of
+  :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman` (update with
+  angles and rates, update with the piston forces of ``force_measurement_symbolic`` with the
+  machine's parameters as constants, low-speed rule, payload clamp, white-jerk prediction) is
+  one CasADi-generated function (:func:`_machine_ekf_functions`); initialisation, status and
+  gap bridging are written here. No gate (none in Python on this set).
 * ``ekf``: the whole filter step (update + prediction) is CasADi's code of
   :func:`~excavator_payload.estimators.classical._kalman.ekf_step_symbolic`, built from the
   symbolic arm model, and so is its gate
