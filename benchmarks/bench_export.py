@@ -3,7 +3,7 @@ against Python's ``step()``; and the CAN replay throughput.
 
     python benchmarks/bench_export.py                  # all C-exportable models, 20 experiments
     python benchmarks/bench_export.py --experiments 50 --repetitions 400
-    python benchmarks/bench_export.py --models machine:inverse-dynamics,machine:calibrated
+    python benchmarks/bench_export.py --models machine:inverse-dynamics,machine:calibrated,machine:ekf
 
 Protocol: simulate ``--experiments`` NMPC experiments (thesis noise), fit each estimator
 (networks: a few epochs only: the cost of a step does not depend on the weights' values),
@@ -47,6 +47,7 @@ MODELS = {
     "net2": {"epochs": 3, "progress": False},
     "machine:inverse-dynamics": {"machine": "cat345c-hydraulic"},
     "machine:calibrated": {"machine": "cat345c-hydraulic-3pct"},
+    "machine:ekf": {"machine": "cat345c-hydraulic"},
 }
 
 
