@@ -5,6 +5,7 @@ machine experiments with faults injected."""
 
 import copy
 import re
+import subprocess
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import create_estimator
 from excavator_payload.estimators.classical import calibrated_machine as cm
-from excavator_payload.runtime.c_harness import c_compiler
+from excavator_payload.runtime.c_harness import STRICT_FLAGS, c_compiler
 from excavator_payload.runtime.export_c import export_c
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
@@ -113,3 +114,13 @@ def test_machine_set_export_errors_and_cli(machine_models, machine_swings, tmp_p
     assert main(["export", "--model", str(model), "--format", "c", "--out", str(out),
                  "--precision", "float32"]) == 0
     assert "#define EP_SINGLE 1" in (out / "ep_calibrated.h").read_text()
+
+
+@pytest.mark.parametrize("name", ["calibrated-skip", "ekf"])
+def test_float_build_does_no_double_maths(name, machine_models, tmp_path):
+    """In single precision nothing is promoted to double (constants of the generated code
+    included): an ECU with a single-precision FPU never runs double arithmetic."""
+    header, source = export_c(machine_models[name], tmp_path, precision="float32")
+    result = subprocess.run([c_compiler(), *STRICT_FLAGS, "-Wdouble-promotion", "-O0", "-c", str(source),
+                             "-o", str(tmp_path / "model.o")], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr

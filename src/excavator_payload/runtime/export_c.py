@@ -199,6 +199,8 @@ def casadi_c_code(functions: dict[str, ca.Function], real: str = "ep_real") -> s
     code = re.sub(r"\bcasadi_(?!f\d)(\w+)\(", r"ep_cas_\1(", code)
     if real == "ep_real":
         code = re.sub(r"(?<![\w.])(" + "|".join(MATH_FUNCTIONS) + r")\(", r"EP_MATH(\1)(", code)
+        # floating-point literals become ep_real constants (a float build does no double maths)
+        code = re.sub(r"(?<![\w.])(\d+\.\d*(?:e[+-]?\d+)?|\d+e[+-]?\d+)(?![\w.])", r"EP_C(\1)", code)
     if "casadi_" in code:
         leftover = sorted(set(re.findall(r"casadi_\w+", code)))
         raise EstimatorError(f"unexpected CasADi symbols in generated code: {leftover[:5]}")
