@@ -32,3 +32,20 @@ def test_machine_demo_tiny(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert "| swing | calibrated |" in report and "slope-5deg" in report
     assert main(["demo", "--machine", "cat345c", "--scale", "tiny", "--out", str(tmp_path / "x")]) == 2
+
+
+def test_attainable_reads_twice_the_bound_over_the_judged_window():
+    import numpy as np
+    import pandas as pd
+
+    from excavator_payload.data.dataset import Dataset
+
+    n = 150
+    frame = pd.DataFrame({"experiment": np.repeat([0, 1], n), "time": np.tile(np.arange(n) * 0.01, 2)})
+    bound = np.r_[np.full(n, 20.0), np.full(n, 20.0)]
+    bound[n + 120] = 30.0  # experiment 1: once, 2σ = 60 kg > 50 kg inside the judged window
+    bound[5] = 500.0  # experiment 0: before the judged window, not counted
+    ds = Dataset.__new__(Dataset)
+    ds.frame = frame
+    reach = dm.attainable(ds, bound, 50.0, discard=100)
+    assert reach.to_dict() == {0: True, 1: False}

@@ -42,7 +42,7 @@ step returns the last estimate (and its sigma) with the status of the check.
    The filter state is not updated; the next used sample bridges the hole like a short gap
    (the filters restart their kinematic states and keep the payload; delay lines and running
    means get the rejected slots interpolated between the neighbouring samples). After
-   :data:`MAX_CONSECUTIVE_REJECTIONS` rejections in a row the estimator does not lock itself
+   :data:`MAX_REJECTED_DURATION` of rejections in a row the estimator does not lock itself
    out: it re-initialises (the payload may really have changed), uses the sample, reports
    ``reinitialised`` and widens its gate to the data. The gate also widens slowly
    (:data:`GATE_SCALE_RATE`) while accepted innovations run larger than the noise model says,
@@ -124,8 +124,17 @@ class StepResult:
 
 #: Probability, per sample, that a good sample is rejected by the statistical gate.
 GATE_PROBABILITY = 1e-6
-#: After this many consecutive rejections the estimator re-initialises instead of rejecting.
+#: After rejections in a row for this long the estimator re-initialises instead of rejecting
+#: (a glitch is one frame, a hydraulic transient a few tens of milliseconds; a new payload stays).
+MAX_REJECTED_DURATION = 0.25
+#: That many samples of the thesis sensor set (20 Hz); see :func:`max_consecutive_rejections`.
 MAX_CONSECUTIVE_REJECTIONS = 5
+
+
+def max_consecutive_rejections(sensor_set) -> int:
+    """Rejections in a row after which an estimator on ``sensor_set`` re-initialises:
+    :data:`MAX_REJECTED_DURATION` of samples (5 at 20 Hz, 25 at 100 Hz)."""
+    return max(1, int(round(MAX_REJECTED_DURATION * sensor_set.sample_rate)))
 #: The gate widens (never narrows below 1) to ``GATE_SCALE_HEADROOM`` × the recent accepted
 #: innovations' share of the threshold, an exponential average with this weight per sample.
 GATE_SCALE_RATE = 0.05
@@ -348,7 +357,8 @@ class Estimator(ABC):
             return
         last_time, last = self._last_used
         period = self.sensor_set.sample_period
-        missing = min(int(round((time - last_time) / period)) - 1, MAX_CONSECUTIVE_REJECTIONS)
+        missing = min(int(round((time - last_time) / period)) - 1,
+                      max_consecutive_rejections(self.sensor_set))
         for k in range(1, missing + 1):
             w = k / (missing + 1)
             self._step(last_time + k * period, last + w * (values - last))
@@ -478,7 +488,7 @@ class Estimator(ABC):
             threshold = gate_threshold(nis[1]) * self._gate_scale
             if not nis[0] <= threshold:
                 self._n_rejected += 1
-                if self._n_rejected <= MAX_CONSECUTIVE_REJECTIONS:
+                if self._n_rejected <= max_consecutive_rejections(self.sensor_set):
                     if not gap:
                         self._last_time = time  # the sample's slot is used up: no gap after it
                     return self._kept(Status.REJECTED)

@@ -29,7 +29,7 @@ What is generated from what
   quantile of :data:`~excavator_payload.estimators.base.GATE_PROBABILITY` (computed with scipy
   at export time by :func:`~excavator_payload.estimators.base.gate_threshold`), times a gate
   width that follows :data:`GATE_SCALE_RATE`/:data:`GATE_SCALE_HEADROOM`, ->
-  ``rejected_outlier``, and after :data:`MAX_CONSECUTIVE_REJECTIONS` in a row a restart,
+  ``rejected_outlier``, and after :func:`~excavator_payload.estimators.base.max_consecutive_rejections` in a row a restart,
   ``reinitialised``; a state that is no longer finite -> restart, ``state_reset``. A sample
   not used returns the last estimate and sigma. ``ep_sigma`` is ``StepResult.sigma``.
 * ``inverse-dynamics``, ``calibrated``: the per-sample information terms
@@ -77,7 +77,7 @@ What is generated from what
 * ``Estimator._on_skip``/``_fill_rejected``: before the sample after gate-rejected ones the
   model bridges the hole like a gap (filters, least squares), or, for the networks, does
   nothing and, once that sample is accepted, steps the rejected slots (at most
-  :data:`MAX_CONSECUTIVE_REJECTIONS`) with values interpolated between the last used sample
+  :func:`~excavator_payload.estimators.base.max_consecutive_rejections`) with values interpolated between the last used sample
   and this one (``Estimator._interpolate_rejected``), so their delay lines stay evenly spaced.
 * ``net1``/``ffnn``/``net2``: their sigma is the constant RMS validation error the fit
   measured (``residual_std``).
@@ -106,10 +106,10 @@ from excavator_payload.estimators.base import (
     GATE_PROBABILITY,
     GATE_SCALE_HEADROOM,
     GATE_SCALE_RATE,
-    MAX_CONSECUTIVE_REJECTIONS,
     Estimator,
     Status,
     gate_threshold,
+    max_consecutive_rejections,
     plausibility_limits,
 )
 
@@ -1518,7 +1518,7 @@ static void ep_model_fill_rejected(ep_state *s, ep_real time, const ep_real v[EP
 #define EP_GATING {1 if est.gating else 0}
 #endif
 #define EP_GATE_THRESHOLD {c_number(threshold)}
-#define EP_MAX_CONSECUTIVE_REJECTIONS {int(MAX_CONSECUTIVE_REJECTIONS)}
+#define EP_MAX_CONSECUTIVE_REJECTIONS {int(max_consecutive_rejections(sensors))}
 #define EP_GATE_SCALE_RATE {c_number(GATE_SCALE_RATE)}
 #define EP_GATE_SCALE_HEADROOM {c_number(GATE_SCALE_HEADROOM)}"""
         innovation_fn = f"""

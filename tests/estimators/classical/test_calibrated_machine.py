@@ -159,3 +159,41 @@ def test_imu_dynamics_correction_is_a_lead_and_a_leak_removal():
     b = np.asarray(f(leak, qdd, p, zero_offsets, np.zeros(5))).ravel()
     assert np.allclose(a, b, rtol=1e-12, atol=1e-9)
     assert not np.allclose(a, np.asarray(f(x, qdd, p, zero_offsets, np.zeros(5))).ravel())
+
+
+@pytest.mark.parametrize("signal,size", [("boom_head_pressure", 3e6), ("boom_rate", 0.2),
+                                         ("bucket_angle", 0.5)])
+def test_a_one_frame_glitch_is_rejected_and_changes_nothing(setup, signal, size):
+    """A glitched frame is judged one sample after it arrives (its neighbours on both sides):
+    reported ``rejected_outlier``, never regressed, the differentiator's slot repaired."""
+    est, test = setup["zeroed"], setup["test"]
+    clean = est.estimate(test)
+    frame = test.frame.copy()
+    hit = frame.index[frame.groupby("experiment").cumcount() == 300]
+    frame.loc[hit, signal] += size
+    glitched = est.estimate(Dataset(frame, test.meta))
+    status = glitched["status"].astype(str).to_numpy()
+    assert np.all(status[hit + 1] == "rejected_outlier")
+    assert np.sum(status == "rejected_outlier") == len(hit)  # nothing else (no false alarm)
+    last = frame.groupby("experiment").tail(1).index
+    change = np.abs(glitched["payload_estimate"].to_numpy()[last] - clean["payload_estimate"].to_numpy()[last])
+    assert np.all(change < 1.0)
+    est.gating = False  # without the test the same glitch moves the estimate (rates: kg)
+    try:
+        ungated = est.estimate(Dataset(frame, test.meta))
+    finally:
+        est.gating = True
+    assert not np.any(ungated["status"].astype(str) == "rejected_outlier")
+    if signal == "boom_rate":
+        assert np.max(np.abs(ungated["payload_estimate"].to_numpy()[last]
+                             - clean["payload_estimate"].to_numpy()[last])) > 2.0
+
+
+def test_a_step_is_not_a_glitch(setup):
+    """A valve opening moves a pressure away from one neighbour only: not rejected."""
+    est, test = setup["zeroed"], setup["test"]
+    frame = test.frame.copy()
+    late = frame.groupby("experiment").cumcount().to_numpy() >= 300
+    frame.loc[late, "boom_rod_pressure"] += 2e6
+    status = est.estimate(Dataset(frame, test.meta))["status"].astype(str)
+    assert not np.any(status == "rejected_outlier")

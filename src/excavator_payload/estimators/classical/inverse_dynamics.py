@@ -327,6 +327,16 @@ def residual_nis(values, theta_empty, theta_payload, variances, payload: float,
     return (R22 * r1 * r1 - 2.0 * R12 * r1 * r2 + R11 * r2 * r2) / det
 
 
+def restore_difference_scale(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The machine set's per-signal outlier-test scale from a saved model (checked)."""
+    if "difference_scale" not in arrays:
+        raise EstimatorError("saved model predates the machine set's outlier test: fit it again")
+    scale = np.asarray(arrays["difference_scale"], float)
+    if scale.shape != (15,) or np.any(np.isnan(scale)) or np.any(scale <= 0):
+        raise EstimatorError("saved outlier-test scale is corrupt")
+    return scale
+
+
 @register
 class InverseDynamicsEstimator(Estimator):
     """Recursive weighted least squares on the payload through the arm's inverse dynamics.
@@ -364,6 +374,7 @@ class InverseDynamicsEstimator(Estimator):
         if self._hydraulic:
             self.noise_name = "field"
             self._pressure_noise = (0.0, 0.0)
+            self.difference_scale = np.full(15, np.inf)  # the outlier test's scale, from fit data
             self._reset()
             return
         self.theta_empty, self.theta_payload = base_parameters(self.machine)
@@ -378,18 +389,24 @@ class InverseDynamicsEstimator(Estimator):
         from excavator_payload.model.hydraulic import HydraulicArmModel
 
         std, ripple = self._pressure_noise
+        from excavator_payload.estimators.classical.pressure_regression import spike_threshold
+
         self._pressure = PressureRegression(HydraulicArmModel(self.machine, compiled=False),
                                             pressure_std=std, ripple_fraction=ripple,
                                             half_window=self.options["half_window"],
                                             forgetting=self.options["forgetting"])
+        self._pressure.spike_threshold = spike_threshold(self.difference_scale)
         self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
 
     def _fit_machine_set(self, dataset: Dataset) -> None:
         from excavator_payload.simulation.machine_sensors import get_machine_noise
 
+        from excavator_payload.estimators.classical.pressure_regression import difference_scale
+
         if not self._hydraulic:
             raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
                                  f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
+        self.difference_scale = difference_scale(dataset)
         name = self.options["noise"]
         if name == "auto":
             name = dataset.meta.get("noise")
@@ -454,11 +471,14 @@ class InverseDynamicsEstimator(Estimator):
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         if self._pressure is not None:
+            self._pressure.judge = self.gating
             self._pressure.update(time, values)
             self._info = self._pressure.info
             if self._info <= 0.0:
                 return StepResult(math.nan, Status.WARMING_UP)
             status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
+            if self._pressure.rejected:  # the sample before this one was a one-frame outlier
+                status = Status.REJECTED
             return StepResult(self._pressure.estimate, status)
         if self._info > 0.0:  # weights use the current estimate, kept physical
             m_w = min(max(self._num / self._info, 0.0), self._max_payload)
@@ -478,9 +498,9 @@ class InverseDynamicsEstimator(Estimator):
     def _innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
         """The sample's torque residual at the current estimate (:func:`residual_nis`), 2 dof.
 
-        On the machine sensor set the kernel regresses the sample at the centre of its
-        differentiator window, which was admitted ``half_window`` samples ago, so there is no
-        per-sample statistical gate yet: only the plausibility limits guard it (issue 12).
+        On the machine sensor set the kernel judges each sample itself, one sample after it
+        arrived (a one-frame outlier test, see
+        :mod:`~excavator_payload.estimators.classical.pressure_regression`): None here.
         """
         if self._info <= 0.0 or self._pressure is not None:
             return None
@@ -496,9 +516,12 @@ class InverseDynamicsEstimator(Estimator):
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Samples are independent equations: a gap of up to 1 s keeps the sums, a longer one
-        (or time going back: a new lift) restarts."""
+        (or time going back: a new lift) restarts. The machine set's differentiator needs evenly
+        spaced samples: its window starts again after any gap."""
         if self._last_time is None or not 0.0 < time - self._last_time <= MAX_BRIDGED_GAP:
             self._reset()
+        elif self._pressure is not None:
+            self._pressure.restart_window()
 
     @property
     def uncertainty(self) -> float:
@@ -515,7 +538,8 @@ class InverseDynamicsEstimator(Estimator):
 
     def _arrays(self) -> dict[str, np.ndarray]:
         if self._pressure is not None:
-            return {"pressure_noise": np.asarray(self._pressure_noise, float)}
+            return {"pressure_noise": np.asarray(self._pressure_noise, float),
+                    "difference_scale": np.asarray(self.difference_scale, float)}
         return {"theta_empty": np.asarray(self.theta_empty, float),
                 "theta_payload": np.asarray(self.theta_payload, float),
                 "sensor_variances": np.asarray(self.variances, float)}
@@ -527,6 +551,7 @@ class InverseDynamicsEstimator(Estimator):
                 raise EstimatorError("saved pressure-regression state is corrupt")
             self._pressure_noise = (float(noise[0]), float(noise[1]))
             self.noise_name = str(config.get("noise", "unknown"))
+            self.difference_scale = restore_difference_scale(arrays)
             self._build_pressure_kernel()
             return
         theta_empty = np.asarray(arrays["theta_empty"], float)
