@@ -35,8 +35,8 @@ def machine_swings():
 def machine_faulty(machine_swings):
     """The swings with bad samples: a NaN pressure, a pressure above 1000 bar, a repeated
     time, time going back, a house inclination whose ground tilt has no arcsine (the
-    calibrated kernel's state goes NaN and restarts), a 0.2 s gap (bridged) and a 2 s gap
-    (a restart)."""
+    calibrated kernel's state goes NaN and restarts), one-frame glitches (the kernels'
+    outlier test), a 0.2 s gap (bridged) and a 2 s gap (a restart)."""
     frame = machine_swings.frame.copy()
     ids = list(machine_swings.experiment_ids)
     rows = {e: frame.index[frame["experiment"] == e] for e in ids}
@@ -45,7 +45,12 @@ def machine_faulty(machine_swings):
     frame.loc[r0[300], "dipper_rod_pressure"] = 2e8
     frame.loc[r0[500], "time"] = frame.loc[r0[499], "time"]
     frame.loc[r1[400], "time"] = frame.loc[r1[399], "time"] - 0.5
-    frame.loc[r1[700], ["house_pitch", "house_roll"]] = 0.99
+    frame.loc[r1[700:705], ["house_pitch", "house_roll"]] = 0.99  # five frames: not one glitch
+    # one-frame glitches for the outlier test: a pressure, an angle, a rate, one next to a gap
+    frame.loc[r0[100], "boom_head_pressure"] += 5e6
+    frame.loc[r1[200], "dipper_angle"] += 0.05
+    frame.loc[r2[100], "slew_rate"] -= 0.5
+    frame.loc[r2[222], "bucket_rod_pressure"] += 8e6
     drop = list(r2[200:220]) + list(r2[600:800])
     frame = frame.drop(index=drop).reset_index(drop=True)
     return Dataset(frame, machine_swings.meta)
@@ -84,6 +89,9 @@ def test_c_equals_python_on_the_machine_set(name, machine_models, machine_faulty
         assert (py["status"] == "warming_up").sum() > 2 * 5
     if name.startswith("calibrated"):
         assert "state_reset" in seen  # the NaN ground tilt: a non-finite state restarts
+    if name != "ekf":  # the pressure kernels' one-frame outlier test (a rejection before any
+        # information is reported as warming_up)
+        assert (py["status"] == "rejected_outlier").sum() >= 2
     assert np.isfinite(py["sigma"]).any()
 
 
@@ -124,3 +132,16 @@ def test_float_build_does_no_double_maths(name, machine_models, tmp_path):
     result = subprocess.run([c_compiler(), *STRICT_FLAGS, "-Wdouble-promotion", "-O0", "-c", str(source),
                              "-o", str(tmp_path / "model.o")], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+
+
+def test_outlier_test_off(machine_models, machine_faulty, tmp_path):
+    """-DEP_GATING=0 is ``Estimator.gating = False`` for the kernels' outlier test too."""
+    est = machine_models["inverse-dynamics"]
+    source = export_c(est, tmp_path / "export")[1]
+    est.gating = False
+    try:
+        py = _assert_c_equals_python(est, source, machine_faulty, tmp_path / "off", False,
+                                     extra_flags=("-DEP_GATING=0",))
+    finally:
+        est.gating = True
+    assert "rejected_outlier" not in set(py["status"])

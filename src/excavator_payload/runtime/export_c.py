@@ -46,9 +46,11 @@ What is generated from what
   ``calibrated_machine._corrected_signals`` with the identified offsets and IMU dynamics as
   constants; ``inverse-dynamics``: the ground tilt from the house IMU); the ring buffer of
   ``2·half_window + 1`` samples, the centred least-squares slope of the rates, the weights and
-  ``--low-speed`` rule, the recursive sums, status, sigma and gap rule are ported here. No
-  statistical gate (the Python has none on this sensor set: the regressed sample is the
-  window's centre, admitted half a window earlier).
+  ``--low-speed`` rule, the recursive sums, status, sigma and gap rule (a short gap restarts
+  the window) are ported here, and so is the kernels' one-frame outlier test in place of the
+  chi-square gate (``pressure_regression``: the sample before the newest judged between its
+  neighbours against per-signal thresholds from the fit data, its slot repaired and never
+  regressed, ``rejected_outlier``; ``-DEP_GATING=0`` turns it off).
 * ``ekf`` fitted on the machine sensor set: one step of
   :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman` (update with
   angles and rates, update with the piston forces of ``force_measurement_symbolic`` with the
@@ -1049,6 +1051,27 @@ def _pressure_regression_model(est) -> CModel:
         f"#define EP_FORGETTING {c_number(kernel.forgetting)}",
         f"#define EP_WARM_INFO {c_number(est._warm_info)}      /* 1 / warmup_std^2 */",
         f"#define EP_MAX_BRIDGED_GAP {c_number(MAX_BRIDGED_GAP)}  /* s: a longer gap restarts */",
+        "/* pressure_regression's one-frame outlier test: the sample before the newest is rejected",
+        " * when some signal moves away from both neighbours, in the same direction, by more than",
+        " * z sigma_delta (z: GATE_PROBABILITY two-sided; sigma_delta: the fit data's sample-to-sample",
+        " * change); its slot gets the neighbours' mean and is never regressed. Off with",
+        " * -DEP_GATING=0 (Estimator.gating = False). */",
+        "#ifndef EP_GATING",
+        f"#define EP_GATING {1 if est.gating else 0}",
+        "#endif",
+        c_array("EP_SPIKE_THRESHOLD", kernel.spike_threshold).rstrip(),
+        "",
+        "/* PressureRegression._spike */",
+        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
+        "{",
+        "    int i;",
+        "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
+        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
+        "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
+        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]) return 1;",
+        "    }",
+        "    return 0;",
+        "}",
     ]
     if not (calibrated and kernel.low_speed == "model"):
         defs.append(c_array("EP_STILL_SPEED", still_speed).rstrip() + "  /* 3 Stribeck velocities, m/s */")
@@ -1069,7 +1092,7 @@ def _pressure_regression_model(est) -> CModel:
     for (j = 0; j < 4; ++j) {
         ep_real acc = EP_C(0.0);
         for (k = 0; k < EP_WINDOW; ++k)
-            acc += EP_SLOPE[k] * s->ring[((s->ring_next + k) % EP_WINDOW) * EP_N_SIGNALS + EP_RATES[j]];
+            acc += EP_SLOPE[k] * s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]];
         qdd[j] = acc;
     }"""
         low_speed = {
@@ -1112,9 +1135,9 @@ def _pressure_regression_model(est) -> CModel:
      * slope; in single precision it keeps the 10 ms steps exact) */
     {
         ep_real t_rel[EP_WINDOW], t_centre, t_mean = EP_C(0.0), tt = EP_C(0.0);
-        t_centre = s->ring_time[(s->ring_next + EP_HALF_WINDOW) % EP_WINDOW];
+        t_centre = s->ring_time[(s->ring_next + EP_HALF_WINDOW) % EP_RING];
         for (k = 0; k < EP_WINDOW; ++k) {
-            t_rel[k] = s->ring_time[(s->ring_next + k) % EP_WINDOW] - t_centre;
+            t_rel[k] = s->ring_time[(s->ring_next + k) % EP_RING] - t_centre;
             t_mean += t_rel[k];
         }
         t_mean /= (ep_real)EP_WINDOW;
@@ -1125,10 +1148,10 @@ def _pressure_regression_model(est) -> CModel:
         for (j = 0; j < 4; ++j) {
             ep_real mean = EP_C(0.0), acc = EP_C(0.0);
             for (k = 0; k < EP_WINDOW; ++k)
-                mean += s->ring[((s->ring_next + k) % EP_WINDOW) * EP_N_SIGNALS + EP_RATES[j]];
+                mean += s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]];
             mean /= (ep_real)EP_WINDOW;
             for (k = 0; k < EP_WINDOW; ++k)
-                acc += t_rel[k] * (s->ring[((s->ring_next + k) % EP_WINDOW) * EP_N_SIGNALS + EP_RATES[j]] - mean);
+                acc += t_rel[k] * (s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]] - mean);
             qdd[j] = acc / tt;
         }
     }"""
@@ -1148,20 +1171,36 @@ def _pressure_regression_model(est) -> CModel:
         description = (f"inverse-dynamics on the machine sensor set: weighing regression from cylinder "
                        f"pressures and IMUs (machine {est.machine.name}, noise {est.noise_name}), "
                        f"half window {h}")
-    push = "    for (i = 0; i < EP_N_SIGNALS; ++i) row[i] = v[i];"
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
-        "    s->ring_time[s->ring_next] = time;\n"
-    step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel: push the sample into the
-     * ring buffer; once it holds 2 half_window + 1 samples, regress the one at its centre */
-    ep_real *row = s->ring + s->ring_next * EP_N_SIGNALS, x[EP_N_SIGNALS], qdd[4], out[15];
+        "    s->ring_time[newest] = time;\n"
+    step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
+     * differentiator's window (2 half_window + 1 samples) and the newest sample, not yet judged:
+     * the outlier test judges the sample before the newest between its neighbours; once the
+     * ring is full, the window's centre is regressed unless it was rejected. */
+    ep_real x[EP_N_SIGNALS], qdd[4], out[15];
     ep_real d_num = EP_C(0.0), d_info = EP_C(0.0);
-    int i, j, k;
-{push}
-{time_push}    s->ring_next = (s->ring_next + 1) % EP_WINDOW;
-    if (s->ring_filled < EP_WINDOW) s->ring_filled += 1;
-    if (s->ring_filled == EP_WINDOW) {{
-        /* the window, oldest first, starts at ring_next */
-        const ep_real *centre = s->ring + ((s->ring_next + EP_HALF_WINDOW) % EP_WINDOW) * EP_N_SIGNALS;
+    int i, j, k, newest = s->ring_next, rejected = 0;
+    for (i = 0; i < EP_N_SIGNALS; ++i) s->ring[newest * EP_N_SIGNALS + i] = v[i];
+{time_push}    s->ring_used[newest] = 1;
+    s->ring_next = (newest + 1) % EP_RING;
+    if (s->ring_filled < EP_RING) s->ring_filled += 1;
+#if EP_GATING
+    if (s->ring_filled >= 3) {{
+        int mid = (newest + EP_RING - 1) % EP_RING, before = (newest + EP_RING - 2) % EP_RING;
+        ep_real *m = s->ring + mid * EP_N_SIGNALS;
+        const ep_real *b = s->ring + before * EP_N_SIGNALS;
+        if (ep_spike(b, m, v)) {{
+            for (i = 0; i < EP_N_SIGNALS; ++i) m[i] = EP_C(0.5) * (b[i] + v[i]);
+            s->ring_used[mid] = 0;
+            rejected = 1;
+        }}
+    }}
+#else
+    (void)ep_spike;
+#endif
+    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
+        /* the window, oldest first, starts at ring_next and ends on the sample before the newest */
+        const ep_real *centre = s->ring + ((s->ring_next + EP_HALF_WINDOW) % EP_RING) * EP_N_SIGNALS;
         for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
 {textwrap.indent(derivative, "    ")}
 {textwrap.indent(casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code), "    ")}
@@ -1174,19 +1213,23 @@ def _pressure_regression_model(est) -> CModel:
         return EP_STATUS_WARMING_UP;
     }}
     *estimate = s->num / s->info;
+    if (rejected) return EP_STATUS_REJECTED;  /* the sample before this one was an outlier */
     return s->info >= EP_WARM_INFO ? EP_STATUS_OK : EP_STATUS_WARMING_UP;"""
-    on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and the window, a long
-     * one (or time going back) restarts */
+    on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
+     * (the differentiator needs evenly spaced samples), a long one (or time going back)
+     * restarts */
     ep_real dt = time - s->last_time;
     (void)v;
-    if (!s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_BRIDGED_GAP)) ep_model_reset(s);"""
+    if (!s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_BRIDGED_GAP)) ep_model_reset(s);
+    else s->ring_filled = 0;"""
     fields = ["ep_real num;   /* sum of w phi r */",
               "ep_real info;  /* sum of w phi^2: information, 1/variance of the estimate */",
-              "ep_real ring[EP_WINDOW * EP_N_SIGNALS];  /* the last samples, as measured */"]
+              "ep_real ring[EP_RING * EP_N_SIGNALS];  /* the last samples, as measured (outliers repaired) */"]
     if not calibrated:
-        fields.append("ep_real ring_time[EP_WINDOW];  /* their times */")
-    fields += ["int ring_next;    /* slot the next sample goes to (the oldest once full) */",
-               "int ring_filled;  /* samples in the ring (saturates at EP_WINDOW) */"]
+        fields.append("ep_real ring_time[EP_RING];  /* their times */")
+    fields += ["unsigned char ring_used[EP_RING];  /* 0: a rejected sample's slot */",
+               "int ring_next;    /* slot the next sample goes to (the oldest once full) */",
+               "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]
     return CModel(
         description=description,
         state_fields=fields,
@@ -1194,7 +1237,8 @@ def _pressure_regression_model(est) -> CModel:
         reset="    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;",
         step=step, on_gap=on_gap,
         header_defines=[f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
-                        f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */"],
+                        f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
+                        "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"],
         sigma="    /* _estimate_sigma: I^(-1/2) */\n"
               "    return s->info > EP_C(0.0) ? EP_C(1.0) / EP_MATH(sqrt)(s->info) : EP_NAN;",
         # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps
