@@ -2,8 +2,16 @@
 per motion, and the data's own figures (duration, peak pressure, use of the pumps' speed).
 
 Usage: python benchmarks/bench_hydraulic.py [N_EXPERIMENTS_PER_MOTION=50] [SEED=0]
+       python benchmarks/bench_hydraulic.py --plausibility [N_PER_SESSION=25] [SESSIONS=8]
+
+``--plausibility`` counts false rejections of the plausibility limits
+(:func:`~excavator_payload.estimators.base.plausibility_limits` of the machine file) on field-noise
+data of every motion family: ``SESSIONS`` working sessions (their own sensor offsets) of
+``N_PER_SESSION`` experiments each, and the largest share of the angle margin used beyond the
+machine's angle ranges (0: every angle inside its range).
 """
 
+import json
 import sys
 import time
 
@@ -42,5 +50,35 @@ def main() -> None:
                   f"of {len(share)} (max {share.max():.2f}); retries {sum(m['n_retries'] for m in metas)}")
 
 
+def plausibility(per_session: int = 25, sessions: int = 8) -> None:
+    from excavator_payload.data.schema import MACHINE_SENSORS
+    from excavator_payload.estimators.base import plausibility_limits
+    from excavator_payload.model.machine import load_machine
+
+    machine = load_machine("cat345c-hydraulic")
+    low, high = plausibility_limits(MACHINE_SENSORS, machine)
+    signals = list(MACHINE_SENSORS.signals)
+    for motion in ("swing", "work-cycle", "slopes", "lifts", "nmpc"):
+        cpu = time.process_time()
+        n = rows = rejected = 0
+        used = np.zeros(3)
+        for session in range(sessions):
+            ds = simulate_machine_dataset(per_session, seed=5000 + 100 * session, session=100 + session,
+                                          motion=motion, workers=1)
+            v = ds.frame[signals].to_numpy(float)
+            rejected += int(((v < low) | (v > high)).any(axis=1).sum())
+            rows, n = rows + len(v), n + ds.n_experiments
+            for j in range(3):
+                lo, hi = machine.angle_ranges[j]
+                margin = high[j] - hi
+                used[j] = max(used[j], (lo - v[:, j].min()) / margin, (v[:, j].max() - hi) / margin)
+        print(json.dumps({"motion": motion, "experiments": n, "samples": rows, "rejected_samples": rejected,
+                          "angle_margin_share_used": [round(float(x), 3) for x in used],
+                          "cpu_s": round(time.process_time() - cpu, 1)}), flush=True)
+
+
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "--plausibility":
+        plausibility(*(int(a) for a in sys.argv[2:4]))
+    else:
+        main()

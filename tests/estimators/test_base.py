@@ -131,3 +131,63 @@ def test_protocol_errors(tmp_path):
         est.step({"time": 0.0})
     with pytest.raises(EstimatorError, match="not fitted"):
         est.save(tmp_path / "unfitted")
+
+
+# -- plausibility limits of a hydraulic machine (issue 11) ------------------------------------
+
+def test_hydraulic_angle_limits_are_the_ranges_widened_by_the_sensor_margin():
+    from excavator_payload.data.schema import MACHINE_SENSORS
+    from excavator_payload.estimators.base import angle_sensor_margins, plausibility_limits
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_sensors import DEG, PRESETS
+
+    machine = load_machine("cat345c-hydraulic")
+    low, high = plausibility_limits(MACHINE_SENSORS, machine)
+    margins = angle_sensor_margins()
+    field = PRESETS["field"]
+    # hand calculation from the field preset: leak × π/2 per IMU (the boom has one), 6σ of
+    # offset and noise; the IMU lag adds nothing
+    assert margins["boom_angle"] == pytest.approx(0.05 * math.pi / 2 + 6 * 0.15 * DEG)
+    assert margins["bucket_angle"] == pytest.approx(0.05 * math.pi + 6 * 0.15 * DEG)
+    assert field.imu_lag > 0
+    for j, name in enumerate(("boom_angle", "dipper_angle", "bucket_angle")):
+        i = MACHINE_SENSORS.index(name)
+        lo, hi = machine.angle_ranges[j]
+        assert (low[i], high[i]) == pytest.approx((lo - margins[name], hi + margins[name]))
+    # signals without a machine rule keep the sensor set's limits
+    i = MACHINE_SENSORS.index("slew_rate")
+    assert (low[i], high[i]) == (-MACHINE_SENSORS.plausible_abs["slew_rate"],
+                                 MACHINE_SENSORS.plausible_abs["slew_rate"])
+
+
+def test_an_impossible_bucket_angle_is_rejected_on_the_machine_set():
+    from excavator_payload.estimators.base import angle_sensor_margins
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    data = simulate_machine_dataset(1, seed=3, motion="lifts")
+    est = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(data)
+    top = load_machine("cat345c-hydraulic").angle_ranges[2, 1]
+    margin = angle_sensor_margins()["bucket_angle"]
+    sample = _sample(data, 0)
+    assert est.step(sample).status is not Status.OUT_OF_RANGE
+    near = dict(_sample(data, 1), bucket_angle=top + 0.9 * margin)  # past the stop, but a sensor can
+    assert est.step(near).status is not Status.OUT_OF_RANGE
+    impossible = dict(_sample(data, 2), bucket_angle=top + 1.1 * margin)
+    assert est.step(impossible).status is Status.OUT_OF_RANGE
+
+
+@pytest.mark.parametrize("motion,n", [("swing", 4), ("work-cycle", 6), ("slopes", 6), ("lifts", 3),
+                                      ("nmpc", 2)])
+def test_simulated_machine_data_stay_inside_the_plausibility_limits(motion, n):
+    """No false rejections on field-noise data of every motion family (the benchmark runs 200
+    experiments of each: benchmarks/bench_hydraulic.py --plausibility)."""
+    from excavator_payload.data.schema import MACHINE_SENSORS
+    from excavator_payload.estimators.base import plausibility_limits
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    data = simulate_machine_dataset(n, seed=11, session=4, motion=motion)
+    low, high = plausibility_limits(MACHINE_SENSORS, load_machine("cat345c-hydraulic"))
+    values = data.signals()
+    assert np.all((values >= low) & (values <= high))

@@ -26,7 +26,9 @@ step returns the last estimate (and its sigma) with the status of the check.
 2. **Plausible** (``out_of_range``): each signal inside ``[low, high]`` of
    :func:`plausibility_limits`: ``±SensorSet.plausible_abs`` tightened by the machine file
    through :data:`MACHINE_RULES`: the angle ranges, and ``|torque| ≤``
-   :data:`TORQUE_LIMIT_FACTOR` ``×`` the joint's torque limit. Estimators without a machine
+   :data:`TORQUE_LIMIT_FACTOR` ``×`` the joint's torque limit; for a hydraulic machine file
+   through :data:`HYDRAULIC_RULES`: the links' angle ranges widened by the sensor margin
+   (:func:`angle_sensor_margins`). Estimators without a machine
    model (the networks) take the machine of their training data. The limits are saved with the
    model (``estimator.json``, key ``plausibility``).
 3. **Statistically consistent** (``rejected_outlier``): an estimator with a noise model
@@ -151,7 +153,44 @@ MACHINE_RULES: dict[str, tuple[str, str]] = {
     "dipper_torque": ("abs_limit", "dipper_torque_limit"),
 }
 
+#: Hydraulic machine files: a measured link angle must lie inside the link's ``angle_range``
+#: (the mechanical stops) widened by the sensor margin of :func:`angle_sensor_margins`.
+HYDRAULIC_RULES: dict[str, tuple[str, str]] = {
+    "boom_angle": ("link_range", "boom"),
+    "dipper_angle": ("link_range", "dipper"),
+    "bucket_angle": ("link_range", "bucket"),
+}
+#: Standard deviations of a sensor's offset and white noise the angle margin allows (a 6-sigma
+#: Gaussian draw: about 2e-9 per sample).
+ANGLE_MARGIN_SIGMAS = 6.0
+
 _CHI2: dict[int, float] = {}
+
+
+def angle_sensor_margins() -> dict[str, float]:
+    r"""How far (rad) a measured link angle of the machine sensor set can lie outside the true one's
+    range, the largest over the sensor model's presets
+    (:mod:`excavator_payload.simulation.machine_sensors`).
+
+    The measured angle is the IMU's first-order lag of the true angle, plus the accelerations'
+    leak through the inclination fusion, plus the session offset and white noise. The lag adds
+    nothing: its output is a convex combination of past true angles (weights :math:`(1-a)a^k`,
+    started at steady state), so it stays inside their range, whatever the rate (the bound
+    ``lag × max rate`` would only matter against a *moving* limit). The leak is
+    ``acceleration_leak`` × the difference of two IMUs' apparent tilts
+    :math:`rctan(d\,a/g)`, each below :math:`\pi/2` in magnitude (the boom's reference is
+    the house IMU, which no arm acceleration reaches: one term). Offset and noise are allowed
+    :data:`ANGLE_MARGIN_SIGMAS` standard deviations each.
+    """
+    from excavator_payload.simulation.machine_sensors import ANGLES, PRESETS
+
+    margins = dict.fromkeys(ANGLES, 0.0)
+    for noise in PRESETS.values():
+        for j, name in enumerate(ANGLES):
+            leak = noise.acceleration_leak * (math.pi / 2) * (1 if j == 0 else 2)
+            spread = ANGLE_MARGIN_SIGMAS * (noise.angle_offset + noise.angle_noise)
+            margins[name] = max(margins[name], leak + spread)
+    return margins
 
 
 def gate_threshold(dof: int) -> float:
@@ -168,14 +207,19 @@ def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple
     high = np.array([float(sensor_set.plausible_abs[s]) for s in sensor_set.signals])
     low = -high
     if machine is not None:
-        for signal, (rule, field_name) in MACHINE_RULES.items():
+        hydraulic = getattr(machine, "kind", None) == "hydraulic"
+        margins = angle_sensor_margins() if hydraulic else {}
+        for signal, (rule, field_name) in (HYDRAULIC_RULES if hydraulic else MACHINE_RULES).items():
             if signal not in sensor_set.signals:
                 continue
             i = sensor_set.index(signal)
             value = getattr(machine, field_name, None)
             if value is None:  # a kind of machine file without this field
                 continue
-            if rule == "range":
+            if rule == "link_range":
+                lo, hi = value.angle_range
+                low[i], high[i] = max(low[i], lo - margins[signal]), min(high[i], hi + margins[signal])
+            elif rule == "range":
                 low[i], high[i] = max(low[i], value[0]), min(high[i], value[1])
             else:
                 limit = TORQUE_LIMIT_FACTOR * float(value)

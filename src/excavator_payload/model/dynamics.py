@@ -27,6 +27,11 @@ Lagrangian (appendix A.1)
 The torques are affine in the payload: :math:`\tau = \tau_0(q,\dot q,\ddot q) + m\,\varphi(q,\dot
 q,\ddot q)` with the *payload regressor* :math:`\varphi = \partial\tau/\partial m`.
 
+Both are linear in seven lumped *base parameters*: :math:`\tau = Y(q,\dot q,\ddot q)\,(\theta_0
++ m\,[\theta_1; 0; 0])`, with the base regressor :math:`Y` generated here from the torque
+(:func:`_base_form`) and :math:`\theta_0` solved for a machine (:meth:`ArmModel.base_parameters`):
+the inverse-dynamics and calibrated estimators work on this form.
+
 Numeric evaluation
 ------------------
 :class:`ArmModel` binds a :class:`~excavator_payload.model.machine.Machine` to the symbolic
@@ -54,6 +59,23 @@ PARAMETER_NAMES = (
     "dipper_friction",
     "gravity",
 )
+
+
+#: Names of the seven base parameters θ0 (the columns of the base regressor Y).
+BASE_PARAMETER_NAMES = ("A", "B", "C", "D", "E", "boom_friction", "dipper_friction")
+#: Names of the five payload parameters θ1 (multiplying the first five columns of Y).
+PAYLOAD_PARAMETER_NAMES = ("l1^2", "l2^2", "l1*l2", "g*l1", "g*l2")
+#: Fixed motion samples (q1, q2, q̇1, q̇2, q̈1, q̈2) on which the base parameters are solved for:
+#: with these the stacked regressor has full column rank and a condition number near 10.
+BASE_POINTS = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    [0.3, -0.7, 0.5, -0.2, 1.0, 0.4],
+    [-0.4, 1.2, -0.8, 0.6, -0.3, 1.1],
+    [1.0, -1.5, 0.2, 0.9, 0.7, -0.9],
+    [0.7, 0.4, -0.6, -1.0, -1.2, 0.3],
+    [-1.1, -0.3, 1.1, 0.3, 0.2, -0.6],
+    [0.5, 2.0, 0.9, -0.7, -0.5, 0.8],
+])
 
 
 class Symbolic:
@@ -105,6 +127,8 @@ class Symbolic:
         regressor = ca.simplify(ca.jacobian(torque, payload))  # ∂τ/∂m, independent of m
         torque_empty = ca.substitute(torque, payload, 0)  # τ0: torque with no payload
 
+        base_regressor, payload_parameters = _base_form(torque, regressor, p, payload)
+
         state = ca.vertcat(q, qd)
         state_derivative = ca.vertcat(qd, qdd_forward)
 
@@ -116,6 +140,7 @@ class Symbolic:
         self.qdd_forward, self.regressor, self.torque_empty = qdd_forward, regressor, torque_empty
         self.state_derivative = state_derivative
         self.tip_position = p3
+        self.base_regressor, self.payload_parameters = base_regressor, payload_parameters
 
         F = ca.Function
         self.functions = {
@@ -136,7 +161,37 @@ class Symbolic:
             "state_derivative": F("state_derivative", [state, tau, payload, p], [state_derivative],
                                   ["x", "u", "payload", "p"], ["xdot"]),
             "tip_position": F("tip_position", [q, p], [p3], ["q", "p"], ["tip"]),
+            "base_regressor": F("base_regressor", [q, qd, qdd], [base_regressor],
+                                ["q", "qd", "qdd"], ["Y"]),
+            "payload_parameters": F("payload_parameters", [p], [payload_parameters],
+                                    ["p"], ["theta_payload"]),
         }
+
+
+def _base_form(torque: ca.SX, regressor: ca.SX, p: ca.SX, payload: ca.SX) -> tuple[ca.SX, ca.SX]:
+    r"""The base regressor :math:`Y(x)` (2×7) and payload parameters :math:`\theta_1(p)` (5).
+
+    Generated from the torque, not written out: the payload is a point mass at the dipper tip,
+    so its column :math:`\varphi = \partial\tau/\partial m` is a quadratic form in the
+    lengths and gravity, :math:`\varphi = Y_{1:5}(x)\,(l_1^2, l_2^2, l_1l_2, gl_1, gl_2)`, and
+    the columns :math:`Y_{1:5}` are its coefficients (second derivatives with respect to those
+    parameters); the friction columns are :math:`\partial\tau/\partial\beta_i`. None of the
+    columns depends on a machine parameter (checked here), so :math:`Y` is the same for every
+    machine and the whole arm is :math:`\tau = Y(x)\,(\theta_0 + m\,[\theta_1; 0; 0])` with
+    :math:`\theta_0` from :meth:`ArmModel.base_parameters` (tests prove both identities).
+    """
+    index = {name: i for i, name in enumerate(PARAMETER_NAMES)}
+    l1, l2, g = (p[index[n]] for n in ("boom_length", "dipper_length", "gravity"))
+    columns = []
+    for first, second, scale in ((l1, l1, 0.5), (l2, l2, 0.5), (l1, l2, 1.0), (g, l1, 1.0), (g, l2, 1.0)):
+        columns.append(scale * ca.jacobian(ca.jacobian(regressor, first), second))
+    for name in ("boom_friction", "dipper_friction"):
+        columns.append(ca.jacobian(torque, p[index[name]]))
+    Y = ca.simplify(ca.horzcat(*columns))
+    if ca.depends_on(Y, ca.vertcat(p, payload)):
+        raise RuntimeError("the base regressor depends on machine parameters: the payload is no "
+                           "longer a point mass at the dipper tip, derive another base form")
+    return Y, ca.vertcat(l1 * l1, l2 * l2, l1 * l2, g * l1, g * l2)
 
 
 @lru_cache(maxsize=1)
@@ -149,6 +204,15 @@ def _cols(a: np.ndarray) -> np.ndarray:
     """(..., k) array -> (k, N) column matrix for CasADi's automatic map."""
     a = np.asarray(a, dtype=float)
     return np.ascontiguousarray(a.reshape(-1, a.shape[-1]).T)
+
+
+def base_regressor(q, qd, qdd) -> np.ndarray:
+    """The base regressor Y(q, q̇, q̈) on arrays, shape (..., 2, 7): τ = Y θ, joint on axis -2."""
+    arrays = [np.asarray(a, dtype=float) for a in (q, qd, qdd)]
+    lead = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
+    cols = [_cols(np.broadcast_to(a, lead + a.shape[-1:])) for a in arrays]
+    out = np.asarray(symbolic().functions["base_regressor"](*cols)).T  # CasADi stacks the 2×7 blocks
+    return out.reshape(lead + (len(BASE_PARAMETER_NAMES), 2)).swapaxes(-1, -2)
 
 
 class ArmModel:
@@ -226,6 +290,24 @@ class ArmModel:
     def tip_position(self, q):
         """Position of the dipper tip (bucket) in m, shape (..., 2)."""
         return self._call("tip_position", [q])
+
+    def base_parameters(self) -> tuple[np.ndarray, np.ndarray]:
+        r"""The base parameters :math:`\theta_0` (7, empty bucket) and :math:`\theta_1` (5).
+
+        :math:`\theta_1` is the symbolic ``payload_parameters``; :math:`\theta_0` is the least
+        squares solution of :math:`\tau_0(x_k) = Y(x_k)\,\theta_0` on :data:`BASE_POINTS`
+        (exact: the empty-arm torques lie in the span of the base regressor, which is checked).
+        """
+        q, qd, qdd = (BASE_POINTS[:, i:i + 2] for i in (0, 2, 4))
+        Y = base_regressor(q, qd, qdd).reshape(-1, len(BASE_PARAMETER_NAMES))
+        tau0 = self.torque_empty(q, qd, qdd).reshape(-1)
+        theta_empty = np.linalg.lstsq(Y, tau0, rcond=None)[0]
+        misfit = np.abs(Y @ theta_empty - tau0).max()
+        if not misfit <= 1e-9 * max(1.0, np.abs(tau0).max()):
+            raise RuntimeError(f"the empty arm's torques are not linear in the base parameters "
+                               f"(misfit {misfit:.3g} N·m)")
+        theta_payload = np.asarray(self._f["payload_parameters"](self.p), dtype=float).reshape(-1)
+        return theta_empty, theta_payload
 
     def casadi_function(self, name: str) -> ca.Function:
         """The symbolic function ``name`` with this machine's parameters substituted.

@@ -272,20 +272,28 @@ def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
 
 
 def _clip_to_ranges(motion: Motion, machine) -> Motion:
-    """Shrink steps that would leave an angle range (corrections near an end)."""
+    """Shrink steps that would leave an angle range (corrections near an end).
+
+    For each joint that leaves its range, the step that carries it out is halved: the last step
+    of that joint started before the worst excursion and moving towards it (not simply the
+    joint's last step, which in a work cycle is the return and moves the other way).
+    """
     r = _inside(machine, 1 * DEG)
     time = np.linspace(0, motion.duration, 400)
-    for _ in range(5):
+    for _ in range(8):
         q, _, _ = motion.sample(time)
         ok = True
         for j in range(3):
-            if q[:, j].min() < r[j, 0] or q[:, j].max() > r[j, 1]:
-                ok = False
-                # scale down the last step of that joint that pushes outwards
-                for st in reversed(motion.steps):
-                    if st.joint == j:
-                        st.delta *= 0.5
-                        break
+            over, under = q[:, j].max() - r[j, 1], r[j, 0] - q[:, j].min()
+            if over <= 0 and under <= 0:
+                continue
+            ok = False
+            sign = 1.0 if over >= under else -1.0
+            worst = time[int(np.argmax(q[:, j]) if sign > 0 else np.argmin(q[:, j]))]
+            candidates = [st for st in motion.steps
+                          if st.joint == j and st.start < worst and st.delta * sign > 0]
+            if candidates:
+                max(candidates, key=lambda st: st.start).delta *= 0.5
         if ok:
             return motion
     return motion

@@ -1,4 +1,6 @@
-"""Inverse-dynamics estimator: closed form == symbolic model, known answers, noise handling."""
+"""Inverse-dynamics estimator: generated base form == symbolic model, known answers, noise handling."""
+
+import pickle
 
 import casadi as ca
 import numpy as np
@@ -15,13 +17,15 @@ from excavator_payload.estimators import Status, create_estimator, load_estimato
 from excavator_payload.estimators.classical.inverse_dynamics import (
     InverseDynamicsEstimator,
     base_parameters,
+    base_regressor,
     information_terms,
+    residual_nis,
     sensor_variances,
     split_torque,
     torque_jacobian,
 )
 from excavator_payload.evaluation.crb import cramer_rao_bound
-from excavator_payload.model.dynamics import ArmModel
+from excavator_payload.model.dynamics import ArmModel, symbolic
 from excavator_payload.model.machine import load_machine
 from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
 from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
@@ -34,10 +38,11 @@ def _final_estimates(dataset, estimates):
     return last - dataset.payloads
 
 
-# -- closed form == symbolic ---------------------------------------------------------------
+# -- generated base form == symbolic model ------------------------------------------------
 
 @pytest.mark.parametrize("machine", ["cat345c", "cat345c-3pct"])
-def test_closed_form_equals_symbolic_model(machine):
+def test_base_form_equals_symbolic_model(machine):
+    """τ0 = Yθ0 and φ = Y[:, :5]θ1 with the generated regressor and the solved parameters."""
     arm = ArmModel(machine)
     rng = np.random.default_rng(0)
     q, qd, qdd = (rng.uniform(-2, 2, (200, 2)) for _ in range(3))
@@ -46,9 +51,30 @@ def test_closed_form_equals_symbolic_model(machine):
     np.testing.assert_allclose(phi, arm.payload_regressor(q, qd, qdd), rtol=1e-12, atol=1e-10)
 
 
+def test_base_regressor_is_free_of_machine_parameters():
+    assert not ca.depends_on(symbolic().base_regressor, ca.vertcat(symbolic().p, symbolic().payload))
+
+
+@pytest.mark.parametrize("machine", ["cat345c", "cat345c-3pct"])
+def test_base_parameters_equal_the_hand_calculation(machine):
+    """Appendix A.1 worked out by hand for uniform bars and a point-mass bucket."""
+    m = load_machine(machine)
+    l1, l2, m1, m2, mb, g = (m.boom_length, m.dipper_length, m.boom_mass, m.dipper_mass,
+                             m.bucket_mass, m.gravity)
+    hand_empty = [m1 * l1**2 / 3 + (m2 + mb) * l1**2, m2 * l2**2 / 3 + mb * l2**2,
+                  (m2 / 2 + mb) * l1 * l2, g * (m1 / 2 + m2 + mb) * l1, g * (m2 / 2 + mb) * l2,
+                  m.boom_friction, m.dipper_friction]
+    hand_payload = [l1**2, l2**2, l1 * l2, g * l1, g * l2]
+    theta_empty, theta_payload = base_parameters(m)
+    np.testing.assert_allclose(theta_empty, hand_empty, rtol=1e-14)
+    np.testing.assert_array_equal(theta_payload, hand_payload)
+    Y = base_regressor(np.array([0.0, 0.0]), np.array([0.0, 0.0]), np.array([1.0, 0.0]))
+    np.testing.assert_allclose(Y, [[1, 1, 2, 1, 1, 0, 0], [0, 1, 1, 0, 1, 0, 0]], atol=1e-15)
+
+
 @settings(max_examples=25, deadline=None)
 @given(st.lists(finite, min_size=6, max_size=6), st.floats(0.0, 5000.0))
-def test_closed_form_jacobian_equals_casadi(x, payload):
+def test_torque_jacobian_equals_casadi(x, payload):
     machine = load_machine("cat345c")
     arm = ArmModel(machine)
     q, qd, qdd = np.array(x[0:2]), np.array(x[2:4]), np.array(x[4:6])
@@ -64,7 +90,7 @@ def test_closed_form_jacobian_equals_casadi(x, payload):
 
 
 def test_scalar_kernel_equals_array_formula(mj_dataset):
-    """The float kernel used by step() gives the same residual terms as the array code."""
+    """The kernel used by step() gives the same residual terms as the array code."""
     machine = load_machine("cat345c")
     th0, th1 = base_parameters(machine)
     row = mj_dataset.signals()[37]
@@ -75,6 +101,29 @@ def test_scalar_kernel_equals_array_formula(mj_dataset):
     tau0, phi = split_torque(q, qd, qdd, th0, th1)
     assert d_num == pytest.approx(float(phi @ ((tau - tau0) / var[6:])), rel=1e-12)
     assert d_info == pytest.approx(float(phi @ (phi / var[6:])), rel=1e-12)
+
+
+@pytest.mark.parametrize("weighting,eiv", [("full", True), ("diagonal", True), ("torque", False)])
+def test_compiled_step_kernel_equals_casadi(mj_dataset, weighting, eiv):
+    """The estimator's compiled kernel (buffer interface) == the generated function in CasADi's
+    interpreter, for the information terms and the gate, on every fifth sample."""
+    est = create_estimator("inverse-dynamics", "cat345c", weighting=weighting,
+                           eiv_correction=eiv).fit(mj_dataset)
+    args = (est.theta_empty.tolist(), est.theta_payload.tolist(), est.variances.tolist())
+    for row in mj_dataset.signals()[::5][:200]:
+        got = est._kernel.terms(row, 1234.5)
+        want = information_terms(row.tolist(), *args, 1234.5, weighting, eiv)
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-18)
+        assert est._kernel.nis(row, 1234.5, 4.0) == pytest.approx(
+            residual_nis(row.tolist(), *args, 1234.5, 4.0), rel=1e-12)
+
+
+def test_pickled_estimator_rebuilds_its_kernel(mj_dataset):
+    est = create_estimator("inverse-dynamics", "cat345c").fit(mj_dataset)
+    copy = pickle.loads(pickle.dumps(est))
+    assert copy._kernel is not est._kernel
+    subset = mj_dataset.subset(mj_dataset.experiment_ids[:3])
+    pd.testing.assert_frame_equal(copy.estimate(subset), est.estimate(subset))
 
 
 # -- known answers -------------------------------------------------------------------------

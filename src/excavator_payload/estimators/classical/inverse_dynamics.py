@@ -8,11 +8,15 @@ The arm's torques are affine in the payload (:mod:`excavator_payload.model.dynam
 so with measured kinematics and torques the payload is a linear regression (the approach of the
 thesis' ref. [40], "A Method for Payload Estimation in Excavators"), here made noise-aware.
 
-Base-parameter (closed-form) model
-----------------------------------
-Working the Lagrangian of appendix A.1 out by hand (boom and dipper uniform bars, bucket plus
-payload a point mass :math:`m_3 = m_b + m` at the dipper tip) gives the torques as a linear
-combination of seven *base parameters* :math:`\theta = (A, B, C, D, E, \beta_1, \beta_2)`,
+Base-parameter model, generated from the symbolic one
+-----------------------------------------------------
+The torques are a linear combination of seven *base parameters*
+:math:`\theta = (A, B, C, D, E, \beta_1, \beta_2)`, :math:`\tau = Y(x)\,\theta`, with a regressor
+:math:`Y` that holds no machine parameter. Nothing of it is written out here: the symbolic model
+(:mod:`excavator_payload.model.dynamics`) generates :math:`Y` (the payload column
+:math:`\varphi = \partial\tau/\partial m` is a quadratic form in the lengths and gravity whose
+coefficients are the first five columns; the friction columns are :math:`\partial\tau/\partial
+\beta_i`) and solves for :math:`\theta_0` of a machine. For the thesis' arm they work out to
 
 .. math::
 
@@ -20,28 +24,27 @@ combination of seven *base parameters* :math:`\theta = (A, B, C, D, E, \beta_1, 
               + C\,[c_2(2\ddot q_1 + \ddot q_2) - s_2(2\dot q_1\dot q_2 + \dot q_2^2)]
               + D c_1 + E c_{12} + \beta_1 \dot q_1 \\
     \tau_2 &= B(\ddot q_1 + \ddot q_2) + C\,[c_2\ddot q_1 + s_2\dot q_1^2] + E c_{12}
-              + \beta_2 \dot q_2
+              + \beta_2 \dot q_2, \\
+    A &= \tfrac13 m_1 l_1^2 + (m_2 + m_3) l_1^2, \quad
+    B = \tfrac13 m_2 l_2^2 + m_3 l_2^2, \quad
+    C = (\tfrac12 m_2 + m_3) l_1 l_2, \\
+    D &= g(\tfrac12 m_1 + m_2 + m_3) l_1, \quad
+    E = g(\tfrac12 m_2 + m_3) l_2
 
-i.e. :math:`\tau = Y(x)\,\theta` with
-
-.. math::
-
-    A &= \tfrac13 m_1 l_1^2 + (m_2 + m_3) l_1^2, &
-    B &= \tfrac13 m_2 l_2^2 + m_3 l_2^2, &
-    C &= (\tfrac12 m_2 + m_3) l_1 l_2, \\
-    D &= g(\tfrac12 m_1 + m_2 + m_3) l_1, &
-    E &= g(\tfrac12 m_2 + m_3) l_2 .
-
-Every one of :math:`A \dots E` is affine in :math:`m_3`, so
+(a test checks the solved :math:`\theta_0` against this hand calculation). Every one of
+:math:`A \dots E` is affine in :math:`m_3 = m_b + m`, so
 :math:`\theta = \theta_0 + m\,[\theta_1; 0, 0]` with the *payload parameters*
 :math:`\theta_1 = (l_1^2, l_2^2, l_1 l_2, g l_1, g l_2)`; hence
 
 .. math:: \tau_0 = Y(x)\,\theta_0, \qquad \varphi = Y_{1:5}(x)\,\theta_1 .
 
-:func:`base_parameters` gives :math:`(\theta_0, \theta_1)` of a machine, :func:`base_regressor`
-evaluates :math:`Y` on arrays; the test suite proves that :math:`Y\theta_0` and
-:math:`Y_{1:5}\theta_1` equal the symbolic ``ArmModel.torque_empty`` and ``payload_regressor``
-(the symbolic model stays the source; this closed form is what makes ``step`` fast).
+The estimator's kernels (:func:`information_function`, :func:`nis_function`: the sample's
+information terms and gate statistic, with the Jacobians :math:`\partial\tau/\partial x` by
+CasADi's automatic differentiation) are CasADi functions of :math:`(x, \theta_0, \theta_1)` built
+on :math:`Y`, compiled to C once per user (:mod:`excavator_payload.model.codegen`) and called
+through CasADi's buffer interface, so that ``step`` stays in the tens of microseconds; the
+calibrated estimator identifies :math:`(\theta_0, \theta_1)` with the same regressor, and the C
+export generates its code from the same functions.
 
 Noise: total residual covariance and errors in variables
 --------------------------------------------------------
@@ -53,8 +56,8 @@ q}, \sigma^2_{\ddot q})`), so to first order
           J_k = \frac{\partial \tau}{\partial x}\Big|_{\tilde x_k, \hat m},
 
 with total covariance :math:`R_k = \Sigma_\tau + J_k\Sigma_x J_k^\top` (2×2: the same angle
-error moves both joint torques, hence the off-diagonal term). The Jacobian is closed-form, linear
-in the base parameters: :math:`J = J_0 + \hat m J_\varphi`. The weight is
+error moves both joint torques, hence the off-diagonal term). The Jacobian (automatic differentiation of
+:math:`Y\theta`) is linear in the base parameters: :math:`J = J_0 + \hat m J_\varphi`. The weight is
 :math:`W_k = R_k^{-1}` (``--weighting full``; ``diagonal`` keeps each joint's own total
 variance only; ``torque`` ignores the kinematic noise, :math:`W = \Sigma_\tau^{-1}`).
 
@@ -96,21 +99,27 @@ returned from the first sample.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import Mapping
 
+import casadi as ca
 import numpy as np
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
+from excavator_payload.model.codegen import native
+from excavator_payload.model.dynamics import (
+    BASE_PARAMETER_NAMES,
+    PAYLOAD_PARAMETER_NAMES,
+    ArmModel,
+    base_regressor,
+    symbolic,
+)
 from excavator_payload.model.machine import Machine
 from excavator_payload.simulation.sensors import get_noise_preset
 
-#: Names of the seven base parameters θ (the columns of the regressor Y).
-BASE_PARAMETER_NAMES = ("A", "B", "C", "D", "E", "boom_friction", "dipper_friction")
-#: Names of the five payload parameters θ1 (multiplying the first five columns of Y).
-PAYLOAD_PARAMETER_NAMES = ("l1^2", "l2^2", "l1*l2", "g*l1", "g*l2")
 #: Kinematic signals, in :data:`SIGNALS` order (the order of the Jacobian's columns).
 KINEMATIC_SIGNALS = SIGNALS[:6]
 #: A time gap up to this long (s) keeps the least-squares sums; a longer one restarts.
@@ -123,6 +132,9 @@ TORQUE_STD_FLOOR = 1.0
 def base_parameters(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
     r"""The base parameters :math:`\theta_0` (7, empty bucket) and :math:`\theta_1` (5) of a machine.
 
+    From the symbolic model (:meth:`~excavator_payload.model.dynamics.ArmModel.base_parameters`);
+    for the thesis' uniform bars they are
+
     .. math::
 
         \theta_0 &= \big(\tfrac13 m_1 l_1^2 + (m_2 + m_b) l_1^2,\;
@@ -131,79 +143,150 @@ def base_parameters(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
                    \beta_1,\; \beta_2\big) \\
         \theta_1 &= (l_1^2,\; l_2^2,\; l_1 l_2,\; g l_1,\; g l_2)
     """
-    l1, l2 = machine.boom_length, machine.dipper_length
-    m1, m2, mb, g = machine.boom_mass, machine.dipper_mass, machine.bucket_mass, machine.gravity
-    theta_empty = np.array([
-        m1 * l1**2 / 3 + (m2 + mb) * l1**2,
-        m2 * l2**2 / 3 + mb * l2**2,
-        (m2 / 2 + mb) * l1 * l2,
-        g * (m1 / 2 + m2 + mb) * l1,
-        g * (m2 / 2 + mb) * l2,
-        machine.boom_friction,
-        machine.dipper_friction,
-    ])
-    theta_payload = np.array([l1**2, l2**2, l1 * l2, g * l1, g * l2])
-    return theta_empty, theta_payload
+    return ArmModel(machine).base_parameters()
 
 
-# -- closed-form kernels: written once, evaluated on Python floats (streaming) or numpy arrays --
+# -- the kernel: CasADi functions generated from the symbolic model, compiled ------------------
 
-def _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2):
-    """Regressor columns Y (see module docstring) as (boom, dipper) pairs; floats or arrays."""
-    yb = qdd1 + qdd2
-    return (
-        (qdd1, 0.0 * qdd1),                                                     # A
-        (yb, yb),                                                               # B
-        (c2 * (2.0 * qdd1 + qdd2) - s2 * (2.0 * qd1 * qd2 + qd2 * qd2),
-         c2 * qdd1 + s2 * qd1 * qd1),                                           # C
-        (c1, 0.0 * c1),                                                         # D
-        (c12, c12),                                                             # E
-        (qd1, 0.0 * qd1),                                                       # β1
-        (0.0 * qd2, qd2),                                                       # β2
-    )
+def _kinematics(values: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX]:
+    """(q, q̇, q̈) of a sample in :data:`SIGNALS` order."""
+    return (ca.vertcat(values[0], values[3]), ca.vertcat(values[1], values[4]),
+            ca.vertcat(values[2], values[5]))
 
 
-def _jacobian(A, B, C, D, E, F1, F2, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2):
-    r"""∂τ/∂x of :math:`\tau = Y(x)\theta`, columns in :data:`KINEMATIC_SIGNALS` order.
+def _split_symbolic(values: ca.SX, theta_empty: ca.SX, theta_payload: ca.SX):
+    r"""τ0 = Yθ0, φ = Y_{1:5}θ1 and their Jacobians J0, Jφ (2×6, :data:`KINEMATIC_SIGNALS`)."""
+    Y = symbolic().functions["base_regressor"](*_kinematics(values))
+    tau0 = ca.mtimes(Y, theta_empty)
+    phi = ca.mtimes(Y[:, :len(PAYLOAD_PARAMETER_NAMES)], theta_payload)
+    kinematics = values[:len(KINEMATIC_SIGNALS)]
+    return tau0, phi, ca.jacobian(tau0, kinematics), ca.jacobian(phi, kinematics)
 
-    Returns six (∂τ_boom, ∂τ_dipper) pairs for q1, q̇1, q̈1, q2, q̇2, q̈2.
+
+def _symbols():
+    n_signals, n_empty, n_payload = len(SIGNALS), len(BASE_PARAMETER_NAMES), len(PAYLOAD_PARAMETER_NAMES)
+    return (ca.SX.sym("values", n_signals), ca.SX.sym("theta_empty", n_empty),
+            ca.SX.sym("theta_payload", n_payload), ca.SX.sym("variances", n_signals))
+
+
+def _add_kinematic_covariance(R11, R22, R12, j0, jp, payload, variances):
+    r"""(R11, R22, R12) plus :math:`J\Sigma_x J^\top` at ``payload`` (J = J0 + m Jφ)."""
+    for k in range(len(KINEMATIC_SIGNALS)):
+        g1 = j0[0, k] + payload * jp[0, k]
+        g2 = j0[1, k] + payload * jp[1, k]
+        R11 += variances[k] * g1 * g1
+        R22 += variances[k] * g2 * g2
+        R12 += variances[k] * g1 * g2
+    return R11, R22, R12
+
+
+@lru_cache(maxsize=None)
+def information_function(weighting: str = "full", eiv_correction: bool = True) -> ca.Function:
+    r"""CasADi function ``(values, theta_empty, theta_payload, variances, m_w) -> (dN, dI)``.
+
+    The sample's contribution to the estimating equation (module docstring), built on the
+    symbolic model's base regressor; ``m_w`` is the payload the weights are evaluated at.
     """
-    return (
-        (-D * s1 - E * s12, -E * s12),                                          # q1
-        (-2.0 * C * s2 * qd2 + F1, 2.0 * C * s2 * qd1),                         # q̇1
-        (A + B + 2.0 * C * c2, B + C * c2),                                     # q̈1
-        (C * (-s2 * (2.0 * qdd1 + qdd2) - c2 * (2.0 * qd1 * qd2 + qd2 * qd2)) - E * s12,
-         C * (-s2 * qdd1 + c2 * qd1 * qd1) - E * s12),                         # q2
-        (-2.0 * C * s2 * (qd1 + qd2), F2),                                      # q̇2
-        (B + C * c2, B),                                                        # q̈2
-    )
+    values, th0, th1, variances = _symbols()
+    m_w = ca.SX.sym("m_w")
+    tau0, phi, j0, jp = _split_symbolic(values, th0, th1)
+    n = len(KINEMATIC_SIGNALS)
+    r1, r2 = values[n] - tau0[0], values[n + 1] - tau0[1]
+    p1, p2 = phi[0], phi[1]
+    R11, R22, R12 = variances[n], variances[n + 1], 0.0
+    if weighting != "torque":
+        R11, R22, R12 = _add_kinematic_covariance(R11, R22, R12, j0, jp, m_w, variances)
+        if weighting == "diagonal":
+            R12 = 0.0
+    det = R11 * R22 - R12 * R12
+    W11, W22, W12 = R22 / det, R11 / det, -R12 / det
+    wp1 = W11 * p1 + W12 * p2
+    wp2 = W12 * p1 + W22 * p2
+    d_num = wp1 * r1 + wp2 * r2
+    d_info = wp1 * p1 + wp2 * p2
+    if eiv_correction:
+        for k in range(n):
+            f1, f2 = jp[0, k], jp[1, k]
+            w1 = W11 * f1 + W12 * f2
+            w2 = W12 * f1 + W22 * f2
+            d_num += variances[k] * (w1 * j0[0, k] + w2 * j0[1, k])
+            d_info -= variances[k] * (w1 * f1 + w2 * f2)
+    eiv = "eiv" if eiv_correction else "plain"
+    return ca.Function(f"inverse_dynamics_information_{weighting}_{eiv}",
+                       [values, th0, th1, variances, m_w], [ca.cse(ca.vertcat(d_num, d_info))],
+                       ["values", "theta_empty", "theta_payload", "variances", "m_w"], ["terms"])
 
 
-def base_regressor(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-    """The regressor Y(q, q̇, q̈), shape (..., 2, 7), so that τ = Y θ (joint on axis -2)."""
+@lru_cache(maxsize=1)
+def nis_function() -> ca.Function:
+    r"""CasADi function ``(values, theta_empty, theta_payload, variances, payload, payload_var) -> nis``.
+
+    :math:`r^\top (R + \varphi\varphi^\top \sigma_m^2)^{-1} r`, see :func:`residual_nis`.
+    """
+    values, th0, th1, variances = _symbols()
+    payload, payload_var = ca.SX.sym("payload"), ca.SX.sym("payload_var")
+    tau0, phi, j0, jp = _split_symbolic(values, th0, th1)
+    n = len(KINEMATIC_SIGNALS)
+    p1, p2 = phi[0], phi[1]
+    r1 = values[n] - tau0[0] - payload * p1
+    r2 = values[n + 1] - tau0[1] - payload * p2
+    R11, R22, R12 = _add_kinematic_covariance(
+        variances[n] + payload_var * p1 * p1, variances[n + 1] + payload_var * p2 * p2,
+        payload_var * p1 * p2, j0, jp, payload, variances)
+    det = R11 * R22 - R12 * R12
+    nis = (R22 * r1 * r1 - 2.0 * R12 * r1 * r2 + R11 * r2 * r2) / det
+    return ca.Function("inverse_dynamics_residual_nis",
+                       [values, th0, th1, variances, payload, payload_var], [ca.cse(nis)],
+                       ["values", "theta_empty", "theta_payload", "variances", "payload",
+                        "payload_var"], ["nis"])
+
+
+@lru_cache(maxsize=1)
+def _batch_functions() -> tuple[ca.Function, ca.Function]:
+    """(τ0, φ) and ∂τ/∂x of τ = Yθ for one sample, for the array helpers below."""
+    values, th0, th1, _ = _symbols()
+    theta = ca.SX.sym("theta", len(BASE_PARAMETER_NAMES))
+    tau0, phi, _, _ = _split_symbolic(values, th0, th1)
+    _, _, jac, _ = _split_symbolic(values, theta, th1)
+    return (ca.Function("inverse_dynamics_split", [values, th0, th1], [ca.vertcat(tau0, phi)]),
+            ca.Function("inverse_dynamics_jacobian", [values, theta], [ca.vec(jac)]))
+
+
+@lru_cache(maxsize=None)
+def _compiled(name: str, weighting: str = "full", eiv_correction: bool = True) -> ca.Function:
+    """The kernel ``name`` compiled to C (:func:`~excavator_payload.model.codegen.native`)."""
+    function = nis_function() if name == "nis" else information_function(weighting, eiv_correction)
+    return native(function)
+
+
+def _values_columns(q, qd, qdd, tau=None) -> tuple[np.ndarray, tuple[int, ...]]:
+    """Samples in :data:`SIGNALS` order as a (8, N) column matrix, and the leading shape."""
     q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
-    q1, q2 = q[..., 0], q[..., 1]
-    cols = _columns(np.sin(q2), np.cos(q2), np.cos(q1), np.cos(q1 + q2),
-                    qd[..., 0], qd[..., 1], qdd[..., 0], qdd[..., 1])
-    return np.stack([np.stack(c, axis=-1) for c in cols], axis=-1)
+    lead = np.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1])
+    q, qd, qdd = (np.broadcast_to(a, lead + (2,)).reshape(-1, 2) for a in (q, qd, qdd))
+    tau = np.zeros_like(q) if tau is None else tau
+    columns = np.stack([q[:, 0], qd[:, 0], qdd[:, 0], q[:, 1], qd[:, 1], qdd[:, 1],
+                        tau[:, 0], tau[:, 1]])
+    return np.ascontiguousarray(columns), lead
 
 
 def torque_jacobian(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, theta: np.ndarray) -> np.ndarray:
     """∂τ/∂(q1, q̇1, q̈1, q2, q̇2, q̈2) of τ = Y θ (θ of length 7), shape (..., 2, 6)."""
-    q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
-    q1, q2 = q[..., 0], q[..., 1]
     theta = np.asarray(theta, dtype=float)
-    cols = _jacobian(*(theta[..., i] for i in range(7)), np.sin(q1), np.sin(q2), np.cos(q2),
-                     np.sin(q1 + q2), qd[..., 0], qd[..., 1], qdd[..., 0], qdd[..., 1])
-    shape = np.broadcast_shapes(q1.shape, theta.shape[:-1])
-    return np.stack([np.stack([np.broadcast_to(c[0], shape), np.broadcast_to(c[1], shape)], -1)
-                     for c in cols], axis=-1)
+    q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
+    lead = np.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
+    values, _ = _values_columns(*(np.broadcast_to(a, lead + (2,)) for a in (q, qd, qdd)))
+    thetas = np.ascontiguousarray(np.broadcast_to(theta, lead + theta.shape[-1:]).reshape(-1, theta.shape[-1]).T)
+    out = np.asarray(_batch_functions()[1](values, thetas)).T  # (N, 12), column-major 2×6
+    return out.reshape(lead + (len(KINEMATIC_SIGNALS), 2)).swapaxes(-1, -2)
 
 
 def split_torque(q, qd, qdd, theta_empty, theta_payload) -> tuple[np.ndarray, np.ndarray]:
     """(τ0, φ) on arrays: τ0 = Y θ0 and φ = Y[:, :5] θ1, each shape (..., 2)."""
-    Y = base_regressor(q, qd, qdd)
-    return Y @ np.asarray(theta_empty, float), Y[..., :5] @ np.asarray(theta_payload, float)
+    values, lead = _values_columns(q, qd, qdd)
+    out = np.asarray(_batch_functions()[0](values, np.asarray(theta_empty, float),
+                                           np.asarray(theta_payload, float))).T
+    return out[:, :2].reshape(lead + (2,)), out[:, 2:].reshape(lead + (2,))
 
 
 def residual_covariance(jac: np.ndarray, kinematic_var: np.ndarray, torque_var: np.ndarray,
@@ -229,13 +312,23 @@ def sensor_variances(noise, torque_floor: float = TORQUE_STD_FLOOR) -> np.ndarra
     return std**2
 
 
-def information_terms(values, theta_empty, theta_payload, variances, weight_payload: float,
+def _evaluate(function: ca.Function, symbolic_out: bool, *args):
+    """``function`` on lists/arrays of numbers (floats back) or CasADi symbols (SX back)."""
+    out = function(*(ca.vertcat(*a) if isinstance(a, (list, tuple)) else a for a in args))
+    if symbolic_out:
+        return out
+    return np.asarray(out, dtype=float).reshape(-1)
+
+
+def information_terms(values, theta_empty, theta_payload, variances, weight_payload,
                       weighting: str = "full", eiv_correction: bool = True,
                       trig=math) -> tuple[float, float]:
     r"""One sample's contribution :math:`(\Delta N, \Delta I)` to the estimating equation.
 
-    ``values`` is the sample in :data:`SIGNALS` order as Python floats; the arithmetic is plain
-    float math (no numpy, no CasADi) so that a streaming step stays in the tens of microseconds.
+    Evaluates :func:`information_function` (generated from the symbolic model). ``values`` is
+    the sample in :data:`SIGNALS` order. With numbers it returns two floats (through CasADi's
+    interpreter: the estimator's ``step`` calls the compiled copy instead); with
+    ``trig=casadi`` and CasADi symbols it returns the two SX expressions (for the C export).
 
     Returns
     -------
@@ -244,87 +337,65 @@ def information_terms(values, theta_empty, theta_payload, variances, weight_payl
         :math:`\tilde\varphi^\top W\tilde\varphi - \operatorname{tr}(J_\varphi^\top W J_\varphi
         \Sigma_x)` (the traces only with ``eiv_correction``).
     """
-    q1, qd1, qdd1, q2, qd2, qdd2, t1, t2 = values
-    s1 = trig.sin(q1)
-    c1 = trig.cos(q1)
-    s2 = trig.sin(q2)
-    c2 = trig.cos(q2)
-    s12 = trig.sin(q1 + q2)
-    c12 = trig.cos(q1 + q2)
-    A0, B0, C0, D0, E0, F1, F2 = theta_empty
-    a, b, c, d, e = theta_payload
-    (ya1, _), (yb, _), (yc1, yc2), _, _, _, _ = _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2)
-    r1 = t1 - (A0 * ya1 + B0 * yb + C0 * yc1 + D0 * c1 + E0 * c12 + F1 * qd1)
-    r2 = t2 - (B0 * yb + C0 * yc2 + E0 * c12 + F2 * qd2)
-    p1 = a * ya1 + b * yb + c * yc1 + d * c1 + e * c12
-    p2 = b * yb + c * yc2 + e * c12
-
-    R11, R22, R12 = variances[6], variances[7], 0.0
-    if weighting != "torque" or eiv_correction:
-        j0 = _jacobian(A0, B0, C0, D0, E0, F1, F2, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2)
-        jp = _jacobian(a, b, c, d, e, 0.0, 0.0, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2)
-    if weighting != "torque":
-        m = weight_payload
-        for k in range(6):
-            v = variances[k]
-            g1 = j0[k][0] + m * jp[k][0]
-            g2 = j0[k][1] + m * jp[k][1]
-            R11 += v * g1 * g1
-            R22 += v * g2 * g2
-            R12 += v * g1 * g2
-        if weighting == "diagonal":
-            R12 = 0.0
-    det = R11 * R22 - R12 * R12
-    W11, W22, W12 = R22 / det, R11 / det, -R12 / det
-    wp1 = W11 * p1 + W12 * p2
-    wp2 = W12 * p1 + W22 * p2
-    d_num = wp1 * r1 + wp2 * r2
-    d_info = wp1 * p1 + wp2 * p2
-    if eiv_correction:
-        for k in range(6):
-            v = variances[k]
-            f1, f2 = jp[k]
-            w1 = W11 * f1 + W12 * f2
-            w2 = W12 * f1 + W22 * f2
-            d_num += v * (w1 * j0[k][0] + w2 * j0[k][1])
-            d_info -= v * (w1 * f1 + w2 * f2)
-    return d_num, d_info
+    out = _evaluate(information_function(weighting, bool(eiv_correction)), trig is ca, values,
+                    theta_empty, theta_payload, variances, weight_payload)
+    return (out[0], out[1]) if trig is ca else (float(out[0]), float(out[1]))
 
 
-def residual_nis(values, theta_empty, theta_payload, variances, payload: float,
-                 payload_var: float, trig=math) -> float:
+def residual_nis(values, theta_empty, theta_payload, variances, payload,
+                 payload_var, trig=math) -> float:
     r"""Normalised squared torque residual of one sample at the current payload estimate.
 
     :math:`r^\top (R + \varphi\varphi^\top \sigma_m^2)^{-1} r` with
     :math:`r = \tau - \tau_0 - m\varphi` and :math:`R = \Sigma_\tau + J\Sigma_x J^\top` the
     sensors' full residual covariance (whatever the ``weighting`` option): chi-square with 2
-    degrees of freedom for a sample the noise model describes. Plain float math, as
-    :func:`information_terms` (``trig=casadi`` builds the C export's copy of it).
+    degrees of freedom for a sample the noise model describes. Evaluates :func:`nis_function`
+    as :func:`information_terms` does (``trig=casadi``: the SX expression for the C export).
     """
-    q1, qd1, qdd1, q2, qd2, qdd2, t1, t2 = values
-    s1, c1, s2, c2 = trig.sin(q1), trig.cos(q1), trig.sin(q2), trig.cos(q2)
-    s12, c12 = trig.sin(q1 + q2), trig.cos(q1 + q2)
-    A0, B0, C0, D0, E0, F1, F2 = theta_empty
-    a, b, c, d, e = theta_payload
-    (ya1, _), (yb, _), (yc1, yc2), _, _, _, _ = _columns(s2, c2, c1, c12, qd1, qd2, qdd1, qdd2)
-    p1 = a * ya1 + b * yb + c * yc1 + d * c1 + e * c12
-    p2 = b * yb + c * yc2 + e * c12
-    r1 = t1 - (A0 * ya1 + B0 * yb + C0 * yc1 + D0 * c1 + E0 * c12 + F1 * qd1) - payload * p1
-    r2 = t2 - (B0 * yb + C0 * yc2 + E0 * c12 + F2 * qd2) - payload * p2
-    j0 = _jacobian(A0, B0, C0, D0, E0, F1, F2, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2)
-    jp = _jacobian(a, b, c, d, e, 0.0, 0.0, s1, s2, c2, s12, qd1, qd2, qdd1, qdd2)
-    R11 = variances[6] + payload_var * p1 * p1
-    R22 = variances[7] + payload_var * p2 * p2
-    R12 = payload_var * p1 * p2
-    for k in range(6):
-        v = variances[k]
-        g1 = j0[k][0] + payload * jp[k][0]
-        g2 = j0[k][1] + payload * jp[k][1]
-        R11 += v * g1 * g1
-        R22 += v * g2 * g2
-        R12 += v * g1 * g2
-    det = R11 * R22 - R12 * R12
-    return (R22 * r1 * r1 - 2.0 * R12 * r1 * r2 + R11 * r2 * r2) / det
+    out = _evaluate(nis_function(), trig is ca, values, theta_empty, theta_payload, variances,
+                    payload, payload_var)
+    return out if trig is ca else float(out[0])
+
+
+class _Kernel:
+    """The compiled information terms and gate of one estimator, on preallocated buffers.
+
+    CasADi's buffer interface evaluates in place into numpy memory: a few microseconds per
+    call, against ≈ 100 µs through ``Function.__call__`` and its conversions. The parameters
+    are written once; per sample only the values and the weighting payload are.
+    """
+
+    def __init__(self, theta_empty, theta_payload, variances, weighting: str, eiv_correction: bool):
+        self._values = np.zeros(len(SIGNALS))
+        self._scalars = np.zeros(2)  # m_w for the terms; payload, payload_var for the gate
+        self._parameters = [np.array(theta_empty, float), np.array(theta_payload, float),
+                            np.array(variances, float)]
+        self._terms_out = np.zeros(2)
+        self._nis_out = np.zeros(1)
+        self._terms = self._bind(_compiled("terms", weighting, eiv_correction),
+                                 [self._scalars[:1]], self._terms_out)
+        self._nis = self._bind(_compiled("nis"), [self._scalars[:1], self._scalars[1:]], self._nis_out)
+
+    def _bind(self, function: ca.Function, scalars, out):
+        buffer, trigger = function.buffer()
+        for i, array in enumerate([self._values, *self._parameters, *scalars]):
+            buffer.set_arg(i, memoryview(array))
+        buffer.set_res(0, memoryview(out))
+        return function, buffer, trigger  # the buffer points into the function: keep both
+
+    def terms(self, values: np.ndarray, weight_payload: float) -> tuple[float, float]:
+        self._values[:] = values
+        self._scalars[0] = weight_payload
+        self._terms[2]()
+        out = self._terms_out
+        return float(out[0]), float(out[1])
+
+    def nis(self, values: np.ndarray, payload: float, payload_var: float) -> float:
+        self._values[:] = values
+        self._scalars[0] = payload
+        self._scalars[1] = payload_var
+        self._nis[2]()
+        return float(self._nis_out[0])
 
 
 def restore_difference_scale(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -450,10 +521,9 @@ class InverseDynamicsEstimator(Estimator):
         self._prepare()
 
     def _prepare(self) -> None:
-        """Cache plain-float copies of the parameters for the streaming kernel."""
-        self._th0 = tuple(float(v) for v in self.theta_empty)
-        self._th1 = tuple(float(v) for v in self.theta_payload)
-        self._var = tuple(float(v) for v in self.variances)
+        """Bind the compiled kernel to the parameters; cache the options as plain floats."""
+        self._kernel = _Kernel(self.theta_empty, self.theta_payload, self.variances,
+                               self.options["weighting"], bool(self.options["eiv_correction"]))
         self._lam = float(self.options["forgetting"])
         self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
         self._weighting = self.options["weighting"]
@@ -484,8 +554,7 @@ class InverseDynamicsEstimator(Estimator):
             m_w = min(max(self._num / self._info, 0.0), self._max_payload)
         else:
             m_w = self._default_weight_payload
-        d_num, d_info = information_terms(values.tolist(), self._th0, self._th1, self._var, m_w,
-                                          self._weighting, self._eiv)
+        d_num, d_info = self._kernel.terms(values, m_w)
         self._num = self._lam * self._num + d_num
         self._info = self._lam * self._info + d_info
         if self._info <= 0.0:
@@ -505,7 +574,7 @@ class InverseDynamicsEstimator(Estimator):
         if self._info <= 0.0 or self._pressure is not None:
             return None
         payload = min(max(self._num / self._info, 0.0), self._max_payload)
-        return residual_nis(values.tolist(), self._th0, self._th1, self._var, payload, 1.0 / self._info), 2
+        return self._kernel.nis(values, payload, 1.0 / self._info), 2
 
     def _estimate_sigma(self) -> float:
         """Standard deviation of the estimate from the accumulated information, kg (I^{-1/2})."""
@@ -529,6 +598,17 @@ class InverseDynamicsEstimator(Estimator):
         return 1.0 / math.sqrt(self._info) if self._info > 0 else math.inf
 
     # -- persistence -----------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """The compiled kernel's buffers are rebuilt, not pickled (multiprocessing, deepcopy)."""
+        state = dict(self.__dict__)
+        state.pop("_kernel", None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        if getattr(self, "theta_empty", None) is not None and self._pressure is None:
+            self._prepare()
+
     def _config(self) -> dict:
         if self._pressure is not None:
             return {"noise": self.noise_name, "kernel": "pressure_regression"}
