@@ -235,3 +235,42 @@ def test_export_errors_and_cli(models, swings, tmp_path):
                  "--precision", "half"]) == 2
     assert main(["export", "--model", str(model), "--format", "pdf", "--out", str(out)]) == 2
     assert main(["export", "--model", str(model), "--format", "onnx", "--out", str(out)]) == 2
+
+
+@pytest.mark.parametrize("name", ["ekf", "ekf-thesis"])
+def test_single_precision_ekf_step_is_the_same_filter(name, models, swings):
+    """The float build's EKF (sequential scalar Joseph updates, scalar NIS sum) equals the
+    joint update of ``_kalman.ekf_step_symbolic``/``gate_symbolic`` in double arithmetic,
+    along a filtered experiment."""
+    from excavator_payload.estimators.classical import _kalman as kf
+    from excavator_payload.runtime.export_c import _ekf_single_functions
+
+    est = models[name]
+    t = est.tuning
+    thesis = est.options["tuning"] == "thesis"
+    step = kf.ekf_step_symbolic(est.machine, thesis, t.torque_channel)
+    gate = kf.gate_symbolic(est.machine, thesis, t.torque_channel)
+    step_single, gate_single = _ekf_single_functions(est, t.torque_channel)
+    sig = list(swings.sensor_set.signals)
+    names = ["boom_angle", "dipper_angle", "boom_rate", "dipper_rate", "boom_torque", "dipper_torque"]
+    y_index = [sig.index(n) for n in names[:6 if t.torque_channel else 4]]
+    u_index = [sig.index(n) for n in names[4:]]
+    a_index = [sig.index(n) for n in ("boom_accel", "dipper_accel")]
+    values = swings.subset(swings.experiment_ids[:1]).signals()
+    x, P = np.array(t.x0, float), t.P0.copy()
+    if t.init_from_sample:
+        x[:4] = values[0][y_index[:4]]
+    for v in values[:40]:
+        y, u, a = v[y_index], v[u_index], v[a_index]
+        covs = (t.R, t.torque_cov, t.accel_cov)
+        nis, nis_single = float(gate(x, P, y, a, *covs)), float(gate_single(x, P, y, a, *covs))
+        assert nis_single == pytest.approx(nis, rel=1e-6, abs=1e-9)
+        want = np.array(step(x, P, y, u, a, t.Q, *covs)).ravel()
+        got = np.array(step_single(x, P, y, u, a, t.Q, *covs)).ravel()
+        for start in (0, 30):  # [x (5), vec P (25)] of the posterior and of the prediction
+            np.testing.assert_allclose(got[start:start + 5], want[start:start + 5], rtol=1e-6, atol=1e-9)
+            P_got = got[start + 5:start + 30].reshape(5, 5)
+            P_want = want[start + 5:start + 30].reshape(5, 5)
+            scale = np.sqrt(np.outer(np.diag(P_want), np.diag(P_want)))  # covariances by their stds
+            assert np.all(np.abs(P_got - P_want) <= 1e-6 * scale)
+        x, P = want[30:35], want[35:60].reshape(5, 5, order="F")

@@ -38,12 +38,33 @@ What is generated from what
   :func:`~excavator_payload.estimators.classical.inverse_dynamics.residual_nis` are generated
   by CasADi's C code generator; the recursive least-squares update around them is written
   once here.
+* ``inverse-dynamics`` and ``calibrated`` fitted on the *machine* sensor set (pressures + IMUs):
+  the kernel :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`
+  (``calibrated``: ``calibrated_machine.CalibratedKernel``). One sample of the weighing
+  regression is CasADi's code of ``HydraulicSymbolic.functions["pressure_regression"]`` with the
+  fitted parameter vector as constants, behind the kernel's sensor correction (``calibrated``:
+  ``calibrated_machine._corrected_signals`` with the identified offsets and IMU dynamics as
+  constants; ``inverse-dynamics``: the ground tilt from the house IMU); the ring buffer of
+  ``2·half_window + 1`` samples, the centred least-squares slope of the rates, the weights and
+  ``--low-speed`` rule, the recursive sums, status, sigma and gap rule (a short gap restarts
+  the window) are ported here, and so is the kernels' one-frame outlier test in place of the
+  chi-square gate (``pressure_regression``: the sample before the newest judged between its
+  neighbours against per-signal thresholds from the fit data, its slot repaired and never
+  regressed, ``rejected_outlier``; ``-DEP_GATING=0`` turns it off).
+* ``ekf`` fitted on the machine sensor set: one step of
+  :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman` (update with
+  angles and rates, update with the piston forces of ``force_measurement_symbolic`` with the
+  machine's parameters as constants, low-speed rule, payload clamp, white-jerk prediction) is
+  one CasADi-generated function (:func:`_machine_ekf_functions`); initialisation, status and
+  gap bridging are written here. No gate (none in Python on this set).
 * ``ekf``: the whole filter step (update + prediction) is CasADi's code of
   :func:`~excavator_payload.estimators.classical._kalman.ekf_step_symbolic`, built from the
   symbolic arm model, and so is its gate
   (:func:`~excavator_payload.estimators.classical._kalman.gate_symbolic`); initialisation,
   clamping, status and gap bridging are written here, mirroring
-  :mod:`~excavator_payload.estimators.classical.ekf`.
+  :mod:`~excavator_payload.estimators.classical.ekf`. The float build computes the whole step
+  in float with an equivalent step (:func:`_ekf_single_functions`: the measurement updates as
+  sequential scalar Joseph updates of whitened measurements, no ill-conditioned matrix solve).
 * The borrowed gate (base.py, :meth:`Estimator._borrows_gate`): an estimator without a noise
   model of its own (``net1``/``ffnn``/``net2``, ``ekf`` with the thesis tuning) or one that
   believes another machine than its training data's (``calibrated`` on a wrong machine) is
@@ -54,7 +75,7 @@ What is generated from what
   :func:`~excavator_payload.estimators.classical.inverse_dynamics.residual_nis` (2 degrees of
   freedom) from those very functions; like the Python sentinel (never stepped through
   ``step_values``, so it keeps no time) it restarts on every gap and on a re-initialisation.
-  The EKF's sentinel computes in double as the filter does, the others in ``ep_real``.
+  The sentinel computes in ``ep_real``.
 * ``Estimator._on_skip``/``_fill_rejected``: before the sample after gate-rejected ones the
   model bridges the hole like a gap (filters, least squares), or, for the networks, does
   nothing and, once that sample is accepted, steps the rejected slots (at most
@@ -74,6 +95,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -179,6 +201,8 @@ def casadi_c_code(functions: dict[str, ca.Function], real: str = "ep_real") -> s
     code = re.sub(r"\bcasadi_(?!f\d)(\w+)\(", r"ep_cas_\1(", code)
     if real == "ep_real":
         code = re.sub(r"(?<![\w.])(" + "|".join(MATH_FUNCTIONS) + r")\(", r"EP_MATH(\1)(", code)
+        # floating-point literals become ep_real constants (a float build does no double maths)
+        code = re.sub(r"(?<![\w.])(\d+\.\d*(?:e[+-]?\d+)?|\d+e[+-]?\d+)(?![\w.])", r"EP_C(\1)", code)
     if "casadi_" in code:
         leftover = sorted(set(re.findall(r"casadi_\w+", code)))
         raise EstimatorError(f"unexpected CasADi symbols in generated code: {leftover[:5]}")
@@ -506,6 +530,116 @@ def _inverse_dynamics_model(est) -> CModel:
     return model
 
 
+def _cholesky(A: ca.SX) -> ca.SX:
+    """Lower-triangular L with L Lᵀ = A (symmetric positive definite, small), symbolically."""
+    n = A.shape[0]
+    L = ca.SX.zeros(n, n)
+    for j in range(n):
+        L[j, j] = ca.sqrt(A[j, j] - sum((L[j, k] ** 2 for k in range(j)), ca.SX(0)))
+        for i in range(j + 1, n):
+            L[i, j] = (A[i, j] - sum((L[i, k] * L[j, k] for k in range(j)), ca.SX(0))) / L[j, j]
+    return L
+
+
+def _whiten(L: ca.SX, B: ca.SX) -> ca.SX:
+    """L⁻¹ B by forward substitution (L lower triangular)."""
+    rows = []
+    for i in range(L.shape[0]):
+        row = B[i, :]
+        for k in range(i):
+            row = row - L[i, k] * rows[k]
+        rows.append(row / L[i, i])
+    return ca.vertcat(*rows)
+
+
+def _scalar_updates(x, P, nu, H, R, nis: bool = False):
+    """The Kalman update with innovation ``nu``, Jacobian ``H`` and noise ``R`` as sequential
+    scalar Joseph-form updates of the whitened measurements (L⁻¹ with R = L Lᵀ).
+
+    In exact arithmetic this is :func:`~excavator_payload.estimators.classical._kalman.
+    joseph_update` (a linear measurement model: each scalar's innovation is corrected by the
+    state change of the ones before it). In float it needs no matrix solve: the joint
+    innovation covariance S = H P Hᵀ + R is nearly singular when one state is far less known
+    than the measurements (consistent tuning: payload variance × φ² / torque noise ≈ 10⁹;
+    thesis tuning: P0 / R ≈ 10²⁰, and its W S W overflows float), beyond float's 10⁷.
+    With ``nis``: returns the normalised innovation squared νᵀS⁻¹ν (the sum of the scalar
+    ones) instead of the update.
+    """
+    L = _cholesky(R)
+    nu_w, H_w = _whiten(L, nu), _whiten(L, H)
+    x0, total = x, ca.SX(0)
+    for i in range(nu_w.shape[0]):
+        h = H_w[i, :]
+        innovation = nu_w[i] - h @ (x - x0)
+        PHt = P @ h.T
+        s = h @ PHt + 1
+        k = PHt / s
+        total = total + innovation**2 / s
+        x = x + k * innovation
+        # Joseph form (I - k h) P (I - k h)ᵀ + k kᵀ, the product taken in O(n²) for a rank-one
+        # update: B = (I - k h) P, then B (I - k h)ᵀ = B - (B hᵀ) kᵀ
+        B = P - k @ PHt.T
+        P = B - (B @ h.T) @ k.T + k @ k.T
+        P = 0.5 * (P + P.T)
+    return total if nis else (x, P)
+
+
+def _ekf_single_functions(est, torque_channel: bool) -> tuple[ca.Function, ca.Function]:
+    """The EKF step and gate of a single-precision build: those of ``_kalman.ekf_step_symbolic``
+    and ``_kalman.gate_symbolic`` (same inputs and outputs, same model functions, prediction
+    line by line), with every measurement update done by :func:`_scalar_updates`."""
+    from excavator_payload.estimators.classical import _kalman as kf
+
+    model = kf.kalman_model(est.machine, est.options["tuning"] == "thesis")
+    n = kf.N_STATE
+    n_y = 6 if torque_channel else 4
+    x, P = ca.SX.sym("x", n), ca.SX.sym("P", n, n)
+    y, u, a = ca.SX.sym("y", n_y), ca.SX.sym("u", 2), ca.SX.sym("a", 2)
+    Q0, R_qqd = ca.SX.sym("Q", n, n), ca.SX.sym("R", 4, 4)
+    torque_cov, accel_cov = ca.SX.sym("torque_cov", 2, 2), ca.SX.sym("accel_cov", 2, 2)
+    mass = kf.kalman_mass_matrix(model)
+
+    def torque_terms(at):
+        h = model.measurement(at, a)[4:6]
+        M = ca.reshape(mass(at), 2, 2)
+        return h, ca.jacobian(h, at), torque_cov + M @ accel_cov @ M.T
+
+    # update 1: angles and rates (linear); update 2: torques linearised at the result
+    H1 = ca.horzcat(ca.SX.eye(4), ca.SX.zeros(4, 1))
+    x_post, P_post = _scalar_updates(x, P, y[0:4] - x[0:4], H1, R_qqd)
+    if torque_channel:
+        xs = ca.SX.sym("xs", n)
+        torque_at = torque_terms(xs)
+        h_1, H_1, R_1 = (ca.substitute(e, xs, x_post) for e in torque_at)
+        x_post, P_post = _scalar_updates(x_post, P_post, y[4:6] - h_1, H_1, R_1)
+    # prediction at the posterior (as _kalman.ekf_step_symbolic)
+    f = model.transition(x_post, u)
+    F = ca.substitute(ca.jacobian(model.transition(x, u), x), x, x_post)
+    if torque_channel:
+        h_post, H_post, R_post = (ca.substitute(e, xs, x_post) for e in torque_at)
+        G = ca.substitute(ca.jacobian(model.transition(x, u), u), x, x_post)
+        G_sigma = G @ torque_cov
+        D = -kf.scaled_solve(R_post, G_sigma.T, R_post).T
+        x_next = f + D @ (y[4:6] - h_post)
+        F_tilde = F - D @ H_post
+        P_next = F_tilde @ P_post @ F_tilde.T + G_sigma @ G.T + Q0 + D @ G_sigma.T
+    else:
+        x_next = f
+        P_next = F @ P_post @ F.T + Q0
+    P_next = 0.5 * (P_next + P_next.T)
+    packed = ca.cse(ca.densify(ca.vertcat(x_post, ca.vec(P_post), x_next, ca.vec(P_next))))
+    step = ca.Function("ep_ekf_step", [x, P, y, u, a, Q0, R_qqd, torque_cov, accel_cov], [packed])
+    # the gate: NIS of all measurements at the prior
+    h_all = model.measurement(x, a)[:n_y]
+    R_all = ca.SX.zeros(n_y, n_y)
+    R_all[:4, :4] = R_qqd
+    if torque_channel:
+        R_all[4:, 4:] = torque_terms(x)[2]
+    nis = _scalar_updates(x, P, y - h_all, ca.jacobian(h_all, x), R_all, nis=True)
+    gate = ca.Function("ep_ekf_gate", [x, P, y, a, R_qqd, torque_cov, accel_cov], [ca.cse(nis)])
+    return step, gate
+
+
 def _ekf_model(est) -> CModel:
     from excavator_payload.estimators.classical import _kalman as kf
 
@@ -520,28 +654,48 @@ def _ekf_model(est) -> CModel:
     y_index = measured + torques if tuning.torque_channel else measured
     low, high = kf.payload_bounds(est.machine)
     o = est.options
-    gate = _borrowed_gate(est, real="double")
+    gate = _borrowed_gate(est)
     functions = {"ep_ekf_step": step_fn}
     if gate is None:
         functions["ep_ekf_gate"] = gate_fn
     else:  # the thesis tuning has no usable noise model: it borrows the gate
         functions.update(gate.functions)
-    code = casadi_c_code(functions, real="double")
+    code_double = casadi_c_code(functions)
+    step_single, gate_single = _ekf_single_functions(est, tuning.torque_channel)
+    functions_single = dict(functions, ep_ekf_step=step_single)
+    if gate is None:
+        functions_single["ep_ekf_gate"] = gate_single
+    code_single = casadi_c_code(functions_single)
+    code = code_double + code_single  # what the calls' work arrays are sized from
+
+    def either(name, double_fn, single_fn, inputs, outputs):
+        """The call of generated ``name``: its double or its single-precision variant."""
+        return "\n".join(["#if EP_SINGLE", casadi_call(name, single_fn, inputs, outputs, code),
+                          "#else", casadi_call(name, double_fn, inputs, outputs, code), "#endif"])
+
     definitions = "\n".join([
         "/* One EKF step generated by CasADi from the symbolic arm model (_kalman.ekf_step_symbolic):",
         " * sequential Joseph-form update with y, then the (decorrelated) Euler prediction with u.",
         " * Output: [x_post (5), vec P_post (25), x_next (5), vec P_next (25)].",
         " * The gate (_kalman.gate_symbolic): nu' S^-1 nu of all measurements at the prior.",
-        " * The filter computes in double even in a single-precision build: its covariances span",
-        " * 20 orders of magnitude (thesis tuning: P0 = 5e15, R = 1e-5), beyond float's 7 digits. */",
-        code,
+        " * The filter computes in ep_real. In a single-precision build (EP_SINGLE) the same step",
+        " * does its measurement updates as sequential scalar Joseph-form updates of whitened",
+        " * measurements (and the gate sums the scalar NIS): the same filter in exact arithmetic,",
+        " * without solving the joint innovation covariance, whose condition number (up to 1e9",
+        " * with the consistent tuning, 1e20 with the thesis' P0 = 5e15, R = 1e-5) is beyond",
+        " * float's 7 digits; P is symmetrised after every update. */",
+        "#if EP_SINGLE",
+        code_single,
+        "#else",
+        code_double,
+        "#endif",
         "",
-        c_array("EP_Q", tuning.Q.ravel(order="F"), kind="static const double"),
-        c_array("EP_R", tuning.R.ravel(order="F"), kind="static const double"),
-        c_array("EP_TORQUE_COV", tuning.torque_cov.ravel(order="F"), kind="static const double"),
-        c_array("EP_ACCEL_COV", tuning.accel_cov.ravel(order="F"), kind="static const double"),
-        c_array("EP_X0", tuning.x0, kind="static const double"),
-        c_array("EP_P0", tuning.P0.ravel(order="F"), kind="static const double"),
+        c_array("EP_Q", tuning.Q.ravel(order="F"), kind="static const ep_real"),
+        c_array("EP_R", tuning.R.ravel(order="F"), kind="static const ep_real"),
+        c_array("EP_TORQUE_COV", tuning.torque_cov.ravel(order="F"), kind="static const ep_real"),
+        c_array("EP_ACCEL_COV", tuning.accel_cov.ravel(order="F"), kind="static const ep_real"),
+        c_array("EP_X0", tuning.x0, kind="static const ep_real"),
+        c_array("EP_P0", tuning.P0.ravel(order="F"), kind="static const ep_real"),
         f"static const int EP_Y_INDEX[{len(y_index)}] = {{{', '.join(map(str, y_index))}}};",
         (f"static const int EP_MEASURED[4] = {{{', '.join(map(str, measured))}}};"
          if tuning.init_from_sample else "/* angles and rates do not start from the sample */"),
@@ -549,11 +703,11 @@ def _ekf_model(est) -> CModel:
         f"#define EP_INIT_FROM_SAMPLE {int(tuning.init_from_sample)}",
         f"#define EP_TORQUE_CHANNEL {int(tuning.torque_channel)}",
         f"#define EP_WARMUP_SAMPLES {int(o['warmup_samples'])}",
-        f"#define EP_CONVERGED_STD {c_number(o['converged_std'], cast=False)}",
-        f"#define EP_MAX_GAP {c_number(o['max_gap'], cast=False)}",
-        f"#define EP_TS {c_number(kf.TS, cast=False)}",
-        f"#define EP_PAYLOAD_LOW {c_number(low, cast=False)}",
-        f"#define EP_PAYLOAD_HIGH {c_number(high, cast=False)}",
+        f"#define EP_CONVERGED_STD {c_number(o['converged_std'], cast=True)}",
+        f"#define EP_MAX_GAP {c_number(o['max_gap'], cast=True)}",
+        f"#define EP_TS {c_number(kf.TS, cast=True)}",
+        f"#define EP_PAYLOAD_LOW {c_number(low, cast=True)}",
+        f"#define EP_PAYLOAD_HIGH {c_number(high, cast=True)}",
         "",
         "/* _kalman.initial_state: x0 (angles and rates from the sample), P0 */",
         "static void ep_initial_state(ep_state *s, const ep_real v[EP_N_SIGNALS])",
@@ -568,13 +722,13 @@ def _ekf_model(est) -> CModel:
         "    for (i = 0; i < 25; ++i) s->P[i] = EP_P0[i];",
         "}",
         "",
-        "static double ep_clamp_payload(double m)",
+        "static ep_real ep_clamp_payload(ep_real m)",
         "{",
         "    return m < EP_PAYLOAD_LOW ? EP_PAYLOAD_LOW : (m > EP_PAYLOAD_HIGH ? EP_PAYLOAD_HIGH : m);",
         "}",
     ])
     step = f"""    /* ExtendedKalmanFilter._step */
-    double packed[60], y[EP_N_Y], u[2], a[2];
+    ep_real packed[60], y[EP_N_Y], u[2], a[2];
     int i, status;
     (void)time;
     if (!s->started) {{
@@ -584,7 +738,7 @@ def _ekf_model(est) -> CModel:
     for (i = 0; i < EP_N_Y; ++i) y[i] = v[EP_Y_INDEX[i]];
     u[0] = v[{torques[0]}]; u[1] = v[{torques[1]}];
     a[0] = v[{accels[0]}]; a[1] = v[{accels[1]}];
-{casadi_call("ep_ekf_step", step_fn, ["s->x", "s->P", "y", "u", "a", "EP_Q", "EP_R", "EP_TORQUE_COV", "EP_ACCEL_COV"], ["packed"], code, real="double")}
+{either("ep_ekf_step", step_fn, step_single, ["s->x", "s->P", "y", "u", "a", "EP_Q", "EP_R", "EP_TORQUE_COV", "EP_ACCEL_COV"], ["packed"])}
     /* a bad posterior discards the sample; a bad prediction keeps the posterior as prior */
     for (i = 0; i < 60; ++i) {{
         if (!isfinite(packed[i])) {{
@@ -593,7 +747,7 @@ def _ekf_model(est) -> CModel:
         }}
     }}
     for (i = 0; i < 5; ++i) {{
-        if (packed[5 + 6 * i] < 0.0) {{
+        if (packed[5 + 6 * i] < EP_C(0.0)) {{
             *estimate = s->last_estimate;
             return EP_STATUS_INVALID;
         }}
@@ -603,13 +757,13 @@ def _ekf_model(est) -> CModel:
     for (i = 0; i < 25; ++i) s->P[i] = packed[5 + i];
     /* KalmanEstimatorBase._result */
     s->n_filtered += 1;
-    s->posterior_std = sqrt(s->P[24] > 0.0 ? s->P[24] : 0.0);
-    *estimate = (ep_real)s->x[4];
+    s->posterior_std = EP_MATH(sqrt)(s->P[24] > EP_C(0.0) ? s->P[24] : EP_C(0.0));
+    *estimate = s->x[4];
     if (s->n_filtered <= EP_WARMUP_SAMPLES) status = EP_STATUS_WARMING_UP;
     else if (EP_TORQUE_CHANNEL && s->posterior_std > EP_CONVERGED_STD) status = EP_STATUS_WARMING_UP;
     else status = EP_STATUS_OK;
     for (i = 0; i < 5; ++i) {{
-        if (packed[35 + 6 * i] < 0.0) return status;
+        if (packed[35 + 6 * i] < EP_C(0.0)) return status;
     }}
     packed[34] = ep_clamp_payload(packed[34]);
     for (i = 0; i < 5; ++i) s->x[i] = packed[30 + i];
@@ -617,8 +771,8 @@ def _ekf_model(est) -> CModel:
     return status;"""
     on_gap = """    /* KalmanEstimatorBase._on_gap: bridge a short gap, keeping the payload and growing its
      * variance by the random walk, P_mm += q_m dt / Ts; restart after a long one */
-    double dt = (double)time - (double)s->last_time, payload, payload_var;
-    if (!s->started || !s->has_last_time || !(0.0 < dt && dt <= EP_MAX_GAP)) {
+    ep_real dt = time - s->last_time, payload, payload_var;
+    if (!s->started || !s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_GAP)) {
         ep_model_reset(s);
         return;
     }
@@ -627,17 +781,18 @@ def _ekf_model(est) -> CModel:
     ep_initial_state(s, v);
     s->x[4] = payload;
     s->P[24] = payload_var + EP_Q[24] * dt / EP_TS;"""
-    gate_call = "" if gate is not None else casadi_call("ep_ekf_gate", gate_fn, ["s->x", "s->P", "y", "a", "EP_R", "EP_TORQUE_COV",
-                                                     "EP_ACCEL_COV"], ["&value"], code, real="double")
+    gate_call = "" if gate is not None else either("ep_ekf_gate", gate_fn, gate_single,
+                                                   ["s->x", "s->P", "y", "a", "EP_R", "EP_TORQUE_COV",
+                                                    "EP_ACCEL_COV"], ["&value"])
     innovation = f"""    /* KalmanEstimatorBase._innovation: NIS of the filter's measurements at the prior */
-    double y[EP_N_Y], a[2], value;
+    ep_real y[EP_N_Y], a[2], value;
     int i;
     (void)time;
     if (!s->started) return 0;
     for (i = 0; i < EP_N_Y; ++i) y[i] = v[EP_Y_INDEX[i]];
     a[0] = v[{accels[0]}]; a[1] = v[{accels[1]}];
 {gate_call}
-    *nis = (ep_real)value;
+    *nis = value;
     return 1;"""
     state_finite = """    /* KalmanEstimatorBase._state_finite */
     int i;
@@ -647,18 +802,18 @@ def _ekf_model(est) -> CModel:
     return 1;"""
     model = CModel(
         description=f"ekf: extended Kalman filter, tuning {o['tuning']} (machine {est.machine.name})",
-        state_fields=["double x[5];         /* [q1, q2, qd1, qd2, payload]; double in every build */",
-                      "double P[25];        /* covariance, column-major */",
+        state_fields=["ep_real x[5];        /* [q1, q2, qd1, qd2, payload] */",
+                      "ep_real P[25];       /* covariance, column-major */",
                       "int started;         /* x, P initialised */",
                       "int n_filtered;      /* samples since the filter (re)started */",
-                      "double posterior_std;"],
+                      "ep_real posterior_std;"],
         definitions=definitions,
-        reset="    int i;\n    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = (double)NAN;\n"
-              "    for (i = 0; i < 5; ++i) s->x[i] = 0.0;\n"
-              "    for (i = 0; i < 25; ++i) s->P[i] = 0.0;",
+        reset="    int i;\n    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = EP_NAN;\n"
+              "    for (i = 0; i < 5; ++i) s->x[i] = EP_C(0.0);\n"
+              "    for (i = 0; i < 25; ++i) s->P[i] = EP_C(0.0);",
         step=step, on_gap=on_gap, innovation=innovation, gate_dof=len(y_index),
         sigma="    /* _estimate_sigma: the payload's posterior standard deviation */\n"
-              "    return (ep_real)s->posterior_std;",
+              "    return s->posterior_std;",
         state_finite=state_finite)
     if gate is not None:
         gate.apply(model, code)
@@ -834,6 +989,457 @@ def _narx_model(est) -> CModel:
                                    f"#define EP_MAX_INPUT_DELAY {max_in}",
                                    f"#define EP_N_FEEDBACK {max(n_fb, 1)}  /* fed-back estimates kept */"],
         sigma=_network_sigma(est)))
+
+
+def _pressure_regression_model(est) -> CModel:
+    """``inverse-dynamics`` and ``calibrated`` fitted on machine-sensor-set data: the kernel
+    :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`
+    (for ``calibrated`` its subclass ``calibrated_machine.CalibratedKernel``), ported to C.
+
+    The physics is CasADi's code of ``HydraulicSymbolic.functions["pressure_regression"]``
+    with the fitted parameter vector baked in as constants, behind the ground tilt each
+    kernel computes from the house IMU; the rest (ring buffer, centred slope, weights,
+    low-speed rule, recursive sums, status, sigma, gap rule) is written here, line by line
+    after the Python.
+    """
+    from excavator_payload.estimators.classical.calibrated_machine import CalibratedKernel
+    from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
+    from excavator_payload.estimators.classical.pressure_regression import (
+        ANGLES, PITCH, PRESSURES, RATES, ROLL)
+    from excavator_payload.model.hydraulic import hydraulic_symbolic
+
+    kernel = est._pressure
+    if kernel is None:
+        raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
+    calibrated = isinstance(kernel, CalibratedKernel)
+    sensors = est.sensor_set
+    n = len(sensors.signals)
+    h = int(kernel.half_window)
+    width = 2 * h + 1
+    p = np.asarray(kernel._p, dtype=float)
+    # One sample of the kernel with the fitted machine as constants: corrected signals (15) and
+    # the differentiated rates (4) -> residual, phi, lever, rod speed, stiction (3 each).
+    x = ca.SX.sym("x", n)
+    qdd = ca.SX.sym("qdd", len(RATES))
+    q = ca.vertcat(*[x[i] for i in ANGLES], 0)  # the slew angle does not enter the dynamics
+    qd = ca.vertcat(*[x[i] for i in RATES])
+    if calibrated:  # calibrated_machine.kernel_function: the sensor correction of calibration
+        from excavator_payload.estimators.classical.calibrated_machine import _corrected_signals
+
+        q, qd, tilt, pressures = _corrected_signals(x, qdd, ca.DM(np.asarray(kernel._offset, float)),
+                                                    ca.DM(np.asarray(kernel._imu, float)))
+    else:  # pressure_regression.ground_tilt
+        ratio = ca.sin(x[PITCH]) / ca.fmax(ca.cos(x[ROLL]), 1e-9)
+        tilt = ca.vertcat(ca.asin(ca.fmin(1.0, ca.fmax(-1.0, ratio))), x[ROLL])
+        pressures = ca.vertcat(*[x[i] for i in PRESSURES])
+    outputs = hydraulic_symbolic().functions["pressure_regression"](q, qd, qdd, tilt, pressures, ca.DM(p))
+    kernel_fn = ca.Function("ep_pressure_regression", [x, qdd], [ca.vertcat(*outputs)], ["x", "qdd"], ["out"])
+    code = casadi_c_code({"ep_pressure_regression": kernel_fn})
+
+    head, rod = np.asarray(kernel._head, float), np.asarray(kernel._rod, float)
+    still_speed = 3 * np.asarray(kernel._v_stribeck, float)
+    rates_c = ", ".join(str(i) for i in RATES)
+    defs = [
+        "/* One sample of the machine's weighing regression, generated by CasADi from the symbolic",
+        " * model (HydraulicSymbolic.functions[\"pressure_regression\"]) with the fitted parameter",
+        " * vector as constants; input: the sample at the window's centre (as measured) and",
+        " * the centred slope of the rates; output: [residual tau_p - tau0 (3), phi (3), lever (3),",
+        " * rod speed (3), stiction torque (3)] for boom, dipper, bucket. */",
+        code,
+        "",
+        f"static const int EP_RATES[{len(RATES)}] = {{{rates_c}}};  /* boom, dipper, bucket, slew rate */",
+        f"#define EP_FORGETTING {c_number(kernel.forgetting)}",
+        f"#define EP_WARM_INFO {c_number(est._warm_info)}      /* 1 / warmup_std^2 */",
+        f"#define EP_MAX_BRIDGED_GAP {c_number(MAX_BRIDGED_GAP)}  /* s: a longer gap restarts */",
+        "/* pressure_regression's one-frame outlier test: the sample before the newest is rejected",
+        " * when some signal moves away from both neighbours, in the same direction, by more than",
+        " * z sigma_delta (z: GATE_PROBABILITY two-sided; sigma_delta: the fit data's sample-to-sample",
+        " * change); its slot gets the neighbours' mean and is never regressed. Off with",
+        " * -DEP_GATING=0 (Estimator.gating = False). */",
+        "#ifndef EP_GATING",
+        f"#define EP_GATING {1 if est.gating else 0}",
+        "#endif",
+        c_array("EP_SPIKE_THRESHOLD", kernel.spike_threshold).rstrip(),
+        "",
+        "/* PressureRegression._spike */",
+        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
+        "{",
+        "    int i;",
+        "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
+        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
+        "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
+        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]) return 1;",
+        "    }",
+        "    return 0;",
+        "}",
+    ]
+    if not (calibrated and kernel.low_speed == "model"):
+        defs.append(c_array("EP_STILL_SPEED", still_speed).rstrip() + "  /* 3 Stribeck velocities, m/s */")
+    if calibrated:
+        k = np.arange(-h, h + 1) / sensors.sample_rate
+        defs += [
+            "/* CalibratedKernel: the least-squares slope over the window as fixed weights (uniform",
+            " * sampling), the per-joint pressure variance through the areas, (A_h^2 + A_r^2)",
+            " * (sigma_p^2 + 1 Pa^2). The identified sensor offsets and IMU dynamics (lag,",
+            " * acceleration leak) are constants inside ep_pressure_regression, as in calibration",
+            " * (calibrated_machine._corrected_signals):",
+            f" *   offsets {', '.join(f'{v:.6g}' for v in kernel._offset)}",
+            f" *   IMU {', '.join(f'{v:.6g}' for v in kernel._imu)} */",
+            c_array("EP_SLOPE", k / float(k @ k)).rstrip(),
+            c_array("EP_LEVER_VAR", kernel._lever_var).rstrip(),
+        ]
+        derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
+    for (j = 0; j < 4; ++j) {
+        ep_real acc = EP_C(0.0);
+        for (k = 0; k < EP_WINDOW; ++k)
+            acc += EP_SLOPE[k] * s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]];
+        qdd[j] = acc;
+    }"""
+        low_speed = {
+            "downweight": """        {
+            ep_real z = out[9 + j] / EP_STILL_SPEED[j], stiction = out[12 + j];
+            var = var + EP_MATH(exp)(-(z * z)) * (stiction * stiction) / EP_C(3.0);
+        }
+        wt = EP_C(1.0) / var;""",
+            "skip": """        wt = EP_C(1.0) / var;
+        if (EP_MATH(fabs)(out[9 + j]) < EP_STILL_SPEED[j]) wt = EP_C(0.0);""",
+            "model": """        wt = EP_C(1.0) / var;""",
+        }[kernel.low_speed]
+        weights = f"""    /* CalibratedKernel.update: var = lever^2 (A_h^2 + A_r^2) sigma_p^2; --low-speed
+     * {kernel.low_speed} (downweight: + stiction^2/3 fading with the rod speed; skip: joints
+     * slower than 3 Stribeck velocities get no weight; model: nothing more) */
+    for (j = 0; j < 3; ++j) {{
+        ep_real lever = out[6 + j], var, wt;
+        var = lever * lever * EP_LEVER_VAR[j];
+{low_speed}
+        d_num += wt * (out[3 + j] * out[j]);
+        d_info += wt * (out[3 + j] * out[3 + j]);
+    }}"""
+        description = (f"calibrated on the machine sensor set: weighing regression from cylinder pressures "
+                       f"and IMUs with the identified machine (from {est.machine.name}), sensor offsets and "
+                       f"pressure noise {kernel.pressure_var ** 0.5:.4g} Pa, --low-speed {kernel.low_speed}, "
+                       f"half window {h}")
+    else:
+        defs += [
+            "/* PressureRegression weights: pressure noise (+1 Pa^2 floor) and pump ripple (RMS share)",
+            " * through the areas, stiction near standstill */",
+            c_array("EP_HEAD_AREA_SQ", head**2).rstrip(),
+            c_array("EP_ROD_AREA_SQ", rod**2).rstrip(),
+            f"#define EP_PRESSURE_VAR {c_number(kernel.pressure_var)}",
+            f"#define EP_RIPPLE_VAR_SHARE {c_number(kernel.ripple_var_share)}",
+            f"static const int EP_HEAD_PRESSURES[3] = {{{', '.join(str(i) for i in PRESSURES[0::2])}}};",
+            f"static const int EP_ROD_PRESSURES[3] = {{{', '.join(str(i) for i in PRESSURES[1::2])}}};",
+        ]
+        derivative = """    /* PressureRegression._derivative: least-squares slope of the rates against the window's
+     * times (t - mean t); times are taken relative to the centre sample first (the same
+     * slope; in single precision it keeps the 10 ms steps exact) */
+    {
+        ep_real t_rel[EP_WINDOW], t_centre, t_mean = EP_C(0.0), tt = EP_C(0.0);
+        t_centre = s->ring_time[(s->ring_next + EP_HALF_WINDOW) % EP_RING];
+        for (k = 0; k < EP_WINDOW; ++k) {
+            t_rel[k] = s->ring_time[(s->ring_next + k) % EP_RING] - t_centre;
+            t_mean += t_rel[k];
+        }
+        t_mean /= (ep_real)EP_WINDOW;
+        for (k = 0; k < EP_WINDOW; ++k) {
+            t_rel[k] -= t_mean;
+            tt += t_rel[k] * t_rel[k];
+        }
+        for (j = 0; j < 4; ++j) {
+            ep_real mean = EP_C(0.0), acc = EP_C(0.0);
+            for (k = 0; k < EP_WINDOW; ++k)
+                mean += s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]];
+            mean /= (ep_real)EP_WINDOW;
+            for (k = 0; k < EP_WINDOW; ++k)
+                acc += t_rel[k] * (s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]] - mean);
+            qdd[j] = acc / tt;
+        }
+    }"""
+        weights = """    /* PressureRegression.update: per joint, var = lever^2 (A_h^2 var_h + A_r^2 var_r) with
+     * var_side = sigma_p^2 + share p_side^2, plus stiction^2/3 fading with the rod speed */
+    for (j = 0; j < 3; ++j) {
+        ep_real lever = out[6 + j], speed = out[9 + j], stiction = out[12 + j], var, z, w;
+        ep_real p_head = x[EP_HEAD_PRESSURES[j]], p_rod = x[EP_ROD_PRESSURES[j]];
+        var = lever * lever * (EP_HEAD_AREA_SQ[j] * (EP_PRESSURE_VAR + EP_RIPPLE_VAR_SHARE * (p_head * p_head))
+                               + EP_ROD_AREA_SQ[j] * (EP_PRESSURE_VAR + EP_RIPPLE_VAR_SHARE * (p_rod * p_rod)));
+        z = speed / EP_STILL_SPEED[j];
+        var = var + EP_MATH(exp)(-(z * z)) * (stiction * stiction) / EP_C(3.0);
+        w = EP_C(1.0) / var;
+        d_num += (w * out[3 + j]) * out[j];
+        d_info += (w * out[3 + j]) * out[3 + j];
+    }"""
+        description = (f"inverse-dynamics on the machine sensor set: weighing regression from cylinder "
+                       f"pressures and IMUs (machine {est.machine.name}, noise {est.noise_name}), "
+                       f"half window {h}")
+    time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
+        "    s->ring_time[newest] = time;\n"
+    step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
+     * differentiator's window (2 half_window + 1 samples) and the newest sample, not yet judged:
+     * the outlier test judges the sample before the newest between its neighbours; once the
+     * ring is full, the window's centre is regressed unless it was rejected. */
+    ep_real x[EP_N_SIGNALS], qdd[4], out[15];
+    ep_real d_num = EP_C(0.0), d_info = EP_C(0.0);
+    int i, j, k, newest = s->ring_next, rejected = 0;
+    for (i = 0; i < EP_N_SIGNALS; ++i) s->ring[newest * EP_N_SIGNALS + i] = v[i];
+{time_push}    s->ring_used[newest] = 1;
+    s->ring_next = (newest + 1) % EP_RING;
+    if (s->ring_filled < EP_RING) s->ring_filled += 1;
+#if EP_GATING
+    if (s->ring_filled >= 3) {{
+        int mid = (newest + EP_RING - 1) % EP_RING, before = (newest + EP_RING - 2) % EP_RING;
+        ep_real *m = s->ring + mid * EP_N_SIGNALS;
+        const ep_real *b = s->ring + before * EP_N_SIGNALS;
+        if (ep_spike(b, m, v)) {{
+            for (i = 0; i < EP_N_SIGNALS; ++i) m[i] = EP_C(0.5) * (b[i] + v[i]);
+            s->ring_used[mid] = 0;
+            rejected = 1;
+        }}
+    }}
+#else
+    (void)ep_spike;
+#endif
+    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
+        /* the window, oldest first, starts at ring_next and ends on the sample before the newest */
+        const ep_real *centre = s->ring + ((s->ring_next + EP_HALF_WINDOW) % EP_RING) * EP_N_SIGNALS;
+        for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
+{textwrap.indent(derivative, "    ")}
+{textwrap.indent(casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code), "    ")}
+{textwrap.indent(weights, "    ")}
+        s->num = EP_FORGETTING * s->num + d_num;
+        s->info = EP_FORGETTING * s->info + d_info;
+    }}
+    if (s->info <= EP_C(0.0)) {{
+        *estimate = EP_NAN;
+        return EP_STATUS_WARMING_UP;
+    }}
+    *estimate = s->num / s->info;
+    if (rejected) return EP_STATUS_REJECTED;  /* the sample before this one was an outlier */
+    return s->info >= EP_WARM_INFO ? EP_STATUS_OK : EP_STATUS_WARMING_UP;"""
+    on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
+     * (the differentiator needs evenly spaced samples), a long one (or time going back)
+     * restarts */
+    ep_real dt = time - s->last_time;
+    (void)v;
+    if (!s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_BRIDGED_GAP)) ep_model_reset(s);
+    else s->ring_filled = 0;"""
+    fields = ["ep_real num;   /* sum of w phi r */",
+              "ep_real info;  /* sum of w phi^2: information, 1/variance of the estimate */",
+              "ep_real ring[EP_RING * EP_N_SIGNALS];  /* the last samples, as measured (outliers repaired) */"]
+    if not calibrated:
+        fields.append("ep_real ring_time[EP_RING];  /* their times */")
+    fields += ["unsigned char ring_used[EP_RING];  /* 0: a rejected sample's slot */",
+               "int ring_next;    /* slot the next sample goes to (the oldest once full) */",
+               "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]
+    return CModel(
+        description=description,
+        state_fields=fields,
+        definitions="\n".join(defs),
+        reset="    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;",
+        step=step, on_gap=on_gap,
+        header_defines=[f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
+                        f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
+                        "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"],
+        sigma="    /* _estimate_sigma: I^(-1/2) */\n"
+              "    return s->info > EP_C(0.0) ? EP_C(1.0) / EP_MATH(sqrt)(s->info) : EP_NAN;",
+        # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps
+        # the sum), so only I is watched
+        state_finite="    return isfinite(s->info);")
+
+
+def _machine_ekf_functions(est, single: bool) -> ca.Function:
+    """One step of ``_kalman_machine.MachineKalman`` (EKF) as a CasADi function of the prior
+    ``x`` (12), ``P`` (12×12) and the sample (15), everything else constant:
+    ``[x_post (12), vec P_post (144), x_next (12), vec P_next (144)]``, the posterior's payload
+    clamped (the prediction starts from it). The force model is
+    ``force_measurement_symbolic`` (the symbolic hydraulic model) with the machine's parameter
+    vector as constants. ``single``: the measurement updates as :func:`_scalar_updates`
+    (float builds), else line by line as the Python (update 1 in the plain form, update 2 in
+    Joseph form, linear solves)."""
+    from excavator_payload.estimators.classical import _kalman_machine as km
+
+    mk = est._machine_filter
+    n, payload = km.N_STATE, km.PAYLOAD
+    x = ca.SX.sym("x", n)
+    P = ca.SX.sym("P", n, n)
+    v = ca.SX.sym("v", len(est.sensor_set.signals))
+    R_kin = ca.DM(mk.R_kin)
+    # update 1: angles and rates, h = x[:7]
+    measured = ca.vertcat(*[v[i] for i in km.KINEMATIC])
+    H1 = ca.horzcat(ca.SX.eye(km.N_KIN), ca.SX.zeros(km.N_KIN, n - km.N_KIN))
+    if single:
+        x1, P1 = _scalar_updates(x, P, measured - x[:km.N_KIN], H1, ca.SX(R_kin))
+    else:
+        S = P[:km.N_KIN, :km.N_KIN] + R_kin
+        K = ca.solve(S, P[:km.N_KIN, :]).T
+        x1 = x + K @ (measured - x[:km.N_KIN])
+        P1 = P - K @ P[:km.N_KIN, :]
+        P1 = 0.5 * (P1 + P1.T)
+    # update 2: the piston forces through the symbolic model, at the state after update 1
+    pressures = [v[i] for i in km.PRESSURES]
+    head, rod = np.sqrt(mk._head2), np.sqrt(mk._rod2)  # as MachineKalman keeps them
+    force = ca.vertcat(*[pressures[2 * j] * head[j] - pressures[2 * j + 1] * rod[j] for j in range(3)])
+    ratio = ca.sin(v[km.PITCH]) / ca.fmax(ca.cos(v[km.ROLL]), 1e-9)  # pressure_regression.ground_tilt
+    tilt = ca.vertcat(ca.asin(ca.fmin(1.0, ca.fmax(-1.0, ratio))), v[km.ROLL])
+    packed = km.force_measurement_symbolic()(x1, tilt, force, ca.DM(np.asarray(mk._p, float)))
+    h, H = packed[0:3], ca.reshape(packed[3:39], 3, n)
+    breakaway, speed = packed[39:42], packed[42:45]
+    noise = [mk._head2[j] * (mk._pvar + mk._ripple * pressures[2 * j] ** 2)
+             + mk._rod2[j] * (mk._pvar + mk._ripple * pressures[2 * j + 1] ** 2) for j in range(3)]
+    variances = []
+    for j in range(3):
+        var = noise[j] + ca.exp(-(speed[j] / mk._v_still[j]) ** 2) * breakaway[j] ** 2 / 3
+        if mk.skip_low_speed:  # a slow cylinder gives no force once the payload is known
+            skip = ca.logic_and(P1[payload, payload] < mk.skip_std ** 2, ca.fabs(speed[j]) < mk._v_skip[j])
+            var = var + ca.if_else(skip, 1e30, 0.0)
+        variances.append(var)
+    R = ca.diag(ca.vertcat(*variances))
+    if single:
+        x2, P2 = _scalar_updates(x1, P1, force - h, H, R)
+    else:
+        PHt = P1 @ H.T
+        S = H @ PHt + R
+        K = ca.solve(S, PHt.T).T
+        x2 = x1 + K @ (force - h)
+        I_KH = ca.SX.eye(n) - K @ H
+        P2 = I_KH @ P1 @ I_KH.T + K @ R @ K.T
+    low, high = mk._bounds
+    x2 = ca.vertcat(x2[:payload], ca.fmin(ca.fmax(x2[payload], low), high))
+    # prediction (linear)
+    F = ca.DM(mk.F)
+    x_next = F @ x2
+    P_next = F @ P2 @ F.T + ca.DM(mk.Q)
+    P_next = 0.5 * (P_next + P_next.T)
+    out = ca.cse(ca.densify(ca.vertcat(x2, ca.vec(P2), x_next, ca.vec(P_next))))
+    return ca.Function("ep_machine_ekf_step", [x, P, v], [out])
+
+
+def _machine_ekf_model(est) -> CModel:
+    """``ekf`` fitted on the machine sensor set: ``_kalman_machine.MachineKalman`` with the
+    status rules of ``KalmanEstimatorBase._machine_step`` (no statistical gate: the Python
+    judges no sample on this set)."""
+    from excavator_payload.estimators.classical import _kalman_machine as km
+
+    mk = est._machine_filter
+    if mk is None or mk.unscented:
+        raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no EKF kernel")
+    n = km.N_STATE
+    step_double = _machine_ekf_functions(est, single=False)
+    step_single = _machine_ekf_functions(est, single=True)
+    code_double = casadi_c_code({"ep_machine_ekf_step": step_double})
+    code_single = casadi_c_code({"ep_machine_ekf_step": step_single})
+    code = code_double + code_single
+    calls = "\n".join(["#if EP_SINGLE",
+                       casadi_call("ep_machine_ekf_step", step_single, ["s->x", "s->P", "v"], ["packed"], code),
+                       "#else",
+                       casadi_call("ep_machine_ekf_step", step_double, ["s->x", "s->P", "v"], ["packed"], code),
+                       "#endif"])
+    o = est.options
+    x0_p0 = np.r_[100.0 * mk.tuning.R_kinematic, np.ones(4), (mk._max_payload / 2) ** 2]
+    definitions = "\n".join([
+        "/* One step of the machine-set EKF (_kalman_machine.MachineKalman), generated by CasADi:",
+        " * update with the angles and rates, then with the piston forces predicted by the symbolic",
+        " * hydraulic model (force_measurement_symbolic, the machine's parameters as constants),",
+        " * then the white-jerk prediction. Output: [x_post (12), vec P_post (144), x_next (12),",
+        " * vec P_next (144)], the posterior's payload clamped. A single-precision build does the",
+        " * measurement updates as sequential scalar Joseph updates (the same filter without an",
+        " * ill-conditioned solve; the skipped forces' 1e30 variance squared overflows float). */",
+        "#if EP_SINGLE",
+        code_single,
+        "#else",
+        code_double,
+        "#endif",
+        "",
+        f"static const int EP_KINEMATIC[{km.N_KIN}] = {{{', '.join(map(str, km.KINEMATIC))}}};",
+        c_array("EP_P0_DIAG", x0_p0).rstrip() + "  /* initial_state: 100 R_kin, 1 (rad/s^2)^2, (m_max/2)^2 */",
+        f"#define EP_INITIAL_PAYLOAD {c_number(mk._max_payload / 2)}",
+        f"#define EP_WARMUP_SAMPLES {int(o['warmup_samples'])}",
+        f"#define EP_CONVERGED_STD {c_number(o['converged_std'])}",
+        f"#define EP_MAX_GAP {c_number(o['max_gap'])}",
+        f"#define EP_PAYLOAD_WALK_VAR {c_number(mk.tuning.payload_walk ** 2)}  /* kg^2/s */",
+        "",
+        "/* MachineKalman.initial_state: angles and rates from the sample (broad prior), accelerations",
+        " * 0 +- 1 rad/s^2, payload m_max/2 +- m_max/2 */",
+        "static void ep_initial_state(ep_state *s, const ep_real v[EP_N_SIGNALS])",
+        "{",
+        "    int i;",
+        f"    for (i = 0; i < {n}; ++i) s->x[i] = EP_C(0.0);",
+        f"    for (i = 0; i < {n * n}; ++i) s->P[i] = EP_C(0.0);",
+        f"    for (i = 0; i < {km.N_KIN}; ++i) s->x[i] = v[EP_KINEMATIC[i]];",
+        f"    s->x[{km.PAYLOAD}] = EP_INITIAL_PAYLOAD;",
+        f"    for (i = 0; i < {n}; ++i) s->P[i * {n + 1}] = EP_P0_DIAG[i];",
+        "}",
+    ])
+    np_ = n * n
+    step = f"""    /* KalmanEstimatorBase._machine_step around MachineKalman.step */
+    ep_real packed[{2 * (n + np_)}];
+    int i;
+    (void)time;
+    if (!s->started) {{
+        ep_initial_state(s, v);
+        s->started = 1;
+    }}
+{calls}
+    /* a posterior that is not finite or has a negative variance: the sample is not used */
+    for (i = 0; i < {n + np_}; ++i) {{
+        if (!isfinite(packed[i])) {{
+            *estimate = s->last_estimate;
+            return EP_STATUS_INVALID;
+        }}
+    }}
+    for (i = 0; i < {n}; ++i) {{
+        if (packed[{n} + {n + 1} * i] < EP_C(0.0)) {{
+            *estimate = s->last_estimate;
+            return EP_STATUS_INVALID;
+        }}
+    }}
+    s->n_filtered += 1;
+    {{
+        ep_real var = packed[{n} + {n + 1} * {km.PAYLOAD}];
+        s->posterior_std = EP_MATH(sqrt)(var > EP_C(0.0) ? var : EP_C(0.0));
+    }}
+    *estimate = packed[{km.PAYLOAD}];
+    for (i = 0; i < {n}; ++i) s->x[i] = packed[{n + np_} + i];
+    for (i = 0; i < {np_}; ++i) s->P[i] = packed[{2 * n + np_} + i];
+    if (s->n_filtered <= EP_WARMUP_SAMPLES || s->posterior_std > EP_CONVERGED_STD)
+        return EP_STATUS_WARMING_UP;
+    return EP_STATUS_OK;"""
+    on_gap = f"""    /* KalmanEstimatorBase._on_gap / MachineKalman.restart_kinematics: a short gap restarts the
+     * kinematic states from the sample and keeps the payload (its variance grown by the random
+     * walk); a long one (or time going back) restarts the filter */
+    ep_real dt = time - s->last_time, payload, payload_var;
+    if (!s->started || !s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_GAP)) {{
+        ep_model_reset(s);
+        return;
+    }}
+    payload = s->x[{km.PAYLOAD}];
+    payload_var = s->P[{km.PAYLOAD * (n + 1)}];
+    ep_initial_state(s, v);
+    s->x[{km.PAYLOAD}] = payload;
+    s->P[{km.PAYLOAD * (n + 1)}] = payload_var + EP_PAYLOAD_WALK_VAR * dt;"""
+    return CModel(
+        description=f"ekf on the machine sensor set: extended Kalman filter on IMU angles and rates and "
+                    f"cylinder pressures (machine {est.machine.name}, noise {mk.tuning.noise}, "
+                    f"--low-speed {o['low_speed']})",
+        state_fields=[f"ep_real x[{n}];    /* angles (3), rates (4), accelerations (4), payload */",
+                      f"ep_real P[{np_}];  /* covariance, column-major */",
+                      "int started;      /* x, P initialised */",
+                      "int n_filtered;   /* samples since the filter (re)started */",
+                      "ep_real posterior_std;"],
+        definitions=definitions,
+        reset="    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = EP_NAN;",
+        step=step, on_gap=on_gap,
+        sigma="    /* _estimate_sigma: the payload's posterior standard deviation */\n"
+              "    return s->posterior_std;",
+        # KalmanEstimatorBase._state_finite watches the thesis set's state only
+        state_finite="    (void)s;\n    return 1;")
+
+
+#: Builders for estimators fitted on machine-sensor-set data.
+_MACHINE_BUILDERS = {
+    "inverse-dynamics": _pressure_regression_model,
+    "calibrated": _pressure_regression_model,
+    "ekf": _machine_ekf_model,
+}
 
 
 _BUILDERS = {
@@ -1144,7 +1750,13 @@ def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") 
     """Write ``ep_<name>.h`` and ``ep_<name>.c`` for a fitted estimator into folder ``out``."""
     if not estimator.fitted:
         raise EstimatorError(f"{estimator.name}: nothing to export, the estimator is not fitted")
-    builder = _BUILDERS.get(estimator.name)
+    if estimator.sensor_set.name == "machine":
+        builder = _MACHINE_BUILDERS.get(estimator.name)
+        if builder is None:
+            raise EstimatorError(f"{estimator.name} on the machine sensor set has no C export; "
+                                 f"exportable there: {', '.join(_MACHINE_BUILDERS)}")
+    else:
+        builder = _BUILDERS.get(estimator.name)
     if builder is None:
         raise EstimatorError(f"{estimator.name} has no C export; exportable: {', '.join(C_EXPORTABLE)}")
     if precision not in ("float64", "float32"):

@@ -1,0 +1,147 @@
+"""C export of the machine sensor set's estimators (``inverse-dynamics``, ``calibrated`` and
+``ekf`` fitted on pressure + IMU data): compiles cleanly under strict C99 and equals Python's ``estimate``
+(double: 1e-6 relative, float: 0.1 kg), status codes and ``ep_sigma`` included, on simulated
+machine experiments with faults injected."""
+
+import copy
+import re
+import subprocess
+
+import numpy as np
+import pytest
+
+from excavator_payload.cli import main
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.base import create_estimator
+from excavator_payload.estimators.classical import calibrated_machine as cm
+from excavator_payload.runtime.c_harness import STRICT_FLAGS, c_compiler
+from excavator_payload.runtime.export_c import export_c
+from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+from .test_export_c import _assert_c_equals_python
+
+pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
+
+
+@pytest.fixture(scope="module")
+def machine_swings():
+    """Three swings of the hydraulic machine (field noise, 100 Hz)."""
+    return simulate_machine_dataset(3, seed=3)
+
+
+@pytest.fixture(scope="module")
+def machine_faulty(machine_swings):
+    """The swings with bad samples: a NaN pressure, a pressure above 1000 bar, a repeated
+    time, time going back, a house inclination whose ground tilt has no arcsine (the
+    calibrated kernel's state goes NaN and restarts), one-frame glitches (the kernels'
+    outlier test), a 0.2 s gap (bridged) and a 2 s gap (a restart)."""
+    frame = machine_swings.frame.copy()
+    ids = list(machine_swings.experiment_ids)
+    rows = {e: frame.index[frame["experiment"] == e] for e in ids}
+    r0, r1, r2 = (rows[e] for e in ids)
+    frame.loc[r0[30], "boom_head_pressure"] = np.nan
+    frame.loc[r0[300], "dipper_rod_pressure"] = 2e8
+    frame.loc[r0[500], "time"] = frame.loc[r0[499], "time"]
+    frame.loc[r1[400], "time"] = frame.loc[r1[399], "time"] - 0.5
+    frame.loc[r1[700:705], ["house_pitch", "house_roll"]] = 0.99  # five frames: not one glitch
+    # one-frame glitches for the outlier test: a pressure, an angle, a rate, one next to a gap
+    frame.loc[r0[100], "boom_head_pressure"] += 5e6
+    frame.loc[r1[200], "dipper_angle"] += 0.05
+    frame.loc[r2[100], "slew_rate"] -= 0.5
+    frame.loc[r2[222], "bucket_rod_pressure"] += 8e6
+    drop = list(r2[200:220]) + list(r2[600:800])
+    frame = frame.drop(index=drop).reset_index(drop=True)
+    return Dataset(frame, machine_swings.meta)
+
+
+def _machine_models(data):
+    yield "inverse-dynamics", create_estimator("inverse-dynamics", machine="cat345c-hydraulic").fit(data)
+    for low_speed in ("skip", "downweight", "model"):
+        yield f"calibrated-{low_speed}", create_estimator(
+            "calibrated", machine="cat345c-hydraulic-3pct", low_speed=low_speed).fit(data)
+    yield "ekf", create_estimator("ekf", machine="cat345c-hydraulic").fit(data)
+
+
+@pytest.fixture(scope="module")
+def machine_models(machine_swings):
+    return dict(_machine_models(machine_swings))
+
+
+NAMES = ["inverse-dynamics", "calibrated-skip", "calibrated-downweight", "calibrated-model", "ekf"]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_c_equals_python_on_the_machine_set(name, machine_models, machine_faulty, tmp_path):
+    est = machine_models[name]
+    header, source = export_c(est, tmp_path / "export")
+    h = header.read_text()
+    assert f"#define EP_N_SIGNALS {len(MACHINE_SENSORS.signals)}" in h
+    names = re.search(r"EP_SIGNAL_NAMES\[EP_N_SIGNALS\] = \{(.*)\};", source.read_text()).group(1)
+    assert [n.strip().strip('"') for n in names.split(",")] == list(MACHINE_SENSORS.signals)
+    py = None
+    for single in (False, True):
+        py = _assert_c_equals_python(est, source, machine_faulty, tmp_path / "build", single)
+    seen = set(py["status"])
+    assert {"invalid_input", "out_of_range", "gap", "warming_up", "ok"} <= seen
+    if name == "ekf":  # the long gap restarts the filter, the short one keeps the payload
+        assert (py["status"] == "warming_up").sum() > 2 * 5
+    if name.startswith("calibrated"):
+        assert "state_reset" in seen  # the NaN ground tilt: a non-finite state restarts
+    if name != "ekf":  # the pressure kernels' one-frame outlier test (a rejection before any
+        # information is reported as warming_up)
+        assert (py["status"] == "rejected_outlier").sum() >= 2
+    assert np.isfinite(py["sigma"]).any()
+
+
+def test_physics_is_generated_with_the_fitted_parameters(machine_models, tmp_path):
+    """The kernel is CasADi's code with the parameters, offsets and IMU dynamics as constants:
+    it takes only the sample and the derived accelerations, and another calibration (other
+    offsets) gives other code."""
+    est = machine_models["calibrated-skip"]
+    source = export_c(est, tmp_path / "a")[1].read_text()
+    kernel = re.search(r"static int ep_pressure_regression\(.*?\n}", source, re.S).group(0)
+    assert re.findall(r"arg\[(\d+)\]", kernel) and set(re.findall(r"arg\[(\d+)\]", kernel)) == {"0", "1"}
+    assert np.any(est.calibration.offset_vector() != 0)
+    other = copy.deepcopy(est)
+    other.calibration.z[len(cm.CALIBRATED_PARAMETERS)] += 1e5  # the boom head pressure's offset
+    cm._install(other, other.calibration)
+    other_kernel = re.search(r"static int ep_pressure_regression\(.*?\n}",
+                             export_c(other, tmp_path / "b")[1].read_text(), re.S).group(0)
+    assert other_kernel != kernel
+
+
+def test_machine_set_export_errors_and_cli(machine_models, machine_swings, tmp_path):
+    other = create_estimator("ukf", machine="cat345c-hydraulic").fit(machine_swings)
+    with pytest.raises(EstimatorError, match="machine sensor set has no C export"):
+        export_c(other, tmp_path)
+    model = tmp_path / "model"
+    machine_models["calibrated-skip"].save(model)
+    out = tmp_path / "c"
+    assert main(["export", "--model", str(model), "--format", "c", "--out", str(out),
+                 "--precision", "float32"]) == 0
+    assert "#define EP_SINGLE 1" in (out / "ep_calibrated.h").read_text()
+
+
+@pytest.mark.parametrize("name", ["calibrated-skip", "ekf"])
+def test_float_build_does_no_double_maths(name, machine_models, tmp_path):
+    """In single precision nothing is promoted to double (constants of the generated code
+    included): an ECU with a single-precision FPU never runs double arithmetic."""
+    header, source = export_c(machine_models[name], tmp_path, precision="float32")
+    result = subprocess.run([c_compiler(), *STRICT_FLAGS, "-Wdouble-promotion", "-O0", "-c", str(source),
+                             "-o", str(tmp_path / "model.o")], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
+
+
+def test_outlier_test_off(machine_models, machine_faulty, tmp_path):
+    """-DEP_GATING=0 is ``Estimator.gating = False`` for the kernels' outlier test too."""
+    est = machine_models["inverse-dynamics"]
+    source = export_c(est, tmp_path / "export")[1]
+    est.gating = False
+    try:
+        py = _assert_c_equals_python(est, source, machine_faulty, tmp_path / "off", False,
+                                     extra_flags=("-DEP_GATING=0",))
+    finally:
+        est.gating = True
+    assert "rejected_outlier" not in set(py["status"])
