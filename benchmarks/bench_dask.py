@@ -16,6 +16,10 @@ Measures
 Usage::
 
     python benchmarks/bench_dask.py [--bits 40] [--throughput 400] [--repeats 2] [--json out.json]
+    python benchmarks/bench_dask.py --overhead-only [--throughput 400] [--repeats 3]
+
+``--overhead-only`` measures 3. alone, interleaving the old pool and the Dask layer (ABAB…) so
+that a shared machine's changing load hits both alike, and reports medians and load averages.
 
 Every cluster's start-up is included in its wall time (a user pays it), except in the
 "steady" figures, measured on a cluster that has already simulated once.
@@ -157,14 +161,66 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def median(values):
+    ordered = sorted(values)
+    middle = len(ordered) // 2
+    return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
+
+
+def overhead_only(n: int, repeats: int, workers: int = 2) -> dict:
+    """The old pool and the Dask layer at ``workers`` workers, interleaved ABAB…; medians.
+
+    "dask" is a whole ``simulate`` as a user runs it (local cluster started, simulated, shut
+    down); "dask steady" is a second run on the same, already warm cluster.
+    """
+    times: dict[str, list[float]] = {"old pool": [], "dask": [], "dask steady": []}
+    cpu: dict[str, list[float]] = {"old pool": [], "dask": []}
+    loads = []
+    for repeat in range(repeats):
+        loads.append(os.getloadavg()[0])
+        c0, (_, wall) = cpu_seconds(), timed(lambda: old_pool_simulate(n, workers))
+        times["old pool"].append(wall)
+        cpu["old pool"].append(cpu_seconds() - c0)
+        loads.append(os.getloadavg()[0])
+        c0, start = cpu_seconds(), time.perf_counter()
+        with Execution(workers=workers) as ex:
+            simulate_on(ex, n)
+            times["dask"].append(time.perf_counter() - start)
+        cpu["dask"].append(cpu_seconds() - c0)
+        with Execution(workers=workers) as ex:
+            simulate_on(ex, n)
+            times["dask steady"].append(timed(lambda: simulate_on(ex, n))[1])
+        print(f"   repeat {repeat + 1}: old pool {times['old pool'][-1]:.1f} s, dask {times['dask'][-1]:.1f} s "
+              f"(steady {times['dask steady'][-1]:.1f} s), load {loads[-1]:.1f}", flush=True)
+    med = {k: median(v) for k, v in times.items()}
+    med_cpu = {k: median(v) for k, v in cpu.items()}
+    result = {"experiments": n, "workers": workers, "repeats": repeats, "times_s": times, "cpu_s": cpu,
+              "median_s": med, "median_cpu_s": med_cpu, "load_averages": loads,
+              "overhead": med["dask"] / med["old pool"] - 1,
+              "overhead_steady": med["dask steady"] / med["old pool"] - 1,
+              "overhead_cpu": med_cpu["dask"] / med_cpu["old pool"] - 1}
+    print(f"   medians: old pool {med['old pool']:.1f} s, dask {med['dask']:.1f} s, steady {med['dask steady']:.1f} s; "
+          f"overhead {100 * result['overhead']:+.1f} % (steady {100 * result['overhead_steady']:+.1f} %, "
+          f"CPU {100 * result['overhead_cpu']:+.1f} %); load average {min(loads):.1f}–{max(loads):.1f}")
+    return result
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--bits", type=int, default=40, help="experiments of the same-bits runs")
     p.add_argument("--throughput", type=int, default=400, help="experiments of the timing runs")
     p.add_argument("--repeats", type=int, default=2, help="timing runs of each setup (best is kept)")
     p.add_argument("--json", type=Path, help="write the results here")
+    p.add_argument("--overhead-only", action="store_true",
+                   help="only the overhead against the old pool, interleaved, medians of --repeats")
     args = p.parse_args(argv)
     out: dict = {"load_average_before": os.getloadavg(), "cores": os.cpu_count()}
+    if args.overhead_only:
+        print(f"3. overhead, {args.throughput} NMPC experiments, old pool and Dask interleaved", flush=True)
+        out["overhead_only"] = overhead_only(args.throughput, args.repeats)
+        if args.json:
+            args.json.write_text(json.dumps(out, indent=2, default=str))
+        return 0
 
     # 1. same bits
     print(f"1. same bits, {args.bits} NMPC experiments (seed {SEED})", flush=True)

@@ -19,9 +19,15 @@ Where the tasks run
   cluster costs 1–3 s, more than small jobs take.
 
 A task lost with a dead worker is run again on another one (Dask does that); a task that raises
-is retried ``retries`` times before its error reaches the caller. Results never depend on where
-or in which order tasks run: the tasks themselves must be deterministic functions of their
-arguments (every simulated experiment draws from its own random streams).
+is retried ``retries`` times before its error reaches the caller, except for a user error (an
+:class:`~excavator_payload.errors.ExcavatorPayloadError`: bad input fails the same way every
+time), which stops the job at once with its one line. Results never depend on where or in which
+order tasks run: the tasks themselves must be deterministic functions of their arguments (every
+simulated experiment draws from its own random streams).
+
+An existing scheduler with no worker would hold the tasks forever: the job waits
+:data:`DEFAULT_WORKER_TIMEOUT` seconds (``worker_timeout``, or ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``)
+for a first worker to join, then stops with one line saying how to start one.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import logging
 import os
 import signal
 import threading
+import uuid
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -48,10 +55,52 @@ DEFAULT_RETRIES = 2
 LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT = 20.0
+#: Environment variable: seconds to wait for a first worker on an existing scheduler.
+WORKER_TIMEOUT_ENV = "EXCAVATOR_PAYLOAD_WORKER_TIMEOUT"
+#: Seconds to wait for a first worker to join an existing scheduler that has none.
+DEFAULT_WORKER_TIMEOUT = 60.0
 
 
 class SchedulerError(ExcavatorPayloadError):
-    """A scheduler address is malformed or the scheduler cannot be reached."""
+    """A scheduler address is malformed, the scheduler cannot be reached or no worker joins it."""
+
+
+def worker_timeout(seconds: float | None = None) -> float:
+    """Seconds to wait for a first worker: ``seconds``, else ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``,
+    else :data:`DEFAULT_WORKER_TIMEOUT`.
+
+    Raises
+    ------
+    SchedulerError
+        If the value is not a positive number.
+    """
+    if seconds is None:
+        text = os.environ.get(WORKER_TIMEOUT_ENV, "").strip()
+        if not text:
+            return DEFAULT_WORKER_TIMEOUT
+        try:
+            seconds = float(text)
+        except ValueError:
+            raise SchedulerError(f"${WORKER_TIMEOUT_ENV} must be a number of seconds, got {text!r}") from None
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0 \
+            or seconds == float("inf"):
+        raise SchedulerError(f"the worker timeout must be a positive number of seconds, got {seconds!r}")
+    return float(seconds)
+
+
+@dataclass(frozen=True)
+class _UserError:
+    """What a task returns instead of raising a user error, so that Dask does not retry it."""
+
+    error: BaseException
+
+
+def _run_task(function: Callable, *args):
+    """Run one task on a worker; a user error comes back as a result (see :class:`_UserError`)."""
+    try:
+        return function(*args)
+    except ExcavatorPayloadError as exc:
+        return _UserError(exc)
 
 
 @dataclass(frozen=True)
@@ -139,17 +188,22 @@ class Execution:
     workers : int, optional
         Worker processes of the local cluster (default: one per core). Ignored with a scheduler.
     retries : int
-        Times a task that raised is run again.
+        Times a task that raised is run again (never for an ``ExcavatorPayloadError``).
+    worker_timeout : float, optional
+        Seconds to wait for a first worker on an existing scheduler that has none (default
+        ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``, else :data:`DEFAULT_WORKER_TIMEOUT`).
     """
 
     scheduler: str | None = None
     workers: int | None = None
     retries: int = DEFAULT_RETRIES
+    worker_timeout: float | None = None
     _client: Any = field(default=None, init=False, repr=False)
     _cluster: Any = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.scheduler = scheduler_address(self.scheduler)
+        self.worker_timeout = worker_timeout(self.worker_timeout)
         if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, int)
                                          or self.workers < 1):
             raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {self.workers!r}")
@@ -204,10 +258,20 @@ class Execution:
 
         if self.scheduler:
             try:
-                return Client(self.scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
+                client = Client(self.scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError) as exc:
                 raise SchedulerError(f"cannot reach the Dask scheduler at {self.scheduler}: "
                                      f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+            try:
+                # Tasks sent to a scheduler without workers would wait forever.
+                client.wait_for_workers(1, timeout=self.worker_timeout)
+            except (OSError, TimeoutError):
+                client.close()
+                raise SchedulerError(
+                    f"no worker joined {self.scheduler} within {self.worker_timeout:g} s; start one with "
+                    f"`dask worker {self.scheduler} --nthreads 1` (or wait longer: ${WORKER_TIMEOUT_ENV})"
+                ) from None
+            return client
         import dask
 
         with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG), _interrupts_ignored():
@@ -294,14 +358,18 @@ class Execution:
             return scattered[id(arg.value)]
 
         futures = {}
+        name = getattr(function, "__name__", "task")
         try:
             for index, task in enumerate(tasks):
-                future = client.submit(function, *(resolve(a) for a in task), pure=False,
-                                       retries=self.retries)
+                future = client.submit(_run_task, function, *(resolve(a) for a in task), pure=False,
+                                       retries=self.retries, key=f"{name}-{index}-{uuid.uuid4().hex}")
                 futures[future] = index
             for future in as_completed(list(futures), loop=client.loop):
                 index = futures[future]
-                finished(index, future.result())
+                result = future.result()
+                if isinstance(result, _UserError):
+                    raise result.error
+                finished(index, result)
         except BaseException:
             # Ctrl-C or a task that failed for good: stop the rest; the finished ones are kept.
             try:
