@@ -113,11 +113,11 @@ def test_a_big_dataset_is_estimated_on_the_workers_with_the_same_estimates(mj_da
     estimators = [_fitted("inverse-dynamics", "cat345c", train), _fitted("ekf", "cat345c", train, tuning="thesis"),
                   _fitted("net1", None, train, epochs=2, hidden="4", train_experiments=3, validation_experiments=1)]
     with Execution(workers=2) as execution:
-        # 20 experiments: below the threshold, estimated here (no cluster started)
+        # 20 experiments of a fast estimator: estimated here (no cluster started)
         small = commands.estimate_in_chunks(estimators[0], mj_dataset, chunk=3, execution=execution)
         assert execution._client is None
         pd.testing.assert_frame_equal(small, estimators[0].estimate(mj_dataset), check_exact=True)
-        monkeypatch.setattr(commands, "PARALLEL_MIN_EXPERIMENTS", 10)
+        monkeypatch.setattr(commands, "PARALLEL_MIN_SECONDS", 0.0)
         for est in estimators:
             here = est.estimate(mj_dataset)
             there = commands.estimate_in_chunks(est, mj_dataset, chunk=3, execution=execution)
@@ -135,11 +135,19 @@ def test_estimate_command_on_workers(files, mj_dataset, monkeypatch, capsys):
     _fitted("inverse-dynamics", "cat345c", mj_dataset.subset(mj_dataset.experiment_ids[:2])).save(d / "idyn2")
     assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e1.parquet"),
                  "--workers", "1"]) == 0
-    monkeypatch.setattr(commands, "PARALLEL_MIN_EXPERIMENTS", 10)
+    monkeypatch.setattr(commands, "PARALLEL_MIN_SECONDS", 0.0)
+    real, calls = commands._estimate_on_layer, []
+
+    def spy(*args):
+        calls.append(args[3])  # the execution layer the command opened
+        return real(*args)
+
+    monkeypatch.setattr(commands, "_estimate_on_layer", spy)
     assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e2.parquet"),
                  "--workers", "2", "--quiet"]) == 0
     pd.testing.assert_frame_equal(read_estimates(d / "e1.parquet"), read_estimates(d / "e2.parquet"),
                                   check_exact=True)
+    assert len(calls) == 1 and calls[0].workers == 2
     assert "estimating" in capsys.readouterr().out  # the progress bar of the first run
     assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e3.parquet"),
                  "--workers", "-1"]) == 2
