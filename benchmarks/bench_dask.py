@@ -16,10 +16,11 @@ Measures
 Usage::
 
     python benchmarks/bench_dask.py [--bits 40] [--throughput 400] [--repeats 2] [--json out.json]
-    python benchmarks/bench_dask.py --overhead-only [--throughput 400] [--repeats 3]
+    python benchmarks/bench_dask.py --overhead-only [--throughput 400] [--repeats 3] [--first-release-settings]
 
 ``--overhead-only`` measures 3. alone, interleaving the old pool and the Dask layer (ABAB…) so
-that a shared machine's changing load hits both alike, and reports medians and load averages.
+that a shared machine's changing load hits both alike, each run a fresh process as a user's
+command (interpreter, imports, start-up included), and reports medians and load averages.
 
 Every cluster's start-up is included in its wall time (a user pays it), except in the
 "steady" figures, measured on a cluster that has already simulated once.
@@ -131,12 +132,11 @@ class CommandLineCluster:
 
 
 def one_worker_cluster():
-    """A Dask LocalCluster of exactly one worker process (``Execution(workers=1)`` would run in
-    this process instead)."""
-    from distributed import LocalCluster
+    """A Dask LocalCluster of exactly one worker process, started as the layer starts its own
+    (``Execution(workers=1)`` would run in this process instead)."""
+    from excavator_payload.execution import start_local_cluster
 
-    return LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
-                        silence_logs=40)
+    return start_local_cluster(1)
 
 
 class _null:
@@ -167,29 +167,45 @@ def median(values):
     return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
 
 
-def overhead_only(n: int, repeats: int, workers: int = 2) -> dict:
+def run_arm(arm: str, n: int, workers: int = 2) -> float:
+    """One arm of the overhead comparison in this (fresh) process; returns the steady time of a
+    second run for ``dask-steady``, else 0."""
+    if arm == "old":
+        old_pool_simulate(n, workers)
+        return 0.0
+    with Execution(workers=workers) as ex:
+        simulate_on(ex, n)
+        return timed(lambda: simulate_on(ex, n))[1] if arm == "dask-steady" else 0.0
+
+
+def _arm_in_subprocess(arm: str, n: int, extra: list[str]) -> tuple[float, float, float]:
+    """Wall time and CPU seconds (with every descendant) of ``arm`` run as its own command, as a
+    user runs ``simulate``: interpreter start, imports and cluster start-up included."""
+    c0, start = cpu_seconds(), time.perf_counter()
+    done = subprocess.run([sys.executable, __file__, "--arm", arm, "--throughput", str(n), *extra],
+                          capture_output=True, text=True, check=True)
+    wall = time.perf_counter() - start
+    return wall, cpu_seconds() - c0, float(done.stdout.strip().splitlines()[-1])
+
+
+def overhead_only(n: int, repeats: int, workers: int = 2, extra: list[str] | None = None) -> dict:
     """The old pool and the Dask layer at ``workers`` workers, interleaved ABAB…; medians.
 
-    "dask" is a whole ``simulate`` as a user runs it (local cluster started, simulated, shut
-    down); "dask steady" is a second run on the same, already warm cluster.
+    Each arm is a fresh process, as a user's ``simulate`` command: "old pool" and "dask" are
+    its whole wall time (interpreter, imports, pool or cluster start-up, simulation);
+    "dask steady" is a second simulation on the same, already warm cluster (a process of its own).
     """
+    extra = list(extra or [])
     times: dict[str, list[float]] = {"old pool": [], "dask": [], "dask steady": []}
     cpu: dict[str, list[float]] = {"old pool": [], "dask": []}
     loads = []
     for repeat in range(repeats):
-        loads.append(os.getloadavg()[0])
-        c0, (_, wall) = cpu_seconds(), timed(lambda: old_pool_simulate(n, workers))
-        times["old pool"].append(wall)
-        cpu["old pool"].append(cpu_seconds() - c0)
-        loads.append(os.getloadavg()[0])
-        c0, start = cpu_seconds(), time.perf_counter()
-        with Execution(workers=workers) as ex:
-            simulate_on(ex, n)
-            times["dask"].append(time.perf_counter() - start)
-        cpu["dask"].append(cpu_seconds() - c0)
-        with Execution(workers=workers) as ex:
-            simulate_on(ex, n)
-            times["dask steady"].append(timed(lambda: simulate_on(ex, n))[1])
+        for arm, name in (("old", "old pool"), ("dask", "dask")):
+            loads.append(os.getloadavg()[0])
+            wall, seconds, _ = _arm_in_subprocess(arm, n, extra)
+            times[name].append(wall)
+            cpu[name].append(seconds)
+        times["dask steady"].append(_arm_in_subprocess("dask-steady", n, extra)[2])
         print(f"   repeat {repeat + 1}: old pool {times['old pool'][-1]:.1f} s, dask {times['dask'][-1]:.1f} s "
               f"(steady {times['dask steady'][-1]:.1f} s), load {loads[-1]:.1f}", flush=True)
     med = {k: median(v) for k, v in times.items()}
@@ -197,11 +213,11 @@ def overhead_only(n: int, repeats: int, workers: int = 2) -> dict:
     result = {"experiments": n, "workers": workers, "repeats": repeats, "times_s": times, "cpu_s": cpu,
               "median_s": med, "median_cpu_s": med_cpu, "load_averages": loads,
               "overhead": med["dask"] / med["old pool"] - 1,
-              "overhead_steady": med["dask steady"] / med["old pool"] - 1,
               "overhead_cpu": med_cpu["dask"] / med_cpu["old pool"] - 1}
-    print(f"   medians: old pool {med['old pool']:.1f} s, dask {med['dask']:.1f} s, steady {med['dask steady']:.1f} s; "
-          f"overhead {100 * result['overhead']:+.1f} % (steady {100 * result['overhead_steady']:+.1f} %, "
-          f"CPU {100 * result['overhead_cpu']:+.1f} %); load average {min(loads):.1f}–{max(loads):.1f}")
+    print(f"   medians: old pool {med['old pool']:.1f} s (CPU {med_cpu['old pool']:.1f} s), dask {med['dask']:.1f} s "
+          f"(CPU {med_cpu['dask']:.1f} s), dask steady {med['dask steady']:.1f} s; overhead wall "
+          f"{100 * result['overhead']:+.1f} %, CPU {100 * result['overhead_cpu']:+.1f} %; "
+          f"load average {min(loads):.1f}–{max(loads):.1f}")
     return result
 
 
@@ -213,11 +229,27 @@ def main(argv=None) -> int:
     p.add_argument("--json", type=Path, help="write the results here")
     p.add_argument("--overhead-only", action="store_true",
                    help="only the overhead against the old pool, interleaved, medians of --repeats")
+    p.add_argument("--first-release-settings", action="store_true",
+                   help="local clusters as the first Dask release started them (spawned workers, Dask's "
+                        "event-loop intervals, idle while they start), to measure what the fork server, "
+                        "quieter loops and working during start-up gain")
+    p.add_argument("--arm", choices=("old", "dask", "dask-steady"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.first_release_settings:
+        from excavator_payload import execution
+
+        execution.LOCAL_START_METHOD = "spawn"
+        execution.LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+        execution.START_WHILE_RUNNING = False
+    if args.arm:
+        print(run_arm(args.arm, args.throughput))
+        return 0
     out: dict = {"load_average_before": os.getloadavg(), "cores": os.cpu_count()}
     if args.overhead_only:
-        print(f"3. overhead, {args.throughput} NMPC experiments, old pool and Dask interleaved", flush=True)
-        out["overhead_only"] = overhead_only(args.throughput, args.repeats)
+        print(f"3. overhead, {args.throughput} NMPC experiments, old pool and Dask interleaved"
+              + (" (first release's cluster settings)" if args.first_release_settings else ""), flush=True)
+        out["overhead_only"] = overhead_only(args.throughput, args.repeats,
+                                             extra=["--first-release-settings"] if args.first_release_settings else [])
         if args.json:
             args.json.write_text(json.dumps(out, indent=2, default=str))
         return 0

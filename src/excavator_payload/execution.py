@@ -14,7 +14,10 @@ Where the tasks run
   importable, e.g. installed in the same environment).
 * otherwise: a local cluster of worker processes, one single-threaded worker per core (or
   ``workers``), started on first use and shut down when the :class:`Execution` closes. Dask's
-  worker processes watch their parent: they exit with it, even after ``kill -9``.
+  worker processes watch their parent: they exit with it, even after ``kill -9``. On Linux they
+  are forked from a fork server that has imported Dask and the simulators once
+  (:data:`LOCAL_START_METHOD`), and their event loops wake seldom (:data:`LOCAL_WORKER_CONFIG`):
+  see ``benchmarks/bench_dask.py`` for what that gains against the pool used before.
 * a job of one task, or ``workers=1`` without a scheduler, runs in this process: starting a
   cluster costs 1–3 s, more than small jobs take.
 
@@ -35,6 +38,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
 import uuid
 import warnings
@@ -50,9 +54,31 @@ log = logging.getLogger(__name__)
 SCHEDULER_ENV = "EXCAVATOR_PAYLOAD_SCHEDULER"
 #: How often a task that raised is run again before its error reaches the caller.
 DEFAULT_RETRIES = 2
-#: Dask settings of the local workers: no statistical profiler (it samples the task's stack
-#: every 10 ms, a cost for the Python-heavy NMPC loop, for a dashboard nobody looks at).
-LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+#: Dask settings of the local cluster. Its event loops wake less often: no statistical profiler
+#: (it samples the task's stack every 10 ms, for a dashboard nobody looks at), the blocked-loop
+#: check every 1 s instead of 20 ms, the system and memory monitors every 1 s instead of 0.5 and
+#: 0.1 s; measured, this cuts a worker's CPU outside its task from 3–5 % to ~1 %, and these
+#: CPU-bound tasks lose every wake-up (the worker's threads share one interpreter lock).
+#: Worker saturation 1.0: a worker is given a new task only when it is free, so that at the
+#: end of a job no task waits behind another on a busy worker while a second worker idles.
+LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
+                       "distributed.admin.tick.interval": "1s",
+                       "distributed.admin.system-monitor.interval": "1s",
+                       "distributed.worker.memory.monitor-interval": "1s",
+                       "distributed.scheduler.worker-saturation": 1.0}
+#: How local worker processes start. ``forkserver`` (Linux): forked from one clean server process
+#: that has imported :data:`FORKSERVER_PRELOAD` once, instead of each worker starting a new
+#: interpreter and importing them itself (``spawn``, Dask's default). Forked from a server
+#: with no threads, not from this process (whose threads could hold locks at the fork).
+LOCAL_START_METHOD = "forkserver" if sys.platform.startswith("linux") else "spawn"
+#: Modules the fork server imports for every local worker: Dask and what a simulation chunk
+#: needs (the estimators' torch is left out: simulations do not need it and it takes ~1–2 s).
+FORKSERVER_PRELOAD = ("distributed", "numpy", "pandas", "pyarrow", "pyarrow.parquet", "scipy", "casadi",
+                      "excavator_payload.execution", "excavator_payload.simulation.generate",
+                      "excavator_payload.simulation.nmpc", "excavator_payload.simulation.minimum_jerk",
+                      "excavator_payload.simulation.machine_sim")
+#: While a local cluster starts, the first tasks of its first job run in this process.
+START_WHILE_RUNNING = True
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT = 20.0
 #: Environment variable: seconds to wait for a first worker on an existing scheduler.
@@ -143,6 +169,36 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _prepare_forkserver() -> None:
+    """Tell the fork server (started with the first local worker) what to import."""
+    import dask
+    from distributed.utils import get_mp_context
+
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        context = get_mp_context()  # Dask sets its own preload list once; ours replaces it
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+
+
+def start_local_cluster(workers: int):
+    """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes, started the way
+    this layer starts them (:data:`LOCAL_START_METHOD`, :data:`LOCAL_WORKER_CONFIG`, workers that
+    ignore Ctrl-C); close it when done."""
+    import dask
+    from distributed import LocalCluster
+
+    _quiet_dask()
+    config = dict(LOCAL_WORKER_CONFIG)
+    if LOCAL_START_METHOD == "forkserver":
+        config["distributed.worker.multiprocessing-method"] = "forkserver"
+        _prepare_forkserver()
+    with warnings.catch_warnings(), dask.config.set(config), _interrupts_ignored():
+        # Without a dashboard the scheduler still serves health checks, on another port if
+        # 8787 is taken (a second cluster): nothing the user needs to hear about.
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                            silence_logs=logging.ERROR, preload=[__name__])
 
 
 @contextmanager
@@ -254,7 +310,7 @@ class Execution:
 
     def _connect(self):
         _quiet_dask()
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         if self.scheduler:
             try:
@@ -272,15 +328,7 @@ class Execution:
                     f"`dask worker {self.scheduler} --nthreads 1` (or wait longer: ${WORKER_TIMEOUT_ENV})"
                 ) from None
             return client
-        import dask
-
-        with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG), _interrupts_ignored():
-            # Without a dashboard the scheduler still serves health checks, on another port if
-            # 8787 is taken (a second cluster): nothing the user needs to hear about.
-            warnings.filterwarnings("ignore", message="Port .* is already in use")
-            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None, silence_logs=logging.ERROR,
-                                         preload=[__name__])
+        self._cluster = start_local_cluster(self.workers)
         return Client(self._cluster, set_as_default=False)
 
     # -- running ------------------------------------------------------------------------------
@@ -343,9 +391,52 @@ class Execution:
             self._map_on_cluster(function, tasks, finished)
         return results
 
+    def _run_while_starting(self, function, tasks, finished) -> list[int]:
+        """Start the local cluster in the background and run tasks here meanwhile, in order,
+        until it is up; returns the indices of the tasks left for the cluster.
+
+        A command would otherwise sit idle for the 1–3 s the workers take to start (the pool
+        used before forked its workers in milliseconds). The results are the same wherever a
+        task runs.
+        """
+        if LOCAL_START_METHOD == "forkserver":
+            # Started here, in the main thread, while Ctrl-C is ignored: the server and the
+            # workers forked from it inherit that (a terminal's Ctrl-C is for the command).
+            import multiprocessing.forkserver
+
+            _prepare_forkserver()
+            with _interrupts_ignored():
+                multiprocessing.forkserver.ensure_running()
+        outcome: dict[str, Any] = {}
+
+        def start() -> None:
+            try:
+                outcome["client"] = self._connect()
+            except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+                outcome["error"] = exc
+
+        starter = threading.Thread(target=start, name="excavator-payload cluster start", daemon=True)
+        starter.start()
+        remaining = list(range(len(tasks)))
+        try:
+            # Leave at least one task per worker: the cluster is started anyway.
+            while len(remaining) > self.workers and starter.is_alive():
+                index = remaining.pop(0)
+                finished(index, function(*(a.value if isinstance(a, Shared) else a for a in tasks[index])))
+        finally:
+            starter.join()
+            if "client" in outcome:
+                self._client = outcome["client"]  # closed with this object, whatever happens next
+        if "error" in outcome:
+            raise outcome["error"]
+        return remaining
+
     def _map_on_cluster(self, function, tasks, finished) -> None:
         from distributed import as_completed
 
+        indices = list(range(len(tasks)))
+        if self._client is None and self.scheduler is None and START_WHILE_RUNNING:
+            indices = self._run_while_starting(function, tasks, finished)
         client = self.client
         scattered: dict[int, Any] = {}
 
@@ -360,7 +451,8 @@ class Execution:
         futures = {}
         name = getattr(function, "__name__", "task")
         try:
-            for index, task in enumerate(tasks):
+            for index in indices:
+                task = tasks[index]
                 future = client.submit(_run_task, function, *(resolve(a) for a in task), pure=False,
                                        retries=self.retries, key=f"{name}-{index}-{uuid.uuid4().hex}")
                 futures[future] = index
