@@ -178,17 +178,21 @@ def run_arm(arm: str, n: int, workers: int = 2) -> float:
         return timed(lambda: simulate_on(ex, n))[1] if arm == "dask-steady" else 0.0
 
 
-def _arm_in_subprocess(arm: str, n: int, extra: list[str]) -> tuple[float, float, float]:
-    """Wall time and CPU seconds (with every descendant) of ``arm`` run as its own command, as a
-    user runs ``simulate``: interpreter start, imports and cluster start-up included."""
-    c0, start = cpu_seconds(), time.perf_counter()
+def _arm_in_subprocess(arm: str, n: int, extra: list[str]) -> tuple[float, float]:
+    """Wall time of ``arm`` run as its own command, as a user runs ``simulate`` (interpreter
+    start, imports and cluster start-up included), and the steady time it printed.
+
+    No CPU seconds here: workers forked by a fork server are not this process's descendants
+    once the server outlives the command, so their CPU time would go uncounted.
+    """
+    start = time.perf_counter()
     done = subprocess.run([sys.executable, __file__, "--arm", arm, "--throughput", str(n), *extra],
                           capture_output=True, text=True, check=True)
-    wall = time.perf_counter() - start
-    return wall, cpu_seconds() - c0, float(done.stdout.strip().splitlines()[-1])
+    return time.perf_counter() - start, float(done.stdout.strip().splitlines()[-1])
 
 
-def overhead_only(n: int, repeats: int, workers: int = 2, extra: list[str] | None = None) -> dict:
+def overhead_only(n: int, repeats: int, workers: int = 2, extra: list[str] | None = None,
+                  compare_first_release: bool = False) -> dict:
     """The old pool and the Dask layer at ``workers`` workers, interleaved ABAB…; medians.
 
     Each arm is a fresh process, as a user's ``simulate`` command: "old pool" and "dask" are
@@ -196,28 +200,29 @@ def overhead_only(n: int, repeats: int, workers: int = 2, extra: list[str] | Non
     "dask steady" is a second simulation on the same, already warm cluster (a process of its own).
     """
     extra = list(extra or [])
-    times: dict[str, list[float]] = {"old pool": [], "dask": [], "dask steady": []}
-    cpu: dict[str, list[float]] = {"old pool": [], "dask": []}
+    arms = [("old", "old pool", []), ("dask", "dask", extra)]
+    if compare_first_release:
+        arms.append(("dask", "dask first release", ["--first-release-settings"]))
+    times: dict[str, list[float]] = {name: [] for _, name, _ in arms}
+    times["dask steady"] = []
     loads = []
     for repeat in range(repeats):
-        for arm, name in (("old", "old pool"), ("dask", "dask")):
+        for arm, name, flags in arms:
             loads.append(os.getloadavg()[0])
-            wall, seconds, _ = _arm_in_subprocess(arm, n, extra)
-            times[name].append(wall)
-            cpu[name].append(seconds)
-        times["dask steady"].append(_arm_in_subprocess("dask-steady", n, extra)[2])
-        print(f"   repeat {repeat + 1}: old pool {times['old pool'][-1]:.1f} s, dask {times['dask'][-1]:.1f} s "
-              f"(steady {times['dask steady'][-1]:.1f} s), load {loads[-1]:.1f}", flush=True)
+            times[name].append(_arm_in_subprocess(arm, n, flags)[0])
+        times["dask steady"].append(_arm_in_subprocess("dask-steady", n, extra)[1])
+        print(f"   repeat {repeat + 1}: " + ", ".join(f"{k} {v[-1]:.1f} s" for k, v in times.items())
+              + f", load {loads[-1]:.1f}", flush=True)
     med = {k: median(v) for k, v in times.items()}
-    med_cpu = {k: median(v) for k, v in cpu.items()}
-    result = {"experiments": n, "workers": workers, "repeats": repeats, "times_s": times, "cpu_s": cpu,
-              "median_s": med, "median_cpu_s": med_cpu, "load_averages": loads,
-              "overhead": med["dask"] / med["old pool"] - 1,
-              "overhead_cpu": med_cpu["dask"] / med_cpu["old pool"] - 1}
-    print(f"   medians: old pool {med['old pool']:.1f} s (CPU {med_cpu['old pool']:.1f} s), dask {med['dask']:.1f} s "
-          f"(CPU {med_cpu['dask']:.1f} s), dask steady {med['dask steady']:.1f} s; overhead wall "
-          f"{100 * result['overhead']:+.1f} %, CPU {100 * result['overhead_cpu']:+.1f} %; "
-          f"load average {min(loads):.1f}–{max(loads):.1f}")
+    result = {"experiments": n, "workers": workers, "repeats": repeats, "times_s": times, "median_s": med,
+              "load_averages": loads, "overhead": med["dask"] / med["old pool"] - 1}
+    if compare_first_release:
+        result["overhead_first_release"] = med["dask first release"] / med["old pool"] - 1
+        print(f"   first release's settings: {med['dask first release']:.1f} s, "
+              f"overhead {100 * result['overhead_first_release']:+.1f} %")
+    print(f"   medians: old pool {med['old pool']:.1f} s, dask {med['dask']:.1f} s (second run on a warm "
+          f"cluster: {med['dask steady']:.1f} s); overhead {100 * result['overhead']:+.1f} %; load average "
+          f"{min(loads):.1f}–{max(loads):.1f}")
     return result
 
 
@@ -233,6 +238,8 @@ def main(argv=None) -> int:
                    help="local clusters as the first Dask release started them (spawned workers, Dask's "
                         "event-loop intervals, idle while they start), to measure what the fork server, "
                         "quieter loops and working during start-up gain")
+    p.add_argument("--compare-first-release", action="store_true",
+                   help="with --overhead-only: a third arm, the first release's cluster settings, interleaved too")
     p.add_argument("--arm", choices=("old", "dask", "dask-steady"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.first_release_settings:
@@ -249,7 +256,8 @@ def main(argv=None) -> int:
         print(f"3. overhead, {args.throughput} NMPC experiments, old pool and Dask interleaved"
               + (" (first release's cluster settings)" if args.first_release_settings else ""), flush=True)
         out["overhead_only"] = overhead_only(args.throughput, args.repeats,
-                                             extra=["--first-release-settings"] if args.first_release_settings else [])
+                                             extra=["--first-release-settings"] if args.first_release_settings else [],
+                                             compare_first_release=args.compare_first_release)
         if args.json:
             args.json.write_text(json.dumps(out, indent=2, default=str))
         return 0
