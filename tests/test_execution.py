@@ -145,21 +145,6 @@ def test_results_in_task_order_and_callbacks_as_they_finish(cluster):
     assert os.getpid() not in {r[0] for r in results}
 
 
-def slow_pid(x):
-    time.sleep(0.3)
-    return os.getpid(), x
-
-
-def test_tasks_run_here_while_the_local_cluster_starts():
-    with Execution(workers=2) as execution:
-        results = execution.map(slow_pid, [(k,) for k in range(12)], progress=False)
-        workers = set(execution.client.run(os.getpid).values())
-    assert [r[1] for r in results] == list(range(12))
-    pids = {r[0] for r in results}
-    assert os.getpid() in pids  # the first tasks, while the workers started
-    assert pids - {os.getpid()} <= workers and pids & workers  # the rest on the cluster
-
-
 def test_shared_arguments_reach_every_task(cluster):
     big = list(range(1000))
     assert cluster.map(length_of, [(Shared(big), k) for k in range(3)], progress=False) == [1000, 1001, 1002]

@@ -77,8 +77,6 @@ FORKSERVER_PRELOAD = ("distributed", "numpy", "pandas", "pyarrow", "pyarrow.parq
                       "excavator_payload.execution", "excavator_payload.simulation.generate",
                       "excavator_payload.simulation.nmpc", "excavator_payload.simulation.minimum_jerk",
                       "excavator_payload.simulation.machine_sim")
-#: While a local cluster starts, the first tasks of its first job run in this process.
-START_WHILE_RUNNING = True
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT = 20.0
 #: Environment variable: seconds to wait for a first worker on an existing scheduler.
@@ -391,52 +389,9 @@ class Execution:
             self._map_on_cluster(function, tasks, finished)
         return results
 
-    def _run_while_starting(self, function, tasks, finished) -> list[int]:
-        """Start the local cluster in the background and run tasks here meanwhile, in order,
-        until it is up; returns the indices of the tasks left for the cluster.
-
-        A command would otherwise sit idle for the 1–3 s the workers take to start (the pool
-        used before forked its workers in milliseconds). The results are the same wherever a
-        task runs.
-        """
-        if LOCAL_START_METHOD == "forkserver":
-            # Started here, in the main thread, while Ctrl-C is ignored: the server and the
-            # workers forked from it inherit that (a terminal's Ctrl-C is for the command).
-            import multiprocessing.forkserver
-
-            _prepare_forkserver()
-            with _interrupts_ignored():
-                multiprocessing.forkserver.ensure_running()
-        outcome: dict[str, Any] = {}
-
-        def start() -> None:
-            try:
-                outcome["client"] = self._connect()
-            except BaseException as exc:  # noqa: BLE001 - handed to the main thread
-                outcome["error"] = exc
-
-        starter = threading.Thread(target=start, name="excavator-payload cluster start", daemon=True)
-        starter.start()
-        remaining = list(range(len(tasks)))
-        try:
-            # Leave at least one task per worker: the cluster is started anyway.
-            while len(remaining) > self.workers and starter.is_alive():
-                index = remaining.pop(0)
-                finished(index, function(*(a.value if isinstance(a, Shared) else a for a in tasks[index])))
-        finally:
-            starter.join()
-            if "client" in outcome:
-                self._client = outcome["client"]  # closed with this object, whatever happens next
-        if "error" in outcome:
-            raise outcome["error"]
-        return remaining
-
     def _map_on_cluster(self, function, tasks, finished) -> None:
         from distributed import as_completed
 
-        indices = list(range(len(tasks)))
-        if self._client is None and self.scheduler is None and START_WHILE_RUNNING:
-            indices = self._run_while_starting(function, tasks, finished)
         client = self.client
         scattered: dict[int, Any] = {}
 
@@ -451,8 +406,7 @@ class Execution:
         futures = {}
         name = getattr(function, "__name__", "task")
         try:
-            for index in indices:
-                task = tasks[index]
+            for index, task in enumerate(tasks):
                 future = client.submit(_run_task, function, *(resolve(a) for a in task), pure=False,
                                        retries=self.retries, key=f"{name}-{index}-{uuid.uuid4().hex}")
                 futures[future] = index
