@@ -59,13 +59,10 @@ DEFAULT_RETRIES = 2
 #: check every 1 s instead of 20 ms, the system and memory monitors every 1 s instead of 0.5 and
 #: 0.1 s; measured, this cuts a worker's CPU outside its task from 3–5 % to ~1 %, and these
 #: CPU-bound tasks lose every wake-up (the worker's threads share one interpreter lock).
-#: Worker saturation 1.0: a worker is given a new task only when it is free, so that at the
-#: end of a job no task waits behind another on a busy worker while a second worker idles.
 LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
                        "distributed.admin.tick.interval": "1s",
                        "distributed.admin.system-monitor.interval": "1s",
-                       "distributed.worker.memory.monitor-interval": "1s",
-                       "distributed.scheduler.worker-saturation": 1.0}
+                       "distributed.worker.memory.monitor-interval": "1s"}
 #: How local worker processes start. ``forkserver`` (Linux): forked from one clean server process
 #: that has imported :data:`FORKSERVER_PRELOAD` once, instead of each worker starting a new
 #: interpreter and importing them itself (``spawn``, Dask's default). Forked from a server
