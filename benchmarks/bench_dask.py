@@ -16,6 +16,11 @@ Measures
 Usage::
 
     python benchmarks/bench_dask.py [--bits 40] [--throughput 400] [--repeats 2] [--json out.json]
+    python benchmarks/bench_dask.py --overhead-only [--throughput 400] [--repeats 3] [--first-release-settings]
+
+``--overhead-only`` measures 3. alone, interleaving the old pool and the Dask layer (ABAB…) so
+that a shared machine's changing load hits both alike, each run a fresh process as a user's
+command (interpreter, imports, start-up included), and reports medians and load averages.
 
 Every cluster's start-up is included in its wall time (a user pays it), except in the
 "steady" figures, measured on a cluster that has already simulated once.
@@ -127,12 +132,11 @@ class CommandLineCluster:
 
 
 def one_worker_cluster():
-    """A Dask LocalCluster of exactly one worker process (``Execution(workers=1)`` would run in
-    this process instead)."""
-    from distributed import LocalCluster
+    """A Dask LocalCluster of exactly one worker process, started as the layer starts its own
+    (``Execution(workers=1)`` would run in this process instead)."""
+    from excavator_payload.execution import start_local_cluster
 
-    return LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
-                        silence_logs=40)
+    return start_local_cluster(1)
 
 
 class _null:
@@ -151,10 +155,83 @@ def cpu_seconds() -> float:
     return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
+def own_cpu_seconds() -> float:
+    """User + system CPU time of this process only."""
+    import resource
+
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    return me.ru_utime + me.ru_stime
+
+
 def peak_rss_mb() -> float:
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def median(values):
+    ordered = sorted(values)
+    middle = len(ordered) // 2
+    return ordered[middle] if len(ordered) % 2 else (ordered[middle - 1] + ordered[middle]) / 2
+
+
+def run_arm(arm: str, n: int, workers: int = 2) -> float:
+    """One arm of the overhead comparison in this (fresh) process; returns the steady time of a
+    second run for ``dask-steady``, else 0."""
+    if arm == "old":
+        old_pool_simulate(n, workers)
+        return 0.0
+    with Execution(workers=workers) as ex:
+        simulate_on(ex, n)
+        return timed(lambda: simulate_on(ex, n))[1] if arm == "dask-steady" else 0.0
+
+
+def _arm_in_subprocess(arm: str, n: int, extra: list[str]) -> tuple[float, float]:
+    """Wall time of ``arm`` run as its own command, as a user runs ``simulate`` (interpreter
+    start, imports and cluster start-up included), and the steady time it printed.
+
+    No CPU seconds here: workers forked by a fork server are not this process's descendants
+    once the server outlives the command, so their CPU time would go uncounted.
+    """
+    start = time.perf_counter()
+    done = subprocess.run([sys.executable, __file__, "--arm", arm, "--throughput", str(n), *extra],
+                          capture_output=True, text=True, check=True)
+    return time.perf_counter() - start, float(done.stdout.strip().splitlines()[-1])
+
+
+def overhead_only(n: int, repeats: int, workers: int = 2, extra: list[str] | None = None,
+                  compare_first_release: bool = False) -> dict:
+    """The old pool and the Dask layer at ``workers`` workers, interleaved ABAB…; medians.
+
+    Each arm is a fresh process, as a user's ``simulate`` command: "old pool" and "dask" are
+    its whole wall time (interpreter, imports, pool or cluster start-up, simulation);
+    "dask steady" is a second simulation on the same, already warm cluster (a process of its own).
+    """
+    extra = list(extra or [])
+    arms = [("old", "old pool", []), ("dask", "dask", extra)]
+    if compare_first_release:
+        arms.append(("dask", "dask first release", ["--first-release-settings"]))
+    times: dict[str, list[float]] = {name: [] for _, name, _ in arms}
+    times["dask steady"] = []
+    loads = []
+    for repeat in range(repeats):
+        for arm, name, flags in arms:
+            loads.append(os.getloadavg()[0])
+            times[name].append(_arm_in_subprocess(arm, n, flags)[0])
+        times["dask steady"].append(_arm_in_subprocess("dask-steady", n, extra)[1])
+        print(f"   repeat {repeat + 1}: " + ", ".join(f"{k} {v[-1]:.1f} s" for k, v in times.items())
+              + f", load {loads[-1]:.1f}", flush=True)
+    med = {k: median(v) for k, v in times.items()}
+    result = {"experiments": n, "workers": workers, "repeats": repeats, "times_s": times, "median_s": med,
+              "load_averages": loads, "overhead": med["dask"] / med["old pool"] - 1}
+    if compare_first_release:
+        result["overhead_first_release"] = med["dask first release"] / med["old pool"] - 1
+        print(f"   first release's settings: {med['dask first release']:.1f} s, "
+              f"overhead {100 * result['overhead_first_release']:+.1f} %")
+    print(f"   medians: old pool {med['old pool']:.1f} s, dask {med['dask']:.1f} s (second run on a warm "
+          f"cluster: {med['dask steady']:.1f} s); overhead {100 * result['overhead']:+.1f} %; load average "
+          f"{min(loads):.1f}–{max(loads):.1f}")
+    return result
 
 
 def main(argv=None) -> int:
@@ -163,8 +240,33 @@ def main(argv=None) -> int:
     p.add_argument("--throughput", type=int, default=400, help="experiments of the timing runs")
     p.add_argument("--repeats", type=int, default=2, help="timing runs of each setup (best is kept)")
     p.add_argument("--json", type=Path, help="write the results here")
+    p.add_argument("--overhead-only", action="store_true",
+                   help="only the overhead against the old pool, interleaved, medians of --repeats")
+    p.add_argument("--first-release-settings", action="store_true",
+                   help="local clusters as the first Dask release started them (spawned workers, Dask's "
+                        "event-loop intervals), to measure what the fork server and quieter loops gain")
+    p.add_argument("--compare-first-release", action="store_true",
+                   help="with --overhead-only: a third arm, the first release's cluster settings, interleaved too")
+    p.add_argument("--arm", choices=("old", "dask", "dask-steady"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    if args.first_release_settings:
+        from excavator_payload import execution
+
+        execution.LOCAL_START_METHOD = "spawn"
+        execution.LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+    if args.arm:
+        print(run_arm(args.arm, args.throughput))
+        return 0
     out: dict = {"load_average_before": os.getloadavg(), "cores": os.cpu_count()}
+    if args.overhead_only:
+        print(f"3. overhead, {args.throughput} NMPC experiments, old pool and Dask interleaved"
+              + (" (first release's cluster settings)" if args.first_release_settings else ""), flush=True)
+        out["overhead_only"] = overhead_only(args.throughput, args.repeats,
+                                             extra=["--first-release-settings"] if args.first_release_settings else [],
+                                             compare_first_release=args.compare_first_release)
+        if args.json:
+            args.json.write_text(json.dumps(out, indent=2, default=str))
+        return 0
 
     # 1. same bits
     print(f"1. same bits, {args.bits} NMPC experiments (seed {SEED})", flush=True)
@@ -199,7 +301,9 @@ def main(argv=None) -> int:
         record("in-process (no cluster)", wall, cpu_seconds() - c0)
         for workers in (1, 2):
             name = f"dask {workers} worker{'s' if workers > 1 else ''}"
-            c0, start = cpu_seconds(), time.perf_counter()
+            # The workers' CPU is read from them: forked by a fork server, they are not this
+            # process's children, whose CPU time the operating system would add up.
+            c0, start = own_cpu_seconds(), time.perf_counter()
             with (one_worker_cluster() if workers == 1 else _null()) as cluster, \
                     Execution(cluster.scheduler_address if workers == 1 else None, workers=workers) as ex:
                 simulate_on(ex, n)
@@ -207,8 +311,9 @@ def main(argv=None) -> int:
                 steady = timed(lambda: simulate_on(ex, n))[1]
                 if workers == 2:
                     rss = ex.client.run(peak_rss_mb)
-            c1 = cpu_seconds()
-            record(name, first, (c1 - c0) / 2)  # CPU per run of n (start-up shared by the two runs)
+                worker_cpu = sum(ex.client.run(time.process_time).values())
+            c1 = own_cpu_seconds()
+            record(name, first, (c1 - c0 + worker_cpu) / 2)  # CPU per run of n (start-up shared by the two runs)
             times.setdefault(name + " steady", []).append(steady)
         c0, (_, wall) = cpu_seconds(), timed(lambda: old_pool_simulate(n, 2))
         record("old pool 2 workers", wall, cpu_seconds() - c0)

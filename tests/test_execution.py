@@ -15,7 +15,16 @@ import pandas as pd
 import pytest
 
 import excavator_payload
-from excavator_payload.execution import SCHEDULER_ENV, Execution, SchedulerError, Shared, scheduler_address
+from excavator_payload.errors import ExcavatorPayloadError
+from excavator_payload.execution import (
+    SCHEDULER_ENV,
+    WORKER_TIMEOUT_ENV,
+    Execution,
+    SchedulerError,
+    Shared,
+    scheduler_address,
+    worker_timeout,
+)
 from excavator_payload.simulation.generate import simulate_dataset
 
 SRC = str(Path(excavator_payload.__file__).resolve().parents[1])
@@ -36,6 +45,20 @@ def fail_first_time(marker):
     if not marker.exists():
         marker.write_text("failed once")
         raise RuntimeError("transient failure")
+    return "ok"
+
+
+class BadInput(ExcavatorPayloadError):
+    """A user error raised inside a task."""
+
+
+def bad_input_counted(log, bad):
+    """Appends a line to ``log`` at every call; raises a user error if ``bad``."""
+    with open(log, "a") as fh:
+        fh.write("call\n")
+    if bad:
+        raise BadInput("experiment 7: the payload column is missing")
+    time.sleep(0.5)
     return "ok"
 
 
@@ -132,6 +155,13 @@ def test_a_failing_task_is_retried(cluster, tmp_path):
                        progress=False) == ["ok", "ok"]
 
 
+def test_a_user_error_fails_at_once_without_retries(cluster, tmp_path):
+    log = tmp_path / "calls"
+    with pytest.raises(BadInput, match="^experiment 7: the payload column is missing$"):
+        cluster.map(bad_input_counted, [(str(log), True), (str(tmp_path / "other"), False)], progress=False)
+    assert log.read_text().count("call") == 1  # run once, not 1 + retries times
+
+
 def test_a_task_whose_worker_dies_is_rerun(cluster, tmp_path):
     marker = tmp_path / "died"
     pids = cluster.map(die_first_time, [(str(marker),), (str(tmp_path / "other"),)], progress=False)
@@ -176,17 +206,62 @@ def test_workers_die_with_a_killed_parent(tmp_path):
 
 
 # -- a cluster started from the command line -----------------------------------------------------
+def _start_scheduler(tmp_path, env) -> tuple[subprocess.Popen, str]:
+    """``dask scheduler`` in a subprocess; returns it and its address."""
+    address_file = tmp_path / "scheduler.json"
+    proc = subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0",
+                             "--no-dashboard", "--scheduler-file", str(address_file)],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 30
+    while not address_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return proc, json.loads(address_file.read_text())["address"]
+
+
+def _stop(procs) -> None:
+    for p in reversed(procs):
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
+def test_worker_timeout_from_argument_or_environment(monkeypatch):
+    monkeypatch.delenv(WORKER_TIMEOUT_ENV, raising=False)
+    assert worker_timeout() == 60.0
+    monkeypatch.setenv(WORKER_TIMEOUT_ENV, "2.5")
+    assert worker_timeout() == 2.5 and Execution(workers=1).worker_timeout == 2.5
+    assert worker_timeout(7) == 7.0
+    monkeypatch.setenv(WORKER_TIMEOUT_ENV, "soon")
+    with pytest.raises(SchedulerError, match=WORKER_TIMEOUT_ENV):
+        worker_timeout()
+    with pytest.raises(SchedulerError, match="positive"):
+        worker_timeout(0)
+
+
+def test_a_scheduler_without_workers_times_out_with_one_line(tmp_path):
+    proc, address = _start_scheduler(tmp_path, dict(os.environ))
+    try:
+        start = time.monotonic()
+        with Execution(address, worker_timeout=2.0) as execution, \
+                pytest.raises(SchedulerError) as caught:
+            execution.map(pid_and_square, [(1,), (2,)], progress=False)
+        assert time.monotonic() - start < 20
+    finally:
+        _stop([proc])
+    message = str(caught.value)
+    assert "\n" not in message
+    assert f"no worker joined {address} within 2 s" in message
+    assert f"dask worker {address} --nthreads 1" in message
+
+
 def test_same_bits_on_a_scheduler_and_worker_started_with_the_dask_command(tmp_path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([SRC, os.environ.get("PYTHONPATH", "")])}
-    address_file = tmp_path / "scheduler.json"
-    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0",
-                               "--no-dashboard", "--scheduler-file", str(address_file)],
-                              env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    proc, address = _start_scheduler(tmp_path, env)
+    procs = [proc]
     try:
-        deadline = time.monotonic() + 30
-        while not address_file.exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
-        address = json.loads(address_file.read_text())["address"]
         procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nworkers", "2",
                                        "--nthreads", "1", "--no-dashboard"],
                                       env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
@@ -196,13 +271,7 @@ def test_same_bits_on_a_scheduler_and_worker_started_with_the_dask_command(tmp_p
                                      execution=execution)
             assert os.getpid() not in execution.client.run(os.getpid).values()
     finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        _stop(procs)
     here = simulate_dataset(3, seed=31, workers=1, noise="thesis", with_truth=True, progress=False)
     pd.testing.assert_frame_equal(here.frame, there.frame, check_exact=True)
     assert here.meta["experiments"][0]["payload"] == there.meta["experiments"][0]["payload"]

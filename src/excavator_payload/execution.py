@@ -14,14 +14,23 @@ Where the tasks run
   importable, e.g. installed in the same environment).
 * otherwise: a local cluster of worker processes, one single-threaded worker per core (or
   ``workers``), started on first use and shut down when the :class:`Execution` closes. Dask's
-  worker processes watch their parent: they exit with it, even after ``kill -9``.
+  worker processes watch their parent: they exit with it, even after ``kill -9``. On Linux they
+  are forked from a fork server that has imported Dask and the simulators once
+  (:data:`LOCAL_START_METHOD`), and their event loops wake seldom (:data:`LOCAL_WORKER_CONFIG`):
+  see ``benchmarks/bench_dask.py`` for what that gains against the pool used before.
 * a job of one task, or ``workers=1`` without a scheduler, runs in this process: starting a
   cluster costs 1–3 s, more than small jobs take.
 
 A task lost with a dead worker is run again on another one (Dask does that); a task that raises
-is retried ``retries`` times before its error reaches the caller. Results never depend on where
-or in which order tasks run: the tasks themselves must be deterministic functions of their
-arguments (every simulated experiment draws from its own random streams).
+is retried ``retries`` times before its error reaches the caller, except for a user error (an
+:class:`~excavator_payload.errors.ExcavatorPayloadError`: bad input fails the same way every
+time), which stops the job at once with its one line. Results never depend on where or in which
+order tasks run: the tasks themselves must be deterministic functions of their arguments (every
+simulated experiment draws from its own random streams).
+
+An existing scheduler with no worker would hold the tasks forever: the job waits
+:data:`DEFAULT_WORKER_TIMEOUT` seconds (``worker_timeout``, or ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``)
+for a first worker to join, then stops with one line saying how to start one.
 """
 
 from __future__ import annotations
@@ -29,7 +38,9 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import sys
 import threading
+import uuid
 import warnings
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -43,15 +54,74 @@ log = logging.getLogger(__name__)
 SCHEDULER_ENV = "EXCAVATOR_PAYLOAD_SCHEDULER"
 #: How often a task that raised is run again before its error reaches the caller.
 DEFAULT_RETRIES = 2
-#: Dask settings of the local workers: no statistical profiler (it samples the task's stack
-#: every 10 ms, a cost for the Python-heavy NMPC loop, for a dashboard nobody looks at).
-LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+#: Dask settings of the local cluster. Its event loops wake less often: no statistical profiler
+#: (it samples the task's stack every 10 ms, for a dashboard nobody looks at), the blocked-loop
+#: check every 1 s instead of 20 ms, the system and memory monitors every 1 s instead of 0.5 and
+#: 0.1 s; measured, this cuts a worker's CPU outside its task from 3–5 % to ~1 %, and these
+#: CPU-bound tasks lose every wake-up (the worker's threads share one interpreter lock).
+LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
+                       "distributed.admin.tick.interval": "1s",
+                       "distributed.admin.system-monitor.interval": "1s",
+                       "distributed.worker.memory.monitor-interval": "1s"}
+#: How local worker processes start. ``forkserver`` (Linux): forked from one clean server process
+#: that has imported :data:`FORKSERVER_PRELOAD` once, instead of each worker starting a new
+#: interpreter and importing them itself (``spawn``, Dask's default). Forked from a server
+#: with no threads, not from this process (whose threads could hold locks at the fork).
+LOCAL_START_METHOD = "forkserver" if sys.platform.startswith("linux") else "spawn"
+#: Modules the fork server imports for every local worker: Dask and what a simulation chunk
+#: needs (the estimators' torch is left out: simulations do not need it and it takes ~1–2 s).
+FORKSERVER_PRELOAD = ("distributed", "numpy", "pandas", "pyarrow", "pyarrow.parquet", "scipy", "casadi",
+                      "excavator_payload.execution", "excavator_payload.simulation.generate",
+                      "excavator_payload.simulation.nmpc", "excavator_payload.simulation.minimum_jerk",
+                      "excavator_payload.simulation.machine_sim")
 #: Seconds to wait for an existing scheduler to answer.
 CONNECT_TIMEOUT = 20.0
+#: Environment variable: seconds to wait for a first worker on an existing scheduler.
+WORKER_TIMEOUT_ENV = "EXCAVATOR_PAYLOAD_WORKER_TIMEOUT"
+#: Seconds to wait for a first worker to join an existing scheduler that has none.
+DEFAULT_WORKER_TIMEOUT = 60.0
 
 
 class SchedulerError(ExcavatorPayloadError):
-    """A scheduler address is malformed or the scheduler cannot be reached."""
+    """A scheduler address is malformed, the scheduler cannot be reached or no worker joins it."""
+
+
+def worker_timeout(seconds: float | None = None) -> float:
+    """Seconds to wait for a first worker: ``seconds``, else ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``,
+    else :data:`DEFAULT_WORKER_TIMEOUT`.
+
+    Raises
+    ------
+    SchedulerError
+        If the value is not a positive number.
+    """
+    if seconds is None:
+        text = os.environ.get(WORKER_TIMEOUT_ENV, "").strip()
+        if not text:
+            return DEFAULT_WORKER_TIMEOUT
+        try:
+            seconds = float(text)
+        except ValueError:
+            raise SchedulerError(f"${WORKER_TIMEOUT_ENV} must be a number of seconds, got {text!r}") from None
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)) or not seconds > 0 \
+            or seconds == float("inf"):
+        raise SchedulerError(f"the worker timeout must be a positive number of seconds, got {seconds!r}")
+    return float(seconds)
+
+
+@dataclass(frozen=True)
+class _UserError:
+    """What a task returns instead of raising a user error, so that Dask does not retry it."""
+
+    error: BaseException
+
+
+def _run_task(function: Callable, *args):
+    """Run one task on a worker; a user error comes back as a result (see :class:`_UserError`)."""
+    try:
+        return function(*args)
+    except ExcavatorPayloadError as exc:
+        return _UserError(exc)
 
 
 @dataclass(frozen=True)
@@ -94,6 +164,36 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _prepare_forkserver() -> None:
+    """Tell the fork server (started with the first local worker) what to import."""
+    import dask
+    from distributed.utils import get_mp_context
+
+    with dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"}):
+        context = get_mp_context()  # Dask sets its own preload list once; ours replaces it
+    context.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+
+
+def start_local_cluster(workers: int):
+    """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes, started the way
+    this layer starts them (:data:`LOCAL_START_METHOD`, :data:`LOCAL_WORKER_CONFIG`, workers that
+    ignore Ctrl-C); close it when done."""
+    import dask
+    from distributed import LocalCluster
+
+    _quiet_dask()
+    config = dict(LOCAL_WORKER_CONFIG)
+    if LOCAL_START_METHOD == "forkserver":
+        config["distributed.worker.multiprocessing-method"] = "forkserver"
+        _prepare_forkserver()
+    with warnings.catch_warnings(), dask.config.set(config), _interrupts_ignored():
+        # Without a dashboard the scheduler still serves health checks, on another port if
+        # 8787 is taken (a second cluster): nothing the user needs to hear about.
+        warnings.filterwarnings("ignore", message="Port .* is already in use")
+        return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+                            silence_logs=logging.ERROR, preload=[__name__])
 
 
 @contextmanager
@@ -139,17 +239,22 @@ class Execution:
     workers : int, optional
         Worker processes of the local cluster (default: one per core). Ignored with a scheduler.
     retries : int
-        Times a task that raised is run again.
+        Times a task that raised is run again (never for an ``ExcavatorPayloadError``).
+    worker_timeout : float, optional
+        Seconds to wait for a first worker on an existing scheduler that has none (default
+        ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``, else :data:`DEFAULT_WORKER_TIMEOUT`).
     """
 
     scheduler: str | None = None
     workers: int | None = None
     retries: int = DEFAULT_RETRIES
+    worker_timeout: float | None = None
     _client: Any = field(default=None, init=False, repr=False)
     _cluster: Any = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.scheduler = scheduler_address(self.scheduler)
+        self.worker_timeout = worker_timeout(self.worker_timeout)
         if self.workers is not None and (isinstance(self.workers, bool) or not isinstance(self.workers, int)
                                          or self.workers < 1):
             raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {self.workers!r}")
@@ -200,23 +305,25 @@ class Execution:
 
     def _connect(self):
         _quiet_dask()
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         if self.scheduler:
             try:
-                return Client(self.scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
+                client = Client(self.scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError) as exc:
                 raise SchedulerError(f"cannot reach the Dask scheduler at {self.scheduler}: "
                                      f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
-        import dask
-
-        with warnings.catch_warnings(), dask.config.set(LOCAL_WORKER_CONFIG), _interrupts_ignored():
-            # Without a dashboard the scheduler still serves health checks, on another port if
-            # 8787 is taken (a second cluster): nothing the user needs to hear about.
-            warnings.filterwarnings("ignore", message="Port .* is already in use")
-            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None, silence_logs=logging.ERROR,
-                                         preload=[__name__])
+            try:
+                # Tasks sent to a scheduler without workers would wait forever.
+                client.wait_for_workers(1, timeout=self.worker_timeout)
+            except (OSError, TimeoutError):
+                client.close()
+                raise SchedulerError(
+                    f"no worker joined {self.scheduler} within {self.worker_timeout:g} s; start one with "
+                    f"`dask worker {self.scheduler} --nthreads 1` (or wait longer: ${WORKER_TIMEOUT_ENV})"
+                ) from None
+            return client
+        self._cluster = start_local_cluster(self.workers)
         return Client(self._cluster, set_as_default=False)
 
     # -- running ------------------------------------------------------------------------------
@@ -294,14 +401,18 @@ class Execution:
             return scattered[id(arg.value)]
 
         futures = {}
+        name = getattr(function, "__name__", "task")
         try:
             for index, task in enumerate(tasks):
-                future = client.submit(function, *(resolve(a) for a in task), pure=False,
-                                       retries=self.retries)
+                future = client.submit(_run_task, function, *(resolve(a) for a in task), pure=False,
+                                       retries=self.retries, key=f"{name}-{index}-{uuid.uuid4().hex}")
                 futures[future] = index
             for future in as_completed(list(futures), loop=client.loop):
                 index = futures[future]
-                finished(index, future.result())
+                result = future.result()
+                if isinstance(result, _UserError):
+                    raise result.error
+                finished(index, result)
         except BaseException:
             # Ctrl-C or a task that failed for good: stop the rest; the finished ones are kept.
             try:

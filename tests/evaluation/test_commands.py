@@ -91,3 +91,63 @@ def test_report_command(files):
     assert (out / "report.md").is_file()
     assert main(["report", "--data", str(data), "--estimates", str(plus10), "--out", str(out),
                  "--experiments", "0,999"]) == 2
+
+
+# -- big datasets on the execution layer ----------------------------------------------------------
+def _fitted(name, machine, data, **options):
+    from excavator_payload.errors import EstimatorError
+    from excavator_payload.estimators.base import create_estimator
+
+    try:
+        est = create_estimator(name, machine, **options)
+    except EstimatorError as exc:
+        pytest.skip(f"{name} not available: {exc}")
+    return est.fit(data)
+
+
+def test_a_big_dataset_is_estimated_on_the_workers_with_the_same_estimates(mj_dataset, monkeypatch):
+    from excavator_payload.evaluation import commands
+    from excavator_payload.execution import Execution
+
+    train = mj_dataset.subset(mj_dataset.experiment_ids[:4])
+    estimators = [_fitted("inverse-dynamics", "cat345c", train), _fitted("ekf", "cat345c", train, tuning="thesis"),
+                  _fitted("net1", None, train, epochs=2, hidden="4", train_experiments=3, validation_experiments=1)]
+    with Execution(workers=2) as execution:
+        # 20 experiments of a fast estimator: estimated here (no cluster started)
+        small = commands.estimate_in_chunks(estimators[0], mj_dataset, chunk=3, execution=execution)
+        assert execution._client is None
+        pd.testing.assert_frame_equal(small, estimators[0].estimate(mj_dataset), check_exact=True)
+        monkeypatch.setattr(commands, "PARALLEL_MIN_SECONDS", 0.0)
+        for est in estimators:
+            here = est.estimate(mj_dataset)
+            there = commands.estimate_in_chunks(est, mj_dataset, chunk=3, execution=execution)
+            pd.testing.assert_frame_equal(there, here, check_exact=True, obj=est.name)
+        assert execution._cluster is not None  # it did run on worker processes
+        pids = execution.client.run(lambda: __import__("os").getpid())
+        assert len(pids) == 2
+
+
+def test_estimate_command_on_workers(files, mj_dataset, monkeypatch, capsys):
+    from excavator_payload.data.io import read_estimates
+    from excavator_payload.evaluation import commands
+
+    d, data, _, _ = files
+    _fitted("inverse-dynamics", "cat345c", mj_dataset.subset(mj_dataset.experiment_ids[:2])).save(d / "idyn2")
+    assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e1.parquet"),
+                 "--workers", "1"]) == 0
+    monkeypatch.setattr(commands, "PARALLEL_MIN_SECONDS", 0.0)
+    real, calls = commands._estimate_on_layer, []
+
+    def spy(*args):
+        calls.append(args[3])  # the execution layer the command opened
+        return real(*args)
+
+    monkeypatch.setattr(commands, "_estimate_on_layer", spy)
+    assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e2.parquet"),
+                 "--workers", "2", "--quiet"]) == 0
+    pd.testing.assert_frame_equal(read_estimates(d / "e1.parquet"), read_estimates(d / "e2.parquet"),
+                                  check_exact=True)
+    assert len(calls) == 1 and calls[0].workers == 2
+    assert "estimating" in capsys.readouterr().out  # the progress bar of the first run
+    assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e3.parquet"),
+                 "--workers", "-1"]) == 2

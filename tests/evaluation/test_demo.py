@@ -79,3 +79,32 @@ def test_bad_demo_options_are_clear(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--scale", "tiny", "--motion", "teleport"]) == 2
     assert main(["demo", "--out", str(tmp_path), "--scale", "tiny", "--only", "Net9"]) == 2
     assert "Traceback" not in capsys.readouterr().err
+
+
+def test_one_execution_layer_for_every_simulated_chunk(tmp_path, monkeypatch):
+    """The demo's datasets are cut into cached chunks: they share one execution layer (one local
+    cluster), not one each."""
+    import dataclasses
+
+    real = demo_module.simulate_dataset
+    used = []
+
+    def recording(*args, **kwargs):
+        used.append(kwargs.get("execution"))
+        return real(*args, **kwargs)
+
+    made = []
+
+    class Counted(demo_module.Execution):
+        def __post_init__(self):
+            made.append(self)
+            super().__post_init__()
+
+    monkeypatch.setattr(demo_module, "simulate_dataset", recording)
+    monkeypatch.setattr(demo_module, "Execution", Counted)
+    monkeypatch.setattr(demo_module, "ROSTER", (Entry("inverse-dynamics", "inverse-dynamics"),))
+    monkeypatch.setitem(demo_module.SCALES, "tiny", dataclasses.replace(demo_module.SCALES["tiny"], chunk=4))
+    run_demo(tmp_path, scale="tiny", motion="minimum-jerk", seed=5)
+    assert len(used) == 5  # 8 train, 4 validation, 6 test experiments in chunks of at most 4
+    assert len(made) == 1 and all(execution is made[0] for execution in used)
+    assert made[0]._client is None and made[0]._cluster is None  # closed

@@ -1,6 +1,12 @@
 """Studies: the grid of a study file, per-experiment results, reuse of computed cells, the report."""
 
+import os
+import shutil
+import subprocess
+import sys
 import tomllib
+import zipfile
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +17,13 @@ from excavator_payload.cli import main
 from excavator_payload.evaluation import study as study_module
 from excavator_payload.evaluation.metrics import evaluate_estimates
 from excavator_payload.evaluation.study import (
-    SHIPPED_STUDIES,
     StudyError,
     data_specs,
     load_study,
+    find_study,
     parse_study,
     run_study,
+    shipped_studies,
 )
 from excavator_payload.execution import Execution
 
@@ -81,12 +88,47 @@ def test_missing_and_malformed_files(tmp_path):
         load_study(_write(tmp_path, "name = [unclosed"))
 
 
+SHIPPED = {"full_grid", "network_robustness", "calibration_curve", "frozen_noise"}
+
+
 def test_shipped_studies_parse():
-    names = sorted(p.stem for p in SHIPPED_STUDIES.glob("*.toml"))
-    assert {"full_grid", "network_robustness", "calibration_curve", "frozen_noise"} <= set(names)
+    shipped = shipped_studies()
+    assert SHIPPED <= set(shipped)
+    # They are package resources, not files found next to the sources.
+    package = resources.files("excavator_payload")
+    assert all(Path(str(f)).parent == Path(str(package / "studies")) for f in shipped.values())
+    assert find_study("full_grid.toml").read_text() == find_study("full_grid").read_text()
     full = load_study("full_grid")  # found by name
     assert len(full.axes["estimator"]) == 10 and len(full.axes["noise"]) == 3 and len(full.axes["motion"]) == 3
     assert {c.test_experiments for c in full.cells} == {200}
+
+
+def test_shipped_studies_are_in_the_wheel(tmp_path):
+    """A wheel built from the sources carries the study files, and an installed copy of it
+    resolves them by name (``study --config full_grid`` after ``pip install .``)."""
+    pytest.importorskip("setuptools")
+    pytest.importorskip("wheel")
+    root = Path(__file__).resolve().parents[2]
+    source = tmp_path / "source"  # a copy: building writes build/ and *.egg-info next to the sources
+    shutil.copytree(root / "src", source / "src", ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    shutil.copy(root / "pyproject.toml", source)
+    shutil.copy(root / "README.md", source)
+    built = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q",
+                            "-w", str(tmp_path / "wheel"), str(source)], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr[-2000:]
+    wheel = next((tmp_path / "wheel").glob("*.whl"))
+    names = set(zipfile.ZipFile(wheel).namelist())
+    assert {f"excavator_payload/studies/{name}.toml" for name in SHIPPED} <= names
+    installed = tmp_path / "installed"
+    zipfile.ZipFile(wheel).extractall(installed)  # a pure-Python wheel installs by unpacking
+    check = ("import excavator_payload, sys; from excavator_payload.evaluation.study import find_study; "
+             "assert excavator_payload.__file__.startswith(sys.argv[1]), excavator_payload.__file__; "
+             "print(find_study('full_grid').read_text(), end='')")
+    env = {**os.environ, "PYTHONPATH": str(installed)}
+    ran = subprocess.run([sys.executable, "-c", check, str(installed)], capture_output=True, text=True,
+                         cwd=tmp_path, env=env)
+    assert ran.returncode == 0, ran.stderr[-2000:]
+    assert ran.stdout == (root / "src/excavator_payload/studies/full_grid.toml").read_text()
 
 
 def test_study_results_reuse_and_report(tmp_path):

@@ -100,13 +100,28 @@ def register(app: typer.Typer) -> None:
         data: Path = typer.Option(..., "--data", help="Dataset to estimate on (Parquet; the true "
                                   "payload column is not needed).", metavar="FILE"),
         out: Path = typer.Option(..., "--out", help="Estimates file to write (Parquet).", metavar="FILE"),
+        workers: int = typer.Option(0, "--workers",
+                                    help="Local worker processes for a big dataset (0 = all cores). The "
+                                         "estimates do not depend on it."),
+        scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
+                                      help="Run on this existing Dask cluster (default: $EXCAVATOR_PAYLOAD_SCHEDULER, "
+                                           "else local worker processes)."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Estimate the payload at every sample: writes experiment, time, payload_estimate, status
-        and sigma (one-sigma uncertainty, kg)."""
+        and sigma (one-sigma uncertainty, kg). A big dataset (more than ~10 s of work) is split by
+        experiment over worker processes (or --scheduler's cluster); a small one is estimated here."""
+        from excavator_payload.evaluation.commands import estimate_in_chunks, progress_bar
+        from excavator_payload.execution import Execution
+
+        if workers < 0:
+            raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
         check_output_path(out, inputs=[data, model])
         est = load_estimator(model)
         dataset = read_dataset(data)
-        frame = est.estimate(dataset)
+        with Execution(scheduler, workers or None) as execution, progress_bar(console) as progress:
+            frame = estimate_in_chunks(est, dataset, None if quiet else progress, f"{est.name}: estimating",
+                                       execution=execution)
         write_estimates(frame, out, meta={"estimator": est.name, "model": str(model),
                                           "data": str(data), "data_fingerprint": dataset.fingerprint()})
         console.print(Text.assemble(f"{est.name}: {len(frame)} estimates ({status_breakdown(frame['status'])}) "

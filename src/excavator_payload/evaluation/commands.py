@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
-import os
 import math
+import os
+import time
 from pathlib import Path
 from typing import Sequence
 
@@ -40,22 +41,66 @@ def progress_bar(console_: Console | None = None) -> Progress:
                     transient=False)
 
 
+#: A dataset goes to the execution layer only if estimating the rest of it here would take
+#: longer than this (extrapolated from its first chunk, which is always estimated here): starting
+#: local workers costs 1–3 s and each worker then imports the estimators (torch: 1–2 s) and
+#: rebuilds the estimator's compiled functions, so two workers gain nothing on less. Measured on
+#: the demo's 200 test experiments (2 cores, loaded): UKF ~5 s, the EKFs ~1 s, the others less,
+#: so a demo-sized test set stays here and 1000+ experiments of the UKF go to the workers.
+PARALLEL_MIN_SECONDS = 10.0
+#: At most this many tasks per dataset on a cluster (bigger chunks for bigger datasets).
+MAX_ESTIMATE_TASKS = 200
+
+
+def estimate_task(estimator, dataset: Dataset) -> pd.DataFrame:
+    """One chunk of experiments estimated on a worker (the unit of work of the execution layer)."""
+    return estimator.estimate(dataset)
+
+
 def estimate_in_chunks(estimator, dataset: Dataset, progress: Progress | None = None,
-                       description: str = "estimating", chunk: int = 10) -> pd.DataFrame:
+                       description: str = "estimating", chunk: int = 10, execution=None) -> pd.DataFrame:
     """``estimator.estimate(dataset)`` a few experiments at a time, advancing a progress bar.
 
-    Estimators reset at every experiment, so chunking gives the same estimates.
+    Estimators reset at every experiment, so chunking gives the same estimates. With an
+    ``execution`` (:class:`~excavator_payload.execution.Execution`), when the first chunk shows
+    that the rest would take more than :data:`PARALLEL_MIN_SECONDS` here, the rest is split by
+    experiment into chunks that run on its workers (the estimator is sent once); the estimates
+    are the same, in the same order.
     """
     ids = list(dataset.experiment_ids)
     task = (progress.add_task(escape(description), total=len(ids))  # labels hold paths: not markup
             if progress is not None else None)
+    parts = [ids[start:start + chunk] for start in range(0, len(ids), chunk)]
     frames = []
-    for start in range(0, len(ids), chunk):
-        part = ids[start:start + chunk]
+    for index, part in enumerate(parts):
+        start = time.perf_counter()
         frames.append(estimator.estimate(dataset.subset(part) if len(ids) > chunk else dataset))
         if progress is not None:
             progress.advance(task, len(part))
+        rest = ids[sum(len(p) for p in parts[:index + 1]):]
+        if index == 0 and execution is not None and rest \
+                and (time.perf_counter() - start) * len(rest) / len(part) > PARALLEL_MIN_SECONDS:
+            frames.extend(_estimate_on_layer(estimator, dataset, rest, execution, progress, task, chunk))
+            break
     return pd.concat(frames, ignore_index=True)
+
+
+def _estimate_on_layer(estimator, dataset: Dataset, ids: list, execution, progress: Progress | None, task,
+                       chunk: int) -> list[pd.DataFrame]:
+    """Experiments ``ids`` of ``dataset`` estimated in chunks through ``execution``, in order."""
+    from excavator_payload.execution import Shared
+
+    chunk = max(chunk, math.ceil(len(ids) / MAX_ESTIMATE_TASKS))
+    parts = [ids[start:start + chunk] for start in range(0, len(ids), chunk)]
+
+    def advance(index, _frame):
+        if progress is not None:
+            progress.advance(task, len(parts[index]))
+
+    # The caller's progress bar is advanced here: the layer's own bar stays off (one live display).
+    shared = Shared(estimator)
+    return execution.map(estimate_task, [(shared, dataset.subset(part)) for part in parts],
+                         on_done=advance, progress=False)
 
 
 def _model_options(model_dir: Path) -> tuple[str | None, dict, str | None]:
@@ -76,8 +121,10 @@ def _unique(label: str, taken: set) -> str:
 
 
 def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: Sequence[Path] = (),
-                     discard: int = DEFAULT_DISCARD, progress: Progress | None = None) -> list[Evaluation]:
-    """Evaluate saved models (run on ``dataset``) and estimates files, in the order given."""
+                     discard: int = DEFAULT_DISCARD, progress: Progress | None = None,
+                     execution=None) -> list[Evaluation]:
+    """Evaluate saved models (run on ``dataset``, through ``execution`` if it is big: see
+    :func:`estimate_in_chunks`) and estimates files, in the order given."""
     from excavator_payload.estimators.base import load_estimator
 
     if not models and not estimates:
@@ -109,7 +156,7 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
         est = load_estimator(model)
         name, options, machine = est.name, est.options, est.machine.name if est.machine else None
         label = _unique(display_label(name, options, machine), taken)
-        frame = estimate_in_chunks(est, dataset, progress, f"{label}: estimating")
+        frame = estimate_in_chunks(est, dataset, progress, f"{label}: estimating", execution=execution)
         window = bound_window(name, options)
         evaluations.append(evaluate_estimates(dataset, frame, label=label, discard=discard, window=window,
                                               bound=bound_for(window),
@@ -196,13 +243,22 @@ def register(app: typer.Typer) -> None:
         discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0,
                                     help="Samples not judged at the start of every experiment (thesis: 81)."),
         json_out: Path = typer.Option(None, "--json", help="Write every figure to this JSON file."),
+        workers: int = typer.Option(0, "--workers",
+                                    help="Local worker processes estimating a big dataset (0 = all cores)."),
+        scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
+                                      help="Estimate on this existing Dask cluster (default: "
+                                           "$EXCAVATOR_PAYLOAD_SCHEDULER, else local worker processes)."),
     ) -> None:
         """Judge estimators on a dataset: MAX/RMS errors (thesis Tables 7.1, 7.2), percentiles, convergence time, share meeting the 1 % requirement, efficiency against the Cramér–Rao bound."""  # noqa: E501
+        from excavator_payload.execution import Execution
+
+        if workers < 0:
+            raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
         if json_out is not None:
             check_output_path(json_out, inputs=[data, *model, *estimates], option="--json")
         dataset = read_dataset(data)
-        with progress_bar() as progress:
-            evaluations = evaluate_sources(dataset, model, estimates, discard, progress)
+        with Execution(scheduler, workers or None) as execution, progress_bar() as progress:
+            evaluations = evaluate_sources(dataset, model, estimates, discard, progress, execution)
         console.print(summary_table(evaluations, f"Payload accuracy on {data} "
                                                  f"({dataset.n_experiments} experiments, first {discard} "
                                                  "samples discarded)"))
@@ -226,9 +282,18 @@ def register(app: typer.Typer) -> None:
                                          help="CSV of the calibrated estimator's accuracy against the number "
                                               "of calibration experiments."),
         title: str = typer.Option("excavator-payload evaluation", "--title", help="Report title."),
+        workers: int = typer.Option(0, "--workers",
+                                    help="Local worker processes estimating a big dataset (0 = all cores)."),
+        scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
+                                      help="Estimate on this existing Dask cluster (default: "
+                                           "$EXCAVATOR_PAYLOAD_SCHEDULER, else local worker processes)."),
     ) -> None:
         """Write a self-contained HTML report (and Markdown) with tables and figures."""
         from excavator_payload.evaluation.report import build_report
+        from excavator_payload.execution import Execution
+
+        if workers < 0:
+            raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
 
         check_output_path(out, inputs=[data, *model, *estimates, calibration], kind="folder",
                           replaces=("report.html", "report.md", "evaluation.json", "figures"))
@@ -250,8 +315,8 @@ def register(app: typer.Typer) -> None:
                 curve = pd.read_csv(calibration)
             except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
                 raise DatasetError(f"'{calibration}' is not a readable CSV: {exc}") from None
-        with progress_bar() as progress:
-            evaluations = evaluate_sources(dataset, model, estimates, discard, progress)
+        with Execution(scheduler, workers or None) as execution, progress_bar() as progress:
+            evaluations = evaluate_sources(dataset, model, estimates, discard, progress, execution)
         training = {ev.label: Path(ev.info["model"]) for ev in evaluations if ev.info.get("model")
                     and ((Path(ev.info["model"]) / "training.png").is_file()
                          or (Path(ev.info["model"]) / "training_log.csv").is_file())}

@@ -39,6 +39,7 @@ from excavator_payload import __version__
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import read_dataset, read_estimates, write_dataset, write_estimates
 from excavator_payload.errors import ExcavatorPayloadError
+from excavator_payload.execution import Execution
 from excavator_payload.evaluation.metrics import (
     DEFAULT_DISCARD,
     Evaluation,
@@ -145,12 +146,13 @@ def _reason(exc: BaseException) -> str:
 
 
 # -- data -----------------------------------------------------------------------------------
-def simulate(n: int, first: int, seed: int, motion: str, workers: int | None) -> Dataset:
-    """Simulate experiments ``first … first+n−1`` of base seed ``seed`` (truth columns on)."""
+def simulate(n: int, first: int, seed: int, motion: str, execution: Execution) -> Dataset:
+    """Simulate experiments ``first … first+n−1`` of base seed ``seed`` (truth columns on) through
+    ``execution`` (the demo's one execution layer: one cluster for all its chunks)."""
     if motion not in ("nmpc", "minimum-jerk"):
         raise ExcavatorPayloadError(f"unknown motion '{motion}': choose nmpc or minimum-jerk")
-    return simulate_dataset(n, seed, TRUE_MACHINE, NOISE, with_truth=True, workers=workers,
-                            motion=motion, first_experiment=first)
+    return simulate_dataset(n, seed, TRUE_MACHINE, NOISE, with_truth=True, motion=motion,
+                            first_experiment=first, execution=execution)
 
 
 def simulate_lift_data(n: int, seed: int, workers: int | None) -> Dataset:
@@ -169,6 +171,9 @@ class Demo:
         self.scale_name = scale
         self.scale = SCALES[scale]
         self.workers = workers
+        #: The execution layer of the demo's simulations, opened by :func:`run_demo` (a local
+        #: cluster starts on first use only: nothing starts when every dataset is cached).
+        self.execution: Execution | None = None
         self.motion = motion
         self.seed = int(seed)
         self.console = console
@@ -201,7 +206,7 @@ class Demo:
                     path.unlink()  # a damaged cache file is simply made again
             self.console.print(f"  simulating {name}: experiments {a}–{a + m - 1} "
                                f"({i + 1}/{len(starts)}, {self.motion})")
-            ds = simulate(m, a, self.seed, self.motion, self.workers)
+            ds = simulate(m, a, self.seed, self.motion, self.execution)
             write_dataset(ds, path)
             parts.append(ds)
         return _concat(parts)
@@ -368,11 +373,13 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
     t0 = time.perf_counter()
     total = max(sc.pool, sc.train + sc.validation + sc.test)
     first_test = sc.train + sc.validation
-    train = demo.experiments("train", 0, sc.train)
-    validation = demo.experiments("validation", sc.train, sc.validation)
-    test = demo.experiments("test", first_test, sc.test)
-    if total > first_test + sc.test:  # the rest of the thesis' 2000-experiment pool
-        demo.experiments("pool", first_test + sc.test, total - first_test - sc.test)
+    with Execution(workers=workers) as demo.execution:
+        train = demo.experiments("train", 0, sc.train)
+        validation = demo.experiments("validation", sc.train, sc.validation)
+        test = demo.experiments("test", first_test, sc.test)
+        if total > first_test + sc.test:  # the rest of the thesis' 2000-experiment pool
+            demo.experiments("pool", first_test + sc.test, total - first_test - sc.test)
+    demo.execution = None
     data: dict[str, Dataset | None] = {"train": train, "validation": validation,
                                        "train+validation": _concat([train, validation]),
                                        "calibration": train.split(min(sc.calibration, sc.train))[0]}

@@ -61,6 +61,8 @@ import time
 import tomllib
 import warnings
 from dataclasses import asdict, dataclass, field
+from importlib import resources
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
@@ -99,8 +101,9 @@ TEST_SEED_OFFSET = 1_000_003
 METRIC_COLUMNS = ("payload", "max_error", "rms_error", "mean_error", "p90", "p95", "p99",
                   "convergence_time", "estimated_share", "efficiency", "sum_sq_efficiency",
                   "n_efficiency", "final_bound", "within_1pct")
-#: Folder of the study files shipped with the sources.
-SHIPPED_STUDIES = Path(__file__).resolve().parents[3] / "studies"
+#: Folder, inside the package, of the shipped study files (package data: they are in the wheel;
+#: the repository's ``studies/`` points there).
+SHIPPED_STUDIES_FOLDER = "studies"
 
 
 class StudyError(ExcavatorPayloadError):
@@ -154,17 +157,29 @@ class Study:
     config: dict = field(default_factory=dict)
 
 
-def find_study(config: str | Path) -> Path:
-    """The study file ``config``: a path, or the name of a study shipped in ``studies/``."""
+def shipped_studies() -> dict[str, Traversable]:
+    """The study files shipped in the package, ``{name: file}``, read through
+    :mod:`importlib.resources` (so they are found in an installed wheel as in the sources)."""
+    folder = resources.files("excavator_payload") / SHIPPED_STUDIES_FOLDER
+    if not folder.is_dir():
+        return {}
+    return {entry.name[:-len(".toml")]: entry for entry in folder.iterdir()
+            if entry.name.endswith(".toml") and entry.is_file()}
+
+
+def find_study(config: str | Path) -> Path | Traversable:
+    """The study file ``config``: a path, or the name of a shipped study (``full_grid`` or
+    ``full_grid.toml``, see :func:`shipped_studies`)."""
     path = Path(config)
     if path.is_file():
         return path
-    for candidate in (SHIPPED_STUDIES / f"{config}.toml", SHIPPED_STUDIES / str(config)):
-        if candidate.is_file():
-            return candidate
-    shipped = sorted(p.stem for p in SHIPPED_STUDIES.glob("*.toml")) if SHIPPED_STUDIES.is_dir() else []
+    shipped = shipped_studies()
+    name = str(config)
+    name = name[:-len(".toml")] if name.endswith(".toml") else name
+    if name in shipped:
+        return shipped[name]
     raise StudyError(f"study file '{config}' does not exist"
-                     + (f" (shipped studies: {', '.join(shipped)})" if shipped else ""))
+                     + (f" (shipped studies: {', '.join(sorted(shipped))})" if shipped else ""))
 
 
 def load_study(config: str | Path) -> Study:

@@ -19,7 +19,7 @@ def register(app: typer.Typer) -> None:
     @app.command("study")
     def study(
         config: str = typer.Option(..., "--config",
-                                   help="Study file (TOML), or the name of a shipped study in studies/ "
+                                   help="Study file (TOML), or the name of a shipped study "
                                         "(full_grid, network_robustness, calibration_curve, frozen_noise)."),
         out: Path = typer.Option(..., "--out", help="Output folder: results.parquet, report/, caches."),
         scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
