@@ -157,14 +157,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             calibrated_machine.fit_estimator(self, dataset)
             return
         self._set_noise(self._noise_from(dataset))
-        n = self.options["experiments"]
-        ids = list(dataset.experiment_ids)
-        if n > len(ids):
-            raise EstimatorError(f"{self.name}: --experiments {n} but the calibration data have only "
-                                 f"{len(ids)} experiments")
-        if n:
-            ids = ids[:n]
-            dataset = dataset.subset(ids)
+        dataset, ids = calibration_subset(self, dataset)
         if not np.all(np.isfinite(dataset.payloads)):
             raise EstimatorError(f"{self.name}: calibration experiments need known payloads")
         theta_empty, theta_payload, cov = identify_base_parameters(
@@ -206,6 +199,19 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         super()._restore(config, arrays)
         self.parameter_covariance = np.asarray(arrays["parameter_covariance"], float)
         self.calibration_experiments = [int(i) for i in config.get("calibration_experiments", [])]
+
+
+def calibration_subset(estimator, dataset: Dataset) -> tuple[Dataset, list]:
+    """The calibration experiments ``--experiments`` selects (the first N; 0: all) and their ids."""
+    n = estimator.options["experiments"]
+    ids = list(dataset.experiment_ids)
+    if n > len(ids):
+        raise EstimatorError(f"{estimator.name}: --experiments {n} but the calibration data have only "
+                             f"{len(ids)} experiments")
+    if n:
+        ids = ids[:n]
+        dataset = dataset.subset(ids)
+    return dataset, ids
 
 
 def judged_errors(dataset: Dataset, estimates: pd.DataFrame,

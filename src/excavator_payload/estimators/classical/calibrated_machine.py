@@ -641,15 +641,10 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
     """``CalibratedEstimator.fit`` on machine-sensor-set data: :func:`calibrate` and install."""
     from excavator_payload.simulation.machine_sensors import get_machine_noise
 
+    from excavator_payload.estimators.classical.calibrated import calibration_subset
+
     arm = _machine_arm(estimator)
-    n = estimator.options["experiments"]
-    ids = list(dataset.experiment_ids)
-    if n > len(ids):
-        raise EstimatorError(f"{estimator.name}: --experiments {n} but the calibration data have only "
-                             f"{len(ids)} experiments")
-    if n:
-        ids = ids[:n]
-        dataset = dataset.subset(ids)
+    dataset, ids = calibration_subset(estimator, dataset)
     if "payload" not in dataset.frame or not np.all(np.isfinite(dataset.frame["payload"].to_numpy(float))):
         raise EstimatorError(f"{estimator.name}: calibration experiments need known payloads")
     name = estimator.options["noise"]
