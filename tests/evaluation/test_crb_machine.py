@@ -73,3 +73,35 @@ def test_episodes_make_a_slow_start_harder_to_weigh(model_and_test):
     t = test.frame["time"].to_numpy(float)
     early = (t > 0.5) & (t < 1.0) & np.isfinite(episodes) & np.isfinite(independent)
     assert np.median(episodes[early] / independent[early]) > 1.5
+
+
+def test_procedure_bound_counts_what_calibration_leaves_unknown(model_and_test):
+    """The whole procedure's bound (every calibrated parameter unknown, learnt from the
+    calibration motions) only grows when the calibration data shrink, and falls with time."""
+    from excavator_payload.data.dataset import Dataset
+    from excavator_payload.evaluation.crb_machine import procedure_bound
+
+    est, test = model_and_test
+    cal = dm.calibration_data(2, seed=21)
+    full = procedure_bound(test, est.calibration, cal)
+    f = cal.frame
+    half = Dataset(f[f["experiment"] == f["experiment"].iloc[0]].reset_index(drop=True), cal.meta)
+    less = procedure_bound(test, est.calibration, half)
+    ok = np.isfinite(full) & np.isfinite(less)
+    assert ok.sum() > 100 and np.all(full[ok] > 0)
+    assert np.all(less[ok] >= full[ok] * (1 - 1e-7))  # less calibration data: never a lower bound
+    assert np.nanmedian(less[ok] / full[ok]) > 1.05
+    exp = test.frame["experiment"].to_numpy()
+    b = full[(exp == exp[0]) & np.isfinite(full)]
+    assert np.all(np.diff(b) <= 1e-7 * b[:-1])  # information only grows within an experiment
+
+
+def test_procedure_bound_refuses_thesis_data(model_and_test):
+    from excavator_payload.errors import EstimatorError
+    from excavator_payload.evaluation.crb_machine import procedure_bound
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    est, test = model_and_test
+    thesis = simulate_dataset(1, seed=3, workers=1, progress=False)
+    with pytest.raises(EstimatorError, match="machine-sensor-set calibration"):
+        procedure_bound(test, est.calibration, thesis)

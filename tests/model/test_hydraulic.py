@@ -220,3 +220,24 @@ def test_payload_enters_affinely(arm, machine):
 
 def test_parameter_vector_names_every_parameter(machine):
     assert len(parameter_vector(machine)) == len(HYDRAULIC_PARAMETER_NAMES)
+
+
+def test_pressure_regression_of_a_moving_cylinder_is_exact_on_noise_free_data(machine):
+    """The weighing residual of the symbolic model vanishes (to the load coefficient squared)
+    on the simulator's noise-free pressures wherever the cylinders move: the friction law is
+    of the load force, recovered from the piston force by one fixed-point step."""
+    from excavator_payload.estimators.classical import calibrated_machine as cm
+    from excavator_payload.model.hydraulic import HydraulicArmModel
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    ds = simulate_dataset(2, seed=5, machine=machine, motion="swing", noise="none",
+                          with_truth=True, workers=1, progress=False)
+    f = ds.frame
+    cal = cm.MachineCalibration(HydraulicArmModel(machine, compiled=False))
+    qdd = f[["true_boom_accel", "true_dipper_accel", "true_bucket_accel", "true_slew_accel"]].to_numpy(float)
+    r, _, _, speed, _ = cal.evaluate(f[list(cm.SIGNALS)].to_numpy(float), qdd, f["payload"].to_numpy(float), cal.z)
+    kg = r / cal._payload_sensitivity
+    v_s = np.array([c.stribeck_velocity for c in machine.cylinders])
+    moving = np.abs(speed) > 3 * v_s
+    assert moving.sum() > 100
+    assert np.percentile(np.abs(kg[moving]), 95) < 1.0  # the old |piston force| law: ~8 kg

@@ -28,12 +28,11 @@ and the bound on the payload is the Schur complement
 still unknown cost. The Jacobians are those of the calibration (CasADi, the symbolic model),
 evaluated at the model's identified parameters on the true signals where the dataset has them.
 
-Not counted: the uncertainty of the other calibrated parameters (masses, centres of mass,
-geometry). Counted as nuisances too (their calibration posterior as prior), they raise the bound
-at the end of an NMPC swing from about 3 kg to about 20 kg — looser than the errors measured
-(about 10 kg), because one calibration's parameter error is a bias shared by every later
-experiment, not a fresh draw per experiment; efficiency against this bound therefore includes
-that bias.
+Not counted here: the uncertainty of the other calibrated parameters (masses, centres of mass,
+geometry). :func:`procedure_bound` counts everything: the whole procedure — calibration motions,
+zero check, the experiment — with every calibrated parameter unknown, each term's information
+computed as here (not from the calibration's own posterior, which carries its estimated noise
+and skipped samples).
 """
 
 from __future__ import annotations
@@ -75,51 +74,21 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
         variance (breakaway)²/3 on every slow sample, which counts a long standstill as many
         independent measurements and so overstates what standing still tells.
     """
-    from excavator_payload.simulation.machine_sensors import get_machine_noise
-
     if dataset.sensor_set.name != "machine":
         raise EstimatorError("the machine bound needs machine-sensor-set data")
-    if pressure_std is None:
-        name = dataset.meta.get("noise")
-        pressure_std = get_machine_noise(name).pressure_noise if name else calibration.pressure_std
-    f = dataset.frame
-    signals = list(cm.SIGNALS)
-    if dataset.has_truth and all("true_" + s in f for s in signals):
-        # true signals plus the model's offsets: the residual function subtracts them again
-        values = f[["true_" + s for s in signals]].to_numpy(float) + calibration.offset_vector()
-        qdd = f[["true_boom_accel", "true_dipper_accel", "true_bucket_accel", "true_slew_accel"]].to_numpy(float)
-    else:
-        values = f[signals].to_numpy(float)
-        qdd = cm.accelerations(dataset, half_window)
-    payload = f["payload"].to_numpy(float)
-    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1) & np.isfinite(payload)
-    out = np.full(len(f), np.nan)
-    idx = np.flatnonzero(ok)
-    if len(idx) == 0:
+    terms = _sample_terms(dataset, calibration, pressure_std, half_window, stiction_episodes)
+    out = np.full(len(dataset.frame), np.nan)
+    if terms is None:
         return out
-    r, J, lever, speed, stiction = calibration.evaluate(values[idx], qdd[idx], payload[idx], calibration.z)
-    accel_var, calibration.accel_var = calibration.accel_var, 0.0
-    try:  # true accelerations: no differentiator noise in the bound
-        w = calibration.weights(lever, speed, stiction, "downweight", float(pressure_std))
-        w_white = calibration.weights(lever, speed, stiction, "model", float(pressure_std))
-    finally:
-        calibration.accel_var = accel_var
-    v_s = np.array([c.stribeck_velocity for c in calibration.arm.machine.cylinders])
-    still = np.abs(speed) < 3 * v_s
-    if stiction_episodes:  # white weights; the shared stiction enters per episode below
-        w = np.where(still, w_white, w)
-    phi = calibration._payload_sensitivity  # ∂r/∂m, set by evaluate
+    idx, G_all, w, still, stiction, exp = terms
     cols = nuisance_indices() if nuisances else np.zeros(0, int)
     C = calibration.covariance[np.ix_(cols, cols)]
     # nuisances in units of their calibration std: F stays well conditioned (Pa beside 1e-2)
     scale = np.sqrt(np.maximum(np.diag(C), 1e-300)) if len(cols) else np.zeros(0)
-    G = np.concatenate([phi[..., None], J[:, :, cols] * scale], axis=2)  # (n, 3, 1 + nν)
-    G = np.nan_to_num(G)
-    w = np.where(np.isfinite(w), w, 0.0)
+    G = np.concatenate([G_all[:, :, :1], G_all[:, :, 1 + cols] * scale], axis=2)  # (n, 3, 1 + nν)
     prior = np.zeros((1 + len(cols), 1 + len(cols)))
     if len(cols):
         prior[1:, 1:] = np.linalg.pinv(C / np.outer(scale, scale), hermitian=True)
-    exp = f["experiment"].to_numpy()[idx]
     starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
     for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
         info = np.einsum("nja,nj,njb->nab", G[a:b], w[a:b], G[a:b])  # one experiment at a time
@@ -136,6 +105,147 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
         with np.errstate(divide="ignore", invalid="ignore"):
             out[idx[a:b]] = 1.0 / np.sqrt(np.maximum(schur, 0.0))
     return out
+
+
+def procedure_bound(dataset: Dataset, calibration: "cm.MachineCalibration", calibration_data: Dataset,
+                    zero_data: Dataset | None = None, pressure_std: float | None = None,
+                    prior_std: float = 0.05, half_window: int = 5) -> np.ndarray:
+    r"""Bound on the payload error of the whole procedure: calibrate, zero, then weigh.
+
+    :func:`machine_bound` takes the calibrated masses, centres of mass and geometry as known;
+    an estimator that learnt them from a few calibration motions carries their error into every
+    later weighing. This bound counts it: every calibrated parameter is unknown, and the
+    information about them is what the calibration motions, the zero check and the weighed
+    experiment itself carry, plus the estimator's priors. With
+    :math:`\psi = (m, \theta, o_A, o_B)` — the payload, the machine parameters and IMU dynamics
+    :math:`\theta`, the sensor offsets of the calibration session :math:`o_A` and of the working
+    session :math:`o_B` (independent sessions) —
+
+    .. math:: F_k = P + F_\text{cal}(\theta, o_A) + F_\text{zero}(\theta, o_B)
+              + \sum_{i \le k} F_i(m, \theta, o_B),
+
+    each term as in :func:`machine_bound` (white pressure noise through the cylinder geometry,
+    one unknown stiction force per standstill, true accelerations), :math:`P` the priors'
+    information (``prior_std`` of each relative parameter, the offsets' and IMU priors of
+    :mod:`~excavator_payload.estimators.classical.calibrated_machine`). The bound is
+    :math:`\sigma_m \ge ([F_k^{-1}]_{mm})^{1/2}`: the best any estimator given the same
+    calibration motions, zero check and samples so far can do, over the ensemble of
+    calibrations. One calibration's parameter error is a single draw shared by all later
+    experiments, so efficiency against this bound is judged over several calibrations
+    (``benchmarks/bench_procedure_bound.py``).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Test data (machine sensor set, true ``payload``), working session B.
+    calibration : MachineCalibration
+        The identified machine: the point the Jacobians are evaluated at.
+    calibration_data, zero_data : Dataset
+        The calibration motions (known payloads, session A) and the zero check (empty, session B).
+    pressure_std : float, optional
+        White pressure noise, Pa (default: the test data's preset, else the calibration's estimate).
+    prior_std : float
+        Relative prior std of the calibrated parameters (``calibrated``'s ``prior_std`` on the
+        machine sensor set).
+    """
+    for name, d in (("test", dataset), ("calibration", calibration_data), ("zero", zero_data)):
+        if d is not None and d.sensor_set.name != "machine":
+            raise EstimatorError(f"the procedure bound needs machine-sensor-set {name} data")
+    n_delta, n_off, n_imu = len(cm.CALIBRATED_PARAMETERS), len(cm.OFFSET_SIGNALS), len(cm.IMU_PARAMETERS)
+    n_theta = n_delta + n_imu
+    dim = 1 + n_theta + 2 * n_off
+    prior_z = calibration.prior_std(prior_std)  # (delta, offsets, imu) in z's order
+    theta_cols = np.r_[np.arange(n_delta), n_delta + n_off + np.arange(n_imu)]
+    offset_cols = n_delta + np.arange(n_off)
+    # psi = (m, theta, o_A, o_B) in units of the priors' std: F stays well conditioned
+    scale = np.r_[1.0, prior_z[theta_cols], prior_z[offset_cols], prior_z[offset_cols]]
+
+    def to_psi(G, session: str) -> np.ndarray:
+        out = np.zeros(G.shape[:2] + (dim,))
+        out[..., 0] = G[..., 0]
+        out[..., 1:1 + n_theta] = G[..., 1 + theta_cols]
+        start = 1 + n_theta + (0 if session == "A" else n_off)
+        out[..., start:start + n_off] = G[..., 1 + offset_cols]
+        return out * scale
+
+    def information(d: Dataset, session: str, with_payload: bool):
+        terms = _sample_terms(d, calibration, pressure_std, half_window)
+        if terms is None:
+            return None
+        idx, G, w, still, stiction, exp = terms
+        G = to_psi(G, session)
+        if not with_payload:  # known payloads: m is not a parameter of these samples
+            G[..., 0] = 0.0
+        pieces = []
+        starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
+        for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
+            info = np.einsum("nja,nj,njb->nab", G[a:b], w[a:b], G[a:b])
+            info -= _episode_information(G[a:b], w[a:b], still[a:b], stiction[a:b])
+            pieces.append((idx[a:b], info))
+        return pieces
+
+    base = np.diag(np.r_[0.0, np.ones(dim - 1)])  # the priors, in their own units
+    for d, session in ((calibration_data, "A"), (zero_data, "B")):
+        if d is None:
+            continue
+        pieces = information(d, session, with_payload=False)
+        for _, info in pieces or ():
+            base += info.sum(axis=0)
+    out = np.full(len(dataset.frame), np.nan)
+    pieces = information(dataset, "B", with_payload=True)
+    for rows, info in pieces or ():
+        F = np.cumsum(info, axis=0) + base
+        Fmn, Fnn = F[:, 0, 1:], F[:, 1:, 1:]
+        schur = F[:, 0, 0] - np.einsum("na,na->n", Fmn, np.linalg.solve(Fnn, Fmn[..., None])[..., 0])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[rows] = 1.0 / np.sqrt(np.maximum(schur, 0.0))
+    return out
+
+
+def _sample_terms(dataset: Dataset, calibration: "cm.MachineCalibration", pressure_std: float | None,
+                  half_window: int, stiction_episodes: bool = True):
+    """Per-sample sensitivities and weights of the pressure residuals of ``dataset``.
+
+    Returns ``None`` when no sample is usable, else ``(idx, G, w, still, stiction, experiment)``:
+    the rows used, ``G`` (n, 3, 1 + nz) = [∂r/∂m, ∂r/∂z] at the calibration's z, the inverse
+    residual variances ``w`` (white pressure noise; a standstill's stiction left to
+    :func:`_episode_information` when ``stiction_episodes``), the standstill mask, the breakaway
+    torques and the experiment numbers of the rows.
+    """
+    from excavator_payload.simulation.machine_sensors import get_machine_noise
+
+    if pressure_std is None:
+        name = dataset.meta.get("noise")
+        pressure_std = get_machine_noise(name).pressure_noise if name else calibration.pressure_std
+    f = dataset.frame
+    signals = list(cm.SIGNALS)
+    if dataset.has_truth and all("true_" + s in f for s in signals):
+        # true signals plus the model's offsets: the residual function subtracts them again
+        values = f[["true_" + s for s in signals]].to_numpy(float) + calibration.offset_vector()
+        qdd = f[["true_boom_accel", "true_dipper_accel", "true_bucket_accel", "true_slew_accel"]].to_numpy(float)
+    else:
+        values = f[signals].to_numpy(float)
+        qdd = cm.accelerations(dataset, half_window)
+    payload = f["payload"].to_numpy(float)
+    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1) & np.isfinite(payload)
+    idx = np.flatnonzero(ok)
+    if len(idx) == 0:
+        return None
+    r, J, lever, speed, stiction = calibration.evaluate(values[idx], qdd[idx], payload[idx], calibration.z)
+    accel_var, calibration.accel_var = calibration.accel_var, 0.0
+    try:  # true accelerations: no differentiator noise in the bound
+        w = calibration.weights(lever, speed, stiction, "downweight", float(pressure_std))
+        w_white = calibration.weights(lever, speed, stiction, "model", float(pressure_std))
+    finally:
+        calibration.accel_var = accel_var
+    v_s = np.array([c.stribeck_velocity for c in calibration.arm.machine.cylinders])
+    still = np.abs(speed) < 3 * v_s
+    if stiction_episodes:  # white weights; the shared stiction enters per episode
+        w = np.where(still, w_white, w)
+    phi = calibration._payload_sensitivity  # ∂r/∂m = -φ, set by evaluate
+    G = np.nan_to_num(np.concatenate([phi[..., None], J], axis=2))
+    w = np.where(np.isfinite(w), w, 0.0)
+    return idx, G, w, still, stiction, f["experiment"].to_numpy()[idx]
 
 
 def _episode_information(G, w, still, stiction) -> np.ndarray:

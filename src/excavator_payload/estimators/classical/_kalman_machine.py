@@ -135,8 +135,8 @@ def force_measurement_symbolic() -> ca.Function:
 
     lever = get("count") * arms
     speed = arms * qd[0:3]
-    smooth_sign = speed / ca.sqrt(speed**2 + get("stribeck_velocity") ** 2)
-    friction = fn["friction"](speed, smooth_sign, force, p)
+    # the friction law is of the load force, which the state gives (torque / lever)
+    friction = fn["moving_friction"](speed, torque / lever, p)
     h = torque / lever + friction
     H = ca.jacobian(h, x)
     breakaway = (get("coulomb") + get("load_coefficient") * ca.fabs(force)) * get("static_ratio")

@@ -19,9 +19,11 @@ with the torques from the pressures, :math:`\tau_j = \text{count}_j\,\partial l_
   the ground frame (:func:`ground_tilt`); the slew angle itself does not enter the dynamics
   (only its rate and acceleration do);
 * **seal friction**: its presliding state is unknown, so the model's friction uses a smooth
-  sign of the rod speed; near standstill the friction can be anything within ± the breakaway
-  force, so that joint's residual variance grows by (breakaway torque)²/3, fading with speed
-  (down-weighted, not skipped).
+  sign of the rod speed (±1 once the rod moves faster than a tenth of the Stribeck velocity),
+  and its load-dependent part is of the *load* force, recovered from the measured piston force
+  by one fixed-point step (``HydraulicSymbolic``'s ``moving_friction``); near standstill the
+  friction can be anything within ± the breakaway force, so that joint's residual variance
+  grows by (breakaway torque)²/3, fading with speed (down-weighted, not skipped).
 
 Weights: each joint's residual variance is the pressure noise (and pump ripple) through
 :math:`\text{count}\,\partial l/\partial q\,(A_h, A_r)` plus the friction term above; the
