@@ -231,9 +231,9 @@ def _sample_terms(dataset: Dataset, calibration: "cm.MachineCalibration", pressu
     idx = np.flatnonzero(ok)
     if len(idx) == 0:
         return None
-    r, J, lever, speed, stiction = calibration.evaluate(values[idx], qdd[idx], payload[idx], calibration.z)
     accel_var, calibration.accel_var = calibration.accel_var, 0.0
     try:  # true accelerations: no differentiator noise in the bound
+        r, J, lever, speed, stiction = calibration.evaluate(values[idx], qdd[idx], payload[idx], calibration.z)
         w = calibration.weights(lever, speed, stiction, "downweight", float(pressure_std))
         w_white = calibration.weights(lever, speed, stiction, "model", float(pressure_std))
     finally:

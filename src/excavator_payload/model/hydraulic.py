@@ -358,9 +358,12 @@ class HydraulicSymbolic:
             "hyd_momentum_regression", [q, qd, tilt, measured, p],
             [ca.substitute(momentum, payload, 0), ca.jacobian(momentum, payload),
              torque_from_pressures + ca.substitute(forces, payload, 0), ca.jacobian(forces, payload),
-             lever, cylinder_speed, stiction],
+             lever, cylinder_speed, stiction,
+             # how the rates' noise enters the momentum: Σ_k (∂p0_j/∂q̇_k)², per joint j
+             ca.sum2(ca.jacobian(ca.substitute(momentum, payload, 0), qd) ** 2)],
             ["q", "qd", "tilt", "pressures", "p"],
-            ["momentum0", "momentum_payload", "integrand0", "force_payload", "lever", "speed", "stiction"])
+            ["momentum0", "momentum_payload", "integrand0", "force_payload", "lever", "speed", "stiction",
+             "rate_gain"])
         total_force = load_c + friction
         self.functions["cylinder_pressures"] = F_(
             "hyd_cylinder_pressures", [velocity_c, state_c, load_c, p],
