@@ -244,26 +244,43 @@ def momentum_windows(runs: np.ndarray, half: int) -> np.ndarray:
     return c[runs[c - half] == runs[c + half]]
 
 
-def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, half: int, dt: float):
-    r"""The momentum balance over each window ``c ± half`` (module doc), rectangle rule.
+def balance_weights(half: int, ramp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weights of the momentum balance over ``2·half + 1`` samples: ``w`` of the integrand
+    (a trapezoid rising and falling over ``ramp`` samples, 0 on the last sample) and ``u`` of
+    the momentum (its differences, ``u_j = w_{j-1} - w_j``): Σ w_j (P_{j+1} - P_j) = Σ u_j P_j
+    (summation by parts), so each end's momentum is averaged over ``ramp`` samples."""
+    L = 2 * half + 1
+    j = np.arange(L)
+    w = np.minimum(1.0, np.minimum((j + 1) / ramp, (L - 1 - j) / ramp))
+    u = np.r_[0.0, w[:-1]] - w
+    return w, u
+
+
+def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, half: int, dt: float,
+                     ramp: int = 1):
+    r"""The momentum balance over each window ``c ± half`` (module doc), rectangle rule,
+    weighted by :func:`balance_weights`.
 
     ``A`` (n, 12[, nz]) holds per sample (P0, Pm, I0, Fm) or their derivatives; returns the
-    window residual at ``payload`` and its payload sensitivity :math:`-arphi`, per joint,
+    window residual at ``payload`` and its payload sensitivity :math:`-\varphi`, per joint,
 
-    .. math:: r = rac{1}{T}\Big[\sum_{i=a}^{b-1} I_{0,i}\,\Delta t - (P_{0,b} - P_{0,a})\Big]
-              - rac{m}{T}\Big[(P_{m,b} - P_{m,a}) - \sum_{i=a}^{b-1} F_{m,i}\,\Delta t\Big].
+    .. math:: r = \frac{1}{W}\Big[\sum_j w_j I_{0,j}\,\Delta t + \sum_j u_j P_{0,j}\Big]
+              - \frac{m}{W}\Big[-\sum_j u_j P_{m,j} - \sum_j w_j F_{m,j}\,\Delta t\Big],
+              \qquad W = \sum_j w_j \Delta t.
 
     The integrand is taken at the start of each sample interval: the valve commands (and the
     simulator's accelerations) are held over a sample period, so a sample's pressures belong to
     the interval it starts (trapezoid: 14 kg RMS error on noise-free NMPC swings, this 3.5 kg).
     """
-    a, b = centres - half, centres + half
-    T = 2 * half * dt
-    cum = np.concatenate([np.zeros((1,) + A.shape[1:]), np.cumsum(A * dt, axis=0)])
-    P0, Pm = A[:, 0:3], A[:, 3:6]
-    integral = cum[b] - cum[a]  # sum over a … b-1
-    r0 = (integral[:, 6:9] - (P0[b] - P0[a])) / T
-    sens = ((Pm[b] - Pm[a]) - integral[:, 9:12]) / T  # φ of the window
+    from scipy.ndimage import correlate1d
+
+    w, u = balance_weights(half, ramp)
+    W = float(w.sum()) * dt
+    integ = correlate1d(A[:, 6:12], w * dt, axis=0, mode="constant")[centres]
+    mom = correlate1d(A[:, 0:6], u, axis=0, mode="constant")[centres]
+    # Σ w I dt = Σ w (P_{j+1} - P_j) = -Σ u P ... sign: Σ_j u_j P_j = Σ w_j (P_{j+1} - P_j)
+    r0 = (integ[:, 0:3] - mom[:, 0:3]) / W
+    sens = (mom[:, 3:6] - integ[:, 3:6]) / W  # φ of the window
     m = payload[centres].reshape((-1,) + (1,) * (A.ndim - 1))
     return r0 - m * sens, -sens
 
@@ -274,6 +291,8 @@ def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, ha
 CALIBRATION_HALF_WINDOW = 15
 #: Samples each side of the momentum-balance window (calibration and weighing).
 BALANCE_HALF_WINDOW = int(__import__("os").environ.get("EP_BHW", 3))
+BALANCE_RAMP = int(__import__("os").environ.get("EP_RAMP", 1))
+CAL_BALANCE_HALF_WINDOW = int(__import__("os").environ.get("EP_CBHW", BALANCE_HALF_WINDOW))
 
 
 def rate_variance(dataset: Dataset) -> float:
@@ -413,13 +432,15 @@ class MachineCalibration:
         dA = dA.reshape(12, n, len(z)).transpose(1, 0, 2)
         centres = momentum_windows(runs, half)
         dt = 1.0 / MACHINE_SENSORS.sample_rate
-        r, minus_phi = window_residuals(A, payload, centres, half, dt)
-        J, _ = window_residuals(dA, np.zeros(n), centres, half, dt)
+        r, minus_phi = window_residuals(A, payload, centres, half, dt, BALANCE_RAMP)
+        J, _ = window_residuals(dA, np.zeros(n), centres, half, dt, BALANCE_RAMP)
         self._payload_sensitivity = minus_phi
         # no differentiated accelerations in the balance; the rates' noise enters through the
         # momentum at the window's two ends
-        T = 2 * half * dt
-        self._extra_var = (gain[centres - half] + gain[centres + half]) / T**2 * self.rate_var
+        from scipy.ndimage import correlate1d
+
+        w, u = balance_weights(half, BALANCE_RAMP)
+        self._extra_var = correlate1d(gain, u**2, axis=0, mode="constant")[centres] / (w.sum() * dt) ** 2 * self.rate_var
         self._window_samples = 2 * half
         slow = np.lib.stride_tricks.sliding_window_view(np.abs(speed), 2 * half + 1, axis=0).min(axis=-1)
         stick = np.lib.stride_tricks.sliding_window_view(stiction, 2 * half + 1, axis=0).max(axis=-1)
@@ -575,7 +596,7 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
     # anything within ± breakaway, and the parameters would absorb it (over-fitting measured
     # as a cost below that of the true machine).
     cal.solve(values, qdd, payload, free, np.zeros(len(cal.z)), std, os.environ.get("EP_CALLOW", "skip"),
-              estimate_noise=False, runs=runs, half=BALANCE_HALF_WINDOW)
+              estimate_noise=False, runs=runs, half=CAL_BALANCE_HALF_WINDOW)
     return cal
 
 
@@ -592,7 +613,7 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
     free = np.arange(n_delta, n_delta + n_off)
     cal.solve(values, qdd, payload, free, cal.z.copy(),
               np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))], "skip",
-              iterations=4, estimate_noise=False, runs=runs, half=BALANCE_HALF_WINDOW)
+              iterations=4, estimate_noise=False, runs=runs, half=CAL_BALANCE_HALF_WINDOW)
 
 
 @lru_cache(maxsize=1)
@@ -647,7 +668,10 @@ class CalibratedKernel(PressureRegression):
         self._width = width
         self._balance = 2 * BALANCE_HALF_WINDOW + 1  # samples of the momentum-balance window
         self._dt = dt
-        self._rate_var_span = cal.rate_var / (2 * BALANCE_HALF_WINDOW * dt) ** 2
+        w, u = balance_weights(BALANCE_HALF_WINDOW, BALANCE_RAMP)
+        self._balance_w, self._balance_u = w * dt, u
+        self._balance_span = float(w.sum()) * dt
+        self._rate_var_span = cal.rate_var / self._balance_span**2
         self.reset()
 
     def _bind(self) -> None:
@@ -744,14 +768,14 @@ class CalibratedKernel(PressureRegression):
         t = self._terms[start:start + b]
         if not self._terms_used[start + BALANCE_HALF_WINDOW]:
             return False  # a rejected sample's slot at the window's centre: never regressed
-        span = (b - 1) * self._dt
-        integral = t[:-1, 6:12].sum(axis=0) * self._dt
-        residual = (integral[0:3] - (t[-1, 0:3] - t[0, 0:3])) / span
-        phi = ((t[-1, 3:6] - t[0, 3:6]) - integral[3:6]) / span
+        integral = self._balance_w @ t[:, 6:12]
+        momentum = self._balance_u @ t[:, 0:6]
+        residual = (integral[0:3] - momentum[0:3]) / self._balance_span
+        phi = (momentum[3:6] - integral[3:6]) / self._balance_span
         lever = t[BALANCE_HALF_WINDOW, 12:15]
         slowest = np.abs(t[:, 15:18]).min(axis=0)
         stiction = t[:, 18:21].max(axis=0)
-        rate_var = (t[0, 21:24] + t[-1, 21:24]) * self._rate_var_span
+        rate_var = (self._balance_u**2 @ t[:, 21:24]) * self._rate_var_span
         wt = np.where(self._used(slowest), 1.0 / (self._variance(lever, slowest, stiction) + rate_var), 0.0)
         self.num = self.forgetting * self.num + float(wt @ (phi * residual))
         self.info = self.forgetting * self.info + float(wt @ (phi * phi))
