@@ -292,6 +292,7 @@ CALIBRATION_HALF_WINDOW = 15
 #: Samples each side of the momentum-balance window (calibration and weighing).
 BALANCE_HALF_WINDOW = int(__import__("os").environ.get("EP_BHW", 3))
 BALANCE_RAMP = int(__import__("os").environ.get("EP_RAMP", 1))
+_FRAC = bool(__import__("os").environ.get("EP_FRAC_KERNEL"))
 CAL_BALANCE_HALF_WINDOW = int(__import__("os").environ.get("EP_CBHW", BALANCE_HALF_WINDOW))
 
 
@@ -445,6 +446,15 @@ class MachineCalibration:
         slow = np.lib.stride_tricks.sliding_window_view(np.abs(speed), 2 * half + 1, axis=0).min(axis=-1)
         stick = np.lib.stride_tricks.sliding_window_view(stiction, 2 * half + 1, axis=0).max(axis=-1)
         sign = np.where(speed[centres] < 0, -1.0, 1.0)
+        import os
+        if os.environ.get("EP_FRAC"):
+            # the unknown friction of the window's still samples, integrated with the window's
+            # weights: its share of the window times the breakaway torque
+            v_s = np.array([c.stribeck_velocity for c in self.arm.machine.cylinders])
+            still = (np.abs(speed) < 3 * v_s).astype(float)
+            frac = correlate1d(still, w, axis=0, mode="constant")[centres] / w.sum()
+            big = np.where(frac > 0, 0.0, 1e3)
+            return r, J, lever[centres], big, frac * stick[centres - half], centres
         return r, J, lever[centres], sign * slow[centres - half], stick[centres - half], centres
 
     def weights(self, lever, speed, stiction, low_speed: str, pressure_std: float) -> np.ndarray:
@@ -776,7 +786,12 @@ class CalibratedKernel(PressureRegression):
         slowest = np.abs(t[:, 15:18]).min(axis=0)
         stiction = t[:, 18:21].max(axis=0)
         rate_var = (self._balance_u**2 @ t[:, 21:24]) * self._rate_var_span
-        wt = np.where(self._used(slowest), 1.0 / (self._variance(lever, slowest, stiction) + rate_var), 0.0)
+        if _FRAC:
+            still = (np.abs(t[:, 15:18]) < 3 * self._v_stribeck).astype(float)
+            frac = (self._balance_w @ still) / self._balance_span
+            wt = 1.0 / (lever**2 * self._lever_var + (frac * stiction) ** 2 / 3 + rate_var)
+        else:
+            wt = np.where(self._used(slowest), 1.0 / (self._variance(lever, slowest, stiction) + rate_var), 0.0)
         self.num = self.forgetting * self.num + float(wt @ (phi * residual))
         self.info = self.forgetting * self.info + float(wt @ (phi * phi))
         return True
