@@ -1012,6 +1012,9 @@ def _pressure_regression_model(est) -> CModel:
     if kernel is None:
         raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
     calibrated = isinstance(kernel, CalibratedKernel)
+    if calibrated and kernel.balance == "momentum":
+        raise EstimatorError(f"{est.name}: the C export of --balance momentum is not written yet; "
+                             "fit with --balance differentiated (the default) to export")
     sensors = est.sensor_set
     n = len(sensors.signals)
     h = int(kernel.half_window)

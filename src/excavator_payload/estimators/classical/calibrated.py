@@ -137,6 +137,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "low_speed": Option(str, "skip", "machine sensor set: joints near standstill "
                             "(stiction) are modelled, down-weighted or skipped",
                             ("model", "downweight", "skip")),
+        "balance": Option(str, "differentiated", "machine sensor set: without measured "
+                          "accelerations, differentiate the rates (per sample) or balance the "
+                          "momentum over 0.5 s windows (no accelerations; Python only, no C export)",
+                          ("differentiated", "momentum")),
     }
 
     def __init__(self, machine=None, **options) -> None:
