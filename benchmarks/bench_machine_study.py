@@ -56,6 +56,9 @@ def main() -> None:
     ref = fit["fitted"]["calibrated"]
     print("calibrated: pressure noise estimated from the calibration residuals "
           f"{ref.calibration.pressure_std / 1e3:.1f} kPa", flush=True)
+    for name, (value, posterior, ratio) in ref.calibration.imu_identification().items():
+        print(f"  {name}: {value:+.4f} (posterior std {posterior:.4f}, {ratio:.2f} of the prior's)",
+              flush=True)
     bounds = {k: dataset_machine_bound(ds, ref) for k, ds in tests.items()}
     rows = []
     for set_name, ds in tests.items():

@@ -126,9 +126,15 @@ IMU_PARAMETERS: tuple[str, ...] = ("imu_lag", "boom_imu_acceleration_sensitivity
                                    "dipper_imu_acceleration_sensitivity",
                                    "bucket_imu_acceleration_sensitivity",
                                    "house_imu_acceleration_sensitivity")
-#: Their prior: mean 0, std 20 ms (MEMS IMU output filters: a few to tens of ms) and 0.02 s²
-#: (5 % fusion leak at 4 m from the joint: 0.05 · 4 / 9.81).
-IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.02])
+#: Their prior: mean 0, std 20 ms (MEMS IMU output filters: a few to tens of ms) and, for the
+#: sensitivities, a 5 % fusion leak at the IMU's distance d from its axis, 0.05 · d / g: a link
+#: IMU up to 4 m from its joint, 0.02 s²; the house IMU (pitch and roll) within 1 m of the slew
+#: axis, where inclination sensors go, 0.005 s². The house IMU used to share the links' 0.02 s²:
+#: ten calibration swings then put it at 0.022-0.040 s² (three calibration draws; the sensors
+#: have 0.005), and at 0.027 s² even with a perfect house IMU — it absorbed what the rates' noise
+#: does to the fit, not the IMU's leak — and that centripetal correction biased smooth motions
+#: (+8 kg; NMPC motions replayed on a 5° slope or on level ground alike: mean MAX 41 kg).
+IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.005])
 #: Choices of ``--low-speed``.
 LOW_SPEED_CHOICES = ("model", "downweight", "skip")
 #: Default pressure noise before it is estimated (the field preset's), Pa.
@@ -400,6 +406,21 @@ class MachineCalibration:
     def imu(self) -> np.ndarray:
         """Identified IMU dynamics (:data:`IMU_PARAMETERS`)."""
         return self.z[len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS):]
+
+    def imu_identification(self) -> dict[str, tuple[float, float, float]]:
+        """What the calibration motions told about each IMU parameter.
+
+        Returns
+        -------
+        dict
+            Per :data:`IMU_PARAMETERS` name: (identified value, posterior std, posterior std /
+            prior std). A ratio near 1 means the motions did not excite it and the prior
+            decided (e.g. the boom IMU's sensitivity on swings: 0.99).
+        """
+        start = len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS)
+        posterior = np.sqrt(np.diag(self.covariance)[start:])
+        return {name: (float(v), float(sd), float(sd / prior))
+                for name, v, sd, prior in zip(IMU_PARAMETERS, self.imu, posterior, IMU_PRIOR_STD)}
 
     def offset_vector(self) -> np.ndarray:
         """Offsets as a vector over the sensor set's signals (zeros elsewhere)."""
