@@ -59,6 +59,10 @@ def main() -> None:
     for name, (value, posterior, ratio) in ref.calibration.imu_identification().items():
         print(f"  {name}: {value:+.4f} (posterior std {posterior:.4f}, {ratio:.2f} of the prior's)",
               flush=True)
+    # the momentum-balance form (no differentiated accelerations) beside the default
+    momentum = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
+    cm.zero(momentum, zero)
+    fit["fitted"]["calibrated --balance momentum"] = momentum
     bounds = {k: dataset_machine_bound(ds, ref) for k, ds in tests.items()}
     rows = []
     for set_name, ds in tests.items():
