@@ -51,6 +51,28 @@ option ``--half-window``, 3 by default, through a ring buffer; on 60 validation 
 per family, within 1 % for ±2 / 3 / 4 / 5 samples: NMPC swings 98 / 97 / 93 / 90 %, work cycles
 80 / 75 / 73 / 73 %, slowly starting swings 25 / 37 / 48 / 52 %).
 
+The momentum balance (``--balance momentum``)
+--------------------------------------------
+The differentiator is the floor of the per-sample form: with perfect sensors and the true
+machine file, the regression with the simulator's accelerations is within 3.8 kg (mean MAX on
+20 NMPC swings), with the ±3 slope 26.6 kg (``benchmarks/bench_machine_floor.py``): valve steps
+make the accelerations jump, and a slope over a jump is wrong on both sides. Lagrange's
+equation read as a momentum balance needs no acceleration,
+
+.. math:: \frac{d}{dt}\frac{\partial K}{\partial\dot q} = \tau_p + \frac{\partial K}{\partial q}
+          - \frac{\partial V}{\partial q} - \frac{\partial R}{\partial\dot q},
+
+integrated over a window (``HydraulicSymbolic``'s ``momentum_regression``, affine in the
+payload; :func:`window_residuals`): the momentum's change against the integral of the torques
+and forces. Weighted by a trapezoid (:func:`balance_weights`) and summed by parts, each end's
+momentum is averaged over ``BALANCE_RAMP`` samples — the rates' noise enters only there. With the
+true machine and offsets this form weighs field-noise NMPC swings within 7.7 kg mean MAX (the
+per-sample form: 66 kg — the calibrated parameters of that form partly compensate its
+differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
+(the acceleration sensitivities wander); a window with a standstill carries its still share of
+the unknown friction. The streaming kernel keeps two rings (the differentiator's, for the IMU
+correction, and the balance's); the estimate refers to the sample 0.28 s back. No C export yet.
+
 Sensor noise from the data
 --------------------------
 After the first pass the residuals of the calibration data (known payloads) give the pressure
