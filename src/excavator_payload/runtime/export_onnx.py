@@ -114,6 +114,10 @@ class _NarxGraph(torch.nn.Module):
 
 def onnx_graph(est: Estimator) -> torch.nn.Module:
     """The PyTorch module that is exported (float32)."""
+    if getattr(est, "decimation", 1) != 1:
+        raise EstimatorError(f"{est.name}: a network trained with --decimation {est.decimation} has "
+                             "no ONNX export (the graph runs on every sample); train it with "
+                             "--decimation 1 to export it")
     if est.name in ("net1", "ffnn"):
         return _TimeDelayGraph(est).eval()
     if est.name == "net2":

@@ -83,8 +83,8 @@ class TimeDelayNetwork(NeuralEstimator):
 
         def jacobian(w):
             # ∂e_i/∂w = −∂y(x_i)/∂w (backpropagation per sample, equal to torch.func's per-sample
-            # gradients, tested; several times faster)
-            return -mlp_output_jacobian(w, X, sizes)
+            # gradients, tested; several times faster), negated inside: no second (N, P) array
+            return mlp_output_jacobian(w, X, sizes, negate=True)
 
         return residuals, jacobian
 
@@ -115,12 +115,12 @@ class TimeDelayNetwork(NeuralEstimator):
         self._buffer = np.zeros(2 * L * n_sig)
         self._reset()
 
-    def _reset(self) -> None:
+    def _reset_network(self) -> None:
         if self.weights is not None:
             self._newest = -1  # ring position of the newest sample
             self._count = 0
 
-    def _step(self, time: float, values: np.ndarray) -> StepResult:
+    def _network_step(self, time: float, values: np.ndarray) -> StepResult:
         L, n_sig = self._stream_length, self._n_signals
         p = self._newest = (self._newest + 1) % L
         # each sample is written twice, L blocks apart, so the last L samples are always the
@@ -140,6 +140,9 @@ class TimeDelayNetwork(NeuralEstimator):
     def predict_windows(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Batch outputs (kg) per experiment from RAW ``(T_i, n_inputs)`` arrays; NaN where no
         estimate (used to check that streaming equals batch)."""
+        if self.decimation != 1:
+            raise EstimatorError(f"{self.name}: predict_windows runs at the data's rate only "
+                                 "(--decimation 1); use estimate()")
         out = []
         for x in inputs:
             win = delay_windows(self.input_scaler.transform(np.asarray(x, float)), self.delay_list)
@@ -315,12 +318,12 @@ class DistributedDelayNetwork(NeuralEstimator):
         sizes = [self.n_inputs, *self.hidden_sizes]
         self._lines = [DelayLine(n, self.delay_list, zero_history=(i > 0)) for i, n in enumerate(sizes)]
 
-    def _reset(self) -> None:
+    def _reset_network(self) -> None:
         if self.weights is not None:
             for line in self._lines:
                 line.reset()
 
-    def _step(self, time: float, values: np.ndarray) -> StepResult:
+    def _network_step(self, time: float, values: np.ndarray) -> StepResult:
         window = self._lines[0].push(self._scale_input(values))
         if window is None:
             return _WARMING
