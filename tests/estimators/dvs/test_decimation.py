@@ -1,4 +1,5 @@
-"""--decimation (networks at a lower rate than the data) and the in-place negated Jacobian."""
+"""--decimation (networks at a lower rate than the data), --smoothing, and the in-place negated
+Jacobian."""
 
 from __future__ import annotations
 
@@ -129,3 +130,28 @@ def test_decimated_network_is_not_exported(mj_dataset, tmp_path):
     with pytest.raises(EstimatorError, match="decimation"):
         export_onnx(est, tmp_path / "onnx")
     assert not math.isnan(est.residual_std)
+
+
+def test_smoothing_is_a_first_order_low_pass_of_the_estimate(swings):
+    K, tau = 2, 0.3
+    plain = create_estimator("net1", decimation=K, **TINY).fit(swings)
+    smooth = create_estimator("net1", decimation=K, smoothing=tau, **TINY).fit(swings)
+    np.testing.assert_array_equal(plain.weights, smooth.weights)  # training is not affected
+    first = swings.subset(swings.experiment_ids[:1])
+    y = plain.estimate(first)["payload_estimate"].to_numpy()
+    z = smooth.estimate(first)["payload_estimate"].to_numpy()
+    ok = np.flatnonzero(np.isfinite(y))
+    np.testing.assert_array_equal(np.isfinite(z), np.isfinite(y))
+    samples = ok[(ok + 1) % K == 0]  # the network's samples (held in between)
+    a = 1 - math.exp(-K * swings.sensor_set.sample_period / tau)
+    expected = [y[samples[0]]]
+    for v in y[samples[1:]]:
+        expected.append(expected[-1] + a * (v - expected[-1]))
+    np.testing.assert_allclose(z[samples], expected, rtol=1e-12)
+    assert np.std(np.diff(z[samples])) < np.std(np.diff(y[samples]))
+
+
+@pytest.mark.parametrize("value", [-1.0, float("nan"), 1e9])
+def test_smoothing_is_validated(value):
+    with pytest.raises(EstimatorError, match="--smoothing"):
+        create_estimator("net1", smoothing=value)

@@ -421,6 +421,9 @@ def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Optio
                              "each input the mean of the last K samples; --delays then count the "
                              "network's samples and the estimate is held in between (1: every "
                              "sample; 5 on the machine set's 100 Hz gives the thesis nets' 20 Hz)"),
+        "smoothing": Option(float, 0.0, "time constant of a first-order low-pass on the "
+                            "network's estimate, seconds (a payload is constant while carried; "
+                            "0: none, the thesis nets)"),
         "epochs": Option(int, 700, "maximum training epochs (MATLAB: 1000; capped so that net1 on "
                                    "100 experiments trains in about 2 minutes)"),
         "max_time": Option(float, 0.0, "stop training after this many seconds (0: no limit)"),
@@ -490,6 +493,10 @@ class NeuralEstimator(Estimator):
         if not 1 <= self.decimation <= MAX_DECIMATION:
             raise EstimatorError(f"{self.name}: --decimation must be in 1 … {MAX_DECIMATION} samples, "
                                  f"got {o['decimation']}")
+        self.smoothing = float(o["smoothing"])
+        if not (math.isfinite(self.smoothing) and 0.0 <= self.smoothing <= 3600.0):
+            raise EstimatorError(f"{self.name}: --smoothing must be 0 … 3600 s, got {o['smoothing']}")
+        self._smoothed = math.nan
         self._block_sum: np.ndarray | None = None
         self._block_count = 0
         self._held: StepResult | None = None
@@ -663,6 +670,7 @@ class NeuralEstimator(Estimator):
 
     # -- streaming at the network's rate ----------------------------------------------------
     def _reset(self) -> None:
+        self._smoothed = math.nan
         self._block_sum = None
         self._block_count = 0
         self._held = None
@@ -674,7 +682,8 @@ class NeuralEstimator(Estimator):
         last estimate in between."""
         K = self.decimation
         if K == 1:
-            return self._network_step(time, values)
+            result = self._network_step(time, values)
+            return result if self.smoothing == 0.0 else self._smooth(result)
         if self._block_sum is None:
             self._block_sum = np.array(values, dtype=float)
         else:
@@ -683,8 +692,23 @@ class NeuralEstimator(Estimator):
         if self._block_count == K:
             mean = self._block_sum / K
             self._block_sum, self._block_count = None, 0
-            self._held = self._network_step(time, mean)
+            result = self._network_step(time, mean)
+            self._held = result if self.smoothing == 0.0 else self._smooth(result)
         return self._held if self._held is not None else StepResult(math.nan, Status.WARMING_UP)
+
+    def _smooth(self, result: StepResult) -> StepResult:
+        r"""First-order low-pass of the estimate at the network's rate,
+        :math:`\hat m_k = \hat m_{k-1} + (1 - e^{-\Delta t/\tau})(y_k - \hat m_{k-1})`, started
+        at the first estimate of the experiment (``--smoothing`` :math:`\tau`)."""
+        y = result.estimate
+        if result.status is not Status.OK or not math.isfinite(y):
+            return result
+        if math.isnan(self._smoothed):
+            self._smoothed = y
+        else:
+            period = self.decimation * self.sensor_set.sample_period
+            self._smoothed += -math.expm1(-period / self.smoothing) * (y - self._smoothed)
+        return StepResult(self._smoothed, result.status, result.sigma)
 
     def _reset_network(self) -> None:
         """Forget the network's delay lines and states (subclasses)."""
