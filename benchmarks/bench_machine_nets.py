@@ -12,6 +12,9 @@ Usage::
     PYTHONPATH=src python benchmarks/bench_machine_nets.py train net1 nets-data/train_val.parquet \\
         net1-d5 -- --decimation 5 --delays 0:5
     PYTHONPATH=src python benchmarks/bench_machine_nets.py judge net1-d5 machine-study --n-test 200
+    # --smoothing chosen on the validation experiments (the last 54 of the data file), not the tests
+    PYTHONPATH=src python benchmarks/bench_machine_nets.py judge net1-d5 nets-data/train_val.parquet \
+        --last 54 --smoothing 0,0.5,1,2,4
 
 ``judge`` uses the study's own rows (``demo_machine.judge`` / ``summary_row``: first second
 discarded, mean MAX / RMS, shares within 1 / 0.5 / 0.25 % of the rated 5 t) and also prints the
@@ -23,6 +26,7 @@ from an offset it cannot see.
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -103,41 +107,60 @@ def judge(a) -> None:
     from excavator_payload.estimators.base import load_estimator
 
     est = load_estimator(a.model)
-    zero = read_dataset(a.tests / "zero.parquet")
-    z = est.estimate(zero)
-    ok = (z["status"] == "ok").to_numpy()
-    tare = float(np.mean(z["payload_estimate"].to_numpy(float)[ok] - zero.frame["payload"].to_numpy(float)[ok]))
+    if a.tests.is_dir():
+        paths = {name: a.tests / f"{name}.parquet" for name in TEST_SETS}
+        zero_path = a.tests / "zero.parquet"
+    else:  # one file, e.g. the validation experiments (to choose --smoothing without the tests)
+        paths, zero_path = {a.tests.stem: a.tests}, None
+    sets = {}
+    for name, path in paths.items():
+        if path.exists():
+            ds = read_dataset(path)
+            sets[name] = ds.subset(ds.experiment_ids[-a.last:]) if a.last else \
+                ds.subset(ds.experiment_ids[:a.n_test]) if a.n_test else ds
     rows = []
-    for name in TEST_SETS:
-        path = a.tests / f"{name}.parquet"
-        if not path.exists():
-            continue
-        ds = read_dataset(path)
-        if a.n_test:
-            ds = ds.subset(ds.experiment_ids[:a.n_test])
-        t0 = time.perf_counter()
-        evaluation = dm.judge(est, ds, est.name, None)
-        row = {"test": name, "estimator": est.name, "model": str(a.model), **dm.summary_row(evaluation, dm.RATED_PAYLOAD)}
-        # per-experiment mean error: the part of the error a constant tare could remove
-        errors = pd.DataFrame({"experiment": ds.frame["experiment"].to_numpy(),
-                               "k": ds.frame.groupby("experiment").cumcount().to_numpy(),
-                               "error": np.asarray(evaluation.estimates, float)
-                               - ds.frame["payload"].to_numpy(float)})
-        judged = errors[errors["k"] >= dm.DISCARD]
-        bias = judged.groupby("experiment")["error"].mean()
-        tared_max = judged.assign(e=(judged["error"] - tare).abs()).groupby("experiment")["e"].max()
-        row.update(mean_bias_kg=float(bias.mean()), mean_abs_bias_kg=float(bias.abs().mean()),
-                   zero_tare_kg=tare, tared_mean_max_kg=float(tared_max.mean()),
-                   tared_within_1pct=float((tared_max <= 0.01 * dm.RATED_PAYLOAD).mean()),
-                   seconds=time.perf_counter() - t0)
-        rows.append(row)
-        print(f"{name:22s} MAX {row['mean_max_kg']:7.0f}  RMS {row['mean_rms_kg']:6.0f}  within 1 % "
-              f"{100 * row['within_1pct']:3.0f} %  mean bias {row['mean_bias_kg']:+6.0f} (|·| "
-              f"{row['mean_abs_bias_kg']:5.0f})  tared by {tare:+.0f} kg: MAX {row['tared_mean_max_kg']:7.0f}, "
-              f"{100 * row['tared_within_1pct']:3.0f} %  ({row['seconds']:.0f} s, {row['n_test']} experiments)",
-              flush=True)
+    for smoothing in a.smoothing:
+        # a streaming-time option: the trained weights are the same
+        est.smoothing = est.options["smoothing"] = smoothing
+        est.reset()
+        tare = math.nan
+        if zero_path is not None and zero_path.exists():
+            zero = read_dataset(zero_path)
+            z = est.estimate(zero)
+            ok = (z["status"] == "ok").to_numpy()
+            tare = float(np.mean(z["payload_estimate"].to_numpy(float)[ok]
+                                 - zero.frame["payload"].to_numpy(float)[ok]))
+        print(f"{a.model} smoothing {smoothing:g} s", flush=True)
+        for name, ds in sets.items():
+            rows.append(_judge_one(est, ds, name, a.model, smoothing, tare))
     if a.csv:
         pd.DataFrame(rows).to_csv(a.csv, index=False)
+
+
+def _judge_one(est, ds, name, model, smoothing, tare) -> dict:
+    """One row: the study's figures, the mean per-experiment bias, and the MAX after a tare."""
+    t0 = time.perf_counter()
+    evaluation = dm.judge(est, ds, est.name, None)
+    row = {"test": name, "estimator": est.name, "model": str(model), "smoothing_s": smoothing,
+           **dm.summary_row(evaluation, dm.RATED_PAYLOAD)}
+    # per-experiment mean error: the part of the error a constant tare could remove
+    errors = pd.DataFrame({"experiment": ds.frame["experiment"].to_numpy(),
+                           "k": ds.frame.groupby("experiment").cumcount().to_numpy(),
+                           "error": np.asarray(evaluation.estimates, float)
+                           - ds.frame["payload"].to_numpy(float)})
+    judged = errors[errors["k"] >= dm.DISCARD]
+    bias = judged.groupby("experiment")["error"].mean()
+    tared_max = judged.assign(e=(judged["error"] - tare).abs()).groupby("experiment")["e"].max()
+    row.update(mean_bias_kg=float(bias.mean()), mean_abs_bias_kg=float(bias.abs().mean()),
+               zero_tare_kg=tare, tared_mean_max_kg=float(tared_max.mean()),
+               tared_within_1pct=float((tared_max <= 0.01 * dm.RATED_PAYLOAD).mean()),
+               seconds=time.perf_counter() - t0)
+    print(f"{name:22s} MAX {row['mean_max_kg']:7.0f}  RMS {row['mean_rms_kg']:6.0f}  within 1 % "
+          f"{100 * row['within_1pct']:3.0f} %  mean bias {row['mean_bias_kg']:+6.0f} (|·| "
+          f"{row['mean_abs_bias_kg']:5.0f})  tared by {tare:+.0f} kg: MAX {row['tared_mean_max_kg']:7.0f}, "
+          f"{100 * row['tared_within_1pct']:3.0f} %  ({row['seconds']:.0f} s, {row['n_test']} experiments)",
+          flush=True)
+    return row
 
 
 def main() -> None:
@@ -160,6 +183,9 @@ def main() -> None:
     j.add_argument("model", type=Path)
     j.add_argument("tests", type=Path, help="the --out folder of bench_machine_study.py")
     j.add_argument("--n-test", type=int, default=0, help="first N experiments of each set (0: all)")
+    j.add_argument("--last", type=int, default=0, help="the last N experiments of the file instead")
+    j.add_argument("--smoothing", type=lambda s: [float(x) for x in s.split(",")], default=[0.0],
+                   help="--smoothing values (s) to judge the model with, comma separated")
     j.add_argument("--csv", type=Path, default=None)
     a = ap.parse_args()
     if a.command == "train" and a.options[:1] == ["--"]:
