@@ -7,13 +7,15 @@ Usage::
     # up to the dump), sessions 3…8 for training, 9…11 for validation (the tests are session 2)
     PYTHONPATH=src python benchmarks/bench_machine_nets.py data --out nets-data
     # the same count from ONE session (1, the calibration session), to see what sessions teach
-    PYTHONPATH=src python benchmarks/bench_machine_nets.py data --out nets-data-1 --sessions 1 --per-motion 54
-    # train (any estimator options after --), then judge on the tests of bench_machine_study.py
+    PYTHONPATH=src python benchmarks/bench_machine_nets.py data --out nets-data-1 --sessions 1 --per-motion 54 \\
+        --seed 40000
+    # train (any estimator options after --; on a busy machine with OMP_NUM_THREADS=1, see
+    # trainbr._eigh), then judge on the tests of bench_machine_study.py
     PYTHONPATH=src python benchmarks/bench_machine_nets.py train net1 nets-data/train_val.parquet \\
         net1-d5 -- --decimation 5 --delays 0:5
     PYTHONPATH=src python benchmarks/bench_machine_nets.py judge net1-d5 machine-study --n-test 200
     # --smoothing chosen on the validation experiments (the last 54 of the data file), not the tests
-    PYTHONPATH=src python benchmarks/bench_machine_nets.py judge net1-d5 nets-data/train_val.parquet \
+    PYTHONPATH=src python benchmarks/bench_machine_nets.py judge net1-d5 nets-data/train_val.parquet \\
         --last 54 --smoothing 0,0.5,1,2,4
 
 ``judge`` uses the study's own rows (``demo_machine.judge`` / ``summary_row``: first second
@@ -27,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -60,7 +63,8 @@ def concat(parts: list[Dataset]) -> Dataset:
         frame["experiment"] = frame["experiment"].map(renumber)
         meta = ds.experiment_meta
         for old in ids:
-            experiments.append({**meta[old], "experiment": renumber[old], "session": ds.meta.get("session")})
+            experiments.append({**meta[old], "experiment": renumber[old],
+                                "session": meta[old].get("session", ds.meta.get("session"))})
         frames.append(frame)
         k += len(ids)
     meta = {**parts[0].meta, "experiments": experiments, "motion": "mixed"}
@@ -76,7 +80,7 @@ def make_data(a) -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     train = concat(sessions_block(a.sessions, a.per_motion, a.seed))
-    val = concat(sessions_block(a.val_sessions, a.val_per_motion, a.seed + 10000))
+    val = concat(sessions_block(a.val_sessions, a.val_per_motion, a.val_seed))
     both = concat([train, val])
     write_dataset(both, a.out / "train_val.parquet")
     print(f"{a.out / 'train_val.parquet'}: {train.n_experiments} training experiments (sessions "
@@ -173,12 +177,12 @@ def main() -> None:
     d.add_argument("--val-sessions", type=lambda s: [int(x) for x in s.split(",")], default=[9, 10, 11])
     d.add_argument("--val-per-motion", type=int, default=6)
     d.add_argument("--seed", type=int, default=50000)
+    d.add_argument("--val-seed", type=int, default=60000)
     t = sub.add_parser("train", help="train a network on a data file (options after --)")
     t.add_argument("name")
     t.add_argument("data", type=Path)
     t.add_argument("out", type=Path)
     t.add_argument("--val-sessions", type=lambda s: [int(x) for x in s.split(",")], default=[9, 10, 11])
-    t.add_argument("options", nargs=argparse.REMAINDER)
     j = sub.add_parser("judge", help="judge a trained model on the study's test sets")
     j.add_argument("model", type=Path)
     j.add_argument("tests", type=Path, help="the --out folder of bench_machine_study.py")
@@ -187,9 +191,11 @@ def main() -> None:
     j.add_argument("--smoothing", type=lambda s: [float(x) for x in s.split(",")], default=[0.0],
                    help="--smoothing values (s) to judge the model with, comma separated")
     j.add_argument("--csv", type=Path, default=None)
-    a = ap.parse_args()
-    if a.command == "train" and a.options[:1] == ["--"]:
-        a.options = a.options[1:]
+    argv = sys.argv[1:]
+    # estimator options (train) follow "--", passed through as they are
+    split = argv.index("--") if "--" in argv else len(argv)
+    a = ap.parse_args(argv[:split])
+    a.options = argv[split + 1:]
     {"data": make_data, "train": train, "judge": judge}[a.command](a)
 
 
