@@ -1764,6 +1764,11 @@ def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") 
         raise EstimatorError(f"{estimator.name} has no C export; exportable: {', '.join(C_EXPORTABLE)}")
     if precision not in ("float64", "float32"):
         raise EstimatorError("precision must be float64 or float32")
+    if getattr(estimator, "decimation", 1) != 1 or getattr(estimator, "smoothing", 0.0) != 0.0:
+        raise EstimatorError(f"{estimator.name}: a network with --decimation {estimator.decimation} or "
+                             f"--smoothing {estimator.smoothing:g} has no C export (it runs the "
+                             "network alone on every sample); train it with --decimation 1 "
+                             "--smoothing 0 to export it")
     model = builder(estimator)
     base = "ep_" + c_identifier(estimator.name)
     header, source = render(estimator, model, base, precision == "float32")

@@ -114,6 +114,11 @@ class _NarxGraph(torch.nn.Module):
 
 def onnx_graph(est: Estimator) -> torch.nn.Module:
     """The PyTorch module that is exported (float32)."""
+    if getattr(est, "decimation", 1) != 1 or getattr(est, "smoothing", 0.0) != 0.0:
+        raise EstimatorError(f"{est.name}: a network with --decimation {est.decimation} or "
+                             f"--smoothing {est.smoothing:g} has no ONNX export (it runs the "
+                             "network alone on every sample); train it with --decimation 1 "
+                             "--smoothing 0 to export it")
     if est.name in ("net1", "ffnn"):
         return _TimeDelayGraph(est).eval()
     if est.name == "net2":

@@ -30,7 +30,7 @@ import torch
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SENSOR_SETS, THESIS_SENSORS, SensorSet
 from excavator_payload.errors import EstimatorError
-from excavator_payload.estimators.base import Estimator, Option
+from excavator_payload.estimators.base import Estimator, Option, Status, StepResult
 from excavator_payload.estimators.dvs.trainbr import LOG_COLUMNS, TrainingLog, train_adam, train_br
 
 #: The thesis' network inputs (appendix A.3 ``Input='[1 2 4 5 7 8]'``): angles, rates, torques.
@@ -80,6 +80,18 @@ def parse_int_list(raw: Any, what: str) -> list[int]:
     except ValueError:
         raise EstimatorError(f"{what}: cannot read {raw!r} (use e.g. '10,10,10' or '0:5')") from None
     return out
+
+
+#: Largest ``--decimation``: 10 s between network samples at 100 Hz, beyond any use.
+MAX_DECIMATION = 1000
+
+
+def block_means(values: np.ndarray, factor: int) -> np.ndarray:
+    """Means of consecutive blocks of ``factor`` rows, ``(T // factor, …)``; an incomplete
+    last block is dropped (a streaming network would not have run on it yet)."""
+    values = np.asarray(values, dtype=float)
+    n = len(values) // factor
+    return values[:n * factor].reshape(n, factor, *values.shape[1:]).mean(axis=1)
 
 
 #: Longest list an option may expand to (delays, layers).
@@ -261,7 +273,8 @@ def mlp_forward(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int]) -> torch
     return a @ W.T + b
 
 
-def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int]) -> torch.Tensor:
+def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int],
+                        negate: bool = False) -> torch.Tensor:
     r"""Per-sample gradients :math:`\partial y_i/\partial w` of a single-output MLP, ``(N, P)``.
 
     Backpropagation written out: with :math:`\delta_L = 1` and
@@ -269,6 +282,26 @@ def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int]) 
     :math:`i` w.r.t. :math:`W_l` is :math:`\delta_{l,i}\, a_{l-1,i}^\top` and w.r.t.
     :math:`b_l` is :math:`\delta_{l,i}`. Equal to ``torch.func.vmap(torch.func.grad(...))``
     (tested) but several times faster, which keeps an LM epoch cheap.
+
+    Parameters
+    ----------
+    w : torch.Tensor
+        Flat weights.
+    x : torch.Tensor
+        ``(N, n_in)`` scaled inputs.
+    sizes : sequence of int
+        Layer sizes (last one 1).
+    negate : bool
+        Return :math:`-\partial y/\partial w` (the Jacobian of the residuals target − output)
+        by starting from :math:`\delta_L = -1`. Exactly the negated matrix (IEEE negation
+        commutes with every product and sum here), without the extra pass and the extra copy
+        of an ``(N, P)`` array a separate negation costs: on the machine set ``N·P`` is about
+        10⁸ and that copy was a quarter of an epoch.
+
+    Notes
+    -----
+    The blocks are written straight into one preallocated ``(N, P)`` array (no concatenation,
+    which would hold every block twice).
     """
     if sizes[-1] != 1:
         raise ValueError("mlp_output_jacobian: single-output networks only")
@@ -276,15 +309,24 @@ def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int]) 
     acts = [x]
     for W, b in layers[:-1]:
         acts.append(torch.tanh(acts[-1] @ W.T + b))
-    blocks = []
-    delta = torch.ones(x.shape[0], 1, dtype=x.dtype)
+    n = x.shape[0]
+    out = torch.empty(n, w.shape[-1], dtype=x.dtype)
+    # column offset of each layer's (W, b) block in the flat weight vector
+    offsets, k = [], 0
+    for n_prev, n_next in zip(sizes[:-1], sizes[1:]):
+        offsets.append(k)
+        k += n_next * (n_prev + 1)
+    delta = torch.full((n, 1), -1.0 if negate else 1.0, dtype=x.dtype)
     for l in range(len(layers) - 1, -1, -1):
         a_prev = acts[l]
-        blocks.append(delta)  # bias block
-        blocks.append((delta[:, :, None] * a_prev[:, None, :]).reshape(x.shape[0], -1))  # W block
+        n_next, n_prev = delta.shape[1], a_prev.shape[1]
+        k = offsets[l]
+        torch.mul(delta[:, :, None], a_prev[:, None, :],
+                  out=out[:, k:k + n_next * n_prev].view(n, n_next, n_prev))  # W block
+        out[:, k + n_next * n_prev:k + n_next * (n_prev + 1)] = delta  # bias block
         if l > 0:
             delta = (delta @ layers[l][0]) * (1.0 - a_prev ** 2)
-    return torch.cat(blocks[::-1], dim=1)
+    return out
 
 
 def mlp_forward_numpy(layers: Sequence[tuple[np.ndarray, np.ndarray]], x: np.ndarray) -> np.ndarray:
@@ -375,6 +417,13 @@ def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Optio
                          "thesis set, every signal on the machine set)"),
         "scaling": Option(str, "mapminmax", "input/output scaling", SCALINGS),
         "trainer": Option(str, "trainbr", "training algorithm", TRAINERS),
+        "decimation": Option(int, 1, "the network runs on every K-th sample of the data (samples), "
+                             "each input the mean of the last K samples; --delays then count the "
+                             "network's samples and the estimate is held in between (1: every "
+                             "sample; 5 on the machine set's 100 Hz gives the thesis nets' 20 Hz)"),
+        "smoothing": Option(float, 0.0, "time constant of a first-order low-pass on the "
+                            "network's estimate, seconds (a payload is constant while carried; "
+                            "0: none, the thesis nets)"),
         "epochs": Option(int, 700, "maximum training epochs (MATLAB: 1000; capped so that net1 on "
                                    "100 experiments trains in about 2 minutes)"),
         "max_time": Option(float, 0.0, "stop training after this many seconds (0: no limit)"),
@@ -408,7 +457,9 @@ class NeuralEstimator(Estimator):
       ``residuals(w)`` returns the flat target − output errors of all samples that get an
       estimate (``preparets``), ``jacobian(w)`` their ``∂e/∂w`` (None: generic forward AD);
     * ``_use_weights(w)``: pre-extract numpy matrices for streaming;
-    * ``_reset`` and ``_step`` (streaming, see :class:`~excavator_payload.estimators.base.Estimator`).
+    * ``_reset_network`` and ``_network_step`` (streaming at the network's rate, see
+      :class:`~excavator_payload.estimators.base.Estimator`'s ``_reset``/``_step``; the base
+      feeds them every sample, or block means with ``--decimation``).
 
     After :meth:`fit`: ``weights`` (numpy float64), ``input_scaler``, ``output_scaler``,
     ``training_log``; ``input_names`` / ``input_index`` say which signals feed the network.
@@ -438,6 +489,17 @@ class NeuralEstimator(Estimator):
                 error = error or exc
         else:
             raise error
+        self.decimation = int(o["decimation"])
+        if not 1 <= self.decimation <= MAX_DECIMATION:
+            raise EstimatorError(f"{self.name}: --decimation must be in 1 … {MAX_DECIMATION} samples, "
+                                 f"got {o['decimation']}")
+        self.smoothing = float(o["smoothing"])
+        if not (math.isfinite(self.smoothing) and 0.0 <= self.smoothing <= 3600.0):
+            raise EstimatorError(f"{self.name}: --smoothing must be 0 … 3600 s, got {o['smoothing']}")
+        self._smoothed = math.nan
+        self._block_sum: np.ndarray | None = None
+        self._block_count = 0
+        self._held: StepResult | None = None
         for key in ("epochs", "train_experiments"):
             if int(o[key]) < 1:
                 raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be at least 1")
@@ -517,11 +579,21 @@ class NeuralEstimator(Estimator):
         return train, val
 
     def _scaled(self, dataset: Dataset) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Scaled per-experiment inputs and targets at the network's rate.
+
+        With ``--decimation K`` the inputs are the means of blocks of K samples and the target
+        of a block is the payload at its last sample, exactly what :meth:`_step` feeds the
+        network while streaming (the mean is taken of the raw values, then scaled, as there).
+        """
         xs, ys = experiment_arrays(dataset, self.input_names)
         bad = [i for i, x in enumerate(xs) if not np.all(np.isfinite(x))]
         if bad or not all(np.all(np.isfinite(y)) for y in ys):
             raise EstimatorError(f"{self.name}: training data contain NaN or infinite values "
                                  f"(e.g. experiment row block {bad[:3]}); clean them first")
+        K = self.decimation
+        if K > 1:
+            xs = [block_means(x, K) for x in xs]
+            ys = [y[K - 1::K][:len(x)] for x, y in zip(xs, ys)]
         return ([self.input_scaler.transform(x) for x in xs],
                 [self.output_scaler.transform(y[:, None])[:, 0] for y in ys])
 
@@ -595,6 +667,56 @@ class NeuralEstimator(Estimator):
         self.residual_source = "validation" if val is not None else "training"
         self.reset()
         return self
+
+    # -- streaming at the network's rate ----------------------------------------------------
+    def _reset(self) -> None:
+        self._smoothed = math.nan
+        self._block_sum = None
+        self._block_count = 0
+        self._held = None
+        self._reset_network()
+
+    def _step(self, time: float, values: np.ndarray) -> StepResult:
+        """Feed the network every sample, or with ``--decimation K`` the mean of each block of
+        K samples (counted from the start of the experiment, as in training) and hold its
+        last estimate in between."""
+        K = self.decimation
+        if K == 1:
+            result = self._network_step(time, values)
+            return result if self.smoothing == 0.0 else self._smooth(result)
+        if self._block_sum is None:
+            self._block_sum = np.array(values, dtype=float)
+        else:
+            self._block_sum += values
+        self._block_count += 1
+        if self._block_count == K:
+            mean = self._block_sum / K
+            self._block_sum, self._block_count = None, 0
+            result = self._network_step(time, mean)
+            self._held = result if self.smoothing == 0.0 else self._smooth(result)
+        return self._held if self._held is not None else StepResult(math.nan, Status.WARMING_UP)
+
+    def _smooth(self, result: StepResult) -> StepResult:
+        r"""First-order low-pass of the estimate at the network's rate,
+        :math:`\hat m_k = \hat m_{k-1} + (1 - e^{-\Delta t/\tau})(y_k - \hat m_{k-1})`, started
+        at the first estimate of the experiment (``--smoothing`` :math:`\tau`)."""
+        y = result.estimate
+        if result.status is not Status.OK or not math.isfinite(y):
+            return result
+        if math.isnan(self._smoothed):
+            self._smoothed = y
+        else:
+            period = self.decimation * self.sensor_set.sample_period
+            self._smoothed += -math.expm1(-period / self.smoothing) * (y - self._smoothed)
+        return StepResult(self._smoothed, result.status, result.sigma)
+
+    def _reset_network(self) -> None:
+        """Forget the network's delay lines and states (subclasses)."""
+        raise NotImplementedError
+
+    def _network_step(self, time: float, values: np.ndarray) -> StepResult:
+        """One sample at the network's rate (``values`` in sensor-set order, raw)."""
+        raise NotImplementedError
 
     def _on_skip(self, time: float, values: np.ndarray) -> None:
         """Nothing before the next sample is judged; see :meth:`_fill_rejected`."""
@@ -679,4 +801,4 @@ class NeuralEstimator(Estimator):
 __all__ = ["THESIS_INPUTS", "DEFAULT_INPUTS", "SCALINGS", "TRAINERS", "Scaler", "mlp_sizes", "n_weights", "mlp_layers",
            "nguyen_widrow_init", "mlp_forward", "mlp_output_jacobian", "mlp_forward_numpy", "delay_windows", "DelayLine",
            "experiment_bounds", "experiment_arrays", "neural_options", "NeuralEstimator",
-           "parse_int_list", "parse_hidden", "parse_delays", "parse_inputs"]
+           "parse_int_list", "parse_hidden", "parse_delays", "parse_inputs", "block_means"]

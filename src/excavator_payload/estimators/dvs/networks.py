@@ -29,6 +29,12 @@ let μ saturate). One trainbr epoch of net1 on 100 experiments (9600 targets, 60
 costs about 0.16 s on one core, dominated by :math:`J^\top J`; 700 epochs train in about two
 minutes and reach RMS errors within 1.2× of the 6-sample Cramér–Rao bound on NMPC data
 (``benchmarks/bench_dvs.py``). Pass ``--epochs 1000`` for MATLAB's default.
+
+On the machine sensor set (15 signals at 100 Hz) one epoch is far dearer: 150 experiments give
+~2·10⁵ targets and the 15 signals × 6 delays make ~1100 weights, so :math:`J^\top J` alone is
+~2·10¹¹ flops. ``--decimation 5`` runs the network at the thesis nets' 20 Hz on block means of 5
+samples: five times fewer targets (and less noise per input) for the same span of motion
+(``benchmarks/bench_machine_nets.py``).
 """
 
 from __future__ import annotations
@@ -83,8 +89,8 @@ class TimeDelayNetwork(NeuralEstimator):
 
         def jacobian(w):
             # ∂e_i/∂w = −∂y(x_i)/∂w (backpropagation per sample, equal to torch.func's per-sample
-            # gradients, tested; several times faster)
-            return -mlp_output_jacobian(w, X, sizes)
+            # gradients, tested; several times faster), negated inside: no second (N, P) array
+            return mlp_output_jacobian(w, X, sizes, negate=True)
 
         return residuals, jacobian
 
@@ -115,12 +121,12 @@ class TimeDelayNetwork(NeuralEstimator):
         self._buffer = np.zeros(2 * L * n_sig)
         self._reset()
 
-    def _reset(self) -> None:
+    def _reset_network(self) -> None:
         if self.weights is not None:
             self._newest = -1  # ring position of the newest sample
             self._count = 0
 
-    def _step(self, time: float, values: np.ndarray) -> StepResult:
+    def _network_step(self, time: float, values: np.ndarray) -> StepResult:
         L, n_sig = self._stream_length, self._n_signals
         p = self._newest = (self._newest + 1) % L
         # each sample is written twice, L blocks apart, so the last L samples are always the
@@ -140,6 +146,9 @@ class TimeDelayNetwork(NeuralEstimator):
     def predict_windows(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Batch outputs (kg) per experiment from RAW ``(T_i, n_inputs)`` arrays; NaN where no
         estimate (used to check that streaming equals batch)."""
+        if self.decimation != 1:
+            raise EstimatorError(f"{self.name}: predict_windows runs at the data's rate only "
+                                 "(--decimation 1); use estimate()")
         out = []
         for x in inputs:
             win = delay_windows(self.input_scaler.transform(np.asarray(x, float)), self.delay_list)
@@ -315,12 +324,12 @@ class DistributedDelayNetwork(NeuralEstimator):
         sizes = [self.n_inputs, *self.hidden_sizes]
         self._lines = [DelayLine(n, self.delay_list, zero_history=(i > 0)) for i, n in enumerate(sizes)]
 
-    def _reset(self) -> None:
+    def _reset_network(self) -> None:
         if self.weights is not None:
             for line in self._lines:
                 line.reset()
 
-    def _step(self, time: float, values: np.ndarray) -> StepResult:
+    def _network_step(self, time: float, values: np.ndarray) -> StepResult:
         window = self._lines[0].push(self._scale_input(values))
         if window is None:
             return _WARMING

@@ -620,11 +620,11 @@ class RecurrentNetwork(NeuralEstimator):
     def _use_weights(self, w: np.ndarray) -> None:
         self._stepper = RecurrentStepper(w, self.structure, self._initial_scaled)
 
-    def _reset(self) -> None:
+    def _reset_network(self) -> None:
         if self._stepper is not None:
             self._stepper.reset()
 
-    def _step(self, time: float, values: np.ndarray) -> StepResult:
+    def _network_step(self, time: float, values: np.ndarray) -> StepResult:
         y = self._stepper.step(self._scale_input(values))
         if y != y:  # NaN: delay lines still filling
             return _WARMING
@@ -633,6 +633,9 @@ class RecurrentNetwork(NeuralEstimator):
     def predict_experiments(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Vectorised closed-loop estimates (kg) of unscaled per-experiment ``(T_i, k)`` input
         arrays (``input_names`` columns); NaN for the warm-up samples. Equals streaming."""
+        if self.decimation != 1:
+            raise EstimatorError(f"{self.name}: predict_experiments runs at the data's rate only "
+                                 "(--decimation 1); use estimate()")
         K = self.structure.warmup
         w = torch.as_tensor(self.weights)
         out = []

@@ -210,6 +210,17 @@ def _gram(J: torch.Tensor) -> torch.Tensor:
 
 
 def _eigh(A: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Eigen-decomposition of the (P × P) JᵀJ.
+
+    On a busy machine train with ``OMP_NUM_THREADS=1`` (or ``OPENBLAS_NUM_THREADS=1``): the
+    threaded LAPACK eigensolver synchronises its threads many times per call and waits for a
+    core each time another process holds one. Measured on this 2-core machine at load ~4:
+    P = 601 (thesis net1) 8.8 s with 2 threads against 0.056 s with one, P = 1141 (net1 on the
+    machine set) 10–15 s against 0.22 s: most of an epoch (the 26 epochs in 30 minutes of the
+    first machine-set training). The default is left threaded because a single-threaded
+    eigensolver changes the trained thesis networks in the last bits (≈1e-13 relative after 15
+    epochs), and their published figures are kept bit-identical.
+    """
     if _numpy_blas_single_threaded():
         s, V = np.linalg.eigh(A.numpy())
         return torch.from_numpy(s), torch.from_numpy(V)
