@@ -216,7 +216,10 @@ def summary_row(evaluation, rated: float = 5000.0, attainable_1pct: pd.Series | 
            "within_0.5pct": float(np.mean(max_err <= 0.005 * rated)),
            "within_0.25pct": float(np.mean(max_err <= 0.0025 * rated)),
            "efficiency": float(evaluation.summary.get("efficiency", math.nan)),
-           "n_test": int(len(pe))}
+           "n_test": int(len(pe)),
+           # judged samples with an estimate: a share within 1 % means little where the
+           # estimator said nothing (warming up, standstills skipped)
+           "estimated_share": float(pe["estimated_share"].mean()) if "estimated_share" in pe else math.nan}
     if attainable_1pct is not None:
         ok = attainable_1pct.reindex(pe["experiment"].to_numpy()).fillna(False).to_numpy(bool)
         row["attainable_1pct"] = float(np.mean(ok))
