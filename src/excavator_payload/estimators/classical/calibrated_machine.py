@@ -66,7 +66,7 @@ integrated over a window (``HydraulicSymbolic``'s ``momentum_regression``, affin
 payload; :func:`window_residuals`): the momentum's change against the integral of the torques
 and forces. Weighted by a trapezoid (:func:`balance_weights`) and summed by parts, each end's
 momentum is averaged over ``BALANCE_RAMP`` samples — the rates' noise enters only there. With the
-true machine and offsets this form weighs field-noise NMPC swings within 7.7 kg mean MAX (the
+true machine, offsets and IMU dynamics this form weighs field-noise NMPC swings within 8.4 kg mean MAX (the
 per-sample form: 66 kg — the calibrated parameters of that form partly compensate its
 differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
 (the acceleration sensitivities wander); a window with a standstill carries its still share of
