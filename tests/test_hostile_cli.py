@@ -792,10 +792,17 @@ def test_hostile_case(case, good_inputs, tmp_path, capsys):
 
 
 # -- real processes -------------------------------------------------------------------------------
+def _default_sigint():
+    # a shell's background job (``cmd &``) ignores SIGINT, and Python keeps an ignored SIGINT:
+    # the child of a suite run that way would never see the Ctrl-C under test
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _cli(*args, **kwargs):
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
     return subprocess.Popen([sys.executable, "-m", "excavator_payload.cli", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kwargs)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_default_sigint, **kwargs)
 
 
 def test_version_in_a_real_process():

@@ -6,6 +6,13 @@ from excavator_payload.cli import main
 from excavator_payload.data.io import read_dataset
 
 
+def _default_sigint():
+    """A shell's background job (``cmd &``) ignores SIGINT, and Python keeps an ignored SIGINT:
+    the child of a suite run that way would never see the Ctrl-C under test."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 def test_simulate_nmpc_and_export_mat(tmp_path, capsys):
     out = tmp_path / "d.parquet"
     code = main(["simulate", "--experiments", "2", "--seed", "3", "--out", str(out), "--workers", "1",
@@ -87,7 +94,7 @@ def test_real_ctrl_c_on_a_local_cluster_keeps_chunks_and_leaves_no_worker(tmp_pa
     proc = subprocess.Popen([sys.executable, "-c", "from excavator_payload.cli import run; run()", "simulate",
                              "-n", "80", "--out", str(out), "--workers", "2", "--quiet"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=_default_sigint)
     folder = tmp_path / "d.parquet.partial"
     deadline = time.monotonic() + 120
     children = []
