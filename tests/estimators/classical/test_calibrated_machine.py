@@ -269,3 +269,19 @@ def test_momentum_balance_has_no_c_export_yet(momentum, tmp_path):
 
     with pytest.raises(EstimatorError, match="balance momentum"):
         export_c(momentum, tmp_path / "c")
+
+
+def test_momentum_balance_rejects_a_glitch_and_keeps_its_interval(momentum, setup):
+    """In the momentum form a rejected frame's repaired slot stays in the balance (its interval
+    belongs to the integral) but is never regressed: the estimate hardly moves."""
+    test = setup["test"]
+    clean = momentum.estimate(test)
+    frame = test.frame.copy()
+    hit = frame.index[frame.groupby("experiment").cumcount() == 300]
+    frame.loc[hit, "boom_head_pressure"] += 3e6
+    glitched = momentum.estimate(Dataset(frame, test.meta))
+    status = glitched["status"].astype(str).to_numpy()
+    assert np.all(status[hit + 1] == "rejected_outlier")
+    last = frame.groupby("experiment").tail(1).index
+    change = np.abs(glitched["payload_estimate"].to_numpy()[last] - clean["payload_estimate"].to_numpy()[last])
+    assert np.all(change < 1.0)

@@ -831,7 +831,8 @@ class CalibratedKernel(PressureRegression):
         if self._count < length:
             return False
         # the window ends on the sample before this one: every sample in it has been judged
-        if not self._ring_used[pos + 1 + self.half_window]:
+        centre_used = self._ring_used[pos + 1 + self.half_window]
+        if not centre_used and self.balance != "momentum":
             return False  # a rejected sample's slot: part of the window, never regressed
         window = self._ring[pos + 1:pos + 1 + w]
         out = self._call(window[self.half_window], self._slope @ window[:, RATES])
@@ -846,7 +847,9 @@ class CalibratedKernel(PressureRegression):
         b = self._balance
         slot = self._terms_count % b
         self._terms[slot] = self._terms[slot + b] = out
-        self._terms_used[slot] = self._terms_used[slot + b] = self._ring_used[pos + 1 + self.half_window]
+        # a rejected sample's repaired slot stays in the balance (its interval is part of the
+        # integral) but is never a window's centre
+        self._terms_used[slot] = self._terms_used[slot + b] = centre_used
         self._terms_count += 1
         if self._terms_count < b:
             return False
