@@ -61,6 +61,8 @@ def _machine_models(data):
     for low_speed in ("skip", "downweight", "model"):
         yield f"calibrated-{low_speed}", create_estimator(
             "calibrated", machine="cat345c-hydraulic-3pct", low_speed=low_speed).fit(data)
+    yield "calibrated-momentum", create_estimator(
+        "calibrated", machine="cat345c-hydraulic-3pct", balance="momentum").fit(data)
     yield "ekf", create_estimator("ekf", machine="cat345c-hydraulic").fit(data)
 
 
@@ -69,7 +71,8 @@ def machine_models(machine_swings):
     return dict(_machine_models(machine_swings))
 
 
-NAMES = ["inverse-dynamics", "calibrated-skip", "calibrated-downweight", "calibrated-model", "ekf"]
+NAMES = ["inverse-dynamics", "calibrated-skip", "calibrated-downweight", "calibrated-model",
+         "calibrated-momentum", "ekf"]
 
 
 @pytest.mark.parametrize("name", NAMES)

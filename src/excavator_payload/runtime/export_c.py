@@ -47,7 +47,9 @@ What is generated from what
   constants; ``inverse-dynamics``: the ground tilt from the house IMU); the ring buffer of
   ``2·half_window + 1`` samples, the centred least-squares slope of the rates, the weights and
   ``--low-speed`` rule, the recursive sums, status, sigma and gap rule (a short gap restarts
-  the window) are ported here, and so is the kernels' one-frame outlier test in place of the
+  the window) are ported here (``calibrated --balance momentum``: one sample's momentum-balance
+  terms from ``HydraulicSymbolic.functions["momentum_regression"]``, and a second ring holding
+  the balance's window), and so is the kernels' one-frame outlier test in place of the
   chi-square gate (``pressure_regression``: the sample before the newest judged between its
   neighbours against per-signal thresholds from the fit data, its slot repaired and never
   regressed, ``rejected_outlier``; ``-DEP_GATING=0`` turns it off).
@@ -1012,9 +1014,7 @@ def _pressure_regression_model(est) -> CModel:
     if kernel is None:
         raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
     calibrated = isinstance(kernel, CalibratedKernel)
-    if calibrated and kernel.balance == "momentum":
-        raise EstimatorError(f"{est.name}: the C export of --balance momentum is not written yet; "
-                             "fit with --balance differentiated (the default) to export")
+    momentum = calibrated and kernel.balance == "momentum"
     sensors = est.sensor_set
     n = len(sensors.signals)
     h = int(kernel.half_window)
@@ -1035,7 +1035,14 @@ def _pressure_regression_model(est) -> CModel:
         ratio = ca.sin(x[PITCH]) / ca.fmax(ca.cos(x[ROLL]), 1e-9)
         tilt = ca.vertcat(ca.asin(ca.fmin(1.0, ca.fmax(-1.0, ratio))), x[ROLL])
         pressures = ca.vertcat(*[x[i] for i in PRESSURES])
-    outputs = hydraulic_symbolic().functions["pressure_regression"](q, qd, qdd, tilt, pressures, ca.DM(p))
+    if momentum:  # calibrated_machine.kernel_function("momentum"): the balance terms of one sample
+        from excavator_payload.estimators.classical.calibrated_machine import _momentum_terms
+
+        A, lever_s, speed_s, stiction_s, gain_s = _momentum_terms(
+            x, qdd, ca.DM(p), ca.DM(np.asarray(kernel._offset, float)), ca.DM(np.asarray(kernel._imu, float)))
+        outputs = [A, lever_s, speed_s, stiction_s, gain_s]
+    else:
+        outputs = hydraulic_symbolic().functions["pressure_regression"](q, qd, qdd, tilt, pressures, ca.DM(p))
     kernel_fn = ca.Function("ep_pressure_regression", [x, qdd], [ca.vertcat(*outputs)], ["x", "qdd"], ["out"])
     code = casadi_c_code({"ep_pressure_regression": kernel_fn})
 
@@ -1174,13 +1181,89 @@ def _pressure_regression_model(est) -> CModel:
         description = (f"inverse-dynamics on the machine sensor set: weighing regression from cylinder "
                        f"pressures and IMUs (machine {est.machine.name}, noise {est.noise_name}), "
                        f"half window {h}")
+    call = casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code)
+    if not momentum:
+        regress = f"""    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
+        /* the window, oldest first, starts at ring_next and ends on the sample before the newest */
+        const ep_real *centre = s->ring + ((s->ring_next + EP_HALF_WINDOW) % EP_RING) * EP_N_SIGNALS;
+        for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
+{textwrap.indent(derivative, "    ")}
+{textwrap.indent(call, "    ")}
+{textwrap.indent(weights, "    ")}
+        s->num = EP_FORGETTING * s->num + d_num;
+        s->info = EP_FORGETTING * s->info + d_info;
+    }}"""
+    else:
+        from excavator_payload.estimators.classical.calibrated_machine import (
+            BALANCE_HALF_WINDOW, BALANCE_RAMP, balance_weights)
+
+        bw, bu = balance_weights(BALANCE_HALF_WINDOW, BALANCE_RAMP)
+        dt = 1.0 / sensors.sample_rate
+        defs += [
+            "/* CalibratedKernel, --balance momentum: the window's weights of the integrand (w dt) and",
+            " * of the momentum (u), calibrated_machine.balance_weights */",
+            c_array("EP_BALANCE_W", bw * dt).rstrip(),
+            c_array("EP_BALANCE_U", bu).rstrip(),
+            f"#define EP_BALANCE_SPAN {c_number(kernel._balance_span)}  /* sum w dt, s */",
+            f"#define EP_RATE_VAR_SPAN {c_number(kernel._rate_var_span)}  /* rate variance / span^2 */",
+        ]
+        weights_m = weights.replace("out[", "bal[").replace(
+            "wt = EP_C(1.0) / var;", "var = var + bal_rate[j];\n        wt = EP_C(1.0) / var;")
+        regress = f"""    if (s->ring_filled == EP_RING) {{
+        /* the differentiator window's centre: its balance terms (its qdd serves the IMU
+         * correction only) go into the balance's ring, a rejected slot too (its interval
+         * belongs to the integral), marked never to be a window's centre */
+        int centre_slot = (s->ring_next + EP_HALF_WINDOW) % EP_RING, slot;
+        const ep_real *centre = s->ring + centre_slot * EP_N_SIGNALS;
+        for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
+{textwrap.indent(derivative, "    ")}
+{textwrap.indent(call, "    ")}
+        slot = s->terms_next;
+        for (i = 0; i < 24; ++i) s->terms[slot * 24 + i] = out[i];
+        s->terms_used[slot] = s->ring_used[centre_slot];
+        s->terms_next = (slot + 1) % EP_BALANCE;
+        if (s->terms_filled < EP_BALANCE) s->terms_filled += 1;
+        if (s->terms_filled == EP_BALANCE && s->terms_used[(s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE]) {{
+            /* the momentum balance over the window, oldest first from terms_next
+             * (calibrated_machine.window_residuals) */
+            ep_real integral[6], momentum[6], bal[15], bal_rate[3];
+            for (j = 0; j < 6; ++j) integral[j] = momentum[j] = EP_C(0.0);
+            for (j = 0; j < 3; ++j) {{
+                bal_rate[j] = EP_C(0.0);
+                bal[9 + j] = EP_MATH(fabs)(s->terms[((s->terms_next) % EP_BALANCE) * 24 + 15 + j]);
+                bal[12 + j] = s->terms[((s->terms_next) % EP_BALANCE) * 24 + 18 + j];
+            }}
+            for (k = 0; k < EP_BALANCE; ++k) {{
+                const ep_real *t = s->terms + ((s->terms_next + k) % EP_BALANCE) * 24;
+                for (j = 0; j < 6; ++j) {{
+                    integral[j] += EP_BALANCE_W[k] * t[6 + j];
+                    momentum[j] += EP_BALANCE_U[k] * t[j];
+                }}
+                for (j = 0; j < 3; ++j) {{
+                    ep_real speed = EP_MATH(fabs)(t[15 + j]);
+                    bal_rate[j] += (EP_BALANCE_U[k] * EP_BALANCE_U[k]) * t[21 + j];
+                    if (speed < bal[9 + j]) bal[9 + j] = speed;  /* the slowest sample */
+                    if (t[18 + j] > bal[12 + j]) bal[12 + j] = t[18 + j];  /* the largest stiction */
+                }}
+            }}
+            for (j = 0; j < 3; ++j) {{
+                bal[j] = (integral[j] - momentum[j]) / EP_BALANCE_SPAN;
+                bal[3 + j] = (momentum[3 + j] - integral[3 + j]) / EP_BALANCE_SPAN;
+                bal[6 + j] = s->terms[((s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE) * 24 + 12 + j];
+                bal_rate[j] = bal_rate[j] * EP_RATE_VAR_SPAN;
+            }}
+{textwrap.indent(weights_m, "        ")}
+            s->num = EP_FORGETTING * s->num + d_num;
+            s->info = EP_FORGETTING * s->info + d_info;
+        }}
+    }}"""
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
     step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
      * differentiator's window (2 half_window + 1 samples) and the newest sample, not yet judged:
      * the outlier test judges the sample before the newest between its neighbours; once the
      * ring is full, the window's centre is regressed unless it was rejected. */
-    ep_real x[EP_N_SIGNALS], qdd[4], out[15];
+    ep_real x[EP_N_SIGNALS], qdd[4], out[{24 if momentum else 15}];
     ep_real d_num = EP_C(0.0), d_info = EP_C(0.0);
     int i, j, k, newest = s->ring_next, rejected = 0;
     for (i = 0; i < EP_N_SIGNALS; ++i) s->ring[newest * EP_N_SIGNALS + i] = v[i];
@@ -1201,16 +1284,7 @@ def _pressure_regression_model(est) -> CModel:
 #else
     (void)ep_spike;
 #endif
-    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
-        /* the window, oldest first, starts at ring_next and ends on the sample before the newest */
-        const ep_real *centre = s->ring + ((s->ring_next + EP_HALF_WINDOW) % EP_RING) * EP_N_SIGNALS;
-        for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
-{textwrap.indent(derivative, "    ")}
-{textwrap.indent(casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code), "    ")}
-{textwrap.indent(weights, "    ")}
-        s->num = EP_FORGETTING * s->num + d_num;
-        s->info = EP_FORGETTING * s->info + d_info;
-    }}
+{regress}
     if (s->info <= EP_C(0.0)) {{
         *estimate = EP_NAN;
         return EP_STATUS_WARMING_UP;
@@ -1225,6 +1299,8 @@ def _pressure_regression_model(est) -> CModel:
     (void)v;
     if (!s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_BRIDGED_GAP)) ep_model_reset(s);
     else s->ring_filled = 0;"""
+    if momentum:  # CalibratedKernel.restart_window: both rings restart
+        on_gap = on_gap[:-len("s->ring_filled = 0;")] + "{ s->ring_filled = 0; s->terms_filled = 0; s->terms_next = 0; }"
     fields = ["ep_real num;   /* sum of w phi r */",
               "ep_real info;  /* sum of w phi^2: information, 1/variance of the estimate */",
               "ep_real ring[EP_RING * EP_N_SIGNALS];  /* the last samples, as measured (outliers repaired) */"]
@@ -1233,15 +1309,29 @@ def _pressure_regression_model(est) -> CModel:
     fields += ["unsigned char ring_used[EP_RING];  /* 0: a rejected sample's slot */",
                "int ring_next;    /* slot the next sample goes to (the oldest once full) */",
                "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]
+    reset = "    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;"
+    defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
+               f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
+               "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"]
+    if momentum:
+        from excavator_payload.estimators.classical.calibrated_machine import BALANCE_HALF_WINDOW
+
+        fields += ["ep_real terms[EP_BALANCE * 24];  /* balance terms of the last samples: P0, Pm, I0, Fm, "
+                   "lever, speed, stiction, rate gain */",
+                   "unsigned char terms_used[EP_BALANCE];  /* 0: a rejected sample's repaired slot */",
+                   "int terms_next;    /* slot the next terms go to (the oldest once full) */",
+                   "int terms_filled;  /* terms in the ring (saturates at EP_BALANCE) */"]
+        reset += "\n    s->terms_next = 0;\n    s->terms_filled = 0;"
+        defines += [f"#define EP_BALANCE {2 * BALANCE_HALF_WINDOW + 1}  /* samples of the momentum balance's window */",
+                    f"#define EP_BALANCE_CENTRE {BALANCE_HALF_WINDOW}"]
+        description += f", momentum balance over ±{BALANCE_HALF_WINDOW} samples"
     return CModel(
         description=description,
         state_fields=fields,
         definitions="\n".join(defs),
-        reset="    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;",
+        reset=reset,
         step=step, on_gap=on_gap,
-        header_defines=[f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
-                        f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
-                        "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"],
+        header_defines=defines,
         sigma="    /* _estimate_sigma: I^(-1/2) */\n"
               "    return s->info > EP_C(0.0) ? EP_C(1.0) / EP_MATH(sqrt)(s->info) : EP_NAN;",
         # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps

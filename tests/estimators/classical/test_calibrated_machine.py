@@ -264,13 +264,6 @@ def test_momentum_balance_windows_are_exact_on_a_linear_momentum():
                                   np.r_[10:20, 40:70])
 
 
-def test_momentum_balance_has_no_c_export_yet(momentum, tmp_path):
-    from excavator_payload.runtime.export_c import export_c
-
-    with pytest.raises(EstimatorError, match="balance momentum"):
-        export_c(momentum, tmp_path / "c")
-
-
 def test_momentum_balance_rejects_a_glitch_and_keeps_its_interval(momentum, setup):
     """In the momentum form a rejected frame's repaired slot stays in the balance (its interval
     belongs to the integral) but is never regressed: the estimate hardly moves."""

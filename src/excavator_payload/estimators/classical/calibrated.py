@@ -139,7 +139,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                             ("model", "downweight", "skip")),
         "balance": Option(str, "differentiated", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
-                          "momentum over 0.5 s windows (no accelerations; Python only, no C export)",
+                          "momentum over 0.5 s windows (no accelerations)",
                           ("differentiated", "momentum")),
     }
 

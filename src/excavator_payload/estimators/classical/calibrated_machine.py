@@ -71,7 +71,8 @@ per-sample form: 66 kg — the calibrated parameters of that form partly compens
 differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
 (the acceleration sensitivities wander); a window with a standstill carries its still share of
 the unknown friction. The streaming kernel keeps two rings (the differentiator's, for the IMU
-correction, and the balance's); the estimate refers to the sample 0.28 s back. No C export yet.
+correction, and the balance's); the estimate refers to the sample 0.28 s back. The C export
+carries both rings (``runtime/export_c.py``).
 
 Sensor noise from the data
 --------------------------
