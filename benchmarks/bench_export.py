@@ -47,6 +47,7 @@ MODELS = {
     "net2": {"epochs": 3, "progress": False},
     "machine:inverse-dynamics": {"machine": "cat345c-hydraulic"},
     "machine:calibrated": {"machine": "cat345c-hydraulic-3pct"},
+    "machine:calibrated-momentum": {"machine": "cat345c-hydraulic-3pct", "balance": "momentum"},
     "machine:ekf": {"machine": "cat345c-hydraulic"},
 }
 
@@ -87,7 +88,7 @@ def main() -> None:
         for name in names:
             options = dict(MODELS[name])
             dataset = machine if name.startswith("machine:") else thesis
-            estimator = name.split(":")[-1]
+            estimator = name.split(":")[-1].split("-momentum")[0]  # machine:calibrated-momentum
             if estimator.startswith("net"):
                 options.update(train_experiments=n_train, validation_experiments=1)
             est = create_estimator(estimator, **options).fit(dataset)
