@@ -89,21 +89,8 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
     prior = np.zeros((1 + len(cols), 1 + len(cols)))
     if len(cols):
         prior[1:, 1:] = np.linalg.pinv(C / np.outer(scale, scale), hermitian=True)
-    starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
-    for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
-        info = np.einsum("nja,nj,njb->nab", G[a:b], w[a:b], G[a:b])  # one experiment at a time
-        if stiction_episodes:
-            info -= _episode_information(G[a:b], w[a:b], still[a:b], stiction[a:b])
-        F = np.cumsum(info, axis=0) + prior
-        Fmm = F[:, 0, 0]
-        if len(cols):
-            Fmn = F[:, 0, 1:]
-            Fnn = F[:, 1:, 1:]
-            schur = Fmm - np.einsum("na,na->n", Fmn, np.linalg.solve(Fnn, Fmn[..., None])[..., 0])
-        else:
-            schur = Fmm
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out[idx[a:b]] = 1.0 / np.sqrt(np.maximum(schur, 0.0))
+    for rows, info in _experiment_information(G, w, still, stiction, exp, stiction_episodes):
+        out[idx[rows]] = _payload_std(np.cumsum(info, axis=0) + prior)
     return out
 
 
@@ -176,13 +163,7 @@ def procedure_bound(dataset: Dataset, calibration: "cm.MachineCalibration", cali
         G = to_psi(G, session)
         if not with_payload:  # known payloads: m is not a parameter of these samples
             G[..., 0] = 0.0
-        pieces = []
-        starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
-        for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
-            info = np.einsum("nja,nj,njb->nab", G[a:b], w[a:b], G[a:b])
-            info -= _episode_information(G[a:b], w[a:b], still[a:b], stiction[a:b])
-            pieces.append((idx[a:b], info))
-        return pieces
+        return [(idx[rows], info) for rows, info in _experiment_information(G, w, still, stiction, exp)]
 
     base = np.diag(np.r_[0.0, np.ones(dim - 1)])  # the priors, in their own units
     for d, session in ((calibration_data, "A"), (zero_data, "B")):
@@ -194,11 +175,7 @@ def procedure_bound(dataset: Dataset, calibration: "cm.MachineCalibration", cali
     out = np.full(len(dataset.frame), np.nan)
     pieces = information(dataset, "B", with_payload=True)
     for rows, info in pieces or ():
-        F = np.cumsum(info, axis=0) + base
-        Fmn, Fnn = F[:, 0, 1:], F[:, 1:, 1:]
-        schur = F[:, 0, 0] - np.einsum("na,na->n", Fmn, np.linalg.solve(Fnn, Fmn[..., None])[..., 0])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            out[rows] = 1.0 / np.sqrt(np.maximum(schur, 0.0))
+        out[rows] = _payload_std(np.cumsum(info, axis=0) + base)
     return out
 
 
@@ -246,6 +223,29 @@ def _sample_terms(dataset: Dataset, calibration: "cm.MachineCalibration", pressu
     G = np.nan_to_num(np.concatenate([phi[..., None], J], axis=2))
     w = np.where(np.isfinite(w), w, 0.0)
     return idx, G, w, still, stiction, f["experiment"].to_numpy()[idx]
+
+
+def _experiment_information(G, w, still, stiction, exp, episodes: bool = True):
+    """Per experiment (contiguous rows of ``exp``): its rows (a slice) and the per-sample
+    information increments (n, d, d) of its residuals, a standstill's shared stiction
+    marginalised per episode (:func:`_episode_information`) when ``episodes``."""
+    starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
+        info = np.einsum("nja,nj,njb->nab", G[a:b], w[a:b], G[a:b])
+        if episodes:
+            info -= _episode_information(G[a:b], w[a:b], still[a:b], stiction[a:b])
+        yield slice(a, b), info
+
+
+def _payload_std(F: np.ndarray) -> np.ndarray:
+    """The payload's bound from Fisher matrices (n, d, d) with the payload first: the Schur
+    complement of the other parameters, (F_mm − F_mν F_νν⁻¹ F_νm)^(-1/2)."""
+    schur = F[:, 0, 0]
+    if F.shape[1] > 1:
+        Fmn, Fnn = F[:, 0, 1:], F[:, 1:, 1:]
+        schur = schur - np.einsum("na,na->n", Fmn, np.linalg.solve(Fnn, Fmn[..., None])[..., 0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 1.0 / np.sqrt(np.maximum(schur, 0.0))
 
 
 def _episode_information(G, w, still, stiction) -> np.ndarray:

@@ -353,14 +353,15 @@ class HydraulicSymbolic:
         # r = [∫(τ_p + f0) dt − Δp0]/T − m [Δpm − ∫ fm dt]/T (the per-sample r = τ_p − τ0 − m φ
         # averaged over the window, with τ0 = ṗ0 − f0 and φ = ṗm − fm).
         momentum = dK_dqd[:3]
+        momentum0 = ca.substitute(momentum, payload, 0)
         forces = (ca.gradient(kinetic, q) - ca.gradient(potential, q) - ca.gradient(rayleigh, qd))[:3]
         self.functions["momentum_regression"] = F_(
             "hyd_momentum_regression", [q, qd, tilt, measured, p],
-            [ca.substitute(momentum, payload, 0), ca.jacobian(momentum, payload),
+            [momentum0, ca.jacobian(momentum, payload),
              torque_from_pressures + ca.substitute(forces, payload, 0), ca.jacobian(forces, payload),
              lever, cylinder_speed, stiction,
              # how the rates' noise enters the momentum: Σ_k (∂p0_j/∂q̇_k)², per joint j
-             ca.sum2(ca.jacobian(ca.substitute(momentum, payload, 0), qd) ** 2)],
+             ca.sum2(ca.jacobian(momentum0, qd) ** 2)],
             ["q", "qd", "tilt", "pressures", "p"],
             ["momentum0", "momentum_payload", "integrand0", "force_payload", "lever", "speed", "stiction",
              "rate_gain"])

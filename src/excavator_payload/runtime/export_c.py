@@ -1230,8 +1230,8 @@ def _pressure_regression_model(est) -> CModel:
             for (j = 0; j < 6; ++j) integral[j] = momentum[j] = EP_C(0.0);
             for (j = 0; j < 3; ++j) {{
                 bal_rate[j] = EP_C(0.0);
-                bal[9 + j] = EP_MATH(fabs)(s->terms[((s->terms_next) % EP_BALANCE) * 24 + 15 + j]);
-                bal[12 + j] = s->terms[((s->terms_next) % EP_BALANCE) * 24 + 18 + j];
+                bal[9 + j] = EP_MATH(fabs)(s->terms[s->terms_next * 24 + 15 + j]);
+                bal[12 + j] = s->terms[s->terms_next * 24 + 18 + j];
             }}
             for (k = 0; k < EP_BALANCE; ++k) {{
                 const ep_real *t = s->terms + ((s->terms_next + k) % EP_BALANCE) * 24;

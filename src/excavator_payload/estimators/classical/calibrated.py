@@ -45,6 +45,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
+from excavator_payload.estimators.classical.calibrated_machine import BALANCE_CHOICES
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -140,7 +141,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "balance": Option(str, "differentiated", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
-                          ("differentiated", "momentum")),
+                          BALANCE_CHOICES),
     }
 
     def __init__(self, machine=None, **options) -> None:

@@ -106,6 +106,7 @@ from functools import lru_cache
 
 import casadi as ca
 import numpy as np
+from scipy.ndimage import correlate1d
 from scipy.signal import savgol_filter
 
 from excavator_payload.data.dataset import Dataset
@@ -201,6 +202,19 @@ def _corrected_signals(x, qdd, offsets, imu):
     return q, qd, tilt, pressures
 
 
+def _unpack(p_file, z):
+    """Symbolic z = (δ, o, imu) as the model's parameter vector p = p_file ⊙ (1 + δ), the
+    offsets over all signals (zeros where none is estimated) and the IMU dynamics."""
+    n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
+    scale = ca.SX.ones(len(HYDRAULIC_PARAMETER_NAMES))
+    for k, i in enumerate(_PARAM_INDEX):
+        scale[int(i)] = 1 + z[k]
+    offsets = ca.SX.zeros(len(SIGNALS))
+    for k, i in enumerate(_OFFSET_COLUMNS):
+        offsets[int(i)] = z[n_delta + k]
+    return p_file * scale, offsets, z[n_delta + n_off:]
+
+
 @lru_cache(maxsize=1)
 def residual_function() -> ca.Function:
     """CasADi function of one sample: residual (3), its Jacobian by z (3×nz) and the kernel's
@@ -216,14 +230,8 @@ def residual_function() -> ca.Function:
     payload = ca.SX.sym("payload")
     p_file = ca.SX.sym("p", len(HYDRAULIC_PARAMETER_NAMES))
     z = ca.SX.sym("z", n_delta + n_off + n_imu)
-    scale = ca.SX.ones(len(HYDRAULIC_PARAMETER_NAMES))
-    for k, i in enumerate(_PARAM_INDEX):
-        scale[int(i)] = 1 + z[k]
-    p = p_file * scale
-    offsets = ca.SX.zeros(len(SIGNALS))
-    for k, i in enumerate(_OFFSET_COLUMNS):
-        offsets[int(i)] = z[n_delta + k]
-    q, qd, tilt, pressures = _corrected_signals(x, qdd, offsets, z[n_delta + n_off:])
+    p, offsets, imu = _unpack(p_file, z)
+    q, qd, tilt, pressures = _corrected_signals(x, qdd, offsets, imu)
     residual, phi, lever, speed, stiction = f(q, qd, qdd, tilt, pressures, p)
     r = residual - payload * phi
     # ∂r/∂q̈ carries the differentiator's noise into the residual (weights)
@@ -252,13 +260,7 @@ def momentum_function() -> ca.Function:
     qdd = ca.SX.sym("qdd", 4)
     p_file = ca.SX.sym("p", len(HYDRAULIC_PARAMETER_NAMES))
     z = ca.SX.sym("z", n_delta + n_off + n_imu)
-    scale = ca.SX.ones(len(HYDRAULIC_PARAMETER_NAMES))
-    for k, i in enumerate(_PARAM_INDEX):
-        scale[int(i)] = 1 + z[k]
-    offsets = ca.SX.zeros(len(SIGNALS))
-    for k, i in enumerate(_OFFSET_COLUMNS):
-        offsets[int(i)] = z[n_delta + k]
-    A, lever, speed, stiction, gain = _momentum_terms(x, qdd, p_file * scale, offsets, z[n_delta + n_off:])
+    A, lever, speed, stiction, gain = _momentum_terms(x, qdd, *_unpack(p_file, z))
     return ca.Function("cal_machine_momentum", [x, qdd, p_file, z],
                        [A, ca.jacobian(A, z), lever, speed, stiction, gain])
 
@@ -301,13 +303,11 @@ def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, ha
     simulator's accelerations) are held over a sample period, so a sample's pressures belong to
     the interval it starts (trapezoid: 14 kg RMS error on noise-free NMPC swings, this 3.5 kg).
     """
-    from scipy.ndimage import correlate1d
-
     w, u = balance_weights(half, ramp)
     W = float(w.sum()) * dt
     integ = correlate1d(A[:, 6:12], w * dt, axis=0, mode="constant")[centres]
     mom = correlate1d(A[:, 0:6], u, axis=0, mode="constant")[centres]
-    # Σ w I dt = Σ w (P_{j+1} - P_j) = -Σ u P ... sign: Σ_j u_j P_j = Σ w_j (P_{j+1} - P_j)
+    # the balance Σ w_j I_j dt = Σ w_j (P_{j+1} - P_j) = Σ u_j P_j (summation by parts)
     r0 = (integ[:, 0:3] - mom[:, 0:3]) / W
     sens = (mom[:, 3:6] - integ[:, 3:6]) / W  # φ of the window
     m = payload[centres].reshape((-1,) + (1,) * (A.ndim - 1))
@@ -318,7 +318,6 @@ def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, ha
 #: and the rate noise through a shorter window dominates the boom's residual). Measured on 20
 #: swings after calibration and zero (mean MAX, kg): ±5 samples 150, ±8 83, ±15 62, ±25 66.
 CALIBRATION_HALF_WINDOW = 15
-#: Samples each side of the momentum-balance window (calibration and weighing).
 #: ``--balance``: how the estimator does without measured accelerations.
 BALANCE_CHOICES = ("differentiated", "momentum")
 #: The momentum balance's window: ±25 samples (0.5 s), its ends averaged over 10 samples
@@ -406,7 +405,6 @@ class MachineCalibration:
         self.accel_var = 0.0  # variance of the differentiated accelerations, (rad/s²)²
         self.rate_var = 0.0  # white-noise variance of the measured rates, (rad/s)²
         self._inertia = 0.0
-        self._window_samples = 1  # white-noise samples a residual averages
         self._extra_var = 0.0  # residual variance besides the pressures' (derived signals)
         self.balance = "differentiated"  # or "momentum" (BALANCE_CHOICES)
 
@@ -461,7 +459,6 @@ class MachineCalibration:
                  np.repeat(z[:, None], n, 1))
         r, J, lever, speed, stiction, inertia, dr_dm = (np.asarray(o) for o in out)
         self._payload_sensitivity = dr_dm.T  # ∂r/∂m = -φ (n, 3), for the Cramér–Rao bound
-        self._window_samples = 1
         nz = len(z)
         J = J.reshape(3, n, nz).transpose(1, 0, 2)
         self._inertia = inertia.T
@@ -487,11 +484,8 @@ class MachineCalibration:
         self._payload_sensitivity = minus_phi
         # no differentiated accelerations in the balance; the rates' noise enters through the
         # momentum at the window's two ends
-        from scipy.ndimage import correlate1d
-
         w, u = balance_weights(half, ramp)
         self._extra_var = correlate1d(gain, u**2, axis=0, mode="constant")[centres] / (w.sum() * dt) ** 2 * self.rate_var
-        self._window_samples = 2 * half
         # the unknown friction of the window's still samples, integrated with the window's
         # weights: the still share of the window times the largest breakaway torque. Returned
         # as a zero "speed" (windows with a standstill) and that stiction, for the downweight
@@ -592,8 +586,7 @@ class MachineCalibration:
         v_s = np.array([c.stribeck_velocity for c in cyl])
         moving = np.abs(speed) > 3 * v_s
         # what the differentiator's noise explains is not pressure noise
-        # a window's residual averages 2·half samples of white pressure noise
-        ratio = (r**2 - self._extra_var) * self._window_samples / (lever**2 * (head**2 + rod**2))
+        ratio = (r**2 - self._extra_var) / (lever**2 * (head**2 + rod**2))
         use = moving & np.isfinite(ratio)
         if use.sum() < 10:
             return self.pressure_std
@@ -678,7 +671,7 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
         raise EstimatorError("the zero check needs an empty bucket (the data's payload column is not 0)")
     n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
     free = np.arange(n_delta, n_delta + n_off)
-    momentum = getattr(cal, "balance", "differentiated") == "momentum"
+    momentum = cal.balance == "momentum"
     cal.solve(values, qdd, payload, free, cal.z.copy(),
               np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))],
               "skip", iterations=4, estimate_noise=False,
@@ -734,7 +727,7 @@ class CalibratedKernel(PressureRegression):
     def __init__(self, cal: MachineCalibration, half_window: int, forgetting: float, low_speed: str):
         super().__init__(cal.arm, pressure_std=cal.pressure_std, ripple_fraction=0.0,
                          half_window=half_window, forgetting=forgetting)
-        self.balance = getattr(cal, "balance", "differentiated")
+        self.balance = cal.balance
         self._kernel = kernel_function(self.balance)
         self._n_out = 24 if self.balance == "momentum" else 15
         self._trigger = None
@@ -748,8 +741,7 @@ class CalibratedKernel(PressureRegression):
         self._slope = k / float(k @ k)
         self._lever_var = (self._head**2 + self._rod**2) * self.pressure_var
         self._width = width
-        self._balance = 2 * BALANCE_HALF_WINDOW + 1  # samples of the momentum-balance window
-        self._dt = dt
+        self._balance_len = 2 * BALANCE_HALF_WINDOW + 1  # samples of the momentum-balance window
         w, u = balance_weights(BALANCE_HALF_WINDOW, BALANCE_RAMP)
         self._balance_w, self._balance_u = w * dt, u
         self._balance_span = float(w.sum()) * dt
@@ -785,7 +777,7 @@ class CalibratedKernel(PressureRegression):
         self._ring = np.zeros((2 * length, len(SIGNALS)))
         self._ring_used = np.zeros(2 * length, bool)
         self._count = 0
-        b = getattr(self, "_balance", 1)
+        b = getattr(self, "_balance_len", 1)  # reset() runs in the base __init__ before it is set
         self._terms = np.zeros((2 * b, getattr(self, "_n_out", 24)))  # per-sample balance terms, doubled as the ring
         self._terms_used = np.zeros(2 * b, bool)
         self._terms_count = 0
@@ -845,7 +837,7 @@ class CalibratedKernel(PressureRegression):
             return True
         # momentum: the terms of the differentiator window's centre (its q̈ serves the IMU
         # correction only) go into a second ring, the balance's window
-        b = self._balance
+        b = self._balance_len
         slot = self._terms_count % b
         self._terms[slot] = self._terms[slot + b] = out
         # a rejected sample's repaired slot stays in the balance (its interval is part of the
