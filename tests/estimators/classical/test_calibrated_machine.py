@@ -247,6 +247,34 @@ def test_momentum_balance_weighs_and_streams_as_it_estimates(momentum, setup, tm
                                equal_nan=True)
 
 
+def test_momentum_calibration_weighs_its_windows_by_what_the_model_leaves(momentum, setup, tmp_path):
+    """The momentum form's windows share their errors; the calibration measures, at the
+    identified machine, how much larger each joint's window residual is than the noise model
+    says (a variance component, ≥ 1 and on field data well above 1), fits again with the windows
+    weighted by it, keeps it through save/load, and refuses a saved one below 1."""
+    cal = momentum.calibration
+    f = cal.window_inflation
+    assert f.shape == (3,) and np.all(f >= 1.0) and f.max() > 2.0
+    values, qdd, payload, runs = cm.calibration_arrays(setup["cal"], cm.CALIBRATION_HALF_WINDOW,
+                                                       cal.arm.machine)
+    first = copy.deepcopy(cal)
+    first.window_inflation = np.ones(3)
+    first.z = np.zeros(len(first.z))
+    n = len(cm.CALIBRATED_PARAMETERS) + len(cm.OFFSET_SIGNALS) + 1
+    std = first.prior_std(0.05)
+    first.solve(values, qdd, payload, np.arange(n), np.zeros(len(first.z)), std, "downweight",
+                estimate_noise=False, runs=runs)
+    # the measured inflation is that of the unweighted fit's residuals, not a constant
+    np.testing.assert_allclose(first.measure_window_inflation(values, qdd, payload, runs), f, rtol=1e-6)
+    momentum.save(tmp_path / "m")
+    np.testing.assert_array_equal(load_estimator(tmp_path / "m").calibration.window_inflation, f)
+    arrays = dict(np.load(tmp_path / "m" / "arrays.npz"))
+    arrays["window_inflation"] = np.array([0.5, 1.0, 1.0])
+    np.savez(tmp_path / "m" / "arrays.npz", **arrays)
+    with pytest.raises(EstimatorError, match="corrupt"):
+        load_estimator(tmp_path / "m")
+
+
 def test_momentum_balance_windows_are_exact_on_a_linear_momentum():
     """The window residual is the weighted momentum balance: with P0 rising at the rate I0
     (rectangle rule) the residual vanishes, whatever the ramp."""
