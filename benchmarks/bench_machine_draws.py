@@ -60,13 +60,13 @@ def main() -> None:
         cm.zero(reference, zero)
         bounds = {name: dataset_machine_bound(ds, reference) for name, ds in tests.items()}
         for balance in a.balance or cm.BALANCE_CHOICES:
-            est = reference if balance == "differentiated" else (
-                CalibratedEstimator("cat345c-hydraulic-3pct", balance=balance).fit(cal))
-            if est is not reference:
+            if balance == "differentiated":
+                est = reference
+            else:
+                est = CalibratedEstimator("cat345c-hydraulic-3pct", balance=balance).fit(cal)
                 cm.zero(est, zero)
             for name, ds in tests.items():
-                bound = bounds[name]
-                row = dm.summary_row(dm.judge(est, ds, balance, bound), dm.RATED_PAYLOAD, None)
+                row = dm.summary_row(dm.judge(est, ds, balance, bounds[name]), dm.RATED_PAYLOAD, None)
                 rows.append({"draw": draw, "calibration_seed": seed, "balance": balance, "test": name, **row})
                 print(f"draw {draw} {balance:14s} {name:20s} MAX {row['mean_max_kg']:6.1f} kg  "
                       f"RMS {row['mean_rms_kg']:5.1f} kg  ≤1 % {row['within_1pct']:.0%}  "

@@ -74,9 +74,9 @@ the unknown friction. It fits twice: what the first fit leaves unexplained is me
 as a variance component (:meth:`MachineCalibration.measure_window_inflation`: 12-56 times the
 noise model's variance on ten calibration swings) and the second fit, from the prior again,
 weighs the windows by it (so does the zero check). Without it the calibration took the model's
-misfit for information: over five calibration draws, work cycles' mean MAX was 32-241 kg (two
-draws above 180 kg); with it 36-60 kg (``benchmarks/bench_machine_draws.py``). The streaming kernel keeps two rings (the differentiator's, for the IMU
-correction, and the balance's); the estimate refers to the sample 0.28 s back. The C export
+misfit for information: over five calibration draws, work cycles' mean MAX was 32-241 kg (three
+draws above 100 kg); with it 36-60 kg (``benchmarks/bench_machine_draws.py``). The streaming
+kernel keeps two rings (the differentiator's, for the IMU correction, and the balance's); the estimate refers to the sample 0.28 s back. The C export
 carries both rings (``runtime/export_c.py``).
 
 Sensor noise from the data
@@ -520,7 +520,8 @@ class MachineCalibration:
         measured once the machine is identified, as a variance component: on ten calibration
         swings f = 12-56 for the three joints. Left at 1, the calibration treats what the model
         misses as information — it then moved parameters by up to 65 % (prior 5 %) and work
-        cycles' mean MAX was 184-241 kg on two of five calibration draws; with f, 32-40 kg on all.
+        cycles' mean MAX was 117, 202 and 241 kg on three of five calibration draws; with f,
+        36-60 kg on all five (``benchmarks/bench_machine_draws.py``).
         """
         r, _, lever, speed, stiction, _ = self.evaluate_windows(values, qdd, payload, self.z, runs)
         w = self.weights(lever, speed, stiction, "downweight", self.pressure_std)
@@ -686,14 +687,16 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         if pressure_std is None:
             cal.pressure_std = pressure_noise_from_data(dataset)
         free = free[:len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS) + 1]
-        cal.solve(values, qdd, payload, free, np.zeros(len(cal.z)), std, "downweight",
-                  estimate_noise=False, runs=runs)
-        # then what the identified machine leaves unexplained, as a variance component, and
-        # the fit again with the windows weighted by it (measure_window_inflation)
-        cal.window_inflation = cal.measure_window_inflation(values, qdd, payload, runs)
-        cal.z = np.zeros(len(cal.z))  # from the prior again: the first fit over-fitted
-        cal.solve(values, qdd, payload, free, np.zeros(len(cal.z)), std, "downweight",
-                  estimate_noise=False, runs=runs)
+        prior_mean = np.zeros(len(cal.z))
+        for second in (False, True):
+            if second:
+                # what the identified machine leaves unexplained, as a variance component
+                # (measure_window_inflation); the fit again from the prior with the windows
+                # weighted by it: the first fit over-fitted
+                cal.window_inflation = cal.measure_window_inflation(values, qdd, payload, runs)
+                cal.z = prior_mean.copy()
+            cal.solve(values, qdd, payload, free, prior_mean, std, "downweight",
+                      estimate_noise=False, runs=runs)
         return cal
     # Calibration skips joints near standstill whatever --low-speed says: their friction is
     # anything within ± breakaway, and the parameters would absorb it (over-fitting measured
