@@ -248,13 +248,12 @@ def test_momentum_balance_weighs_and_streams_as_it_estimates(momentum, setup, tm
 
 
 def test_momentum_calibration_weighs_its_windows_by_what_the_model_leaves(momentum, setup, tmp_path):
-    """The momentum form's windows share their errors; the calibration measures, at the
-    identified machine, how much larger each joint's window residual is than the noise model
-    says (a variance component, ≥ 1 and on field data well above 1), fits again with the windows
-    weighted by it, keeps it through save/load, and refuses a saved one below 1."""
+    """The calibration measures, at the identified machine, how much larger each joint's
+    window residual is than the noise model says (a variance component, ≥ 1), fits again with
+    the windows weighted by it, keeps it through save/load, and refuses a saved one below 1."""
     cal = momentum.calibration
     f = cal.window_inflation
-    assert f.shape == (3,) and np.all(f >= 1.0) and f.max() > 2.0
+    assert f.shape == (3,) and np.all(f >= 1.0) and f.max() > 1.0
     values, qdd, payload, runs = cm.calibration_arrays(setup["cal"], cm.CALIBRATION_HALF_WINDOW,
                                                        cal.arm.machine)
     first = copy.deepcopy(cal)
@@ -273,6 +272,28 @@ def test_momentum_calibration_weighs_its_windows_by_what_the_model_leaves(moment
     np.savez(tmp_path / "m" / "arrays.npz", **arrays)
     with pytest.raises(EstimatorError, match="corrupt"):
         load_estimator(tmp_path / "m")
+
+
+def test_momentum_windows_noise_model_explains_the_true_machine(setup):
+    """At the true machine, offsets and IMU dynamics, the windows' noise model accounts for
+    what is left of the field-noise calibration data: actual / modelled variance near 1 per
+    joint. (Counting a standstill's friction once per overlapping window and leaving out the
+    rates' noise through the integrand, it was 13-90 on these three swings.)"""
+    from excavator_payload.simulation.machine_sensors import get_machine_noise, session_offsets
+
+    ds = setup["cal"]
+    cal = cm.MachineCalibration(HydraulicArmModel(load_machine("cat345c-hydraulic")))
+    cal.rate_var = cm.rate_variance(ds)
+    cal.pressure_std = cm.pressure_noise_from_data(ds)
+    noise = get_machine_noise("field")
+    offsets = session_offsets(dm.SESSION_CALIBRATION, noise)
+    n_delta, n_off = len(cm.CALIBRATED_PARAMETERS), len(cm.OFFSET_SIGNALS)
+    cal.z[n_delta:n_delta + n_off] = [offsets[s] for s in cm.OFFSET_SIGNALS]
+    leak = noise.acceleration_leak / 9.81
+    cal.z[n_delta + n_off:] = [noise.imu_lag, *[leak * noise.link_imu_distance] * 3, leak * noise.house_imu_radius]
+    values, qdd, payload, runs = cm.calibration_arrays(ds, cm.CALIBRATION_HALF_WINDOW, cal.arm.machine)
+    f = cal.measure_window_inflation(values, qdd, payload, runs)
+    assert np.all(f < 3.0), f
 
 
 def test_momentum_balance_windows_are_exact_on_a_linear_momentum():
