@@ -327,3 +327,17 @@ def test_momentum_balance_rejects_a_glitch_and_keeps_its_interval(momentum, setu
     last = frame.groupby("experiment").tail(1).index
     change = np.abs(glitched["payload_estimate"].to_numpy()[last] - clean["payload_estimate"].to_numpy()[last])
     assert np.all(change < 1.0)
+
+
+def test_fit_warns_when_the_calibration_motions_leave_a_cylinder_still(setup):
+    """Lifts move the boom only: fit says that the dipper and bucket kept the file's numbers
+    (one warning, counts named), while calibration swings that move every cylinder raise none."""
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    assert setup["calibrated"].fit_warnings == []
+    lifts = simulate_dataset(1, seed=1, machine="cat345c-hydraulic", motion="lifts", session=1,
+                             workers=1, progress=False)
+    est = create_estimator("calibrated", PRIOR).fit(lifts)
+    assert len(est.fit_warnings) == 1
+    warning = est.fit_warnings[0]
+    assert "dipper 0" in warning and "bucket 0" in warning and "boom" not in warning.split("samples:")[1].split(";")[0]

@@ -174,6 +174,9 @@ IMU_PARAMETERS: tuple[str, ...] = ("imu_lag", "boom_imu_acceleration_sensitivity
 #: does to the fit, not the IMU's leak — and that centripetal correction biased smooth motions
 #: (+8 kg; NMPC motions replayed on a 5° slope or on level ground alike: mean MAX 41 kg).
 IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.005])
+#: Moving samples per cylinder below which fit warns that calibration learned little of it
+#: (2 s at 100 Hz; ten calibration swings give 2000-9000 per cylinder).
+MIN_MOVING_SAMPLES = 200
 #: Choices of ``--low-speed``.
 LOW_SPEED_CHOICES = ("model", "downweight", "skip")
 #: Default pressure noise before it is estimated (the field preset's), Pa.
@@ -565,6 +568,20 @@ class MachineCalibration:
                 use = ok[:, j]
                 out[j] = max(1.0, float(np.sum(w[use, j] * r[use, j] ** 2) / np.sum(expected[use, j])))
         return out
+
+    def moving_samples(self, values: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """Samples on which each arm cylinder (boom, dipper, bucket) moves: its rod speed at the
+        identified machine above the 3 Stribeck velocities below which calibration treats it as
+        stuck (what the calibration can learn that cylinder's friction and geometry from)."""
+        n = len(values)
+        if n == 0:
+            return np.zeros(3, int)
+        out = np.asarray(kernel_function("differentiated").map(n, "serial")(
+            values.T, qdd.T, np.repeat(self.p[:, None], n, 1), np.repeat(self.offset_vector()[:, None], n, 1),
+            np.repeat(np.asarray(self.imu, float)[:, None], n, 1)))
+        speed = out[9:12].T
+        v_s = np.array([c.stribeck_velocity for c in self.arm.machine.cylinders])
+        return np.sum(np.abs(speed) >= 3 * v_s, axis=0)
 
     def weights(self, lever, speed, stiction, low_speed: str, pressure_std: float) -> np.ndarray:
         """Inverse residual variances (n, 3) for the low-speed choice (0: sample skipped)."""
@@ -985,6 +1002,19 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
     cal = calibrate(arm, dataset, prior, estimator.options["low_speed"], estimator.options["half_window"],
                     pressure_std, estimator.options["balance"])
     from excavator_payload.estimators.classical.pressure_regression import difference_scale
+
+    # a cylinder the calibration motions hardly moved keeps the file's numbers (e.g. lifts that
+    # move the boom only): say so rather than weigh with them silently
+    values, qdd, _, _ = calibration_arrays(dataset, CALIBRATION_HALF_WINDOW, arm.machine)
+    moving = cal.moving_samples(values, qdd)
+    still = [f"{joint} {k}" for joint, k in zip(("boom", "dipper", "bucket"), moving)
+             if k < MIN_MOVING_SAMPLES]
+    if still:
+        estimator.fit_warnings.append(
+            f"{estimator.name}: cylinders that hardly moved in the calibration data (moving samples: "
+            f"{', '.join(still)} of {len(values)}; {MIN_MOVING_SAMPLES} or more wanted): what it "
+            "learned of them is mostly the machine file's. Calibrate with motions that move the "
+            "boom, dipper and bucket (and slew)")
 
     estimator.noise_name = "estimated" if pressure_std is None else name
     estimator.calibration_experiments = [int(i) for i in ids]
