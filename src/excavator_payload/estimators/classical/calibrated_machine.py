@@ -523,7 +523,7 @@ class MachineCalibration:
         integrand_var = correlate1d(integrand_gain, w, axis=0, mode="constant")[centres] / w.sum() * self.rate_var
         end_var = correlate1d(gain, u**2, axis=0, mode="constant")[centres] / (w.sum() * dt) ** 2 * self.rate_var
         self._extra_var = integrand_var + end_var
-        self._window_var_parts = (integrand_var, end_var, tau)
+        self._window_var_parts = (end_var, tau)  # for measure_window_inflation
         # the unknown friction of the window's still samples, integrated with the window's
         # weights: the still share of the window times the largest breakaway torque. Returned
         # as a zero "speed" (windows with a standstill) and that stiction, for the downweight
@@ -557,7 +557,7 @@ class MachineCalibration:
         """
         r, _, lever, speed, stiction, _ = self.evaluate_windows(values, qdd, payload, self.z, runs)
         w = self.weights(lever, speed, stiction, "downweight", self.pressure_std)
-        _, end_var, tau = self._window_var_parts
+        end_var, tau = self._window_var_parts
         # the model's E[w r²] per window: the per-sample-equivalent parts reach the window as
         # 1/τ of their variance, the ends' momentum noise as its own
         expected = 1.0 / tau + w * end_var * (1.0 - 1.0 / tau)
