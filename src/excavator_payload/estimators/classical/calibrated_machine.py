@@ -438,6 +438,13 @@ class MachineCalibration:
         # identified machine (window_inflation); divides the windows' weights in calibration
         # and zero
         self.window_inflation = np.ones(3)
+        # cylinders taken as still below 3 Stribeck velocities (rod speed); calibration's
+        # moving samples per cylinder and valid samples (set by calibrate, for fit's warning)
+        cyl = arm.machine.cylinders
+        self._head = np.array([c.head_area for c in cyl])
+        self._rod = np.array([c.rod_area for c in cyl])
+        self._still_speed = 3 * np.array([c.stribeck_velocity for c in cyl])
+        self.moving = None
 
     @staticmethod
     def prior_std(relative: float) -> np.ndarray:
@@ -533,8 +540,7 @@ class MachineCalibration:
         # rule of :meth:`weights` (skipping every window with a still sample kept 11 % of the
         # dipper's and bucket's windows: NMPC swings MAX 23.6 kg, this 16.9 kg on 30 swings)
         stick = np.lib.stride_tricks.sliding_window_view(stiction, 2 * half + 1, axis=0).max(axis=-1)
-        v_s = np.array([c.stribeck_velocity for c in self.arm.machine.cylinders])
-        still = (np.abs(speed) < 3 * v_s).astype(float)
+        still = (np.abs(speed) < self._still_speed).astype(float)
         share = correlate1d(still, w, axis=0, mode="constant")[centres] / w.sum()
         speed_rule = np.where(share > 0, 0.0, np.inf)
         # the still samples' friction is one error shared by the window (and its neighbours):
@@ -582,23 +588,17 @@ class MachineCalibration:
         out = np.asarray(kernel_function("differentiated").map(n, "serial")(
             values.T, qdd.T, np.repeat(self.p[:, None], n, 1), np.repeat(self.offset_vector()[:, None], n, 1),
             np.repeat(np.asarray(self.imu, float)[:, None], n, 1)))
-        speed = out[9:12].T
-        v_s = np.array([c.stribeck_velocity for c in self.arm.machine.cylinders])
-        return np.sum(np.abs(speed) >= 3 * v_s, axis=0)
+        return np.sum(np.abs(out[9:12].T) >= self._still_speed, axis=0)
 
     def weights(self, lever, speed, stiction, low_speed: str, pressure_std: float) -> np.ndarray:
         """Inverse residual variances (n, 3) for the low-speed choice (0: sample skipped)."""
-        cyl = self.arm.machine.cylinders
-        head = np.array([c.head_area for c in cyl])
-        rod = np.array([c.rod_area for c in cyl])
-        v_s = np.array([c.stribeck_velocity for c in cyl])
-        var = lever**2 * (head**2 + rod**2) * (pressure_std**2 + 1.0) + self._extra_var
-        still = np.exp(-(speed / (3 * v_s)) ** 2)
+        var = lever**2 * (self._head**2 + self._rod**2) * (pressure_std**2 + 1.0) + self._extra_var
+        still = np.exp(-(speed / self._still_speed) ** 2)
         if low_speed == "downweight":
             var = var + still * stiction**2 / 3
         w = 1.0 / var
         if low_speed == "skip":
-            w = np.where(np.abs(speed) < 3 * v_s, 0.0, w)
+            w = np.where(np.abs(speed) < self._still_speed, 0.0, w)
         return w
 
     def solve(self, values, qdd, payload, free: np.ndarray, prior_mean: np.ndarray,
@@ -670,13 +670,9 @@ class MachineCalibration:
         self.covariance = cov
 
     def _noise_from_residuals(self, r, lever, speed) -> float:
-        cyl = self.arm.machine.cylinders
-        head = np.array([c.head_area for c in cyl])
-        rod = np.array([c.rod_area for c in cyl])
-        v_s = np.array([c.stribeck_velocity for c in cyl])
-        moving = np.abs(speed) > 3 * v_s
+        moving = np.abs(speed) > self._still_speed
         # what the differentiator's noise explains is not pressure noise
-        ratio = (r**2 - self._extra_var) / (lever**2 * (head**2 + rod**2))
+        ratio = (r**2 - self._extra_var) / (lever**2 * (self._head**2 + self._rod**2))
         use = moving & np.isfinite(ratio)
         if use.sum() < 10:
             return self.pressure_std
@@ -749,12 +745,13 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
                 cal.z = prior_mean.copy()
             cal.solve(values, qdd, payload, free, prior_mean, std, "downweight",
                       estimate_noise=False, runs=runs)
-        return cal
-    # Calibration skips joints near standstill whatever --low-speed says: their friction is
-    # anything within ± breakaway, and the parameters would absorb it (over-fitting measured
-    # as a cost below that of the true machine).
-    cal.solve(values, qdd, payload, free, np.zeros(len(cal.z)), std, "skip",
-              estimate_noise=pressure_std is None)
+    else:
+        # Calibration skips joints near standstill whatever --low-speed says: their friction is
+        # anything within ± breakaway, and the parameters would absorb it (over-fitting measured
+        # as a cost below that of the true machine).
+        cal.solve(values, qdd, payload, free, np.zeros(len(cal.z)), std, "skip",
+                  estimate_noise=pressure_std is None)
+    cal.moving = (cal.moving_samples(values, qdd), len(values))
     return cal
 
 
@@ -1008,14 +1005,13 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
 
     # a cylinder the calibration motions hardly moved keeps the file's numbers (e.g. lifts that
     # move the boom only): say so rather than weigh with them silently
-    values, qdd, _, _ = calibration_arrays(dataset, CALIBRATION_HALF_WINDOW, arm.machine)
-    moving = cal.moving_samples(values, qdd)
+    moving, n_valid = cal.moving
     still = [f"{joint} {k}" for joint, k in zip(("boom", "dipper", "bucket"), moving)
              if k < MIN_MOVING_SAMPLES]
     if still:
         estimator.fit_warnings.append(
             f"{estimator.name}: cylinders that hardly moved in the calibration data (moving samples: "
-            f"{', '.join(still)} of {len(values)}; {MIN_MOVING_SAMPLES} or more wanted): what it "
+            f"{', '.join(still)} of {n_valid}; {MIN_MOVING_SAMPLES} or more wanted): what it "
             "learned of them is mostly the machine file's. Calibrate with motions that move the "
             "boom, dipper and bucket (and slew)")
 
