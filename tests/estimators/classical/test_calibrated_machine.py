@@ -341,3 +341,12 @@ def test_fit_warns_when_the_calibration_motions_leave_a_cylinder_still(setup):
     assert len(est.fit_warnings) == 1
     warning = est.fit_warnings[0]
     assert "dipper 0" in warning and "bucket 0" in warning and "boom" not in warning.split("samples:")[1].split(";")[0]
+
+
+def test_fit_says_how_many_calibration_samples_it_could_not_use(setup):
+    """A non-finite pressure (a glitched frame, 1e400 read as inf) drops its sample from the
+    calibration; fit says so instead of dropping it silently. Clean data raise no warning."""
+    frame = setup["cal"].frame.copy()
+    frame.loc[frame.index[[50, 51, 900]], "boom_head_pressure"] = [np.inf, np.nan, -np.inf]
+    est = create_estimator("calibrated", PRIOR).fit(Dataset(frame, setup["cal"].meta))
+    assert any(f"3 of {len(frame)} calibration samples not used" in w for w in est.fit_warnings)

@@ -1006,6 +1006,10 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
     # a cylinder the calibration motions hardly moved keeps the file's numbers (e.g. lifts that
     # move the boom only): say so rather than weigh with them silently
     moving, n_valid = cal.moving
+    if n_valid < len(dataset.frame):  # dropped rows: not finite, or outside the angle ranges
+        estimator.fit_warnings.append(
+            f"{estimator.name}: {len(dataset.frame) - n_valid} of {len(dataset.frame)} calibration "
+            "samples not used (a signal not finite, or an angle outside the machine's range)")
     still = [f"{joint} {k}" for joint, k in zip(("boom", "dipper", "bucket"), moving)
              if k < MIN_MOVING_SAMPLES]
     if still:
