@@ -31,8 +31,14 @@ of the limit); between nodes the realised rates overshoot the plan, mostly by < 
 about 5 % of the swings by more (a poorly converged step): the simulator redraws a swing
 whose realised speed exceeds the pumps' by more than 5 %, or whose pressures exceed relief
 (``draws`` in the experiment's metadata; its ``speed_share`` is the share used).
-The plant integrates the same rigid-body model (RK4, 100 Hz); seal friction is not in the
-loop: the pressures are then computed for the realised motion by
+The plant integrates the same rigid-body model (RK4, 100 Hz) with the controller's forces
+reaching the joints through a first-order lag, :math:`\dot F = (u - F)/T_v` (``force_lag``,
+60 ms: valve spool and pressure build-up). Without it the forces, and so the accelerations
+and pressures, would jump at every control instant, which no hydraulic machine does, and an
+estimator's quadrature would be tuned to the jumps (a left rectangle rule is exact for held
+inputs; the trapezoid is right for a real machine). The controller does not know the lag:
+its feedback every period absorbs it, as with any unmodelled actuator. Seal friction is not
+in the loop: the pressures are then computed for the realised motion by
 :func:`~excavator_payload.simulation.machine_sim.motion_physics`, friction included, so that
 every sample is consistent with the model.
 """
@@ -72,6 +78,9 @@ class HydraulicNMPCSettings:
     speed_margin: float = 0.85
     sqp_iterations: int = 3  # warm-started SQP iterations per control period
     cold_iterations: int = 30
+    #: Time constant (s) of the first-order lag from commanded to applied forces (valve spool
+    #: and pressure build-up), in the plant and in the prediction.
+    force_lag: float = 0.06
     qp_solver: str = "qrqp"
 
 
@@ -87,10 +96,22 @@ def _dynamics(arm: HydraulicArmModel) -> ca.Function:
     return ca.Function("hyd_xdot", [x, u, tilt, m], [ca.vertcat(qd, qdd)], ["x", "u", "tilt", "payload"], ["xdot"])
 
 
+def _lagged_dynamics(arm: HydraulicArmModel, lag: float) -> ca.Function:
+    """ż = f(z, u, tilt, payload) of the plant, z = [q, q̇, F]: the applied forces F follow the
+    commanded u through a first-order lag of ``lag`` seconds."""
+    xdot = _dynamics(arm)
+    z, u, tilt, m = ca.SX.sym("z", 12), ca.SX.sym("u", 4), ca.SX.sym("tilt", 2), ca.SX.sym("payload")
+    applied = z[8:]
+    return ca.Function("hyd_plant_zdot", [z, u, tilt, m],
+                       [ca.vertcat(xdot(z[:8], applied, tilt, m), (u - applied) / lag)],
+                       ["x", "u", "tilt", "payload"], ["xdot"])
+
+
 def _rk4(f: ca.Function, duration: float, substeps: int, name: str, inner: bool = False) -> ca.Function:
     """RK4 over ``duration`` with the input held; with ``inner`` also the joint rates at the
     end of each substep but the last (to bound the speed inside a control interval)."""
-    x, u, tilt, m = ca.SX.sym("x", 8), ca.SX.sym("u", 4), ca.SX.sym("tilt", 2), ca.SX.sym("payload")
+    n = f.size1_in(0)
+    x, u, tilt, m = ca.SX.sym("x", n), ca.SX.sym("u", 4), ca.SX.sym("tilt", 2), ca.SX.sym("payload")
     h = duration / substeps
     xn = x
     rates = []
@@ -100,7 +121,7 @@ def _rk4(f: ca.Function, duration: float, substeps: int, name: str, inner: bool 
         k3 = f(xn + h / 2 * k2, u, tilt, m)
         k4 = f(xn + h * k3, u, tilt, m)
         xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        rates.append(xn[4:])
+        rates.append(xn[4:8])
     if inner:
         return ca.Function(name, [x, u, tilt, m], [xn, ca.vertcat(*rates[:-1])],
                            ["x", "u", "tilt", "payload"], ["xf", "inner_rates"])
@@ -113,20 +134,21 @@ def _rk4_jacobian(f: ca.Function, duration: float, substeps: int, name: str) -> 
     per stage, S ← S + h/6 (dk1 + 2dk2 + 2dk3 + dk4). The same derivative as differentiating
     the unrolled RK4 (equal to rounding, a test checks), in about a third of the operations:
     the SQP spends most of its time in it."""
-    x, u, tilt, m = ca.SX.sym("x", 8), ca.SX.sym("u", 4), ca.SX.sym("tilt", 2), ca.SX.sym("payload")
-    xs, us, ts, ms = ca.SX.sym("xs", 8), ca.SX.sym("us", 4), ca.SX.sym("ts", 2), ca.SX.sym("ms")
+    n = f.size1_in(0)
+    x, u, tilt, m = ca.SX.sym("x", n), ca.SX.sym("u", 4), ca.SX.sym("tilt", 2), ca.SX.sym("payload")
+    xs, us, ts, ms = ca.SX.sym("xs", n), ca.SX.sym("us", 4), ca.SX.sym("ts", 2), ca.SX.sym("ms")
     rate = f(xs, us, ts, ms)
     with_jacobian = ca.Function("xdot_jac", [xs, us, ts, ms],
                                 [rate, ca.jacobian(rate, ca.vertcat(xs, us, ts, ms))])
     n_held = 7  # u, tilt, payload: held over the interval, d/dz = [0 I]
-    held = ca.horzcat(ca.DM.zeros(n_held, 8), ca.DM.eye(n_held))
+    held = ca.horzcat(ca.DM.zeros(n_held, n), ca.DM.eye(n_held))
 
     def stage(state, sensitivity):
         k, F = with_jacobian(state, u, tilt, m)
         return k, ca.mtimes(F, ca.vertcat(sensitivity, held))
 
     h = duration / substeps
-    xn, S = x, ca.horzcat(ca.DM.eye(8), ca.DM.zeros(8, n_held))
+    xn, S = x, ca.horzcat(ca.DM.eye(n), ca.DM.zeros(n, n_held))
     for _ in range(substeps):
         k1, d1 = stage(xn, S)
         k2, d2 = stage(xn + h / 2 * k1, S + h / 2 * d1)
@@ -134,8 +156,8 @@ def _rk4_jacobian(f: ca.Function, duration: float, substeps: int, name: str) -> 
         k4, d4 = stage(xn + h * k3, S + h * d3)
         xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         S = S + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
-    return ca.Function(f"jac_{name}", [x, u, tilt, m, ca.SX.sym("out_xf", 8)],
-                       [S[:, :8], S[:, 8:12], S[:, 12:14], S[:, 14]],
+    return ca.Function(f"jac_{name}", [x, u, tilt, m, ca.SX.sym("out_xf", n)],
+                       [S[:, :n], S[:, n:n + 4], S[:, n + 4:n + 6], S[:, n + 6]],
                        ["x", "u", "tilt", "payload", "out_xf"],
                        ["jac_xf_x", "jac_xf_u", "jac_xf_tilt", "jac_xf_payload"])
 
@@ -169,24 +191,25 @@ class HydraulicNMPC:
         self.N = N = int(round(s.horizon / s.control_period))
         u_low, u_high, rate, ranges = hydraulic_bounds(arm)
         self.u_centre, self.u_half = (u_high + u_low) / 2, (u_high - u_low) / 2
-        xdot = _dynamics(arm)
+        xdot = _lagged_dynamics(arm, s.force_lag)
+        self.nx = nx = 12  # q, q̇, applied forces
         model = _rk4(xdot, s.control_period, s.substeps, "hyd_nmpc_model")
         # compiled with its chain-rule Jacobian, which CasADi finds in the library by name
         self.model = native(model, _rk4_jacobian(xdot, s.control_period, s.substeps, "hyd_nmpc_model"))
         rate = rate * s.speed_margin
 
-        X = ca.MX.sym("X", 8, N + 1)
+        X = ca.MX.sym("X", nx, N + 1)
         U = ca.MX.sym("U", 4, N)
-        x0, ref, u_prev = ca.MX.sym("x0", 8), ca.MX.sym("ref", 4), ca.MX.sym("u_prev", 4)
+        x0, ref, u_prev = ca.MX.sym("x0", nx), ca.MX.sym("ref", 4), ca.MX.sym("u_prev", 4)
         tilt, payload = ca.MX.sym("tilt", 2), ca.MX.sym("payload")
         forces = ca.repmat(ca.DM(self.u_centre), 1, N) + U * ca.repmat(ca.DM(self.u_half), 1, N)
         X_next = self.model.map(N)(X[:, :N], forces, ca.repmat(tilt, 1, N), ca.repmat(payload, 1, N))
         g = ca.vertcat(X[:, 0] - x0, ca.vec(X[:, 1:] - X_next))
         du = U - ca.horzcat(u_prev, U[:, :N - 1])
         err = X[:4, 1:] - ca.repmat(ref, 1, N)
-        cost = (s.control_period * (s.angle_weight * ca.sumsqr(err) + s.rate_weight * ca.sumsqr(X[4:, 1:]))
+        cost = (s.control_period * (s.angle_weight * ca.sumsqr(err) + s.rate_weight * ca.sumsqr(X[4:8, 1:]))
                 + s.input_rate_weight * ca.sumsqr(du)
-                + s.terminal_weight * ca.sumsqr(X[:4, N] - ref) + s.terminal_rate_weight * ca.sumsqr(X[4:, N]))
+                + s.terminal_weight * ca.sumsqr(X[:4, N] - ref) + s.terminal_rate_weight * ca.sumsqr(X[4:8, N]))
         w = ca.vertcat(ca.vec(X), ca.vec(U))
         params = ca.vertcat(x0, ref, u_prev, tilt, payload)
         hess = ca.Function("h", [w, params], [ca.hessian(cost, w)[0]])(np.zeros(w.shape[0]),
@@ -211,29 +234,31 @@ class HydraulicNMPC:
         nlp = {"x": w, "p": params, "f": cost, "g": g}
         self._sqp = ca.nlpsol("hyd_nmpc", "sqpmethod", nlp, {**opts, "max_iter": s.sqp_iterations})
         self._sqp_cold = ca.nlpsol("hyd_nmpc_cold", "sqpmethod", nlp, {**opts, "max_iter": s.cold_iterations})
-        self._n_x, self._n_g = 8 * (N + 1), g.shape[0]
-        self._n_eq = 8 * (N + 1)
+        self._n_x, self._n_g = nx * (N + 1), g.shape[0]
+        self._n_eq = nx * (N + 1)
         self._lbg = self._ubg = np.zeros(self._n_eq)
         lbx = np.full(w.shape[0], -np.inf)
         ubx = np.full(w.shape[0], np.inf)
         margin = np.radians(0.5)
         for k in range(N + 1):
-            lbx[8 * k:8 * k + 3] = ranges[:, 0] + margin
-            ubx[8 * k:8 * k + 3] = ranges[:, 1] - margin
-            lbx[8 * k + 4:8 * k + 8] = -rate
-            ubx[8 * k + 4:8 * k + 8] = rate
+            lbx[nx * k:nx * k + 3] = ranges[:, 0] + margin
+            ubx[nx * k:nx * k + 3] = ranges[:, 1] - margin
+            lbx[nx * k + 4:nx * k + 8] = -rate
+            ubx[nx * k + 4:nx * k + 8] = rate
         lbx[self._n_x:], ubx[self._n_x:] = -1.0, 1.0
         self._lbx, self._ubx = lbx, ubx
         self.solve_times: list[float] = []
 
     def reset(self, state, target, tilt, payload) -> None:
-        """Start a new swing from rest at ``state``; first guess: hold still with gravity forces."""
+        """Start a new swing from rest at ``state`` ([q, q̇], 8): the forces applied and the first
+        guess hold the arm still against gravity (the full state is then ``initial_state``)."""
         N = self.N
-        state = np.asarray(state, float)
+        state = np.asarray(state, float)[:8]
         tau = self.arm.inverse_dynamics(state[:4], np.zeros(4), np.zeros(4), tilt, payload)
         force = np.concatenate([self.arm.load_force(state[:4], tau[:3]), [tau[3]]])
         self._u = np.clip((force - self.u_centre) / self.u_half, -1, 1)
-        self._w = np.concatenate([np.tile(state, N + 1), np.tile(self._u, N)])
+        self.initial_state = np.concatenate([state, self.u_centre + self.u_half * self._u])
+        self._w = np.concatenate([np.tile(self.initial_state, N + 1), np.tile(self._u, N)])
         self._lam_x, self._lam_g = np.zeros_like(self._w), np.zeros(self._n_g)
         self._fixed = np.concatenate([np.asarray(target, float), self._u * 0, np.asarray(tilt, float), [payload]])
         self._target, self._tilt, self._payload = np.asarray(target, float), np.asarray(tilt, float), payload
@@ -247,7 +272,7 @@ class HydraulicNMPC:
         """Forces and slew torque to apply for the next control period."""
         start = _time.perf_counter()
         w0 = self._w.copy()
-        w0[:8] = state
+        w0[:self.nx] = state
         params = np.concatenate([state, self._target, self._u, self._tilt, [self._payload]])
         solver = self._sqp_cold if self._cold else self._sqp
         for retry in (False, True):
@@ -270,7 +295,7 @@ class HydraulicNMPC:
                 raise ControlFailure(f"hydraulic NMPC failed ({status})")
             self.plan_followed += 1
             N = self.N
-            X = self._w[:self._n_x].reshape(N + 1, 8)
+            X = self._w[:self._n_x].reshape(N + 1, self.nx)
             U = self._w[self._n_x:].reshape(N, 4)
             self._u = U[0].copy()
             self._w = np.concatenate([np.vstack([X[1:], X[-1:]]).ravel(), np.vstack([U[1:], U[-1:]]).ravel()])
@@ -279,11 +304,11 @@ class HydraulicNMPC:
             return self.u_centre + self.u_half * self._u
         self._failures_in_a_row = 0
         N = self.N
-        X = w[:self._n_x].reshape(N + 1, 8)
+        X = w[:self._n_x].reshape(N + 1, self.nx)
         U = w[self._n_x:].reshape(N, 4)
         self._u = U[0].copy()
         self._w = np.concatenate([np.vstack([X[1:], X[-1:]]).ravel(), np.vstack([U[1:], U[-1:]]).ravel()])
-        lam_g = np.asarray(sol["lam_g"]).ravel().reshape(N + 1, 8)
+        lam_g = np.asarray(sol["lam_g"]).ravel().reshape(N + 1, self.nx)
         self._lam_g = np.vstack([lam_g[1:], lam_g[-1:]]).ravel()
         lam_u = np.asarray(sol["lam_x"]).ravel()[self._n_x:].reshape(N, 4)
         self._lam_x = np.concatenate([np.zeros(self._n_x), np.vstack([lam_u[1:], lam_u[-1:]]).ravel()])
@@ -300,7 +325,7 @@ class HydraulicNMPCSimulator:
         self.arm = arm
         self.controller = HydraulicNMPC(arm, settings)
         self.sample_period = float(sample_period)
-        xdot = _dynamics(arm)
+        xdot = _lagged_dynamics(arm, self.controller.settings.force_lag)
         ratio = self.controller.settings.control_period / self.sample_period
         self.samples_per_control = k = int(round(ratio))
         # One call per control period: k plant steps (RK4, 2 substeps each) with the input held,
@@ -311,30 +336,31 @@ class HydraulicNMPCSimulator:
         self._xdot_map = self._xdot.map(k)
 
     def run(self, start, target, tilt, payload, duration: float):
-        """(time, q, q̇, q̈, forces, info) of one swing from rest at ``start`` towards ``target``."""
+        """(time, q, q̇, q̈, applied forces, info) of one swing from rest at ``start`` towards
+        ``target``."""
         n = int(round(duration / self.sample_period)) + 1
         time = np.arange(n) * self.sample_period
         x = np.concatenate([np.asarray(start, float), np.zeros(4)])
         ctl = self.controller
         ctl.reset(x, target, tilt, payload)
+        z = ctl.initial_state
         k = self.samples_per_control
         n_intervals = -(-n // k)
-        states, accels, forces = np.empty((n_intervals * k, 8)), np.empty((n_intervals * k, 4)), np.empty((n_intervals * k, 4))
+        states, accels = np.empty((n_intervals * k, 12)), np.empty((n_intervals * k, 4))
         for i in range(n_intervals):
-            u = ctl.control(x)
-            after = np.asarray(self._interval(x, ca.repmat(u, 1, k), ca.repmat(tilt, 1, k),
+            u = ctl.control(z)
+            after = np.asarray(self._interval(z, ca.repmat(u, 1, k), ca.repmat(tilt, 1, k),
                                               ca.repmat(payload, 1, k)))
-            block = np.column_stack([x, after[:, :-1]])  # states at the k sample instants
+            block = np.column_stack([z, after[:, :-1]])  # states at the k sample instants
             if not np.all(np.isfinite(after)):
                 raise ControlFailure(f"plant state became non-finite near t = {time[min(i * k, n - 1)]:.2f} s")
             rows = slice(i * k, (i + 1) * k)
             states[rows] = block.T
-            forces[rows] = u
             accels[rows] = np.asarray(self._xdot_map(block, ca.repmat(u, 1, k), ca.repmat(tilt, 1, k),
-                                                     ca.repmat(payload, 1, k)))[4:].T
-            x = after[:, -1]
-        states, accels, forces = states[:n], accels[:n], forces[:n]
-        q, qd = states[:, :4], states[:, 4:]
+                                                     ca.repmat(payload, 1, k)))[4:8].T
+            z = after[:, -1]
+        states, accels = states[:n], accels[:n]
+        q, qd, forces = states[:, :4], states[:, 4:8], states[:, 8:]
         error = np.degrees(q[-1] - np.asarray(target))
         solve = np.array(ctl.solve_times)
         info = {"final_error_deg": [float(v) for v in error],

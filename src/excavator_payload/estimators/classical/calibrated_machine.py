@@ -300,20 +300,22 @@ def momentum_windows(runs: np.ndarray, half: int) -> np.ndarray:
 
 
 def balance_weights(half: int, ramp: int) -> tuple[np.ndarray, np.ndarray]:
-    """Weights of the momentum balance over ``2·half + 1`` samples: ``w`` of the integrand
-    (a trapezoid rising and falling over ``ramp`` samples, 0 on the last sample) and ``u`` of
-    the momentum (its differences, ``u_j = w_{j-1} - w_j``): Σ w_j (P_{j+1} - P_j) = Σ u_j P_j
-    (summation by parts), so each end's momentum is averaged over ``ramp`` samples."""
+    """Weights of the momentum balance over ``2·half + 1`` samples: ``w`` of the integrand and
+    ``u`` of the momentum. The balance's weight ``v`` rises and falls over ``ramp`` sample
+    intervals (a trapezoid in time, 0 after the last interval); ``u_j = v_{j-1} - v_j`` are its
+    differences, so Σ v_j (P_{j+1} - P_j) = Σ u_j P_j (summation by parts) and each end's
+    momentum is averaged over ``ramp`` samples. Each interval's integral is the trapezoid rule,
+    (I_j + I_{j+1})/2 Δt, so the integrand's weight is w_j = (v_j + v_{j-1})/2 (Σw = Σv)."""
     L = 2 * half + 1
     j = np.arange(L)
-    w = np.minimum(1.0, np.minimum((j + 1) / ramp, (L - 1 - j) / ramp))
-    u = np.r_[0.0, w[:-1]] - w
-    return w, u
+    v = np.minimum(1.0, np.minimum((j + 1) / ramp, (L - 1 - j) / ramp))
+    before = np.r_[0.0, v[:-1]]
+    return 0.5 * (v + before), before - v
 
 
 def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, half: int, dt: float,
                      ramp: int = 1):
-    r"""The momentum balance over each window ``c ± half`` (module doc), rectangle rule,
+    r"""The momentum balance over each window ``c ± half`` (module doc), trapezoid rule,
     weighted by :func:`balance_weights`.
 
     ``A`` (n, 12[, nz]) holds per sample (P0, Pm, I0, Fm) or their derivatives; returns the
@@ -323,12 +325,10 @@ def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, ha
               - \frac{m}{W}\Big[-\sum_j u_j P_{m,j} - \sum_j w_j F_{m,j}\,\Delta t\Big],
               \qquad W = \sum_j w_j \Delta t.
 
-    The integrand is taken at the start of each sample interval: the valve commands (and the
-    simulator's accelerations) are held over a sample period, so a sample's pressures belong to
-    the interval it starts (trapezoid: 14 kg RMS error on noise-free NMPC swings, this 3.5 kg).
-    That holds for the NMPC simulator's held accelerations only: on continuous motions (the same
-    NMPC motions replayed through ``--trajectory``, planned swings, a real machine) the trapezoid
-    is the right rule (per interval 254 against 7066 N·m RMS on the boom; README, "Not done yet").
+    Each sample interval's integral is the trapezoid rule: pressures, forces and accelerations
+    of a hydraulic machine are continuous (valve and pressure dynamics; the NMPC simulator's
+    force lag). A left rectangle rule is exact only for inputs held over each sample period,
+    as the NMPC simulator's were before it had the lag (README, "Not done yet").
     """
     w, u = balance_weights(half, ramp)
     W = float(w.sum()) * dt
@@ -941,7 +941,7 @@ class CalibratedKernel(PressureRegression):
         self._terms_count += 1
         if self._terms_count < b:
             return False
-        # stage 2: the momentum balance over the last b samples (window_residuals, rectangle rule)
+        # stage 2: the momentum balance over the last b samples (window_residuals)
         start = (slot + 1) % b
         t = self._terms[start:start + b]
         if not self._terms_used[start + BALANCE_HALF_WINDOW]:
