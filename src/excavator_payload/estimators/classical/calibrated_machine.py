@@ -67,9 +67,10 @@ payload; :func:`window_residuals`): the momentum's change against the integral o
 and forces. Weighted by a trapezoid (:func:`balance_weights`) and summed by parts, each end's
 momentum is averaged over ``BALANCE_RAMP`` samples — the rates' noise enters the momentum only
 there. With the
-true machine, offsets and IMU dynamics this form weighs field-noise NMPC swings within 8.4 kg mean MAX (the
-per-sample form: 66 kg — the calibrated parameters of that form partly compensate its
-differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
+true machine, offsets and IMU dynamics this form weighs field-noise work cycles within 13.4 kg
+mean MAX and NMPC swings within 24.5 kg, whose MAX is at their start from rest (after 3 s:
+1.5-14.5 kg; the per-sample form at the true machine: 66 kg on the held-force simulator's
+swings — the calibrated parameters of that form partly compensate its differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
 (the acceleration sensitivities wander). The windows overlap, so their noise model is kept in
 per-sample-equivalent variances (:meth:`MachineCalibration.evaluate_windows`): the pressures' and
 the rates' white noise per sample (the rates' through the seal friction and the centrifugal and
