@@ -266,10 +266,12 @@ class HydraulicSymbolic:
         # load_coefficient² (4e-4). Measured on noise-free NMPC swings: the boom residual of a
         # moving cylinder is 0.2 kg of payload (median) this way, 8.4 kg with the load taken as
         # the piston force and a sign of width v_s.
-        def moving_friction(speed, load):
-            sign = speed / ca.sqrt(speed**2 + (0.1 * get("stribeck_velocity")) ** 2)
+        def signed_friction(speed, sign, load):
             return ca.substitute(ca.substitute(ca.substitute(friction, velocity_c, speed), state_c, sign),
                                  load_c, load)
+
+        def moving_friction(speed, load):
+            return signed_friction(speed, speed / ca.sqrt(speed**2 + (0.1 * get("stribeck_velocity")) ** 2), load)
 
         moving_force = ca.SX.sym("moving_force", 3)
         moving_speed = ca.SX.sym("moving_speed", 3)
@@ -355,16 +357,27 @@ class HydraulicSymbolic:
         momentum = dK_dqd[:3]
         momentum0 = ca.substitute(momentum, payload, 0)
         forces = (ca.gradient(kinetic, q) - ca.gradient(potential, q) - ca.gradient(rayleigh, qd))[:3]
+        momentum_outputs = [momentum0, ca.jacobian(momentum, payload),
+                            torque_from_pressures + ca.substitute(forces, payload, 0), ca.jacobian(forces, payload),
+                            lever, cylinder_speed, stiction,
+                            # how the rates' noise enters the momentum: Σ_k (∂p0_j/∂q̇_k)², per joint j
+                            ca.sum2(ca.jacobian(momentum0, qd) ** 2)]
+        momentum_names = ["momentum0", "momentum_payload", "integrand0", "force_payload", "lever", "speed",
+                          "stiction", "rate_gain"]
         self.functions["momentum_regression"] = F_(
-            "hyd_momentum_regression", [q, qd, tilt, measured, p],
-            [momentum0, ca.jacobian(momentum, payload),
-             torque_from_pressures + ca.substitute(forces, payload, 0), ca.jacobian(forces, payload),
-             lever, cylinder_speed, stiction,
-             # how the rates' noise enters the momentum: Σ_k (∂p0_j/∂q̇_k)², per joint j
-             ca.sum2(ca.jacobian(momentum0, qd) ** 2)],
-            ["q", "qd", "tilt", "pressures", "p"],
-            ["momentum0", "momentum_payload", "integrand0", "force_payload", "lever", "speed", "stiction",
-             "rate_gain"])
+            "hyd_momentum_regression", [q, qd, tilt, measured, p], momentum_outputs,
+            ["q", "qd", "tilt", "pressures", "p"], momentum_names)
+        # The same with the friction's presliding state given (``sign``, one per cylinder) instead
+        # of the smooth sign of the rod speed: a stopped seal holds the friction of its last
+        # sliding direction (the Dahl state stays while the rod stands), which calibration knows
+        # from the measured rates; 0 where no sliding has been seen yet (unknown).
+        sign = ca.SX.sym("sign", 3)
+        held = signed_friction(cylinder_speed, sign, piston_force - signed_friction(cylinder_speed, sign, piston_force))
+        self.functions["momentum_regression_held"] = F_(
+            "hyd_momentum_regression_held", [q, qd, tilt, measured, sign, p],
+            [lever * (piston_force - held) + ca.substitute(forces, payload, 0) if k == 2 else o
+             for k, o in enumerate(momentum_outputs)],
+            ["q", "qd", "tilt", "pressures", "sign", "p"], momentum_names)
         total_force = load_c + friction
         self.functions["cylinder_pressures"] = F_(
             "hyd_cylinder_pressures", [velocity_c, state_c, load_c, p],
