@@ -54,7 +54,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[11, 13])
     ap.add_argument("--calibration-seed", type=int, default=7)
     a = ap.parse_args()
-    est = CalibratedEstimator("cat345c-hydraulic-3pct").fit(dm.calibration_data(10, a.calibration_seed))
+    est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="differentiated").fit(dm.calibration_data(10, a.calibration_seed))
     cm.zero(est, dm.zero_data(a.calibration_seed + 1))
     for name, (value, posterior, ratio) in est.calibration.imu_identification().items():
         print(f"{name:38s} {value:+.4f}  posterior std {posterior:.4f} ({ratio:.2f} of the prior's)")

@@ -23,7 +23,7 @@ def setup():
     cal = dm.calibration_data(3, seed=5)
     zero = dm.zero_data(seed=6)
     test = dm.test_sets(2, seed=7)["swing"]
-    est = create_estimator("calibrated", PRIOR).fit(cal)
+    est = create_estimator("calibrated", PRIOR, balance="differentiated").fit(cal)
     calibrated = copy.deepcopy(est)
     cm.zero(est, zero)
     return dict(cal=cal, zero=zero, test=test, calibrated=calibrated, zeroed=est)
@@ -58,7 +58,7 @@ def test_noise_is_estimated_from_the_residuals_without_metadata(setup):
     (the field preset's white noise is 30 kPa; ripple and dynamics add to what the estimator
     sees)."""
     meta = {k: v for k, v in setup["cal"].meta.items() if k != "noise"}
-    est = create_estimator("calibrated", PRIOR, experiments=2).fit(Dataset(setup["cal"].frame, meta))
+    est = create_estimator("calibrated", PRIOR, balance="differentiated", experiments=2).fit(Dataset(setup["cal"].frame, meta))
     assert 2e4 < est.calibration.pressure_std < 3e5
     assert est.noise_name == "estimated"
 

@@ -138,7 +138,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "low_speed": Option(str, "skip", "machine sensor set: joints near standstill "
                             "(stiction) are modelled, down-weighted or skipped",
                             ("model", "downweight", "skip")),
-        "balance": Option(str, "differentiated", "machine sensor set: without measured "
+        "balance": Option(str, "momentum", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
                           BALANCE_CHOICES),
