@@ -338,7 +338,11 @@ class HydraulicSymbolic:
         # τ_j − τ0_j = m φ_j.
         measured = ca.SX.sym("pressures", 6)  # boom head, rod, dipper head, rod, bucket head, rod
         piston_force = measured[0::2] * head - measured[1::2] * rod
-        friction_model = moving_friction(cylinder_speed, piston_force - moving_friction(cylinder_speed, piston_force))
+
+        def piston_friction(friction_of_load):  # the load force recovered by one fixed-point step
+            return friction_of_load(piston_force - friction_of_load(piston_force))
+
+        friction_model = piston_friction(lambda load: moving_friction(cylinder_speed, load))
         lever = counts * moment_arms
         torque_from_pressures = lever * (piston_force - friction_model)
         stiction = ca.fabs(lever) * (get("coulomb") + get("load_coefficient") * ca.fabs(piston_force)) \
@@ -357,26 +361,27 @@ class HydraulicSymbolic:
         momentum = dK_dqd[:3]
         momentum0 = ca.substitute(momentum, payload, 0)
         forces = (ca.gradient(kinetic, q) - ca.gradient(potential, q) - ca.gradient(rayleigh, qd))[:3]
-        momentum_outputs = [momentum0, ca.jacobian(momentum, payload),
-                            torque_from_pressures + ca.substitute(forces, payload, 0), ca.jacobian(forces, payload),
-                            lever, cylinder_speed, stiction,
-                            # how the rates' noise enters the momentum: Σ_k (∂p0_j/∂q̇_k)², per joint j
-                            ca.sum2(ca.jacobian(momentum0, qd) ** 2)]
+        def momentum_outputs(arm_torque_from_pressures):
+            return [momentum0, ca.jacobian(momentum, payload),
+                    arm_torque_from_pressures + ca.substitute(forces, payload, 0), ca.jacobian(forces, payload),
+                    lever, cylinder_speed, stiction,
+                    # how the rates' noise enters the momentum: Σ_k (∂p0_j/∂q̇_k)², per joint j
+                    ca.sum2(ca.jacobian(momentum0, qd) ** 2)]
+
         momentum_names = ["momentum0", "momentum_payload", "integrand0", "force_payload", "lever", "speed",
                           "stiction", "rate_gain"]
         self.functions["momentum_regression"] = F_(
-            "hyd_momentum_regression", [q, qd, tilt, measured, p], momentum_outputs,
+            "hyd_momentum_regression", [q, qd, tilt, measured, p], momentum_outputs(torque_from_pressures),
             ["q", "qd", "tilt", "pressures", "p"], momentum_names)
         # The same with the friction's presliding state given (``sign``, one per cylinder) instead
         # of the smooth sign of the rod speed: a stopped seal holds the friction of its last
         # sliding direction (the Dahl state stays while the rod stands), which calibration knows
         # from the measured rates; 0 where no sliding has been seen yet (unknown).
         sign = ca.SX.sym("sign", 3)
-        held = signed_friction(cylinder_speed, sign, piston_force - signed_friction(cylinder_speed, sign, piston_force))
         self.functions["momentum_regression_held"] = F_(
             "hyd_momentum_regression_held", [q, qd, tilt, measured, sign, p],
-            [lever * (piston_force - held) + ca.substitute(forces, payload, 0) if k == 2 else o
-             for k, o in enumerate(momentum_outputs)],
+            momentum_outputs(lever * (piston_force - piston_friction(
+                lambda load: signed_friction(cylinder_speed, sign, load)))),
             ["q", "qd", "tilt", "pressures", "sign", "p"], momentum_names)
         total_force = load_c + friction
         self.functions["cylinder_pressures"] = F_(

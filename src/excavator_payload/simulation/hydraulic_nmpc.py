@@ -1,8 +1,9 @@
 r"""NMPC swings of the hydraulic machine: boom, dipper, bucket and slew to a target pose.
 
 The thesis' controller (:mod:`.nmpc`) generalised to the hydraulic machine: the state is
-:math:`x = [q, \dot q]` (boom, dipper, bucket, slew: 8), the inputs are the three cylinder
-forces and the slew-drive torque, the prediction model is the symbolic model's forward dynamics
+:math:`x = [q, \dot q, F]` (boom, dipper, bucket, slew: 4 angles, 4 rates, and the 4 applied
+forces and slew torque behind their lag, below: 12), the inputs are the commanded cylinder
+forces and slew-drive torque, the prediction model is the symbolic model's forward dynamics
 with joint torques :math:`\tau_j = \text{count}_j\,\partial l_j/\partial q_j\,F_j`, and the
 bounds are what the hydraulics can do:
 
