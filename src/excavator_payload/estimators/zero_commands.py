@@ -23,7 +23,8 @@ from excavator_payload.errors import EstimatorError
 def zero_model(model: str | Path, data: str | Path, out: str | Path):
     """Load ``model``, re-estimate its offsets from ``data`` (empty bucket), save to ``out``.
 
-    Returns the zeroed estimator.
+    Returns the zeroed estimator; its ``zero_warnings`` say how many samples the check could
+    not use.
     """
     from excavator_payload.data.io import read_dataset
     from excavator_payload.estimators.base import load_estimator
@@ -39,7 +40,7 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path):
     dataset = read_dataset(data)
     if "payload" not in dataset.frame.columns:
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
-    calibrated_machine.zero(estimator, dataset)
+    estimator.zero_warnings = calibrated_machine.zero(estimator, dataset)
     estimator.save(out)
     return estimator
 
@@ -61,6 +62,8 @@ def register(app: typer.Typer) -> None:
         before = load_offsets(model)
         estimator = zero_model(model, data, out)
         after = estimator.calibration.offsets
+        for warning in estimator.zero_warnings:
+            typer.echo(f"warning: {warning}", err=True)
         for name, a, b in zip(OFFSET_SIGNALS, before, after):
             unit, scale = ("kPa", 1e-3) if name.endswith("pressure") else ("°", 57.29577951308232)
             typer.echo(f"{name:22s} {a * scale:+9.3f} → {b * scale:+9.3f} {unit}")

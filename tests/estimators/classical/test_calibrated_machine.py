@@ -425,3 +425,14 @@ def test_fit_says_how_many_calibration_samples_it_could_not_use(setup):
     frame.loc[frame.index[[50, 51, 900]], "boom_head_pressure"] = [np.inf, np.nan, -np.inf]
     est = create_estimator("calibrated", PRIOR).fit(Dataset(frame, setup["cal"].meta))
     assert any(f"3 of {len(frame)} calibration samples not used" in w for w in est.fit_warnings)
+
+
+def test_zero_says_how_many_samples_it_could_not_use(setup):
+    """The zero check drops samples it cannot use (a non-finite signal) and says so; clean data
+    raise no warning."""
+    est = copy.deepcopy(setup["calibrated"])
+    assert cm.zero(est, setup["zero"]) == []
+    frame = setup["zero"].frame.copy()
+    frame.loc[frame.index[[40, 90]], "dipper_head_pressure"] = float("1e400")
+    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), Dataset(frame, setup["zero"].meta))
+    assert len(warnings) == 1 and f"2 of {len(frame)} samples not used" in warnings[0]

@@ -799,8 +799,9 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
 
 
 def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "downweight",
-                 half_window: int = 5, drift_std: np.ndarray = OFFSET_PRIOR_STD) -> None:
-    """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc)."""
+                 half_window: int = 5, drift_std: np.ndarray = OFFSET_PRIOR_STD) -> int:
+    """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc).
+    Returns how many samples it used (the valid ones: finite, angles within range)."""
     values, qdd, payload, runs = calibration_arrays(dataset, CALIBRATION_HALF_WINDOW, cal.arm.machine)
     cal.accel_var = accel_variance(dataset, CALIBRATION_HALF_WINDOW)
     if len(values) < 50:
@@ -814,6 +815,7 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
               np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))],
               "skip", iterations=4, estimate_noise=False,
               runs=runs if momentum else None)
+    return len(values)
 
 
 @lru_cache(maxsize=2)
@@ -1068,18 +1070,24 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
     _install(estimator, cal)
 
 
-def zero(estimator, dataset: Dataset) -> None:
-    """Re-estimate a fitted machine-set ``calibrated`` estimator's sensor offsets, in place."""
+def zero(estimator, dataset: Dataset) -> list[str]:
+    """Re-estimate a fitted machine-set ``calibrated`` estimator's sensor offsets, in place.
+    Returns warnings (samples it could not use), as fit's ``fit_warnings``."""
     if getattr(estimator, "calibration", None) is None:
         raise EstimatorError(f"zero needs a 'calibrated' model fitted on machine-sensor-set data, "
                              f"not a '{estimator.name}' model")
     if dataset.sensor_set.name != "machine":
         raise EstimatorError(f"zero needs machine-sensor-set data, these are of the "
                              f"{dataset.sensor_set.name} sensor set")
-    zero_offsets(estimator.calibration, dataset, estimator.options["low_speed"],
-                 estimator.options["half_window"])
+    used = zero_offsets(estimator.calibration, dataset, estimator.options["low_speed"],
+                        estimator.options["half_window"])
     _install(estimator, estimator.calibration)
     estimator.reset()
+    n = len(dataset.frame)
+    if used < n:
+        return [f"zero: {n - used} of {n} samples not used (a signal not finite, or an angle "
+                "outside the machine's range)"]
+    return []
 
 
 def config(estimator) -> dict:
