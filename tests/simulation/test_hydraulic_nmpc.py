@@ -21,3 +21,14 @@ def test_chain_rule_jacobian_equals_differentiating_the_unrolled_rk4():
         for want, got in zip(expected_fn(x, u, tilt, payload, xf), got_fn(x, u, tilt, payload, xf)):
             want, got = np.asarray(want), np.asarray(got)
             np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+
+
+def test_chain_rule_jacobian_keeps_the_structural_zeros_of_the_force_lag():
+    # The applied forces depend on nothing but forces and inputs: the NMPC's QP is only as
+    # sparse as this pattern.
+    from excavator_payload.simulation.hydraulic_nmpc import _lagged_dynamics
+
+    jac = _rk4_jacobian(_lagged_dynamics(HydraulicArmModel("cat345c-hydraulic"), 0.06), 0.25, 2, "interval")
+    by_state, by_input = np.array(jac.sparsity_out(0)), np.array(jac.sparsity_out(1))
+    np.testing.assert_array_equal(by_state[8:], np.hstack([np.zeros((4, 8), bool), np.eye(4, dtype=bool)]))
+    np.testing.assert_array_equal(by_input[8:], np.eye(4, dtype=bool))

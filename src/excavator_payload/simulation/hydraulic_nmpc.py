@@ -20,8 +20,15 @@ Cost over the horizon :math:`T_p` (:math:`N` intervals of :math:`T_c`):
 .. math:: \sum_{k=1}^{N} T_c\,(w_q\|q_k - r\|^2 + w_v\|\dot q_k\|^2)
           + w_u \sum_k \|\Delta U_k\|^2 + w_T\|q_N - r\|^2 + w_{Tv}\|\dot q_N\|^2
 
-with inputs :math:`U \in [-1, 1]` scaled to the bounds. Multiple shooting, CasADi
-``sqpmethod`` with ``qrqp`` and the objective's constant Gauss–Newton Hessian, warm-started
+with inputs :math:`U \in [-1, 1]` scaled to the bounds. Multiple shooting over the :math:`N`
+intervals with the shooting state :math:`[q, \dot q, \tilde F]`, the applied forces in the units
+of U (:math:`F = F_c + F_h \tilde F` with the bounds' centre and half-range): in newtons beside
+radians they left the QP's KKT matrix so ill-conditioned that ``qrqp`` stalled on zero steps
+for most of its iterations. The forces stay shooting states (140 QP variables, 108
+equalities) although their lag is linear and they could be computed from U: eliminated, every
+interval would depend on all earlier inputs, and the fuller QP (104 variables) took twice as
+long per iteration. CasADi ``sqpmethod`` with ``qrqp`` and the objective's constant
+Gauss–Newton Hessian, warm-started
 (three SQP iterations per step, the first step to convergence; a failed step is retried once
 from a cold start; if that fails too, the previous plan is followed for that period, up to
 three periods in a row; after that, or if the very first solve fails, the simulator redraws
@@ -37,8 +44,8 @@ reaching the joints through a first-order lag, :math:`\dot F = (u - F)/T_v` (``f
 60 ms: valve spool and pressure build-up). Without it the forces, and so the accelerations
 and pressures, would jump at every control instant, which no hydraulic machine does, and an
 estimator's quadrature would be tuned to the jumps (a left rectangle rule is exact for held
-inputs; the trapezoid is right for a real machine). The controller does not know the lag:
-its feedback every period absorbs it, as with any unmodelled actuator. Seal friction is not
+inputs; the trapezoid is right for a real machine). The prediction has the same lag, from the
+applied forces of the plant's state. Seal friction is not
 in the loop: the pressures are then computed for the realised motion by
 :func:`~excavator_payload.simulation.machine_sim.motion_physics`, friction included, so that
 every sample is consistent with the model.
@@ -142,14 +149,17 @@ def _rk4_jacobian(f: ca.Function, duration: float, substeps: int, name: str) -> 
     with_jacobian = ca.Function("xdot_jac", [xs, us, ts, ms],
                                 [rate, ca.jacobian(rate, ca.vertcat(xs, us, ts, ms))])
     n_held = 7  # u, tilt, payload: held over the interval, d/dz = [0 I]
-    held = ca.horzcat(ca.DM.zeros(n_held, n), ca.DM.eye(n_held))
+    # Structural zeros (ca.DM(n, m), not DM.zeros) so that the Jacobian keeps the pattern of the
+    # dynamics (the applied forces depend on nothing but forces and inputs): fewer operations
+    # here, a sparser QP in the NMPC.
+    held = ca.horzcat(ca.DM(n_held, n), ca.DM.eye(n_held))
 
     def stage(state, sensitivity):
         k, F = with_jacobian(state, u, tilt, m)
         return k, ca.mtimes(F, ca.vertcat(sensitivity, held))
 
     h = duration / substeps
-    xn, S = x, ca.horzcat(ca.DM.eye(n), ca.DM.zeros(n, n_held))
+    xn, S = x, ca.horzcat(ca.DM.eye(n), ca.DM(n, n_held))
     for _ in range(substeps):
         k1, d1 = stage(xn, S)
         k2, d2 = stage(xn + h / 2 * k1, S + h / 2 * d1)
@@ -193,7 +203,7 @@ class HydraulicNMPC:
         u_low, u_high, rate, ranges = hydraulic_bounds(arm)
         self.u_centre, self.u_half = (u_high + u_low) / 2, (u_high - u_low) / 2
         xdot = _lagged_dynamics(arm, s.force_lag)
-        self.nx = nx = 12  # q, q̇, applied forces
+        self.nx = nx = 12  # q, q̇, applied forces (scaled, below)
         model = _rk4(xdot, s.control_period, s.substeps, "hyd_nmpc_model")
         # compiled with its chain-rule Jacobian, which CasADi finds in the library by name
         self.model = native(model, _rk4_jacobian(xdot, s.control_period, s.substeps, "hyd_nmpc_model"))
@@ -203,9 +213,16 @@ class HydraulicNMPC:
         U = ca.MX.sym("U", 4, N)
         x0, ref, u_prev = ca.MX.sym("x0", nx), ca.MX.sym("ref", 4), ca.MX.sym("u_prev", 4)
         tilt, payload = ca.MX.sym("tilt", 2), ca.MX.sym("payload")
-        forces = ca.repmat(ca.DM(self.u_centre), 1, N) + U * ca.repmat(ca.DM(self.u_half), 1, N)
-        X_next = self.model.map(N)(X[:, :N], forces, ca.repmat(tilt, 1, N), ca.repmat(payload, 1, N))
-        g = ca.vertcat(X[:, 0] - x0, ca.vec(X[:, 1:] - X_next))
+        centre, half = ca.repmat(ca.DM(self.u_centre), 1, N), ca.repmat(ca.DM(self.u_half), 1, N)
+        forces = centre + U * half
+        # The applied forces as shooting states in units of the bounds, like U (module docstring:
+        # in newtons the QP was ill-conditioned; eliminated, it was fuller and slower).
+        applied = centre + X[8:, :N] * half
+        X_next = self.model.map(N)(ca.vertcat(X[:8, :N], applied), forces, ca.repmat(tilt, 1, N),
+                                   ca.repmat(payload, 1, N))
+        X_next = ca.vertcat(X_next[:8, :], (X_next[8:, :] - centre) / half)
+        x0_scaled = ca.vertcat(x0[:8], (x0[8:] - centre[:, 0]) / half[:, 0])
+        g = ca.vertcat(X[:, 0] - x0_scaled, ca.vec(X[:, 1:] - X_next))
         du = U - ca.horzcat(u_prev, U[:, :N - 1])
         err = X[:4, 1:] - ca.repmat(ref, 1, N)
         cost = (s.control_period * (s.angle_weight * ca.sumsqr(err) + s.rate_weight * ca.sumsqr(X[4:8, 1:]))
@@ -241,7 +258,9 @@ class HydraulicNMPC:
         lbx = np.full(w.shape[0], -np.inf)
         ubx = np.full(w.shape[0], np.inf)
         margin = np.radians(0.5)
-        for k in range(N + 1):
+        # no bounds on node 0: it is the measured state (an equality), and a state already past a
+        # bound there made the QP infeasible (every retry and redraw traced to it)
+        for k in range(1, N + 1):
             lbx[nx * k:nx * k + 3] = ranges[:, 0] + margin
             ubx[nx * k:nx * k + 3] = ranges[:, 1] - margin
             lbx[nx * k + 4:nx * k + 8] = -rate
@@ -259,7 +278,7 @@ class HydraulicNMPC:
         force = np.concatenate([self.arm.load_force(state[:4], tau[:3]), [tau[3]]])
         self._u = np.clip((force - self.u_centre) / self.u_half, -1, 1)
         self.initial_state = np.concatenate([state, self.u_centre + self.u_half * self._u])
-        self._w = np.concatenate([np.tile(self.initial_state, N + 1), np.tile(self._u, N)])
+        self._w = np.concatenate([np.tile(self._scaled(self.initial_state), N + 1), np.tile(self._u, N)])
         self._lam_x, self._lam_g = np.zeros_like(self._w), np.zeros(self._n_g)
         self._fixed = np.concatenate([np.asarray(target, float), self._u * 0, np.asarray(tilt, float), [payload]])
         self._target, self._tilt, self._payload = np.asarray(target, float), np.asarray(tilt, float), payload
@@ -269,11 +288,16 @@ class HydraulicNMPC:
         self.plan_followed = 0
         self._failures_in_a_row = 0
 
+    def _scaled(self, state) -> np.ndarray:
+        """The plant state [q, q̇, F] as the NLP's shooting state (F in units of the bounds)."""
+        state = np.asarray(state, float)
+        return np.concatenate([state[:8], (state[8:] - self.u_centre) / self.u_half])
+
     def control(self, state) -> np.ndarray:
         """Forces and slew torque to apply for the next control period."""
         start = _time.perf_counter()
         w0 = self._w.copy()
-        w0[:self.nx] = state
+        w0[:self.nx] = self._scaled(state)
         params = np.concatenate([state, self._target, self._u, self._tilt, [self._payload]])
         solver = self._sqp_cold if self._cold else self._sqp
         for retry in (False, True):
