@@ -101,9 +101,21 @@ def calibration_data(n: int = 10, seed: int = 100, machine="cat345c-hydraulic") 
                                SESSION_CALIBRATION, machine)
 
 
+#: Least travel of each arm joint in the zero check's swing (rad): a cylinder that stands still
+#: cannot have its offsets checked (``zero`` warns).
+ZERO_MIN_TRAVEL = math.radians(10.0)
+
+
 def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
-    """One empty-bucket swing, session B (the zero check)."""
-    return simulate_trajectory(motion_trajectory(1, seed, (0.0,), machine), seed, SESSION_WORK, machine)
+    """One empty-bucket swing, session B (the zero check), drawn again until the boom, dipper and
+    bucket each travel :data:`ZERO_MIN_TRAVEL`, as a technician is told to move them."""
+    for attempt in range(50):
+        draw = seed + 7919 * attempt
+        table = motion_trajectory(1, draw, (0.0,), machine)
+        travel = table[list(ANGLE_COLUMNS[:3])].max() - table[list(ANGLE_COLUMNS[:3])].min()
+        if np.all(travel.to_numpy(float) >= ZERO_MIN_TRAVEL):
+            break
+    return simulate_trajectory(table, draw, SESSION_WORK, machine)
 
 
 def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str, Dataset]:
