@@ -448,21 +448,3 @@ def test_zero_says_which_cylinders_it_could_not_check(setup):
     assert len(warnings) == 1 and "hardly moved: dipper (" in warnings[0]
     assert "boom (" not in warnings[0] and "bucket (" not in warnings[0]
 
-
-def test_house_imu_sensitivity_is_read_off_the_imu_signals():
-    """Pitch = offset + tilt seen at the slew angle + k ψ̇² per run: k comes back from synthetic
-    signals; with no slewing the prior's 0 and its std."""
-    rng = np.random.default_rng(3)
-    n, dt = 3000, 0.01
-    t = np.arange(n) * dt
-    values = np.zeros((n, len(cm.SIGNALS)))
-    runs = np.repeat([1, 2], n // 2)
-    rate = 0.6 * np.sin(0.7 * t) + 0.2 * np.sin(2.3 * t)
-    values[:, cm.RATES[3]] = rate
-    psi = np.concatenate([np.cumsum(rate[: n // 2]) * dt, np.cumsum(rate[n // 2:]) * dt])
-    tilt = np.where(runs == 1, 0.03, -0.02) * np.cos(psi - np.where(runs == 1, 0.4, 2.0))
-    values[:, cm.PITCH] = tilt + np.where(runs == 1, 0.002, -0.001) + 0.004 * rate**2 + rng.normal(0, 2e-4, n)
-    k, sd = cm.house_imu_sensitivity(values, runs)
-    assert abs(k - 0.004) < 4 * sd and sd < 2e-4
-    values[:, cm.RATES[3]] = 0.0
-    assert cm.house_imu_sensitivity(values, runs) == (0.0, float(cm.IMU_PRIOR_STD[-1]))

@@ -71,9 +71,7 @@ true machine, offsets and IMU dynamics this form weighs field-noise work cycles 
 mean MAX and NMPC swings within 24.5 kg, whose MAX is at their start from rest (after 3 s:
 1.5-14.5 kg; the per-sample form at the true machine: 66 kg on the held-force simulator's
 swings — the calibrated parameters of that form partly compensate its differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
-(the acceleration sensitivities wander in the fit); the house IMU's sensitivity comes from the
-IMU's own signals (:func:`house_imu_sensitivity`: pitch against slew rate², 0.0051 s² from ten
-calibration swings where the simulator has 0.0051) and is held. The windows overlap, so their noise model is kept in
+(the acceleration sensitivities wander). The windows overlap, so their noise model is kept in
 per-sample-equivalent variances (:meth:`MachineCalibration.evaluate_windows`): the pressures' and
 the rates' white noise per sample (the rates' through the seal friction and the centrifugal and
 Coriolis forces, and at the window's ends through the momentum), and a standstill's unknown
@@ -400,53 +398,6 @@ def rate_variance(dataset: Dataset) -> float:
     if len(d2) < 10:
         return 0.0
     return float(np.median(d2**2) / 0.4549 / 6)  # median of χ²₁ = 0.4549
-
-
-def house_imu_sensitivity(values: np.ndarray, runs: np.ndarray) -> tuple[float, float]:
-    r"""The house IMU's acceleration sensitivity :math:`k` (s²) from the IMU's own signals.
-
-    The house stands on the ground, so its measured pitch is the ground's tilt seen at the
-    slew angle, an offset, and :math:`k\,\dot\psi^2` (the centripetal acceleration of an IMU
-    ahead of the slew axis read as tilt, :func:`_corrected_signals`):
-
-    .. math:: \theta_m = a_r + b_r\cos\psi + c_r\sin\psi + k\,\dot\psi^2 + e,
-
-    with :math:`\psi` the integrated slew rate and :math:`(a_r, b_r, c_r)` per run. Least squares
-    on the run-wise residuals of the nuisance columns, then the prior :math:`k \sim \mathcal
-    N(0, \sigma_k^2)` (:data:`IMU_PRIOR_STD`): with no slewing in the data the result is the
-    prior's 0. No dynamics model enters. In the momentum fit this parameter wandered (it
-    absorbed what the rates' noise does to the fit, module doc of :data:`IMU_PRIOR_STD`) and was
-    held at 0; the zero check then read :math:`k\,\dot\psi^2` of its swing as a pitch offset
-    (0.02-0.23° on nine zero swings, by how much they slewed).
-
-    Returns
-    -------
-    (float, float)
-        Posterior mean and std of :math:`k`.
-    """
-    dt = 1.0 / MACHINE_SENSORS.sample_rate
-    prior = float(IMU_PRIOR_STD[-1])
-    rate, pitch = values[:, RATES[3]], values[:, PITCH]
-    num = den = 0.0
-    sq_res, n_res = 0.0, 0
-    for run in np.unique(runs):
-        s = runs == run
-        if s.sum() < 10:
-            continue
-        w = rate[s]
-        psi = np.concatenate([[0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * dt)])
-        nuisance = np.column_stack([np.ones(s.sum()), np.cos(psi), np.sin(psi)])
-        # each run's pitch and ω² with the tilt projection and offset taken out
-        proj = nuisance @ np.linalg.lstsq(nuisance, np.column_stack([w**2, pitch[s]]), rcond=None)[0]
-        x, y = w**2 - proj[:, 0], pitch[s] - proj[:, 1]
-        num, den = num + float(x @ y), den + float(x @ x)
-        sq_res, n_res = sq_res + float(y @ y), n_res + len(y)
-    if den <= 0.0 or n_res < 10:
-        return 0.0, prior
-    k = num / den
-    noise_var = max((sq_res - k * num) / n_res, 1e-16)  # the pitch's residual variance
-    info = den / noise_var + 1.0 / prior**2
-    return float(num / noise_var / info), float(1.0 / math.sqrt(info))
 
 
 def pressure_noise_from_data(dataset: Dataset) -> float:
@@ -824,20 +775,16 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         # error, which the first pass's residuals would blame on the transmitters. Of the IMU
         # dynamics only the lag: with the four acceleration sensitivities free the parameters
         # wander (house sensitivity 0.096 s² against the simulator's 0.005; NMPC swings MAX
-        # 218 kg against 24 kg with the lag alone, 30 swings); the house's from its own signals,
-        # held (two calibration draws, 20 experiments per set: hand-made trajectories 22.0 ->
-        # 14.8 and 38.4 -> 23.0 kg mean MAX, work cycles 74.0 -> 71.6 and 44.3 -> 40.0 kg, NMPC
-        # swings 17.2 -> 17.3 and 31.2 -> 29.6 kg against 0). A window with a standstill
+        # 218 kg against 24 kg with the lag alone, 30 swings). The house's read off the IMU's
+        # own signals (pitch against slew rate², 0.0051 s² where the simulator has 0.0051) and
+        # held was tried: five draws, hand-made trajectories 18.2 -> 24.7 kg mean MAX (100 ->
+        # 93.5 % within 1 %; the first estimate at the slew's start), planned swings 41.8 ->
+        # 39.0 kg; not kept. A window with a standstill
         # carries its still share of unknown friction (:meth:`MachineCalibration.evaluate_windows`).
         if pressure_std is None:
             cal.pressure_std = pressure_noise_from_data(dataset)
         free = free[:len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS) + 1]
         prior_mean = np.zeros(len(cal.z))
-        # the house IMU's sensitivity from its own signals, held (house_imu_sensitivity)
-        house, house_std = house_imu_sensitivity(values, runs)
-        prior_mean[-1] = cal.z[-1] = house
-        std[-1] = house_std
-        cal.covariance[-1, -1] = house_std**2
         for second in (False, True):
             if second:
                 # what the identified machine leaves unexplained, as a variance component
