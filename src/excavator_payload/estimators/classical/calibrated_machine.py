@@ -1099,12 +1099,12 @@ def zero(estimator, dataset: Dataset) -> list[str]:
     # the calibration's session (one zero swing whose dipper moved 1.8° left the dipper's
     # offsets 2.9 bar off and the weighing 40 kg off, with the true machine file)
     rate = MACHINE_SENSORS.sample_rate
-    still = [f"{joint} ({k / rate:.1f} s)" for joint, k in zip(("boom", "dipper", "bucket"), moving)
+    still = [f"{joint} ({k / rate:.1f} s of motion)" for joint, k in zip(("boom", "dipper", "bucket"), moving)
              if k < MIN_ZERO_MOVING_SAMPLES]
     if still:
-        warnings.append(f"zero: cylinders that hardly moved: {', '.join(still)} of motion, "
-                        f"{MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more wanted; their pressure offsets "
-                        "were not checked and keep the calibration's values. Repeat the zero check "
+        warnings.append(f"zero: cylinders that hardly moved: {', '.join(still)}; "
+                        f"{MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more wanted. Their pressure offsets "
+                        "were not checked and keep the calibration's values: repeat the zero check "
                         "moving the boom, dipper and bucket")
     return warnings
 
