@@ -112,8 +112,8 @@ def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
     for attempt in range(50):
         draw = seed + 7919 * attempt
         table = motion_trajectory(1, draw, (0.0,), machine)
-        travel = table[list(ANGLE_COLUMNS[:3])].max() - table[list(ANGLE_COLUMNS[:3])].min()
-        if np.all(travel.to_numpy(float) >= ZERO_MIN_TRAVEL):
+        arm = table[list(ANGLE_COLUMNS[:3])].to_numpy(float)
+        if np.all(np.ptp(arm, axis=0) >= ZERO_MIN_TRAVEL):
             break
     return simulate_trajectory(table, draw, SESSION_WORK, machine)
 

@@ -1017,6 +1017,12 @@ class CalibratedKernel(PressureRegression):
 
 # -- the estimator's machine-sensor-set side (CalibratedEstimator dispatches here) ------------
 
+def hardly_moved(moving: np.ndarray, minimum: int) -> list[tuple[str, int]]:
+    """(joint, moving samples) of the arm cylinders that moved on fewer than ``minimum`` samples
+    (:meth:`MachineCalibration.moving_samples`): what fit and zero warn about."""
+    return [(joint, int(k)) for joint, k in zip(("boom", "dipper", "bucket"), moving) if k < minimum]
+
+
 def _machine_arm(estimator) -> HydraulicArmModel:
     if getattr(estimator.machine, "kind", None) != "hydraulic":
         raise EstimatorError(f"{estimator.name}: data of the machine sensor set need a hydraulic "
@@ -1062,8 +1068,7 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
         estimator.fit_warnings.append(
             f"{estimator.name}: {len(dataset.frame) - n_valid} of {len(dataset.frame)} calibration "
             "samples not used (a signal not finite, or an angle outside the machine's range)")
-    still = [f"{joint} {k}" for joint, k in zip(("boom", "dipper", "bucket"), moving)
-             if k < MIN_MOVING_SAMPLES]
+    still = [f"{joint} {k}" for joint, k in hardly_moved(moving, MIN_MOVING_SAMPLES)]
     if still:
         estimator.fit_warnings.append(
             f"{estimator.name}: cylinders that hardly moved in the calibration data (moving samples: "
@@ -1099,8 +1104,7 @@ def zero(estimator, dataset: Dataset) -> list[str]:
     # the calibration's session (one zero swing whose dipper moved 1.8° left the dipper's
     # offsets 2.9 bar off and the weighing 40 kg off, with the true machine file)
     rate = MACHINE_SENSORS.sample_rate
-    still = [f"{joint} ({k / rate:.1f} s of motion)" for joint, k in zip(("boom", "dipper", "bucket"), moving)
-             if k < MIN_ZERO_MOVING_SAMPLES]
+    still = [f"{joint} ({k / rate:.1f} s of motion)" for joint, k in hardly_moved(moving, MIN_ZERO_MOVING_SAMPLES)]
     if still:
         warnings.append(f"zero: cylinders that hardly moved: {', '.join(still)}; "
                         f"{MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more wanted. Their pressure offsets "
