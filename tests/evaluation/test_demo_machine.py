@@ -27,10 +27,31 @@ def test_train_zero_evaluate_from_the_cli(tmp_path, capsys):
     assert "Traceback" not in out.err
 
 
-def test_machine_demo_tiny(tmp_path):
-    assert main(["demo", "--machine", "cat345c-hydraulic", "--scale", "tiny", "--out", str(tmp_path)]) == 0
-    report = (tmp_path / "report.md").read_text()
+def test_machine_demo_tiny_on_a_machine_of_ones_own(tmp_path):
+    """The demo on a user's machine file: its rated payload sets the known weights and the 1 %,
+    and calibration starts from that machine 3 % off (not from the preset's file)."""
+    import dataclasses
+
+    import pandas as pd
+
+    from excavator_payload.model.machine import load_machine
+
+    preset = load_machine("cat345c-hydraulic")
+    mine = dataclasses.replace(preset, name="my-35t",
+                               bucket=dataclasses.replace(preset.bucket, mass=0.7 * preset.bucket.mass),
+                               payload=dataclasses.replace(preset.payload, rated=3500.0, max=3500.0))
+    path = tmp_path / "my-35t.toml"
+    path.write_text(mine.to_toml())
+    out = tmp_path / "demo"
+    assert main(["demo", "--machine", str(path), "--scale", "tiny", "--out", str(out)]) == 0
+    report = (out / "report.md").read_text()
     assert "| swing | calibrated |" in report and "slope-5deg" in report
+    assert "rated payload 3500 kg (1 % = 35 kg)" in report and "`my-35t-3pct`" in report
+    known = pd.read_parquet(out / "trajectories" / "calibration.parquet")["payload"]
+    assert sorted(known.unique()) == [0.0, 1750.0]  # two motions: empty, then half rated
+    assert dm.calibration_payloads(path) == (0.0, 1750.0, 3500.0)
+    slope = pd.read_parquet(out / "data" / "slope-5deg.parquet")["payload"]
+    assert slope.max() <= 3500.0
     assert main(["demo", "--machine", "cat345c", "--scale", "tiny", "--out", str(tmp_path / "x")]) == 2
 
 

@@ -42,6 +42,21 @@ def test_three_percent_file_is_about_three_percent_off():
     assert np.all(arm.linkage_margin(grid) > 0)
 
 
+def test_off_by_reproduces_the_3pct_preset_and_keeps_the_limits():
+    from excavator_payload.model.hydraulic_machine import off_by
+
+    nominal = load_machine("cat345c-hydraulic")
+    assert off_by(nominal, 0.03) == load_machine("cat345c-hydraulic-3pct")
+    moved = off_by(nominal, 0.05)
+    assert moved.name == "cat345c-hydraulic-5pct"
+    assert moved.boom.angle_range == nominal.boom.angle_range and moved.payload.rated == nominal.payload.rated
+    assert moved.boom_cylinder.stroke == nominal.boom_cylinder.stroke
+    assert abs(moved.house.mass / nominal.house.mass - 1.05) < 1e-12
+    assert off_by(nominal, 0.0).to_dict()["boom"] == nominal.to_dict()["boom"]
+    with pytest.raises(MachineError, match="fraction"):
+        off_by(nominal, float("nan"))
+
+
 def test_to_toml_parses_back(tmp_path):
     machine = load_machine("cat345c-hydraulic")
     path = tmp_path / "mine.toml"

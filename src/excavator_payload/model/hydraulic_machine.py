@@ -211,6 +211,51 @@ class HydraulicMachine:
         return "\n".join(lines) + "\n"
 
 
+#: Fields that are limits or counts, not model parameters: a machine file "x % off" keeps them.
+LIMIT_FIELDS = frozenset({"max_slew_rate", "max_slew_torque", "angle_range", "rated", "max", "count",
+                          "stroke", "branch", "pump_flow", "relief_pressure"})
+#: The signs of the "x % off" files, repeated through the file's model numbers in file order.
+OFF_BY_SIGNS = (1, -1, -1, 1, -1, 1, 1, -1)
+
+
+def off_by(machine: HydraulicMachine, fraction: float = 0.03) -> HydraulicMachine:
+    """The machine file with every model number moved by ``fraction``, as a technician's roughly
+    right file (the calibration's starting point).
+
+    Each non-zero number x of a model parameter (masses, centres of mass, inertias, lengths,
+    pins, bores, rods, friction, back pressure) becomes x·(1 ± ``fraction``), the signs following
+    :data:`OFF_BY_SIGNS` through the file; limits and counts (:data:`LIMIT_FIELDS`) and gravity
+    are unchanged. ``off_by(cat345c-hydraulic)`` is the preset ``cat345c-hydraulic-3pct``.
+
+    Raises
+    ------
+    MachineError
+        If the moved machine is not a working machine (e.g. its bucket linkage no longer closes
+        on the angle range), naming the field.
+    """
+    if not (math.isfinite(fraction) and 0.0 <= fraction < 1.0):
+        raise MachineError(f"off_by: fraction must be in [0, 1), got {fraction}")
+    data = machine.to_dict()
+    k = 0
+    for table in TABLES:
+        for key, value in data[table].items():
+            if key in LIMIT_FIELDS:
+                continue
+            values = value if isinstance(value, list) else [value]
+            moved = []
+            for x in values:
+                if x != 0:
+                    # 12 significant digits, as a file would be written (the preset's are)
+                    x = float(f"{x * (1 + fraction * OFF_BY_SIGNS[k % len(OFF_BY_SIGNS)]):.12g}")
+                    k += 1
+                moved.append(x)
+            data[table][key] = moved if isinstance(value, list) else moved[0]
+    percent = f"{100 * fraction:g}"
+    data["name"] = f"{machine.name}-{percent}pct"
+    data["description"] = f"{machine.name} with every parameter off by {percent} % (calibration starting point)"
+    return parse_hydraulic(data, f"{machine.name} off by {percent} %", default_name=data["name"])
+
+
 def _toml(value) -> str:
     if isinstance(value, str):
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
