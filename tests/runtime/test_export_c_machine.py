@@ -148,3 +148,26 @@ def test_outlier_test_off(machine_models, machine_faulty, tmp_path):
     finally:
         est.gating = True
     assert "rejected_outlier" not in set(py["status"])
+
+
+@pytest.mark.parametrize("name", ["calibrated-skip", "calibrated-momentum"])
+def test_c_equals_python_outside_the_calibrated_range(name, machine_models, machine_faulty, tmp_path):
+    """--outside-calibration skip where it bites: the bucket's covered range narrowed to the
+    middle of these swings' bucket angles, so its windows go in and out of it."""
+    est = copy.deepcopy(machine_models[name])
+    est.options["outside_calibration"] = "skip"
+    bucket = machine_faulty.frame["bucket_angle"].to_numpy(float)
+    middle = float(np.nanmedian(bucket[np.abs(bucket) < 10]))
+    est.calibration.angle_coverage[2] = (middle - 0.15, middle + 0.15)
+    cm._install(est, est.calibration)
+    wide = copy.deepcopy(machine_models[name])
+    wide.options["outside_calibration"] = "use"
+    cm._install(wide, wide.calibration)
+    narrow_py = est.estimate(machine_faulty)["payload_estimate"].to_numpy(float)
+    wide_py = wide.estimate(machine_faulty)["payload_estimate"].to_numpy(float)
+    both = np.isfinite(narrow_py) & np.isfinite(wide_py)
+    assert np.abs(narrow_py[both] - wide_py[both]).max() > 1.0  # the guard changed the weighing
+    source = export_c(est, tmp_path / "export")[1]
+    assert "EP_COVERAGE_LOW" in source.read_text()
+    for single in (False, True):
+        _assert_c_equals_python(est, source, machine_faulty, tmp_path / "build", single)

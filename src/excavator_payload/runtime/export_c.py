@@ -1097,6 +1097,13 @@ def _pressure_regression_model(est) -> CModel:
             f" *   IMU {', '.join(f'{v:.6g}' for v in kernel._imu)} */",
             c_array("EP_SLOPE", k / float(k @ k)).rstrip(),
             c_array("EP_LEVER_VAR", kernel._lever_var).rstrip(),
+            "/* CalibratedKernel._inside (--outside-calibration "
+            f"{kernel.outside_calibration}): a joint is weighed only while its measured angle lies",
+            " * in the range the calibration motions covered (calibrated_machine.COVERAGE_JOINTS: the",
+            " * bucket), in raw units (1e30: no limit) */",
+            f"static const int EP_ANGLES[3] = {{{', '.join(str(i) for i in ANGLES)}}};",
+            c_array("EP_COVERAGE_LOW", kernel._raw_low).rstrip(),
+            c_array("EP_COVERAGE_HIGH", kernel._raw_high).rstrip(),
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -1117,11 +1124,13 @@ def _pressure_regression_model(est) -> CModel:
         }[kernel.low_speed]
         weights = f"""    /* CalibratedKernel.update: var = lever^2 (A_h^2 + A_r^2) sigma_p^2; --low-speed
      * {kernel.low_speed} (downweight: + stiction^2/3 fading with the rod speed; skip: joints
-     * slower than 3 Stribeck velocities get no weight; model: nothing more) */
+     * slower than 3 Stribeck velocities get no weight; model: nothing more); a joint outside
+     * its calibrated angle range gets no weight */
     for (j = 0; j < 3; ++j) {{
         ep_real lever = out[6 + j], var, wt;
         var = lever * lever * EP_LEVER_VAR[j];
 {low_speed}
+        if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt = EP_C(0.0);
         d_num += wt * (out[3 + j] * out[j]);
         d_info += wt * (out[3 + j] * out[3 + j]);
     }}"""
@@ -1208,7 +1217,9 @@ def _pressure_regression_model(est) -> CModel:
             f"#define EP_RATE_VAR_SPAN {c_number(kernel._rate_var_span)}  /* rate variance / span^2 */",
         ]
         weights_m = weights.replace("out[", "bal[").replace(
-            "wt = EP_C(1.0) / var;", "var = var + bal_rate[j];\n        wt = EP_C(1.0) / var;")
+            "wt = EP_C(1.0) / var;", "var = var + bal_rate[j];\n        wt = EP_C(1.0) / var;").replace(
+            "if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt",
+            "if (!bal_inside[j]) wt")
         regress = f"""    if (s->ring_filled == EP_RING) {{
         /* the differentiator window's centre: its balance terms (its qdd serves the IMU
          * correction only) go into the balance's ring, a rejected slot too (its interval
@@ -1221,15 +1232,20 @@ def _pressure_regression_model(est) -> CModel:
         slot = s->terms_next;
         for (i = 0; i < 24; ++i) s->terms[slot * 24 + i] = out[i];
         s->terms_used[slot] = s->ring_used[centre_slot];
+        for (j = 0; j < 3; ++j)
+            s->terms_inside[slot * 3 + j] = (unsigned char)(x[EP_ANGLES[j]] >= EP_COVERAGE_LOW[j]
+                                                            && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]);
         s->terms_next = (slot + 1) % EP_BALANCE;
         if (s->terms_filled < EP_BALANCE) s->terms_filled += 1;
         if (s->terms_filled == EP_BALANCE && s->terms_used[(s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE]) {{
             /* the momentum balance over the window, oldest first from terms_next
              * (calibrated_machine.window_residuals) */
             ep_real integral[6], momentum[6], bal[15], bal_rate[3];
+            unsigned char bal_inside[3];  /* each joint inside its calibrated range all window long */
             for (j = 0; j < 6; ++j) integral[j] = momentum[j] = EP_C(0.0);
             for (j = 0; j < 3; ++j) {{
                 bal_rate[j] = EP_C(0.0);
+                bal_inside[j] = 1;
                 bal[9 + j] = EP_MATH(fabs)(s->terms[s->terms_next * 24 + 15 + j]);
                 bal[12 + j] = s->terms[s->terms_next * 24 + 18 + j];
             }}
@@ -1244,6 +1260,7 @@ def _pressure_regression_model(est) -> CModel:
                     bal_rate[j] += (EP_BALANCE_U[k] * EP_BALANCE_U[k]) * t[21 + j];
                     if (speed < bal[9 + j]) bal[9 + j] = speed;  /* the slowest sample */
                     if (t[18 + j] > bal[12 + j]) bal[12 + j] = t[18 + j];  /* the largest stiction */
+                    bal_inside[j] = (unsigned char)(bal_inside[j] && s->terms_inside[((s->terms_next + k) % EP_BALANCE) * 3 + j]);
                 }}
             }}
             for (j = 0; j < 3; ++j) {{
@@ -1319,6 +1336,7 @@ def _pressure_regression_model(est) -> CModel:
         fields += ["ep_real terms[EP_BALANCE * 24];  /* balance terms of the last samples: P0, Pm, I0, Fm, "
                    "lever, speed, stiction, rate gain */",
                    "unsigned char terms_used[EP_BALANCE];  /* 0: a rejected sample's repaired slot */",
+                   "unsigned char terms_inside[EP_BALANCE * 3];  /* joints inside their calibrated range */",
                    "int terms_next;    /* slot the next terms go to (the oldest once full) */",
                    "int terms_filled;  /* terms in the ring (saturates at EP_BALANCE) */"]
         reset += "\n    s->terms_next = 0;\n    s->terms_filled = 0;"

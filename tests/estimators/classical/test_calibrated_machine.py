@@ -448,3 +448,49 @@ def test_zero_says_which_cylinders_it_could_not_check(setup):
     assert len(warnings) == 1 and "hardly moved: dipper (" in warnings[0]
     assert "boom (" not in warnings[0] and "bucket (" not in warnings[0]
 
+
+
+def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(momentum, setup, tmp_path):
+    """fit records the boom, dipper and bucket angle range of the calibration motions (offsets
+    removed, 0.5-99.5 percentiles ± 5°); the momentum form does not weigh a joint outside it
+    (auto = skip), the per-sample form does (auto = use); the range survives save/load, and a
+    model saved without it weighs with no limit."""
+    cov = momentum.calibration.angle_coverage
+    angles = setup["cal"].frame[["boom_angle", "dipper_angle", "bucket_angle"]].to_numpy(float)
+    assert np.all(cov[:, 0] < angles.min(axis=0)) and np.all(cov[:, 1] > angles.max(axis=0))
+    assert np.all(cov[:, 0] > angles.min(axis=0) - np.radians(6))  # 5° margin, not more
+    assert momentum._pressure.outside_calibration == "skip"
+    assert setup["zeroed"]._pressure.outside_calibration == "use"
+    test = setup["test"]
+    # a test experiment's bucket leaves a narrowed range: its windows are not weighed then
+    narrow = copy.deepcopy(momentum)
+    bucket = test.frame["bucket_angle"].to_numpy(float)
+    narrow.calibration.angle_coverage[2] = (np.median(bucket), cov[2, 1])
+    cm._install(narrow, narrow.calibration)
+    a = momentum.estimate(test)["payload_estimate"].to_numpy()
+    b = narrow.estimate(test)["payload_estimate"].to_numpy()
+    ok = np.isfinite(a) & np.isfinite(b)
+    assert np.abs(a[ok] - b[ok]).max() > 0.5
+    def unlimited(est):  # --outside-calibration use: every angle weighed
+        est = copy.deepcopy(est)
+        est.options["outside_calibration"] = "use"
+        cm._install(est, est.calibration)
+        return est.estimate(test)["payload_estimate"].to_numpy()
+
+    everywhere = unlimited(momentum)
+    np.testing.assert_allclose(unlimited(narrow), everywhere, rtol=1e-12, equal_nan=True)
+    narrow.save(tmp_path / "n")
+    again = load_estimator(tmp_path / "n")
+    np.testing.assert_array_equal(again.calibration.angle_coverage, narrow.calibration.angle_coverage)
+    np.testing.assert_allclose(again.estimate(test)["payload_estimate"].to_numpy(), b, rtol=1e-12, equal_nan=True)
+    # a model saved before the coverage existed: no limit
+    saved = cm.arrays(narrow)
+    del saved["angle_coverage"]
+    old = copy.deepcopy(narrow)
+    cm.restore(old, cm.config(narrow), saved)
+    assert np.all(np.abs(old.calibration.angle_coverage) == cm.NO_LIMIT)
+    np.testing.assert_allclose(old.estimate(test)["payload_estimate"].to_numpy(), everywhere, rtol=1e-12,
+                               equal_nan=True)
+    saved["angle_coverage"] = np.array([[0.0, -1.0]] * 3)  # low above high: corrupt
+    with pytest.raises(EstimatorError, match="corrupt"):
+        cm.restore(old, cm.config(narrow), saved)

@@ -45,7 +45,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
-from excavator_payload.estimators.classical.calibrated_machine import BALANCE_CHOICES
+from excavator_payload.estimators.classical.calibrated_machine import BALANCE_CHOICES, OUTSIDE_CALIBRATION_CHOICES
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -138,6 +138,12 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "low_speed": Option(str, "skip", "machine sensor set: joints near standstill "
                             "(stiction) are modelled, down-weighted or skipped",
                             ("model", "downweight", "skip")),
+        "outside_calibration": Option(str, "auto", "machine sensor set: where the bucket's angle "
+                                      "leaves the range the calibration motions covered (±5°), "
+                                      "skip the bucket joint (its linkage would be extrapolated) "
+                                      "or use it; auto: skip in the momentum form, use in the "
+                                      "per-sample form",
+                                      OUTSIDE_CALIBRATION_CHOICES),
         "balance": Option(str, "momentum", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
