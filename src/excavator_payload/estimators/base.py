@@ -573,6 +573,11 @@ class Estimator(ABC):
             return StepResult(result.estimate, Status.GAP, sigma)
         return StepResult(result.estimate, result.status, sigma)
 
+    def estimate_notes(self, dataset: Dataset) -> list[str]:
+        """What a user should know about estimating on ``dataset`` beyond the per-sample status
+        (printed by ``estimate``); none by default."""
+        return []
+
     def estimate(self, dataset: Dataset) -> pd.DataFrame:
         """Batch estimates: reset at each experiment and step through its samples.
 

@@ -130,6 +130,8 @@ def register(app: typer.Typer) -> None:
         if seen:
             console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
                           markup=False, highlight=False)
+        for note in est.estimate_notes(dataset):
+            console.print(Text.assemble(("note: ", "bold"), note))
 
     @app.command()
     def estimators(name: str = typer.Argument(None, help="Show the options of this estimator.")) -> None:

@@ -450,7 +450,7 @@ def test_zero_says_which_cylinders_it_could_not_check(setup):
 
 
 
-def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(momentum, setup, tmp_path):
+def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(momentum, setup, tmp_path, capsys):
     """fit records the boom, dipper and bucket angle range of the calibration motions (offsets
     removed, 0.5-99.5 percentiles ± 5°); the momentum form does not weigh a joint outside it
     (auto = skip), the per-sample form does (auto = use); the range survives save/load, and a
@@ -479,7 +479,17 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
 
     everywhere = unlimited(momentum)
     np.testing.assert_allclose(unlimited(narrow), everywhere, rtol=1e-12, equal_nan=True)
+    notes = narrow.estimate_notes(test)
+    assert len(notes) == 1 and "bucket angle lay outside" in notes[0] and "--outside-calibration use" in notes[0]
     narrow.save(tmp_path / "n")
+    from excavator_payload.cli import main
+    from excavator_payload.data.io import write_dataset
+
+    write_dataset(test, tmp_path / "test.parquet")
+    capsys.readouterr()
+    assert main(["estimate", "--model", str(tmp_path / "n"), "--data", str(tmp_path / "test.parquet"),
+                 "--out", str(tmp_path / "e.parquet"), "--quiet"]) == 0
+    assert "note: calibrated: the bucket angle lay outside" in " ".join(capsys.readouterr().out.split())
     again = load_estimator(tmp_path / "n")
     np.testing.assert_array_equal(again.calibration.angle_coverage, narrow.calibration.angle_coverage)
     np.testing.assert_allclose(again.estimate(test)["payload_estimate"].to_numpy(), b, rtol=1e-12, equal_nan=True)
@@ -488,7 +498,7 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     del saved["angle_coverage"]
     old = copy.deepcopy(narrow)
     cm.restore(old, cm.config(narrow), saved)
-    assert np.all(np.abs(old.calibration.angle_coverage) == cm.NO_LIMIT)
+    assert np.all(np.abs(old.calibration.angle_coverage) == cm.NO_LIMIT) and old.estimate_notes(test) == []
     np.testing.assert_allclose(old.estimate(test)["payload_estimate"].to_numpy(), everywhere, rtol=1e-12,
                                equal_nan=True)
     saved["angle_coverage"] = np.array([[0.0, -1.0]] * 3)  # low above high: corrupt

@@ -177,6 +177,13 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         self.calibration_experiments = [int(i) for i in ids]
         self._prepare()
 
+    def estimate_notes(self, dataset: Dataset) -> list[str]:
+        if self.calibration is not None and dataset.sensor_set.name == "machine":
+            from excavator_payload.estimators.classical import calibrated_machine
+
+            return calibrated_machine.coverage_notes(self, dataset)
+        return []
+
     def identified_parameters(self) -> pd.DataFrame:
         """Prior (machine file) and identified base parameters with their standard deviations."""
         prior = np.concatenate(base_parameters(self.machine))

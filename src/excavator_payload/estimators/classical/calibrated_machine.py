@@ -1095,6 +1095,29 @@ def angle_coverage(dataset: Dataset, offsets: np.ndarray) -> np.ndarray:
     return out
 
 
+def coverage_notes(estimator, dataset: Dataset) -> list[str]:
+    """A note per limited joint (:data:`COVERAGE_JOINTS`) whose angle leaves the range the
+    calibration covered on some of ``dataset``'s samples, while ``--outside-calibration`` skips it:
+    the weighing then rests on the other joints there."""
+    kernel = estimator._pressure
+    if getattr(kernel, "outside_calibration", "use") != "skip":
+        return []
+    angles = dataset.frame[[SIGNALS[i] for i in ANGLES]].to_numpy(float)
+    notes = []
+    for j, joint in enumerate(("boom", "dipper", "bucket")):
+        a = angles[np.isfinite(angles[:, j]), j]
+        if not COVERAGE_JOINTS[j] or not len(a):
+            continue
+        outside = float(np.mean((a < kernel._raw_low[j]) | (a > kernel._raw_high[j])))
+        if outside > 0:
+            low, high = estimator.calibration.angle_coverage[j] / DEG
+            notes.append(f"{estimator.name}: the {joint} angle lay outside the range the calibration "
+                         f"motions covered ({low:.0f}…{high:.0f}°) on {100 * outside:.1f} % of the samples; "
+                         f"the {joint} is not weighed there. Calibrate with motions that cover the "
+                         f"{joint} angles you work at (or train with --outside-calibration use)")
+    return notes
+
+
 def hardly_moved(moving: np.ndarray, minimum: int) -> list[tuple[str, int]]:
     """(joint, moving samples) of the arm cylinders that moved on fewer than ``minimum`` samples
     (:meth:`MachineCalibration.moving_samples`): what fit and zero warn about."""
