@@ -6,6 +6,7 @@ closes it. Angles and rates are drawn in degrees (the edge of the software), mas
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -196,6 +197,55 @@ def training_log(log: pd.DataFrame, title: str) -> Figure:
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def weighing_over_time(evaluations: Mapping[str, tuple[Evaluation, Dataset]], rated: float,
+                       discard_s: float = 1.0) -> Figure:
+    """One panel per test set: each experiment's absolute error against time (thin lines), their
+    median at each time (bold), twice the median Cramér–Rao bound (dashed: what an efficient
+    estimator keeps 95 % of its errors under) and 1 % of the rated payload.
+
+    Experiments may differ in length (work cycles): times are each experiment's own, from its
+    start; the median is taken on a 0.1 s grid over the experiments still running.
+    """
+    n = max(len(evaluations), 1)
+    fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.6), sharey=True, squeeze=False)
+    for ax, (name, (ev, ds)) in zip(axes[0], evaluations.items()):
+        f = ds.frame
+        t = f["time"].to_numpy(float)
+        exp = f["experiment"].to_numpy()
+        err = np.abs(ev.estimates - f["payload"].to_numpy(float))
+        grid = np.arange(0.0, float(np.nanmax(t)) + 0.1, 0.1) if len(t) else np.zeros(0)
+        on_grid, bound_grid = [], []
+        for e in pd.unique(exp):
+            rows = exp == e
+            te = t[rows] - t[rows][0]
+            ax.plot(te, err[rows], color="0.6", lw=0.5, alpha=0.5)
+            inside = grid <= te[-1]
+            on_grid.append(np.where(inside, np.interp(grid, te, err[rows], left=np.nan, right=np.nan), np.nan))
+            if ev.bound is not None:
+                bound_grid.append(np.where(inside, np.interp(grid, te, ev.bound[rows]), np.nan))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: no estimate yet
+            if on_grid:
+                ax.plot(grid, np.nanmedian(np.array(on_grid), axis=0), color="C0", lw=2,
+                        label="median |error|")
+            if bound_grid:
+                ax.plot(grid, 2 * np.nanmedian(np.array(bound_grid), axis=0), "k--", lw=1.2,
+                        label="2 × Cramér–Rao bound (median)")
+        ax.axhline(INDUSTRY_TOLERANCE * rated, color="C3", lw=1, label=f"1 % of rated ({INDUSTRY_TOLERANCE * rated:g} kg)")
+        ax.axvspan(0, discard_s, color="0.9", zorder=0)
+        ax.set_yscale("log")
+        ax.set_ylim(0.1, 10 * INDUSTRY_TOLERANCE * rated)
+        ax.set_title(f"{name} (n = {len(pd.unique(exp))})", fontsize=9)
+        ax.set_xlabel("time from the start (s)")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].set_ylabel("|payload error| (kg)")
+    axes[0][-1].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.suptitle(f"{next(iter(evaluations.values()))[0].label if evaluations else ''}: error over each "
+                 "test motion (grey: not judged)", fontsize=10)
     fig.tight_layout()
     return fig
 
