@@ -1104,6 +1104,9 @@ def _pressure_regression_model(est) -> CModel:
             f"static const int EP_ANGLES[3] = {{{', '.join(str(i) for i in ANGLES)}}};",
             c_array("EP_COVERAGE_LOW", kernel._raw_low).rstrip(),
             c_array("EP_COVERAGE_HIGH", kernel._raw_high).rstrip(),
+            "/* CalibratedKernel.ready (--wait-for-boom): no estimate until the boom joint has been",
+            " * weighed once */",
+            f"#define EP_WAIT_FOR_BOOM {1 if kernel.wait_for_boom else 0}",
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -1131,6 +1134,7 @@ def _pressure_regression_model(est) -> CModel:
         var = lever * lever * EP_LEVER_VAR[j];
 {low_speed}
         if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt = EP_C(0.0);
+        if (j == 0 && wt > EP_C(0.0)) s->boom_weighed = 1;
         d_num += wt * (out[3 + j] * out[j]);
         d_info += wt * (out[3 + j] * out[3 + j]);
     }}"""
@@ -1274,6 +1278,7 @@ def _pressure_regression_model(est) -> CModel:
             s->info = EP_FORGETTING * s->info + d_info;
         }}
     }}"""
+    not_ready = " || (EP_WAIT_FOR_BOOM && !s->boom_weighed)" if calibrated else ""
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
     step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
@@ -1302,7 +1307,7 @@ def _pressure_regression_model(est) -> CModel:
     (void)ep_spike;
 #endif
 {regress}
-    if (s->info <= EP_C(0.0)) {{
+    if (s->info <= EP_C(0.0){not_ready}) {{
         *estimate = EP_NAN;
         return EP_STATUS_WARMING_UP;
     }}
@@ -1327,6 +1332,9 @@ def _pressure_regression_model(est) -> CModel:
                "int ring_next;    /* slot the next sample goes to (the oldest once full) */",
                "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]
     reset = "    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;"
+    if calibrated:
+        fields.append("unsigned char boom_weighed;  /* a window with weight on the boom seen */")
+        reset += "\n    s->boom_weighed = 0;"
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
                "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"]

@@ -394,7 +394,11 @@ def test_momentum_balance_rejects_a_glitch_and_keeps_its_interval(momentum, setu
     test = setup["test"]
     clean = momentum.estimate(test)
     frame = test.frame.copy()
-    hit = frame.index[frame.groupby("experiment").cumcount() == 300]
+    # a frame 3 s or more into each experiment where the estimate is already reported (the
+    # momentum form waits for the boom: before, every status is warming_up)
+    ok = (frame.groupby("experiment").cumcount() >= 300).to_numpy() & (clean["status"].astype(str) == "ok").to_numpy()
+    hit = frame.index[ok].to_series().groupby(frame["experiment"].to_numpy()[ok]).first().to_numpy()
+    assert len(hit) == frame["experiment"].nunique()
     frame.loc[hit, "boom_head_pressure"] += 3e6
     glitched = momentum.estimate(Dataset(frame, test.meta))
     status = glitched["status"].astype(str).to_numpy()
@@ -504,3 +508,28 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     saved["angle_coverage"] = np.array([[0.0, -1.0]] * 3)  # low above high: corrupt
     with pytest.raises(EstimatorError, match="corrupt"):
         cm.restore(old, cm.config(narrow), saved)
+
+
+def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):
+    """--wait-for-boom (auto = yes in the momentum form): no estimate (NaN, warming_up) until a
+    window has weighed the boom; the information gathered meanwhile is kept, so from then on the
+    estimate is the one that reporting at once (no) gives."""
+    test = setup["test"]
+    assert momentum._pressure.wait_for_boom and not setup["zeroed"]._pressure.wait_for_boom
+    waiting = momentum.estimate(test)
+    at_once = copy.deepcopy(momentum)
+    at_once.options["wait_for_boom"] = "no"
+    cm._install(at_once, at_once.calibration)
+    eager = at_once.estimate(test)
+    w, e = waiting["payload_estimate"].to_numpy(), eager["payload_estimate"].to_numpy()
+    assert np.isfinite(e).sum() > np.isfinite(w).sum()  # it waited somewhere
+    both = np.isfinite(w)
+    np.testing.assert_allclose(w[both], e[both], rtol=1e-12)
+    assert set(waiting["status"].astype(str)[np.isfinite(e) & ~both]) == {"warming_up"}
+    # it waited for the boom: the boom's rate was small before its first estimate
+    f = test.frame
+    for _, rows in f.groupby("experiment").groups.items():
+        first = rows[np.isfinite(w[rows])][0]
+        assert np.abs(f.loc[rows[0]:first, "boom_rate"]).max() > np.radians(1.0)
+    with pytest.raises(EstimatorError, match="wait-for-boom"):
+        type(momentum)(PRIOR, wait_for_boom="maybe")

@@ -45,7 +45,8 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
-from excavator_payload.estimators.classical.calibrated_machine import BALANCE_CHOICES, OUTSIDE_CALIBRATION_CHOICES
+from excavator_payload.estimators.classical.calibrated_machine import (
+    BALANCE_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -144,6 +145,9 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                                       "or use it; auto: skip in the momentum form, use in the "
                                       "per-sample form",
                                       OUTSIDE_CALIBRATION_CHOICES),
+        "wait_for_boom": Option(str, "auto", "machine sensor set: report no estimate until the "
+                                "boom has been weighed (0.5 s of boom motion); auto: yes in the "
+                                "momentum form, no in the per-sample form", WAIT_FOR_BOOM_CHOICES),
         "balance": Option(str, "momentum", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",

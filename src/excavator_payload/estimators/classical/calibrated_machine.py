@@ -206,6 +206,10 @@ LOW_SPEED_CHOICES = ("model", "downweight", "skip")
 #: 70.5 → 36.1 kg mean MAX with skip, per-sample 36.0 → 86.4 kg — its boom and dipper alone,
 #: through the differentiator, are worse than its extrapolated bucket).
 OUTSIDE_CALIBRATION_CHOICES = ("auto", "skip", "use")
+#: Choices of ``--wait-for-boom``: report no estimate until the boom joint has been weighed
+#: (a 0.5 s window of boom motion). ``auto``: ``yes`` in the momentum form, ``no`` in the
+#: per-sample form.
+WAIT_FOR_BOOM_CHOICES = ("auto", "yes", "no")
 #: The covered range of each arm angle: these percentiles of the calibration samples (robust to
 #: a glitch), widened by :data:`COVERAGE_MARGIN` each side (rad).
 COVERAGE_PERCENTILES = (0.5, 99.5)
@@ -760,8 +764,8 @@ class MachineCalibration:
 
     # -- streaming kernel ------------------------------------------------------------------
     def kernel(self, half_window: int, forgetting: float, low_speed: str,
-               outside_calibration: str = "auto") -> "CalibratedKernel":
-        return CalibratedKernel(self, half_window, forgetting, low_speed, outside_calibration)
+               outside_calibration: str = "auto", wait_for_boom: str = "auto") -> "CalibratedKernel":
+        return CalibratedKernel(self, half_window, forgetting, low_speed, outside_calibration, wait_for_boom)
 
 
 def calibration_arrays(dataset: Dataset, half_window: int, machine=None):
@@ -908,7 +912,7 @@ class CalibratedKernel(PressureRegression):
     """
 
     def __init__(self, cal: MachineCalibration, half_window: int, forgetting: float, low_speed: str,
-                 outside_calibration: str = "auto"):
+                 outside_calibration: str = "auto", wait_for_boom: str = "auto"):
         super().__init__(cal.arm, pressure_std=cal.pressure_std, ripple_fraction=0.0,
                          half_window=half_window, forgetting=forgetting)
         self.balance = cal.balance
@@ -930,6 +934,9 @@ class CalibratedKernel(PressureRegression):
             coverage[limited] = np.asarray(cal.angle_coverage, float)[limited]
         self._raw_low = np.clip(coverage[:, 0] + self._offset[ANGLES], -NO_LIMIT, NO_LIMIT)
         self._raw_high = np.clip(coverage[:, 1] + self._offset[ANGLES], -NO_LIMIT, NO_LIMIT)
+        if wait_for_boom == "auto":
+            wait_for_boom = "yes" if self.balance == "momentum" else "no"
+        self.wait_for_boom = wait_for_boom == "yes"
         width = 2 * self.half_window + 1
         dt = 1.0 / MACHINE_SENSORS.sample_rate
         k = np.arange(-self.half_window, self.half_window + 1) * dt
@@ -977,6 +984,14 @@ class CalibratedKernel(PressureRegression):
         self._terms_used = np.zeros(2 * b, bool)
         self._terms_inside = np.zeros((2 * b, 3), bool)  # each sample's joints inside the coverage
         self._terms_count = 0
+        self.boom_weighed = False  # a window with weight on the boom joint seen (--wait-for-boom)
+
+    @property
+    def ready(self) -> bool:
+        """Whether an estimate may be reported (``--wait-for-boom``): while the boom has stood
+        still its seals hold an unknown stiction force (≈ 470 kg of payload), so the weighing
+        rests on the dipper and bucket, whose calibration at the poses of a cut is least sure."""
+        return self.boom_weighed or not self.wait_for_boom
 
     def restart_window(self) -> None:
         self._count = 0
@@ -1034,6 +1049,7 @@ class CalibratedKernel(PressureRegression):
         if self.balance != "momentum":
             residual, phi, lever, speed, stiction = out[0:3], out[3:6], out[6:9], out[9:12], out[12:15]
             wt = np.where(self._used(speed) & self._inside(centre), 1.0 / self._variance(lever, speed, stiction), 0.0)
+            self.boom_weighed = self.boom_weighed or bool(wt[0] > 0.0)
             self.num = self.forgetting * self.num + float(wt @ (phi * residual))
             self.info = self.forgetting * self.info + float(wt @ (phi * phi))
             return True
@@ -1069,6 +1085,7 @@ class CalibratedKernel(PressureRegression):
         inside = self._terms_inside[start:start + b].all(axis=0)
         wt = np.where(self._used(slowest) & inside,
                       1.0 / (self._variance(lever, slowest, stiction) + rate_var), 0.0)
+        self.boom_weighed = self.boom_weighed or bool(wt[0] > 0.0)
         self.num = self.forgetting * self.num + float(wt @ (phi * residual))
         self.info = self.forgetting * self.info + float(wt @ (phi * phi))
         return True
@@ -1137,7 +1154,8 @@ def _install(estimator, cal: MachineCalibration) -> None:
 
     estimator.calibration = cal
     estimator._pressure = cal.kernel(estimator.options["half_window"], estimator.options["forgetting"],
-                                     estimator.options["low_speed"], estimator.options["outside_calibration"])
+                                     estimator.options["low_speed"], estimator.options["outside_calibration"],
+                                     estimator.options["wait_for_boom"])
     estimator._pressure.spike_threshold = spike_threshold(estimator.difference_scale)
     estimator._warm_info = 1.0 / float(estimator.options["warmup_std"]) ** 2
 

@@ -545,7 +545,7 @@ class InverseDynamicsEstimator(Estimator):
             self._pressure.judge = self.gating
             self._pressure.update(time, values)
             self._info = self._pressure.info
-            if self._info <= 0.0:
+            if self._info <= 0.0 or not getattr(self._pressure, "ready", True):
                 return StepResult(math.nan, Status.WARMING_UP)
             status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
             if self._pressure.rejected:  # the sample before this one was a one-frame outlier
