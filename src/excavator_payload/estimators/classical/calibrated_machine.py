@@ -127,6 +127,17 @@ default) skips in the momentum form and uses in the per-sample form, whose boom 
 are worse than its extrapolated bucket (40 work cycles, study's calibration: 36.0 → 86.4 kg). Over
 five calibration draws see the README.
 
+Waiting for the boom
+--------------------
+While the boom stands its seals hold an unknown stiction force (≈ 470 kg of payload at the
+boom), so nothing weighs it: the estimate would rest on the dipper and bucket, whose
+calibration at the poses of a cut is the least sure (work cycles start by curling the bucket
+with the boom still; planned swings start slowly). Option ``--wait-for-boom`` (``auto``, the
+default: ``yes`` in the momentum form, ``no`` in the per-sample form) reports no estimate (NaN,
+``warming_up``) until a window has weighed the boom (0.5 s of boom motion); the information
+gathered meanwhile is kept. A motion that never moves the boom is never weighed; ``no`` reports
+from the first information, as before. Over five draws see the README.
+
 Zero
 ----
 :func:`zero_offsets` re-estimates only the offsets :math:`o` from a short empty-bucket motion
