@@ -391,9 +391,8 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
     table.to_csv(out / "results.csv", index=False)
     figure = []
     if default:
-        from excavator_payload.evaluation.figures import save_png, weighing_over_time
-
         from excavator_payload.data.schema import MACHINE_SENSORS
+        from excavator_payload.evaluation.figures import save_png, weighing_over_time
 
         save_png(weighing_over_time(default, rated, DISCARD / MACHINE_SENSORS.sample_rate), out / "weighing.png")
         figure = ["![calibrated (the default form): error over each test motion](weighing.png)", ""]
