@@ -27,8 +27,6 @@ import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
 
-#: Known payloads of the preset's calibration motions, cycled (kg): :func:`calibration_payloads`.
-CALIBRATION_PAYLOADS = (0.0, 2500.0, 5000.0)
 SESSION_CALIBRATION, SESSION_WORK = 1, 2
 #: Samples not judged at the start of each test experiment: the first second at 100 Hz.
 DISCARD = 100

@@ -367,7 +367,7 @@ def test_the_held_friction_closes_the_balance_of_a_standstill():
     from excavator_payload.simulation.generate import simulate_dataset
     from excavator_payload.simulation.trajectory import trajectory_from_frame
 
-    traj = trajectory_from_frame(dm.motion_trajectory(3, 7, dm.CALIBRATION_PAYLOADS))
+    traj = trajectory_from_frame(dm.motion_trajectory(3, 7, dm.calibration_payloads()))
     ds = simulate_dataset(3, seed=7, motion="trajectory", trajectory=traj, session=1, noise="none",
                           with_truth=True, workers=1, progress=False, machine="cat345c-hydraulic")
     cal = cm.MachineCalibration(HydraulicArmModel(load_machine("cat345c-hydraulic")))

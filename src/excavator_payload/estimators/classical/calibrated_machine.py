@@ -1130,11 +1130,13 @@ def coverage_notes(estimator, dataset: Dataset) -> list[str]:
     kernel = estimator._pressure
     if getattr(kernel, "outside_calibration", "use") != "skip":
         return []
-    angles = dataset.frame[[SIGNALS[i] for i in ANGLES]].to_numpy(float)
     notes = []
     for j, joint in enumerate(("boom", "dipper", "bucket")):
-        a = angles[np.isfinite(angles[:, j]), j]
-        if not COVERAGE_JOINTS[j] or not len(a):
+        if not COVERAGE_JOINTS[j]:
+            continue
+        a = dataset.frame[SIGNALS[ANGLES[j]]].to_numpy(float)
+        a = a[np.isfinite(a)]
+        if not len(a):
             continue
         outside = float(np.mean((a < kernel._raw_low[j]) | (a > kernel._raw_high[j])))
         if outside > 0:
