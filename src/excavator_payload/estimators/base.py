@@ -573,9 +573,10 @@ class Estimator(ABC):
             return StepResult(result.estimate, Status.GAP, sigma)
         return StepResult(result.estimate, result.status, sigma)
 
-    def estimate_notes(self, dataset: Dataset) -> list[str]:
+    def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         """What a user should know about estimating on ``dataset`` beyond the per-sample status
-        (printed by ``estimate``); none by default."""
+        (printed by ``estimate``); ``estimates``: what :meth:`estimate` returned on it, if at
+        hand. None by default."""
         return []
 
     def estimate(self, dataset: Dataset) -> pd.DataFrame:

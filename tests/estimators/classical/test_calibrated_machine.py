@@ -533,3 +533,32 @@ def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):
         assert np.abs(f.loc[rows[0]:first, "boom_rate"]).max() > np.radians(1.0)
     with pytest.raises(EstimatorError, match="wait-for-boom"):
         type(momentum)(PRIOR, wait_for_boom="maybe")
+
+
+def test_estimate_says_why_a_motion_without_boom_motion_got_no_estimate(momentum, setup, tmp_path, capsys):
+    """A motion whose boom stands still is never weighed by the momentum form (--wait-for-boom):
+    `estimate` says so in a note naming the experiments and the way out, instead of leaving a
+    column of NaN that looks like a broken sensor; motions that move the boom get no such note."""
+    table = dm.motion_trajectory(1, 6, (2500.0,))
+    table["boom_angle"] = table["boom_angle"].iloc[0]
+    still_boom = dm.simulate_trajectory(table, 6, dm.SESSION_WORK)
+    frame = momentum.estimate(still_boom)
+    assert not np.isfinite(frame["payload_estimate"]).any()
+    def waiting(est, ds):
+        return [n for n in est.estimate_notes(ds, est.estimate(ds)) if "no estimate in" in n]
+
+    notes = waiting(momentum, still_boom)
+    assert len(notes) == 1 and "no estimate in 1 of 1 experiments" in notes[0]
+    assert "--wait-for-boom no" in notes[0]
+    assert waiting(momentum, setup["test"]) == []
+    # the per-sample form reports at once: nothing to say
+    assert waiting(setup["zeroed"], still_boom) == []
+    from excavator_payload.cli import main
+    from excavator_payload.data.io import write_dataset
+
+    momentum.save(tmp_path / "m")
+    write_dataset(still_boom, tmp_path / "still.parquet")
+    capsys.readouterr()
+    assert main(["estimate", "--model", str(tmp_path / "m"), "--data", str(tmp_path / "still.parquet"),
+                 "--out", str(tmp_path / "e.parquet"), "--quiet"]) == 0
+    assert "note: calibrated: no estimate in 1 of 1 experiments" in " ".join(capsys.readouterr().out.split())

@@ -181,11 +181,12 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         self.calibration_experiments = [int(i) for i in ids]
         self._prepare()
 
-    def estimate_notes(self, dataset: Dataset) -> list[str]:
+    def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         if self.calibration is not None and dataset.sensor_set.name == "machine":
             from excavator_payload.estimators.classical import calibrated_machine
 
-            return calibrated_machine.coverage_notes(self, dataset)
+            return [*calibrated_machine.coverage_notes(self, dataset),
+                    *calibrated_machine.waiting_notes(self, estimates)]
         return []
 
     def identified_parameters(self) -> pd.DataFrame:

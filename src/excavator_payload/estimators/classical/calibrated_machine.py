@@ -1148,6 +1148,34 @@ def coverage_notes(estimator, dataset: Dataset) -> list[str]:
     return notes
 
 
+def waiting_notes(estimator, estimates) -> list[str]:
+    """A note when ``--wait-for-boom`` kept whole experiments of ``estimates`` (the frame
+    ``estimate`` returns) without an estimate: their boom never moved through a 0.5 s window
+    without a stop, so the weighing never started. Without the note such a motion's NaN column
+    looks like a broken sensor."""
+    kernel = estimator._pressure
+    if not getattr(kernel, "wait_for_boom", False) or estimates is None or not len(estimates):
+        return []
+    estimate = estimates["payload_estimate"].to_numpy(float)
+    status = estimates["status"].astype(str).to_numpy()
+    experiments = estimates["experiment"].to_numpy()
+    silent = []
+    names = list(dict.fromkeys(experiments.tolist()))
+    for name in names:
+        rows = experiments == name
+        # warming_up on most samples: not an experiment lost to invalid input or one too short
+        if not np.isfinite(estimate[rows]).any() and np.mean(status[rows] == "warming_up") > 0.5:
+            silent.append(name)
+    if not silent:
+        return []
+    shown = ", ".join(str(e) for e in silent[:5]) + (", …" if len(silent) > 5 else "")
+    return [f"{estimator.name}: no estimate in {len(silent)} of {len(names)} experiments ({shown}): the "
+            f"boom never moved for {2 * BALANCE_HALF_WINDOW / MACHINE_SENSORS.sample_rate:.1f} s "
+            "without a stop, and the weighing waits until it has weighed the boom (a standing "
+            "boom's seals hold an unknown force). Move the boom while weighing, or train with "
+            "--wait-for-boom no to weigh from the dipper and bucket"]
+
+
 def hardly_moved(moving: np.ndarray, minimum: int) -> list[tuple[str, int]]:
     """(joint, moving samples) of the arm cylinders that moved on fewer than ``minimum`` samples
     (:meth:`MachineCalibration.moving_samples`): what fit and zero warn about."""
