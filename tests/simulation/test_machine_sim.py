@@ -230,3 +230,40 @@ def test_nmpc_swings_reach_their_target_within_the_hydraulics():
         np.testing.assert_allclose(rows["true_boom_angle"].iloc[-1], target[0], atol=np.radians(1))
         lo, hi = machine.angle_ranges[0]
         assert rows["true_boom_angle"].between(lo, hi).all()
+
+
+@pytest.mark.parametrize("motion", ["swing", "nmpc"])
+def test_payload_option_loads_every_experiment_with_the_same_motions(motion, tmp_path):
+    """--payload KG: every experiment carries that mass (0: the empty bucket a zero check needs);
+    the motions are the ones drawn without it (the draw happens all the same)."""
+    drawn = simulate_machine_dataset(2, seed=5, session=2, motion=motion)
+    empty = simulate_machine_dataset(2, seed=5, session=2, motion=motion, payload=0.0)
+    assert set(empty.frame["payload"]) == {0.0} and set(drawn.frame["payload"]) != {0.0}
+    assert [e["payload"] for e in empty.meta["experiments"]] == [0.0, 0.0]
+    if motion == "swing":  # a planned motion: the same plan whatever it carries
+        first = drawn.frame["experiment"] == drawn.frame["experiment"].iloc[0]
+        n = int(first.sum())
+        np.testing.assert_array_equal(empty.frame["boom_angle"].to_numpy()[:n] - drawn.frame["boom_angle"].to_numpy()[:n], 0.0)
+    # the pressures carry the mass: the empty bucket's boom head pressure is lower
+    assert empty.frame["boom_head_pressure"].mean() < drawn.frame["boom_head_pressure"].mean()
+    out = tmp_path / "e.parquet"
+    assert main(["simulate", "--machine", MACHINE, "-n", "1", "--payload", "2500", "--session", "2",
+                 "--workers", "1", "--quiet", "--out", str(out)]) == 0
+    assert set(read_dataset(out).frame["payload"]) == {2500.0}
+
+
+def test_payload_option_refuses_what_it_cannot_do(tmp_path, capsys):
+    for bad in ("nan", "-1", "1e9", "inf"):
+        assert main(["simulate", "--machine", MACHINE, "-n", "1", "--payload", bad,
+                     "--out", str(tmp_path / "x.parquet")]) == 2
+        err = capsys.readouterr().err
+        assert "--payload must be between 0 and the machine's maximum payload" in err and len(err.strip().splitlines()) == 1
+    assert main(["simulate", "-n", "1", "--payload", "0", "--out", str(tmp_path / "x.parquet")]) == 2
+    assert "hydraulic machine only" in capsys.readouterr().err
+    table = pd.DataFrame({"experiment": 0, "time": np.linspace(0, 2, 21), "boom_angle": 0.1,
+                          "dipper_angle": -1.5, "bucket_angle": -1.0, "slew_angle": 0.0, "payload": 100.0})
+    table.to_parquet(tmp_path / "t.parquet")
+    assert main(["simulate", "--machine", MACHINE, "--trajectory", str(tmp_path / "t.parquet"), "--payload", "0",
+                 "--out", str(tmp_path / "y.parquet")]) == 2
+    assert "payload column sets the mass" in capsys.readouterr().err
+    assert not (tmp_path / "x.parquet").exists() and not (tmp_path / "y.parquet").exists()

@@ -47,6 +47,10 @@ def register(app: typer.Typer) -> None:
         trajectory: Path = typer.Option(None, "--trajectory",
                                         help="Hydraulic machine: replay the motions of this Parquet file "
                                              "(experiment, time, boom/dipper/bucket/slew_angle, payload)."),
+        payload: float = typer.Option(None, "--payload", metavar="KG",
+                                      help="Hydraulic machine: every experiment carries this mass (kg) "
+                                           "instead of a drawn one; 0 makes an empty-bucket motion for "
+                                           "`zero`."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Simulate experiments (thesis §5.3) and write them to a dataset file.
@@ -62,7 +66,7 @@ def register(app: typer.Typer) -> None:
         # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
         # a run description; objects travel inside.
         spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
-                         session=session, trajectory=trajectory)
+                         session=session, trajectory=trajectory, payload=payload)
         motion, noise = spec.motion, spec.noise.name
         start = time.perf_counter()
         try:
@@ -70,7 +74,7 @@ def register(app: typer.Typer) -> None:
                 dataset = simulate_to_file(out, experiments, seed=seed, machine=spec.machine,
                                            noise=spec.noise, with_truth=with_truth, motion=motion,
                                            progress=not quiet, execution=execution, session=session,
-                                           trajectory=spec.option("trajectory"))
+                                           trajectory=spec.option("trajectory"), payload=payload)
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "

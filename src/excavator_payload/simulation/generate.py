@@ -267,13 +267,16 @@ def _chunks(first_experiment: int, n_experiments: int, size: int) -> list[tuple[
 def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat345c",
               noise: str | NoisePreset | None = None, with_truth: bool = False, motion: str | None = None,
               first_experiment: int = 0, frozen_noise_seed: int | None = None,
-              options: dict | None = None, session: int = 0, trajectory=None) -> RunSpec:
+              options: dict | None = None, session: int = 0, trajectory=None,
+              payload: float | None = None) -> RunSpec:
     """Check the arguments and resolve the names into a :class:`RunSpec` (at the edge, once).
 
     ``noise`` and ``motion`` default to the machine kind's own (thesis: ``thesis`` noise and
     ``nmpc`` swings; hydraulic: ``field`` noise and ``swing``, or ``trajectory`` when a
     trajectory is given). ``session`` and ``trajectory`` (a file or a
-    :class:`~excavator_payload.simulation.trajectory.Trajectory`) are for a hydraulic machine.
+    :class:`~excavator_payload.simulation.trajectory.Trajectory`) are for a hydraulic machine,
+    and so is ``payload`` (kg: every generated experiment carries this mass instead of a drawn
+    one, e.g. 0 for a zero-check motion; a trajectory file's payload column sets its own).
     """
     machine = load_machine(machine)
     options = dict(options or {})
@@ -292,6 +295,15 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
             raise ExcavatorPayloadError(f"the session must be a whole number ≥ 0, got {session!r}")
         preset = get_machine_noise("field" if noise is None else noise)
         options["session"] = int(session)
+        if payload is not None:
+            if trajectory is not None:
+                raise ExcavatorPayloadError("--payload does not go with a trajectory file: its payload "
+                                            "column sets the mass")
+            if (isinstance(payload, bool) or not isinstance(payload, (int, float, np.number))
+                    or not 0.0 <= float(payload) <= machine.max_payload):
+                raise ExcavatorPayloadError(f"--payload must be between 0 and the machine's maximum "
+                                            f"payload, {machine.max_payload:g} kg; got {payload!r}")
+            options["payload"] = float(payload)
         if trajectory is not None:
             if not hasattr(trajectory, "experiments"):
                 trajectory = read_trajectory(trajectory)
@@ -302,8 +314,8 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
                 and isinstance(n_experiments, (int, np.integer)) else n_experiments
             options["trajectory"] = trajectory
     else:
-        if session or trajectory is not None:
-            raise ExcavatorPayloadError("--session and --trajectory apply to a hydraulic machine only")
+        if session or trajectory is not None or payload is not None:
+            raise ExcavatorPayloadError("--session, --trajectory and --payload apply to a hydraulic machine only")
         motion = "nmpc" if motion is None else motion
         preset = get_noise_preset("thesis" if noise is None else noise)
     _check_arguments(n_experiments, seed, None, motion, first_experiment, machine)
@@ -400,7 +412,7 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
                      workers: int | None = None, motion: str | None = None, first_experiment: int = 0,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
-                     session: int = 0, trajectory=None) -> Dataset:
+                     session: int = 0, trajectory=None, payload: float | None = None) -> Dataset:
     """Simulate ``n_experiments`` experiments in memory.
 
     Parameters
@@ -437,6 +449,9 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         of ``seed``).
     trajectory : str, Path or Trajectory, optional
         Hydraulic machine: prescribed motions to replay (``motion="trajectory"``).
+    payload : float, optional
+        Hydraulic machine: the mass (kg) every generated experiment carries instead of a drawn
+        one (0: an empty bucket, as a zero check needs).
 
     Returns
     -------
@@ -445,7 +460,7 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         the experiments whose simulation failed, with the reason.
     """
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, first_experiment,
-                     frozen_noise_seed, session=session, trajectory=trajectory)
+                     frozen_noise_seed, session=session, trajectory=trajectory, payload=payload)
     _check_arguments(n_experiments, seed, workers, spec.motion, first_experiment, spec.machine)
     if execution is not None:
         return simulate_spec(spec, first_experiment, n_experiments, execution, progress)
@@ -484,7 +499,7 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
                      with_truth: bool = False, workers: int | None = None, motion: str | None = None,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
-                     session: int = 0, trajectory=None) -> Dataset:
+                     session: int = 0, trajectory=None, payload: float | None = None) -> Dataset:
     """Simulate and write the dataset to ``out`` (Parquet, atomic); resume an interrupted run.
 
     Finished chunks of experiments are kept in ``<out>.partial/`` until the file is written;
@@ -501,7 +516,7 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
     if out.is_dir():
         raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed,
-                     session=session, trajectory=trajectory)
+                     session=session, trajectory=trajectory, payload=payload)
     _check_arguments(n_experiments, seed, workers, spec.motion, 0, spec.machine)
     source = dict(spec.options).get("trajectory")
     if source is not None and Path(source.source).resolve() == out.resolve():

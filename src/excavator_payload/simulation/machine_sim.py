@@ -28,6 +28,7 @@ layer like every other simulation (parallel, resumable, atomic);
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -175,8 +176,10 @@ def _nmpc_simulator(arm: HydraulicArmModel):
 
 
 def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
-                             offsets: dict, with_truth: bool) -> tuple[pd.DataFrame, dict]:
-    """NMPC swing ``k``: from a digging pose to a dumping pose while slewing 30-120°, 10 s."""
+                             offsets: dict, with_truth: bool,
+                             payload_override: float | None = None) -> tuple[pd.DataFrame, dict]:
+    """NMPC swing ``k``: from a digging pose to a dumping pose while slewing 30-120°, 10 s.
+    ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
     relief = machine.hydraulics.relief_pressure
@@ -189,6 +192,8 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
         target = mm.carry_pose(motion_rng, machine)
         target[3] = float(motion_rng.uniform(np.radians(30), np.radians(120)) * motion_rng.choice([-1, 1]))
         payload = float(motion_rng.uniform(0.0, machine.max_payload))
+        if payload_override is not None:  # drawn all the same: the other draws stay the same
+            payload = float(payload_override)
         friction0 = motion_rng.uniform(-1, 1, 3)
         try:
             time, q, qd, qdd, _, info = sim.run(start, target, np.zeros(2), payload, NMPC_DURATION)
@@ -217,13 +222,18 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
 
 
 def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
-                               offsets: dict, motion: str, with_truth: bool) -> tuple[pd.DataFrame, dict]:
-    """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure)."""
+                               offsets: dict, motion: str, with_truth: bool,
+                               payload_override: float | None = None) -> tuple[pd.DataFrame, dict]:
+    """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure).
+    ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
     relief = machine.hydraulics.relief_pressure
     for attempt in range(1, MAX_ATTEMPTS + 1):
-        plan = mm.fit_to_hydraulics(arm, _draw_motion(motion, k, motion_rng, arm))
+        drawn = _draw_motion(motion, k, motion_rng, arm)
+        if payload_override is not None:  # before the fit: the mass shapes the pressures it checks
+            drawn = dataclasses.replace(drawn, payload=float(payload_override))
+        plan = mm.fit_to_hydraulics(arm, drawn)
         time = sample_times(plan.duration)
         q, qd, qdd = plan.sample(time)
         payload_t = plan.payload_at(time)
@@ -257,10 +267,12 @@ def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
 
         return simulate_trajectory_experiment(experiment, spec.seed, arm, spec.noise, offsets,
                                               spec.option("trajectory"), spec.with_truth)
+    payload = spec.option("payload")
     if spec.motion == "nmpc":
-        return simulate_nmpc_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.with_truth)
+        return simulate_nmpc_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.with_truth,
+                                        payload)
     return simulate_motion_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.motion,
-                                      spec.with_truth)
+                                      spec.with_truth, payload)
 
 
 def dataset_meta(spec) -> dict:
@@ -280,7 +292,8 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
                              machine="cat345c-hydraulic", noise="field", motion: str | None = None,
                              with_truth: bool = False, workers: int | None = 1,
                              first_experiment: int = 0, trajectory=None,
-                             progress: bool = False, **execution) -> Dataset:
+                             progress: bool = False, payload: float | None = None,
+                             **execution) -> Dataset:
     """Simulate experiments of a hydraulic machine in memory.
 
     A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_dataset`
@@ -309,6 +322,9 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
         Prescribed motions for ``motion="trajectory"`` (see :mod:`.trajectory`).
     progress : bool
         Show a progress bar.
+    payload : float, optional
+        Every generated experiment carries this mass (kg) instead of a drawn one (0: an empty
+        bucket, as ``zero`` needs); the motions are those drawn without it.
     """
     from excavator_payload.model.machine import load_machine
     from excavator_payload.simulation.generate import simulate_dataset
@@ -319,7 +335,7 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     return simulate_dataset(n_experiments, seed=seed, machine=machine, noise=noise,
                             with_truth=with_truth, workers=workers, motion=motion,
                             first_experiment=first_experiment, progress=progress, session=session,
-                            trajectory=trajectory, **execution)
+                            trajectory=trajectory, payload=payload, **execution)
 
 
 def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: int = 0,
