@@ -665,6 +665,161 @@ def _other_estimates(work, inputs):
     return work / "bad_est.parquet"
 
 
+# -- CAN logs (can-replay, can-record, can-dbc): logs from the outside world
+def _log_messages(inputs: Path) -> list:
+    """The frames of the good dataset as ``can-record`` writes them."""
+    import can
+
+    from excavator_payload.runtime.record import record_dataset
+
+    log = inputs.parent / "work" / ".clean.blf"
+    if not log.exists():
+        record_dataset(read_dataset(inputs / "data.parquet"), log)
+    messages = list(can.LogReader(str(log)))
+    log.unlink()
+    return messages
+
+
+def _can_log(name: str, edit: Callable):
+    """A log maker: ``edit(messages) -> messages`` written with python-can as ``work/name``."""
+    def make(work, inputs):
+        import can
+
+        messages = edit(_log_messages(inputs))
+        with can.Logger(str(work / name)) as writer:
+            for m in messages:
+                writer.on_message_received(m)
+        return work / name
+    return make
+
+
+def _retimed(scale: float):
+    def edit(messages):
+        import can
+
+        return [can.Message(timestamp=m.timestamp * scale, arbitration_id=m.arbitration_id,
+                            is_extended_id=True, data=m.data) for m in messages]
+    return edit
+
+
+def _every_other_sample(messages):
+    times = sorted({m.timestamp for m in messages})[::2]
+    keep = set(times)
+    return [m for m in messages if m.timestamp in keep]
+
+
+def _swap_samples(messages):
+    out = list(messages)
+    for k in range(0, len(out) - 8, 40):  # every 10th sample swapped with the next
+        out[k:k + 4], out[k + 4:k + 8] = out[k + 4:k + 8], out[k:k + 4]
+    return out
+
+
+def _with_foreign_senders(messages):
+    # another ECU sends the same proprietary-B PGNs (0xFF00...) from source address 0x00
+    import can
+
+    out = []
+    for m in messages:
+        out += [m, can.Message(timestamp=m.timestamp, arbitration_id=(m.arbitration_id & ~0xFF) | 0x00,
+                               is_extended_id=True, data=bytes([0x11] * 8))]
+    return out
+
+
+def _not_available(messages):
+    import can
+
+    return [can.Message(timestamp=m.timestamp, arbitration_id=m.arbitration_id, is_extended_id=True,
+                        data=bytes([0xFF] * 8)) for m in messages]
+
+
+def _inf_timestamp(work, inputs):
+    make = _can_log("log.csv", lambda m: m)
+    path = make(work, inputs)
+    lines = path.read_text().splitlines()
+    lines[40] = "inf" + lines[40][lines[40].index(","):]
+    return _write(path, "\n".join(lines) + "\n")
+
+
+def _trc_bad_line(work, inputs):
+    path = _can_log("log.trc", lambda m: m)(work, inputs)
+    lines = path.read_text().splitlines()
+    lines[30] = lines[30][:20]  # one line cut short
+    return _write(path, "\n".join(lines) + "\n")
+
+
+def _user_dbc_and_map(work, inputs):
+    # a user DBC and signal map (the generated ones, the map with a name a log could have)
+    from excavator_payload.runtime.dbc import generate_dbc, sensor_layout
+    from excavator_payload.data.schema import get_sensor_set
+
+    _write(work / "thesis.dbc", generate_dbc("thesis"))
+    _write(work / "map.log", "".join(f'[signals.{s.signal}]\nmessage = "{s.message}"\nsignal = "{s.name}"\n'
+                                     for m in sensor_layout(get_sensor_set("thesis")) for s in m.signals))
+    return None
+
+
+def _replay_ok(n_ok: int, said: str | None = None):
+    def check(work, inputs, out, err):
+        frame = pq.read_table(work / "e.parquet").to_pandas()
+        assert (frame["status"] == "ok").sum() >= n_ok, frame["status"].value_counts()
+        assert np.isfinite(frame["time"]).all()
+        assert said is None or said in " ".join(out.split()), out
+    return check
+
+
+CAN_LOGS: dict[str, tuple[Callable, str, str | None]] = {
+    # name: (log maker, expect, message fragment)
+    "blf-empty": (lambda work, inputs: _write(work / "log.blf", b""), "error", "could not be read"),
+    "blf-random": (lambda work, inputs: _write(work / "log.blf", os.urandom(3000)), "error", "not a BLF"),
+    "blf-truncated-header": (lambda work, inputs: _write(work / "log.blf", b"LOGG" + bytes(40)), "error",
+                             "could not be read"),
+    "trc-empty": (lambda work, inputs: _write(work / "log.trc", b""), "error", "no frame"),
+    "half-rate": (_can_log("log.blf", _every_other_sample), "error", "Hz"),
+    "double-rate": (_can_log("log.blf", _retimed(0.5)), "error", "Hz"),
+    "ms-timestamps": (_can_log("log.asc", _retimed(1000.0)), "error", "seconds"),
+    "all-timestamps-zero": (_can_log("log.blf", _retimed(0.0)), "error", "0 s apart"),
+    "out-of-order": (_can_log("log.blf", _swap_samples), "error", "out of order"),
+    "not-available-everywhere": (_can_log("log.blf", _not_available), "error", "another DBC"),
+    "log-is-folder": (lambda work, inputs: (work / "log.blf").mkdir() or work / "log.blf", "error", "folder"),
+}
+CAN_LOGS_OK: dict[str, tuple[Callable, int, str | None]] = {
+    # name: (log maker, least 'ok' estimates, what the summary must say)
+    "every-frame-twice": (_can_log("log.blf", lambda ms: [x for m in ms for x in (m, m)]), 600,
+                          "2424 duplicate frames dropped"),
+    "foreign-sender-same-pgn": (_can_log("log.asc", _with_foreign_senders), 600, "from another source address"),
+    "inf-timestamp": (_inf_timestamp, 550, "1 unreadable log records skipped"),
+    "trc-line-cut": (_trc_bad_line, 550, "1 unreadable log records skipped"),
+}
+
+
+def can_cases() -> list[Case]:
+    replay = ["can-replay", "--log", "{bad}", "--model", "{in}/model", "--out", "{work}/e.parquet"]
+    c = []
+    for key, (setup, expect, message) in CAN_LOGS.items():
+        c.append(Case(f"can-{key}", "CAN logs", replay, expect, message, setup, outputs=["{work}/e.parquet"]))
+    for key, (setup, n_ok, said) in CAN_LOGS_OK.items():
+        c.append(Case(f"can-ok-{key}", "CAN logs", replay, "ok", setup=setup, check=_replay_ok(n_ok, said)))
+    same = "refusing to overwrite"
+    good_log = _can_log("log.blf", lambda m: m)
+    c += [
+        Case("can-replay-out-is-model-arrays", "CAN logs",
+             ["can-replay", "--log", "{bad}", "--model", "{in}/model", "--out", "{in}/model/arrays.npz"],
+             message=same, setup=good_log),
+        Case("can-replay-out-is-log", "CAN logs",
+             ["can-replay", "--log", "{bad}", "--model", "{in}/model", "--out", "{bad}"], message=same,
+             setup=good_log),
+        Case("can-record-out-is-signal-map", "CAN logs",
+             ["can-record", "--data", "{in}/data.parquet", "--dbc", "{work}/thesis.dbc", "--signal-map",
+              "{work}/map.log", "--out", "{work}/map.log"], message=same, setup=_user_dbc_and_map,
+             outputs=["{work}/map.log"]),
+        Case("can-dbc-out-is-folder", "CAN logs", ["can-dbc", "--out", "{work}"], message="folder"),
+        Case("can-dbc-out-under-a-file", "CAN logs", ["can-dbc", "--out", "{work}/file/x.dbc"],
+             message="not a folder", setup=lambda work, inputs: _write(work / "file", "precious")),
+    ]
+    return c
+
+
 # -- things that must work
 def good_cases() -> list[Case]:
     def estimates_ok(work, inputs, out, err):
@@ -708,7 +863,7 @@ def good_cases() -> list[Case]:
 
 
 ALL_CASES: list[Case] = (dataset_cases() + model_cases() + machine_cases() + output_cases()
-                         + markup_cases() + argument_cases() + estimates_cases() + good_cases())
+                         + markup_cases() + argument_cases() + estimates_cases() + can_cases() + good_cases())
 
 
 # -- running a case -------------------------------------------------------------------------------

@@ -136,3 +136,22 @@ def test_write_is_atomic_and_validates(small, tmp_path):
         write_dataset(bad, path)
     assert path.read_bytes() == before  # the good file is untouched, no data lost
     assert [p.name for p in tmp_path.iterdir()] == ["d.parquet"]  # no temporary file left
+
+
+@pytest.mark.parametrize("unit,scale", [("bar", 1e-5), ("kPa", 1e-3), ("MPa", 1e-6), ("psi", 1 / 6894.76),
+                                        ("unplugged", 0.0)])
+def test_machine_pressures_not_in_pascal_are_refused(unit, scale):
+    """Pressures in bar (or kPa, MPa, psi) passed every check and were weighed as Pa: -6200 kg
+    'ok' for a 1900 kg payload."""
+    from excavator_payload.data.io import validate_frame
+    from excavator_payload.errors import DatasetError
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    data = simulate_machine_dataset(1, seed=4)
+    validate_frame(data.frame, sensor_set="machine")  # in Pa: fine
+    frame = data.frame.copy()
+    for c in frame.columns:
+        if c.endswith("_pressure") and not c.startswith("true_"):
+            frame[c] = frame[c] * scale
+    with pytest.raises(DatasetError, match="instead of Pa"):
+        validate_frame(frame, sensor_set="machine")

@@ -492,3 +492,35 @@ def test_machine_set_live_virtual_bus_equals_batch(machine_swings):
     both = np.isfinite(want)
     assert np.array_equal(np.isfinite(got), both) and both.sum() > 500
     assert np.abs(got[both] - want[both]).max() <= dbc.PAYLOAD_RESOLUTION / 2 + 1e-9
+
+
+def test_log_of_another_sensor_set_is_refused(tmp_path, machine_swings, estimator):
+    """The generated DBCs of both sensor sets use PGNs 0xFF00...: a machine-set log replayed with
+    a thesis model decoded garbage in every sample (all NaN estimates, exit status 0 before)."""
+    from excavator_payload.errors import DatasetError
+
+    log = tmp_path / "machine.blf"
+    record_dataset(Dataset(machine_swings.frame.iloc[:300].copy(), machine_swings.meta), log)
+    with pytest.raises(DatasetError, match="another DBC or sensor set"):
+        replay_log(log, PayloadSensor(estimator))
+
+
+def test_other_sender_of_the_same_pgn_is_ignored(swings, estimator):
+    """Another ECU's proprietary-B frames with a sensor PGN are not sensor data (before, each
+    one flushed a garbage sample: no estimate was ever 'ok')."""
+    codec = SignalCodec.for_sensor_set(swings.sensor_set)
+    import copy
+
+    clean, mixed = PayloadSensor(estimator), PayloadSensor(copy.deepcopy(estimator))
+    out_clean, out_mixed = [], []
+    for k, row in enumerate(swings.signals()[:40]):
+        frames = _frames(codec, row, 0.05 * k)
+        foreign = [can.Message(timestamp=f.timestamp, arbitration_id=(f.arbitration_id & ~0xFF) | 0x00,
+                               is_extended_id=True, data=bytes([0x11] * 8)) for f in frames]
+        for f in frames:
+            out_clean += clean.feed(f)
+        for f in frames + foreign:
+            out_mixed += mixed.feed(f)
+    assert mixed.counters["other_senders"] == 4 * 40
+    assert [o.status for o in out_mixed] == [o.status for o in out_clean]
+    assert [o.estimate for o in out_mixed] == [o.estimate for o in out_clean]

@@ -34,6 +34,10 @@ from excavator_payload.errors import DatasetError
 from excavator_payload.model.machine import MAX_PAYLOAD
 
 
+#: A pressure column whose largest value stays below this (Pa, 1 bar) is not in Pa.
+MIN_PEAK_PRESSURE = 1.0e5
+
+
 def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), kind: str = "file",
                       option: str = "--out", replaces: Sequence[str] = ()) -> Path:
     """Refuse, before any work is done, an output path that cannot be written or would destroy data.
@@ -224,6 +228,17 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                 f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in "
                 f"{sensors.units[c]} (are the units degrees instead of SI?)"
             )
+    # Pressures in bar, kPa, MPa or psi pass the magnitude check above and were weighed as Pa
+    # without a word (-6200 kg 'ok' for a 1900 kg payload): the boom cylinder of a working arm
+    # holds the arm's weight, tens of bar, and no cylinder line stays below 1 bar for a whole file.
+    for c in sensors.signals:
+        if sensors.units[c] != "Pa":
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() < MIN_PEAK_PRESSURE:
+            raise DatasetError(f"{source}: column '{c}' never exceeds {values.max():.4g} Pa (1 bar = "
+                               f"1e5 Pa); are the pressures in bar, kPa, MPa or psi instead of Pa?")
     # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
     for c in ("boom_angle",):
         values = frame[c].to_numpy(dtype=float)

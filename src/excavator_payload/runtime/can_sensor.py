@@ -10,7 +10,12 @@ the sensor collects them and steps the estimator once per sample,
   estimator with the missing signals as NaN, which it reports as ``invalid_input``), or
 * when the period times out (:meth:`PayloadSensor.poll`, live only).
 
-The sample's time is the timestamp of its first frame. Frames of other ids are ignored; a
+The sample's time is the timestamp of its first frame. A frame that repeats the last one of its
+message (same bytes, less than a quarter period later: a log of two bridged channels, or of the
+receive and the transmit echo) is a duplicate and dropped. J1939 sensor messages are matched by
+PGN from any source address, but each message listens to one sender: the DBC's own address as
+soon as it is heard, else the first address heard (a proprietary-B PGN such as 0xFF00 is sent by
+other ECUs of the machine too, with their own content). Frames of other ids are ignored; a
 frame of the wrong length or with an out-of-range or not-available raw value gives NaN signals,
 never an exception. When no sample has arrived for ``stale_after`` seconds the sensor keeps
 publishing at the sample rate with status ``stale`` (last estimate kept); the next sample
@@ -143,7 +148,8 @@ class PayloadSensor:
         self.stale_after = 3 * self.period if stale_after is None else float(stale_after)
         self.encoder = EstimateEncoder()
         self._needed = frozenset(self.codec.message_names)
-        self.counters = {"frames": 0, "ignored": 0, "samples": 0, "bad_frames": 0, "stale": 0}
+        self.counters = {"frames": 0, "ignored": 0, "samples": 0, "bad_frames": 0, "stale": 0,
+                         "duplicates": 0, "other_senders": 0}
         self.reset()
 
     def reset(self) -> None:
@@ -156,6 +162,8 @@ class PayloadSensor:
         self.last_output: SensorOutput | None = None
         self.last_sample_received: float | None = None
         self._last_seen: dict[str, float] = {}  # message -> receiver time it last arrived
+        self._last_frame: dict[str, tuple[float, bytes]] = {}  # message -> (timestamp, data)
+        self._sender: dict[str, int] = {}  # message -> the source address it listens to (J1939)
 
     # -- frames in ---------------------------------------------------------------------------
     def feed(self, message: can.Message, received_at: float | None = None) -> list[SensorOutput]:
@@ -171,6 +179,17 @@ class PayloadSensor:
         if spec is None:
             self.counters["ignored"] += 1
             return []
+        if self.codec.j1939 and message.is_extended_id and not self._from_sender(spec, message):
+            self.counters["other_senders"] += 1
+            return []
+        stamp, data = float(message.timestamp), bytes(message.data)
+        last = self._last_frame.get(spec.name)
+        # Without this, a log that holds every frame twice (two channels, or rx and tx echo) was
+        # read as a lost frame per message: every sample flushed half-empty, 0 estimates 'ok'.
+        if last is not None and last[1] == data and abs(stamp - last[0]) < 0.25 * self.period:
+            self.counters["duplicates"] += 1
+            return []
+        self._last_frame[spec.name] = (stamp, data)
         outputs = []
         if spec.name in self._received:  # a new period began before the last was complete
             outputs.append(self.flush())
@@ -187,6 +206,18 @@ class PayloadSensor:
         if self._received >= self._needed:
             outputs.append(self.flush())
         return outputs
+
+    def _from_sender(self, spec, message: can.Message) -> bool:
+        """Whether a J1939 frame of ``spec`` comes from the address this message listens to.
+
+        Matching the PGN alone let another ECU's proprietary-B frames of the same PGN in as
+        sensor data (every sample invalid, or worse, plausible garbage)."""
+        address = message.arbitration_id & 0xFF
+        own = spec.frame_id & 0xFF
+        if address == own:
+            self._sender[spec.name] = own  # the DBC's sender, once heard, is the one
+            return True
+        return self._sender.setdefault(spec.name, address) == address
 
     def flush(self) -> SensorOutput:
         """Step the estimator with the pending sample (missing signals NaN) and clear it."""

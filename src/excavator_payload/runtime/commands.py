@@ -34,6 +34,7 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(None, "--out", help="Write the DBC here (default: print it)."),
     ) -> None:
         """Print or write the J1939 DBC generated from a sensor set."""
+        from excavator_payload.data.io import check_output_path
         from excavator_payload.data.schema import get_sensor_set
         from excavator_payload.runtime.dbc import generate_dbc
 
@@ -41,6 +42,7 @@ def register(app: typer.Typer) -> None:
         if out is None:
             typer.echo(text, nl=False)
             return
+        check_output_path(out)  # a folder or an unwritable place: one line, not a traceback
         tmp = out.with_name(out.name + ".tmp")
         tmp.write_text(text)
         tmp.replace(out)
@@ -58,8 +60,10 @@ def register(app: typer.Typer) -> None:
         from excavator_payload.runtime.dbc import SignalCodec
         from excavator_payload.runtime.record import record_dataset
 
-        if out.resolve() == data.resolve():
-            raise DatasetError("--out must not be the input dataset")
+        from excavator_payload.data.io import check_output_path
+
+        # all the inputs, not only --data: --out DBC or map would have been overwritten
+        check_output_path(out, inputs=[data, dbc_file, signal_map])
         dataset = read_dataset(data)
         codec = SignalCodec.from_files(dataset.sensor_set, dbc_file, signal_map)
         info = record_dataset(dataset, out, codec, progress=True)
@@ -83,8 +87,11 @@ def register(app: typer.Typer) -> None:
         from excavator_payload.runtime.can_sensor import PayloadSensor
         from excavator_payload.runtime.replay import replay_log
 
-        if out.resolve() == log.resolve():
-            raise DatasetError("--out must not be the input log")
+        from excavator_payload.data.io import check_output_path
+
+        # --out inside the model folder replaced its arrays.npz (the model was lost); the log,
+        # the DBC and the map are inputs too
+        check_output_path(out, inputs=[log, model, dbc_file, signal_map])
         if not segment_gap > 0:
             raise DatasetError("--segment-gap must be positive")
         est = load_estimator(model)
@@ -93,9 +100,15 @@ def register(app: typer.Typer) -> None:
         write_estimates(frame, out, meta={"estimator": est.name, "model": str(model), "log": str(log)})
         n_ok = int((frame["status"] == "ok").sum())
         c = sensor.counters
+        dropped = [f"{n} {what}" for n, what in (
+            (frame.attrs.get("skipped_records", 0), "unreadable log records skipped"),
+            (c["duplicates"], "duplicate frames dropped"),
+            (c["other_senders"], "frames of the sensor PGNs from another source address ignored"))
+            if n]
         console.print(f"{est.name}: {len(frame)} estimates ({n_ok} ok) in {frame['experiment'].nunique()} "
                       f"segment(s) from {c['frames']} frames ({c['ignored']} ignored, "
-                      f"{c['bad_frames']} bad) written to [bold]{out}[/bold]")
+                      f"{c['bad_frames']} bad{''.join('; ' + d for d in dropped)}) written to "
+                      f"[bold]{out}[/bold]", highlight=False)
 
     @app.command("can-run")
     def can_run(
