@@ -267,3 +267,34 @@ def test_payload_option_refuses_what_it_cannot_do(tmp_path, capsys):
                  "--out", str(tmp_path / "y.parquet")]) == 2
     assert "payload column sets the mass" in capsys.readouterr().err
     assert not (tmp_path / "x.parquet").exists() and not (tmp_path / "y.parquet").exists()
+
+
+def test_work_cycles_are_learnt_and_judged_up_to_their_dump(cycles, monkeypatch):
+    """A work cycle's payload column is the load carried; its load leaves the bucket at the dump
+    (metadata ``release``). Estimators learn from, and are judged on, the rows before it."""
+    from excavator_payload.estimators.base import create_estimator
+    from excavator_payload.evaluation.metrics import evaluate_estimates
+
+    cut = cycles.until_dump()
+    release = {int(m["experiment"]): m["release"][0] for m in cycles.meta["experiments"]}
+    assert len(release) == cycles.n_experiments and 0 < len(cut.frame) < len(cycles.frame)
+    for k, rows in cut.experiments():
+        assert rows["time"].max() < release[k] <= cycles.frame.loc[cycles.frame["experiment"] == k, "time"].max()
+    # a dataset without dumps is itself
+    swings = simulate_machine_dataset(1, seed=5, session=1)
+    assert swings.until_dump() is swings
+    # judged up to the dump: an estimate right until then and wrong after it is right
+    f = cycles.frame
+    after = f["time"].to_numpy() >= f["experiment"].map(release).to_numpy()
+    estimates = np.where(after, 0.0, f["payload"].to_numpy())
+    ev = evaluate_estimates(cycles, estimates, discard=100, with_bound=False)
+    assert ev.summary["judged_to_the_dump"] == cycles.n_experiments and ev.summary["mean_max"] == 0.0
+    assert evaluate_estimates(swings, swings.frame["payload"].to_numpy(), discard=100,
+                              with_bound=False).summary["judged_to_the_dump"] == 0
+    # fit sees the rows before the dump only
+    est = create_estimator("inverse-dynamics", "cat345c-hydraulic")
+    seen = []
+    original = type(est)._fit
+    monkeypatch.setattr(type(est), "_fit", lambda self, ds: (seen.append(len(ds.frame)), original(self, ds))[1])
+    est.fit(cycles)
+    assert seen == [len(cut.frame)]

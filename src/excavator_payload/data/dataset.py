@@ -98,6 +98,20 @@ class Dataset:
         meta["experiments"] = [e for e in self.meta.get("experiments", []) if int(e["experiment"]) in set(ids)]
         return Dataset(frame, meta)
 
+    def until_dump(self) -> "Dataset":
+        """Each work cycle up to its dump: the rows before the ``release`` time its metadata
+        holds (when the load starts to leave the bucket); the dataset itself when none has one.
+
+        The ``payload`` column is the load carried, one per experiment, so after a dump it no
+        longer is the mass in the bucket: estimators learn, and are judged, on the rows before.
+        """
+        release = {k: float(m["release"][0]) for k, m in self.experiment_meta.items() if m.get("release")}
+        if not release:
+            return self
+        cut = self.frame["experiment"].map(release).fillna(np.inf).to_numpy(float)
+        keep = self.frame["time"].to_numpy(float) < cut
+        return Dataset(self.frame[keep].reset_index(drop=True), self.meta)
+
     def split(self, *counts: int) -> list["Dataset"]:
         """Consecutive splits by experiment count, e.g. ``split(100, 51)`` as appendix A.3."""
         ids = list(self.experiment_ids)

@@ -420,7 +420,8 @@ class Estimator(ABC):
         """Fit to ``dataset`` and return ``self``."""
         self.sensor_set = self._check_sensor_set(dataset)
         self.fit_warnings = []
-        self._fit(dataset)
+        # a work cycle's payload column is the load carried: after its dump the bucket is empty
+        self._fit(dataset.until_dump())
         self._sentinel_source = None
         data_machine = _dataset_machine(dataset)
         # The gate judges the data, so it uses the physics the data came from: an estimator

@@ -262,6 +262,13 @@ def register(app: typer.Typer) -> None:
         console.print(summary_table(evaluations, f"Payload accuracy on {data} "
                                                  f"({dataset.n_experiments} experiments, first {discard} "
                                                  "samples discarded)"))
+        dumps = evaluations[0].summary.get("judged_to_the_dump", 0) if evaluations else 0
+        if dumps:
+            console.print(Text.assemble(
+                ("note: ", "bold"), f"{dumps} of {dataset.n_experiments} experiments are work cycles whose "
+                "load leaves the bucket at the dump: each is judged up to its dump. The sensors weigh "
+                "one load per experiment (or CAN log segment) and do not detect a new load: restart "
+                "them for each load (reset(), ep_reset)."))
         if json_out is not None:
             write_json(json_out, {"data": str(data), "discard": discard,
                                   "evaluations": [ev.to_dict() for ev in evaluations]})

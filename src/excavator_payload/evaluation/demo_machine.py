@@ -148,16 +148,8 @@ def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str,
 
 
 def before_release(dataset: Dataset) -> Dataset:
-    """Each work cycle up to the dump (the load leaves the bucket there: the payload column is
-    the load carried, which a weighing judged after the dump would wrongly blame)."""
-    meta = dataset.experiment_meta
-    f = dataset.frame
-    keep = np.ones(len(f), bool)
-    exp, time = f["experiment"].to_numpy(), f["time"].to_numpy(float)
-    for k, m in meta.items():
-        if m.get("release"):
-            keep &= ~((exp == k) & (time >= float(m["release"][0])))
-    return Dataset(f[keep].reset_index(drop=True), dataset.meta)
+    """Each work cycle up to the dump (:meth:`Dataset.until_dump`)."""
+    return dataset.until_dump()
 
 
 def machine_estimators() -> list[str]:

@@ -345,6 +345,9 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
         A precomputed bound for the dataset's rows (shared between estimators).
     rated_payload : float, optional
         kg; default the dataset machine's, else 5000 kg.
+
+    A work cycle (an experiment whose metadata has the dump's ``release`` times) is judged up to
+    its dump; ``summary["judged_to_the_dump"]`` counts them.
     """
     if discard < 0:
         raise DatasetError(f"--discard must be ≥ 0, got {discard}")
@@ -366,13 +369,21 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
     payload = frame["payload"].to_numpy(dtype=float)
     starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
     ends = np.r_[starts[1:], len(exp)]
+    # The payload column is the load carried (one per experiment); a work cycle's load leaves
+    # the bucket at its dump (the experiment's metadata ``release``). The sensors weigh one load
+    # per experiment, so such an experiment is judged up to the dump: judged on, the empty
+    # bucket would be held against the load's weighing (the summary counts them).
+    release = {k: float(m["release"][0]) for k, m in dataset.experiment_meta.items() if m.get("release")}
     rows = []
     for a, b in zip(starts, ends):
+        if int(exp[a]) in release:
+            b = a + int(np.sum(time[a:b] < release[int(exp[a])]))
         m = experiment_metrics(time[a:b], est[a:b], payload[a], discard, rated_payload,
                                None if bound is None else bound[a:b])
         rows.append({"experiment": int(exp[a]), "payload": float(payload[a]), **m})
     per_experiment = pd.DataFrame(rows)
     summary = summarize(per_experiment, rated_payload)
+    summary["judged_to_the_dump"] = len(release)
     summary["discard"] = int(discard)
     summary["bound_window"] = window
     return Evaluation(label, per_experiment, summary, est, bound, dict(info or {}))
