@@ -176,3 +176,31 @@ def test_c_equals_python_outside_the_calibrated_range(name, machine_models, mach
     assert "EP_COVERAGE_LOW" in source.read_text()
     for single in (False, True):
         _assert_c_equals_python(est, source, machine_faulty, tmp_path / "build", single)
+
+
+def test_c_equals_python_where_a_new_load_is_detected(machine_models, tmp_path):
+    """--new-load detect (the momentum form's default) where it bites: two swings of 500 kg and
+    4500 kg streamed as one experiment, as a sensor on a running machine sees one load after
+    another. The weighing restarts on the new load (without the test it averages both), and the
+    C export restarts on the same sample."""
+    first = simulate_machine_dataset(1, seed=11, payload=500.0).frame
+    second = simulate_machine_dataset(1, seed=12, payload=4500.0).frame
+    second = second.assign(experiment=first["experiment"].iloc[0],
+                           time=second["time"] + first["time"].iloc[-1] + 0.01)
+    frame = __import__("pandas").concat([first, second], ignore_index=True).assign(payload=500.0)
+    stream = Dataset(frame, {"sensor_set": "machine", "machine": "cat345c-hydraulic"})
+    est = machine_models["calibrated-momentum"]
+    assert est._pressure.new_load
+    off = copy.deepcopy(est)
+    off.options["new_load"] = "off"
+    cm._install(off, off.calibration)
+    detect_py = est.estimate(stream)["payload_estimate"].to_numpy(float)
+    off_py = off.estimate(stream)["payload_estimate"].to_numpy(float)
+    assert abs(detect_py[-1] - 4500.0) < 0.5 * abs(off_py[-1] - 4500.0)
+    assert abs(detect_py[-1] - 4500.0) < 300.0
+    n = len(first)  # the first load is weighed alike until the second arrives
+    np.testing.assert_array_equal(detect_py[:n - 60], off_py[:n - 60])
+    source = export_c(est, tmp_path / "export")[1]
+    assert "#define EP_NEW_LOAD 1" in source.read_text() or "#define EP_NEW_LOAD 1" in (tmp_path / "export").joinpath(source.stem + ".h").read_text()
+    for single in (False, True):
+        _assert_c_equals_python(est, source, stream, tmp_path / "build", single)

@@ -266,9 +266,10 @@ def register(app: typer.Typer) -> None:
         if dumps:
             console.print(Text.assemble(
                 ("note: ", "bold"), f"{dumps} of {dataset.n_experiments} experiments are work cycles whose "
-                "load leaves the bucket at the dump: each is judged up to its dump. The sensors weigh "
-                "one load per experiment (or CAN log segment) and do not detect a new load: restart "
-                "them for each load (reset(), ep_reset)."))
+                "load leaves the bucket at the dump: each is judged up to its dump (the payload column "
+                "is the load carried). Only calibrated's momentum form detects a new load by itself "
+                "(--new-load); the other sensors weigh one load per experiment or CAN log segment: "
+                "restart them for each load (reset(), ep_reset)."))
         if json_out is not None:
             write_json(json_out, {"data": str(data), "discard": discard,
                                   "evaluations": [ev.to_dict() for ev in evaluations]})

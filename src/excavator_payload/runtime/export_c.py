@@ -1004,7 +1004,7 @@ def _pressure_regression_model(est) -> CModel:
     low-speed rule, recursive sums, status, sigma, gap rule) is written here, line by line
     after the Python.
     """
-    from excavator_payload.estimators.classical.calibrated_machine import CalibratedKernel
+    from excavator_payload.estimators.classical.calibrated_machine import NEW_LOAD_SIGMAS, CalibratedKernel
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL)
@@ -1107,6 +1107,13 @@ def _pressure_regression_model(est) -> CModel:
             "/* CalibratedKernel.ready (--wait-for-boom): no estimate until the boom joint has been",
             " * weighed once */",
             f"#define EP_WAIT_FOR_BOOM {1 if kernel.wait_for_boom else 0}",
+            "/* CalibratedKernel._accumulate (--new-load): a short memory's estimate leaving the",
+            " * whole one by more than EP_NEW_LOAD_MIN kg and EP_NEW_LOAD_SIGMAS of the difference's",
+            " * sigma is a new load: the weighing restarts */",
+            f"#define EP_NEW_LOAD {1 if kernel.new_load else 0}",
+            f"#define EP_SHORT_FORGETTING {c_number(kernel._short_forgetting)}",
+            f"#define EP_NEW_LOAD_MIN {c_number(kernel._new_load_min)}",
+            f"#define EP_NEW_LOAD_SIGMAS {c_number(NEW_LOAD_SIGMAS)}",
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -1194,6 +1201,25 @@ def _pressure_regression_model(est) -> CModel:
         description = (f"inverse-dynamics on the machine sensor set: weighing regression from cylinder "
                        f"pressures and IMUs (machine {est.machine.name}, noise {est.noise_name}), "
                        f"half window {h}")
+    new_load = ""
+    if calibrated:
+        new_load = """#if EP_NEW_LOAD
+if (1) {
+    ep_real change, spread, limit;
+    s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
+    s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
+    if ((!EP_WAIT_FOR_BOOM || s->boom_weighed) && s->info_short > EP_C(0.0) && s->info_short < s->info) {
+        change = s->num_short / s->info_short - s->num / s->info;
+        spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
+        limit = EP_NEW_LOAD_SIGMAS * EP_MATH(sqrt)(spread > EP_C(0.0) ? spread : EP_C(0.0));
+        if (limit < EP_NEW_LOAD_MIN) limit = EP_NEW_LOAD_MIN;
+        if (EP_MATH(fabs)(change) > limit) {  /* a new load: restart the weighing */
+            s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
+            s->boom_weighed = 0;
+        }
+    }
+}
+#endif"""
     call = casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code)
     if not momentum:
         regress = f"""    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
@@ -1205,6 +1231,7 @@ def _pressure_regression_model(est) -> CModel:
 {textwrap.indent(weights, "    ")}
         s->num = EP_FORGETTING * s->num + d_num;
         s->info = EP_FORGETTING * s->info + d_info;
+{textwrap.indent(new_load, "    ")}
     }}"""
     else:
         from excavator_payload.estimators.classical.calibrated_machine import (
@@ -1276,6 +1303,7 @@ def _pressure_regression_model(est) -> CModel:
 {textwrap.indent(weights_m, "        ")}
             s->num = EP_FORGETTING * s->num + d_num;
             s->info = EP_FORGETTING * s->info + d_info;
+{textwrap.indent(new_load, "        ")}
         }}
     }}"""
     not_ready = " || (EP_WAIT_FOR_BOOM && !s->boom_weighed)" if calibrated else ""
@@ -1334,7 +1362,9 @@ def _pressure_regression_model(est) -> CModel:
     reset = "    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;"
     if calibrated:
         fields.append("unsigned char boom_weighed;  /* a window with weight on the boom seen */")
-        reset += "\n    s->boom_weighed = 0;"
+        fields += ["ep_real num_short;   /* the new-load test's short memory: sum of w phi r */",
+                   "ep_real info_short;  /* ... and of w phi^2 */"]
+        reset += "\n    s->boom_weighed = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
                "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"]

@@ -46,7 +46,7 @@ from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
 from excavator_payload.estimators.classical.calibrated_machine import (
-    BALANCE_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
+    BALANCE_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -148,6 +148,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "wait_for_boom": Option(str, "auto", "machine sensor set: report no estimate until the "
                                 "boom has been weighed (0.5 s of boom motion); auto: yes in the "
                                 "momentum form, no in the per-sample form", WAIT_FOR_BOOM_CHOICES),
+        "new_load": Option(str, "auto", "machine sensor set: restart the weighing when the load "
+                           "changes (a dump, the next bucket load), detected as a short memory's "
+                           "estimate leaving the whole one by > 10 % of rated and 5 sigma; auto: "
+                           "detect in the momentum form, off in the per-sample form", NEW_LOAD_CHOICES),
         "balance": Option(str, "momentum", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",

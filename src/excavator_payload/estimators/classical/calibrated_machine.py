@@ -221,6 +221,17 @@ OUTSIDE_CALIBRATION_CHOICES = ("auto", "skip", "use")
 #: (a 0.5 s window of boom motion). ``auto``: ``yes`` in the momentum form, ``no`` in the
 #: per-sample form.
 WAIT_FOR_BOOM_CHOICES = ("auto", "yes", "no")
+#: Choices of ``--new-load``: restart the weighing when the load changes (a dump, a new bucket
+#: load on a machine that weighs one load after another). ``auto``: ``detect`` in the momentum
+#: form, ``off`` in the per-sample form.
+NEW_LOAD_CHOICES = ("auto", "detect", "off")
+#: The new-load test compares the estimate of a short memory (exponential, this time constant,
+#: s) with the whole weighing's ...
+NEW_LOAD_MEMORY = 1.0
+#: ... and takes a difference of more than this share of the rated payload, and more than
+#: :data:`NEW_LOAD_SIGMAS` standard deviations of the difference, for a new load.
+NEW_LOAD_MIN_SHARE = 0.1
+NEW_LOAD_SIGMAS = 5.0
 #: The covered range of each arm angle: these percentiles of the calibration samples (robust to
 #: a glitch), widened by :data:`COVERAGE_MARGIN` each side (rad).
 COVERAGE_PERCENTILES = (0.5, 99.5)
@@ -775,8 +786,10 @@ class MachineCalibration:
 
     # -- streaming kernel ------------------------------------------------------------------
     def kernel(self, half_window: int, forgetting: float, low_speed: str,
-               outside_calibration: str = "auto", wait_for_boom: str = "auto") -> "CalibratedKernel":
-        return CalibratedKernel(self, half_window, forgetting, low_speed, outside_calibration, wait_for_boom)
+               outside_calibration: str = "auto", wait_for_boom: str = "auto",
+               new_load: str = "auto") -> "CalibratedKernel":
+        return CalibratedKernel(self, half_window, forgetting, low_speed, outside_calibration, wait_for_boom,
+                                new_load)
 
 
 def calibration_arrays(dataset: Dataset, half_window: int, machine=None):
@@ -923,7 +936,7 @@ class CalibratedKernel(PressureRegression):
     """
 
     def __init__(self, cal: MachineCalibration, half_window: int, forgetting: float, low_speed: str,
-                 outside_calibration: str = "auto", wait_for_boom: str = "auto"):
+                 outside_calibration: str = "auto", wait_for_boom: str = "auto", new_load: str = "auto"):
         super().__init__(cal.arm, pressure_std=cal.pressure_std, ripple_fraction=0.0,
                          half_window=half_window, forgetting=forgetting)
         self.balance = cal.balance
@@ -948,8 +961,13 @@ class CalibratedKernel(PressureRegression):
         if wait_for_boom == "auto":
             wait_for_boom = "yes" if self.balance == "momentum" else "no"
         self.wait_for_boom = wait_for_boom == "yes"
+        if new_load == "auto":
+            new_load = "detect" if self.balance == "momentum" else "off"
+        self.new_load = new_load == "detect"
         width = 2 * self.half_window + 1
         dt = 1.0 / MACHINE_SENSORS.sample_rate
+        self._short_forgetting = math.exp(-dt / NEW_LOAD_MEMORY)
+        self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         k = np.arange(-self.half_window, self.half_window + 1) * dt
         self._slope = k / float(k @ k)
         self._lever_var = (self._head**2 + self._rod**2) * self.pressure_var
@@ -996,6 +1014,9 @@ class CalibratedKernel(PressureRegression):
         self._terms_inside = np.zeros((2 * b, 3), bool)  # each sample's joints inside the coverage
         self._terms_count = 0
         self.boom_weighed = False  # a window with weight on the boom joint seen (--wait-for-boom)
+        self.num_short = 0.0  # the short memory of the new-load test (--new-load)
+        self.info_short = 0.0
+        self.new_loads = 0  # new loads detected since the last reset
 
     @property
     def ready(self) -> bool:
@@ -1061,8 +1082,7 @@ class CalibratedKernel(PressureRegression):
             residual, phi, lever, speed, stiction = out[0:3], out[3:6], out[6:9], out[9:12], out[12:15]
             wt = np.where(self._used(speed) & self._inside(centre), 1.0 / self._variance(lever, speed, stiction), 0.0)
             self.boom_weighed = self.boom_weighed or bool(wt[0] > 0.0)
-            self.num = self.forgetting * self.num + float(wt @ (phi * residual))
-            self.info = self.forgetting * self.info + float(wt @ (phi * phi))
+            self._accumulate(float(wt @ (phi * residual)), float(wt @ (phi * phi)))
             return True
         # momentum: the terms of the differentiator window's centre (its q̈ serves the IMU
         # correction only) go into a second ring, the balance's window
@@ -1097,9 +1117,35 @@ class CalibratedKernel(PressureRegression):
         wt = np.where(self._used(slowest) & inside,
                       1.0 / (self._variance(lever, slowest, stiction) + rate_var), 0.0)
         self.boom_weighed = self.boom_weighed or bool(wt[0] > 0.0)
-        self.num = self.forgetting * self.num + float(wt @ (phi * residual))
-        self.info = self.forgetting * self.info + float(wt @ (phi * phi))
+        self._accumulate(float(wt @ (phi * residual)), float(wt @ (phi * phi)))
         return True
+
+    def _accumulate(self, d_num: float, d_info: float) -> None:
+        r"""Add a window's information, and restart the weighing when the load has changed.
+
+        The weighing sums :math:`N \leftarrow \lambda N + w\varphi r`,
+        :math:`I \leftarrow \lambda I + w\varphi^2` (estimate :math:`N/I`). With
+        ``--new-load detect`` a short memory (:math:`\lambda_s = e^{-\Delta t/T}`,
+        :data:`NEW_LOAD_MEMORY`) sums the same terms; its estimate is nested in the whole one, so
+        under one load their difference has variance :math:`1/I_s - 1/I`. A difference beyond
+        both :data:`NEW_LOAD_SIGMAS` of it and :data:`NEW_LOAD_MIN_SHARE` of the rated payload is
+        a new load (the bucket dumped, or filled again): both memories restart and the weighing
+        waits for the boom again. Without it a sensor that runs through one work cycle after
+        another averages every load it has seen (a dump left work cycles 100-1900 kg off).
+        """
+        self.num = self.forgetting * self.num + d_num
+        self.info = self.forgetting * self.info + d_info
+        if not self.new_load:
+            return
+        self.num_short = self._short_forgetting * self.num_short + d_num
+        self.info_short = self._short_forgetting * self.info_short + d_info
+        if self.ready and 0.0 < self.info_short < self.info:
+            change = self.num_short / self.info_short - self.num / self.info
+            spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)
+            if abs(change) > max(self._new_load_min, NEW_LOAD_SIGMAS * math.sqrt(spread)):
+                self.num = self.info = self.num_short = self.info_short = 0.0
+                self.boom_weighed = False
+                self.new_loads += 1
 
 
 # -- the estimator's machine-sensor-set side (CalibratedEstimator dispatches here) ------------
@@ -1196,7 +1242,7 @@ def _install(estimator, cal: MachineCalibration) -> None:
     estimator.calibration = cal
     estimator._pressure = cal.kernel(estimator.options["half_window"], estimator.options["forgetting"],
                                      estimator.options["low_speed"], estimator.options["outside_calibration"],
-                                     estimator.options["wait_for_boom"])
+                                     estimator.options["wait_for_boom"], estimator.options["new_load"])
     estimator._pressure.spike_threshold = spike_threshold(estimator.difference_scale)
     estimator._warm_info = 1.0 / float(estimator.options["warmup_std"]) ** 2
 
