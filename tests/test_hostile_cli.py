@@ -63,6 +63,9 @@ def build_inputs(folder: Path) -> Path:
     create_estimator("net1", hidden="3", epochs=2, train_experiments=4, validation_experiments=2,
                      progress=False).fit(data).save(folder / "net1")
     (folder / "machine.toml").write_text(load_machine("cat345c").to_toml())
+    # The machine sensor set (IMUs, slew rate, house tilt, pressures), on a slope.
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+    write_dataset(simulate_machine_dataset(2, seed=44, motion="slopes"), folder / "machine.parquet")
     assert main(["estimate", "--model", str(folder / "model"), "--data", str(folder / "data.parquet"),
                  "--out", str(folder / "estimates.parquet")]) == 0
     return folder
@@ -240,6 +243,46 @@ def dataset_cases() -> list[Case]:
             cases.append(Case(f"data-{bad}-{command}", "bad dataset", argv, expect,
                               message if expect == "error" else None,
                               setup, check, outputs[command] if expect == "error" else []))
+    return cases
+
+
+# -- machine-set datasets: unit mistakes that pass every magnitude check
+def _machine_edit(fn):
+    """A machine-set dataset maker: ``fn(frame) -> frame`` applied to the good machine dataset."""
+    def make(work, inputs):
+        return _write_frame(work / "bad.parquet", fn(_frame(inputs, "machine.parquet").copy()),
+                            _meta(inputs, "machine.parquet"))
+    return make
+
+
+def _to_degrees(*columns):
+    def fn(frame):
+        for c in columns:
+            frame[c] = np.degrees(frame[c])
+        return frame
+    return fn
+
+
+BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
+    # °/s pass the 50 rad/s limit and were weighed as rad/s: -3700 kg 'ok' for 1890 kg.
+    "rates-in-degrees": (_machine_edit(_to_degrees("boom_rate", "dipper_rate", "slew_rate")),
+                         "°/s instead of rad/s"),
+    "boom-rate-in-degrees": (_machine_edit(_to_degrees("boom_rate")), "'boom_rate'"),
+    "dipper-rate-in-degrees": (_machine_edit(_to_degrees("dipper_rate")), "'dipper_rate'"),
+}
+
+
+def machine_dataset_cases() -> list[Case]:
+    cases = []
+    commands = {
+        "estimate": ["estimate", "--model", "{in}/model", "--data", "{bad}", "--out", "{work}/e.parquet"],
+        "export-mat": ["export-mat", "--data", "{bad}", "--out", "{work}/d.mat"],
+    }
+    outputs = {"estimate": ["{work}/e.parquet"], "export-mat": ["{work}/d.mat"]}
+    for bad, (setup, message) in BAD_MACHINE_DATASETS.items():
+        for command, argv in commands.items():
+            cases.append(Case(f"machine-{bad}-{command}", "bad machine dataset", argv, "error", message,
+                              setup, None, outputs[command]))
     return cases
 
 
@@ -862,7 +905,7 @@ def good_cases() -> list[Case]:
     return c
 
 
-ALL_CASES: list[Case] = (dataset_cases() + model_cases() + machine_cases() + output_cases()
+ALL_CASES: list[Case] = (dataset_cases() + machine_dataset_cases() + model_cases() + machine_cases() + output_cases()
                          + markup_cases() + argument_cases() + estimates_cases() + can_cases() + good_cases())
 
 
