@@ -269,6 +269,8 @@ BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
                          "°/s instead of rad/s"),
     "boom-rate-in-degrees": (_machine_edit(_to_degrees("boom_rate")), "'boom_rate'"),
     "dipper-rate-in-degrees": (_machine_edit(_to_degrees("dipper_rate")), "'dipper_rate'"),
+    # A machine on a slope of several degrees: its tilt in degrees is no tilt in radians.
+    "house-tilt-in-degrees": (_machine_edit(_to_degrees("house_pitch", "house_roll")), "house_"),
 }
 
 

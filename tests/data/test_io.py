@@ -215,3 +215,19 @@ def test_rate_check_survives_nan_gaps_short_and_still_experiments(machine_frame)
     short["boom_rate"] = np.degrees(short["boom_rate"])
     with pytest.raises(DatasetError, match="boom_rate"):
         validate_frame(short, sensor_set="machine")
+
+
+@pytest.mark.parametrize("tilt_deg", [0.8, 5.0, 10.0])
+def test_house_tilt_in_degrees_is_refused(machine_frame, tilt_deg):
+    """A house tilt in degrees reads as that many radians: 5 (a 5° slope) was already refused
+    (> 1 rad), 0.8 (46° 'in rad') weighed ~200 kg off, 'ok'. No excavator works on more than 35°.
+    A tilt under 0.61° in degrees (< 35° read as rad) cannot be told from a slope."""
+    from excavator_payload.data.io import validate_frame
+
+    for column in ("house_pitch", "house_roll"):
+        frame = machine_frame.copy()
+        frame[column] = frame[column] + np.radians(tilt_deg)
+        validate_frame(frame, sensor_set="machine")  # in radians: a slope
+        frame[column] = np.degrees(frame[column])
+        with pytest.raises(DatasetError, match=rf"'{column}' reaches .* implausible in rad .*degrees"):
+            validate_frame(frame, sensor_set="machine")

@@ -38,6 +38,11 @@ from excavator_payload.model.machine import MAX_PAYLOAD
 #: A pressure column whose largest value stays below this (Pa, 1 bar) is not in Pa.
 MIN_PEAK_PRESSURE = 1.0e5
 
+#: Largest house pitch or roll of a working machine, rad: 35° (70 %, the gradeability of a tracked
+#: excavator, far beyond its working limits). Tighter than the sensor set's 1 rad (which also
+#: spans the DBC's range): a tilt in degrees reads as that many radians.
+HOUSE_TILT_LIMIT = math.radians(35.0)
+
 #: Each rate is checked against the change of the signal it is the rate of (the change over a
 #: window vs the rate's integral over it): (signal, its rate, unit of the rate, least change of
 #: the signal over a window for the window to be judged, in the signal's unit).
@@ -246,6 +251,15 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                 f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in "
                 f"{sensors.units[c]} (are the units degrees instead of SI?)"
             )
+    # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
+    for c in ("house_pitch", "house_roll"):
+        if c not in sensors.signals:
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() > HOUSE_TILT_LIMIT:
+            raise DatasetError(f"{source}: column '{c}' reaches {values.max():.4g}, implausible in rad "
+                               f"(more than 35° of tilt; are the units degrees instead of radians?)")
     # Pressures in bar, kPa, MPa or psi pass the magnitude check above and were weighed as Pa
     # without a word (-6200 kg 'ok' for a 1900 kg payload): the boom cylinder of a working arm
     # holds the arm's weight, tens of bar, and no cylinder line stays below 1 bar for a whole file.
