@@ -501,6 +501,14 @@ def output_cases() -> list[Case]:
              ["report", "--data", "{work}/r/figures/data.parquet", "--model", "{in}/model", "--out", "{work}/r"],
              message=same, setup=lambda work, inputs: _write(work / "r" / "figures" / "data.parquet",
                                                              (inputs / "data.parquet").read_bytes())))
+    # zero writes a new model folder: never inside the calibrated one, never over a file.
+    zero = ["zero", "--model", "{in}/model", "--data", "{in}/machine.parquet", "--out"]
+    add(Case("zero-out-inside-model", "output path", zero + ["{in}/model/zeroed"], message=same))
+    add(Case("zero-out-is-data", "output path", zero + ["{in}/machine.parquet"], message=same))
+    add(Case("zero-out-is-file", "output path", zero + ["{work}/file"], message="is a file",
+             setup=lambda work, inputs: _write(work / "file", "precious")))
+    add(Case("zero-out-under-a-file", "output path", zero + ["{work}/file/m"], message="not a folder",
+             setup=lambda work, inputs: _write(work / "file", "precious")))
     add(Case("estimate-out-is-folder", "output path",
              ["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet", "--out", "{work}"],
              message="folder"))
