@@ -967,6 +967,12 @@ def good_cases() -> list[Case]:
                                                 "--out", "{work}/e.parquet"], "ok", check=estimates_ok),
         Case("ok-estimate", "works", ["estimate", "--model", "{in}/ekf", "--data", "{in}/data.parquet",
                                       "--out", "{work}/e.parquet"], "ok", check=estimates_ok),
+        # One NaN every 3 samples: (almost) no estimate, and the notes say which column and how many.
+        Case("ok-estimate-sparse-nan-says-why", "works",
+             ["estimate", "--model", "{in}/ekf", "--data", "{bad}", "--out", "{work}/e.parquet"], "ok",
+             setup=_edit(_set("boom_torque", math.nan, slice(None, None, 3))),
+             check=lambda work, inputs, out, err: ("NaN or infinite values: boom_torque 202 (1 sample in 3)"
+                                                   in " ".join(out.split())) or pytest.fail(out)),
         Case("ok-export-field-log", "works", ["export-mat", "--data", "{in}/field.parquet", "--out", "{work}/d.mat"],
              "ok", check=mat_ok),
         Case("ok-machine-round-trip", "works", ["machines", "{bad}"], "ok", setup=_odd_machine,
