@@ -63,6 +63,16 @@ def build_inputs(folder: Path) -> Path:
     create_estimator("net1", hidden="3", epochs=2, train_experiments=4, validation_experiments=2,
                      progress=False).fit(data).save(folder / "net1")
     (folder / "machine.toml").write_text(load_machine("cat345c").to_toml())
+    # The machine sensor set (IMUs, slew rate, house tilt, pressures), on a slope.
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+    write_dataset(simulate_machine_dataset(2, seed=44, motion="slopes"), folder / "machine.parquet")
+    # A hand-made motion for simulate --trajectory: 2 experiments at 10 Hz.
+    t = np.arange(0, 4.0001, 0.1)
+    pq.write_table(pa.Table.from_pandas(pd.concat([pd.DataFrame(
+        {"experiment": k, "time": t, "boom_angle": 0.1 + 0.3 * np.sin(0.5 * t),
+         "dipper_angle": -1.2 + 0.2 * np.sin(0.7 * t), "bucket_angle": -1.0 + 0.3 * np.sin(0.9 * t),
+         "slew_angle": 0.4 * np.sin(0.4 * t), "payload": 1000.0 * k}) for k in (0, 1)]),
+        preserve_index=False), folder / "trajectory.parquet")
     assert main(["estimate", "--model", str(folder / "model"), "--data", str(folder / "data.parquet"),
                  "--out", str(folder / "estimates.parquet")]) == 0
     return folder
@@ -240,6 +250,118 @@ def dataset_cases() -> list[Case]:
             cases.append(Case(f"data-{bad}-{command}", "bad dataset", argv, expect,
                               message if expect == "error" else None,
                               setup, check, outputs[command] if expect == "error" else []))
+    return cases
+
+
+# -- machine-set datasets: unit mistakes that pass every magnitude check
+def _machine_edit(fn):
+    """A machine-set dataset maker: ``fn(frame) -> frame`` applied to the good machine dataset."""
+    def make(work, inputs):
+        return _write_frame(work / "bad.parquet", fn(_frame(inputs, "machine.parquet").copy()),
+                            _meta(inputs, "machine.parquet"))
+    return make
+
+
+def _to_degrees(*columns):
+    def fn(frame):
+        for c in columns:
+            frame[c] = np.degrees(frame[c])
+        return frame
+    return fn
+
+
+BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
+    # °/s pass the 50 rad/s limit and were weighed as rad/s: -3700 kg 'ok' for 1890 kg.
+    "rates-in-degrees": (_machine_edit(_to_degrees("boom_rate", "dipper_rate", "slew_rate")),
+                         "°/s instead of rad/s"),
+    "boom-rate-in-degrees": (_machine_edit(_to_degrees("boom_rate")), "'boom_rate'"),
+    "dipper-rate-in-degrees": (_machine_edit(_to_degrees("dipper_rate")), "'dipper_rate'"),
+    # A machine on a slope of several degrees: its tilt in degrees is no tilt in radians.
+    "house-tilt-in-degrees": (_machine_edit(_to_degrees("house_pitch", "house_roll")), "house_"),
+}
+
+
+def machine_dataset_cases() -> list[Case]:
+    cases = []
+    commands = {
+        "estimate": ["estimate", "--model", "{in}/model", "--data", "{bad}", "--out", "{work}/e.parquet"],
+        "export-mat": ["export-mat", "--data", "{bad}", "--out", "{work}/d.mat"],
+    }
+    outputs = {"estimate": ["{work}/e.parquet"], "export-mat": ["{work}/d.mat"]}
+    for bad, (setup, message) in BAD_MACHINE_DATASETS.items():
+        for command, argv in commands.items():
+            cases.append(Case(f"machine-{bad}-{command}", "bad machine dataset", argv, "error", message,
+                              setup, None, outputs[command]))
+    return cases
+
+
+# -- trajectory files (simulate --trajectory): motions from the outside world
+def _trajectory_edit(fn, name="bad.parquet"):
+    def make(work, inputs):
+        frame = fn(_frame(inputs, "trajectory.parquet").copy())
+        if name.endswith(".csv"):
+            return _write(work / name, frame.to_csv(index=False))
+        return _write_frame(work / name, frame)
+    return make
+
+
+def _column(column, fn):
+    def edit(frame):
+        frame[column] = fn(frame[column]) if callable(fn) else fn
+        return frame
+    return edit
+
+
+def _nan_at(column, row):
+    def edit(frame):
+        frame[column] = frame[column].astype(float)
+        frame.loc[frame.index[row], column] = math.nan
+        return frame
+    return edit
+
+
+BAD_TRAJECTORIES: dict[str, tuple[Callable, str | None]] = {
+    "csv": (_trajectory_edit(lambda f: f, "t.csv"), "must be a Parquet file"),
+    "empty-file": (_raw(b""), "it is empty"),
+    "folder": (lambda work, inputs: (work / "t.parquet").mkdir() or work / "t.parquet", "is a folder"),
+    "missing": (lambda work, inputs: work / "nope.parquet", "does not exist"),
+    "degrees": (_trajectory_edit(lambda f: f.assign(**{c: np.degrees(f[c]) for c in
+                                                    ("boom_angle", "dipper_angle", "bucket_angle")})), "radians"),
+    "slew-in-degrees": (_trajectory_edit(_column("slew_angle", np.degrees)), "times faster"),
+    "nan-row": (_trajectory_edit(_nan_at("boom_angle", 5)), "NaN"),
+    "unsorted-time": (_trajectory_edit(lambda f: f.sample(frac=1.0, random_state=0)), "increase"),
+    "duplicated-time": (_trajectory_edit(lambda f: pd.concat([f.iloc[:10], f.iloc[9:]])), "increase"),
+    "one-row": (_trajectory_edit(lambda f: f.iloc[:1]), "at least 4"),
+    "two-rows": (_trajectory_edit(lambda f: f.iloc[:2]), "at least 4"),
+    "no-rows": (_trajectory_edit(lambda f: f.iloc[:0]), "no rows"),
+    "huge-angle": (_trajectory_edit(_column("dipper_angle", 1e6)), "2π"),
+    "boom-out-of-range": (_trajectory_edit(_column("boom_angle", lambda a: a + 1.5)), "outside the machine's range"),
+    "dipper-out-of-range": (_trajectory_edit(_column("dipper_angle", lambda a: -a)), "outside the machine's range"),
+    "negative-payload": (_trajectory_edit(_column("payload", -100.0)), "negative"),
+    "nan-payload": (_trajectory_edit(_nan_at("payload", 3)), "payload"),
+    "huge-payload": (_trajectory_edit(_column("payload", 1e7)), "payload"),
+    "payload-changes": (_trajectory_edit(lambda f: f.assign(payload=np.arange(len(f)) * 10.0)), "constant"),
+    "no-slew-angle": (_trajectory_edit(lambda f: f.drop(columns=["slew_angle"])), "slew_angle"),
+    "text-column": (_trajectory_edit(_column("boom_angle", lambda a: a.astype(str))), "numeric"),
+    "fractional-experiment": (_trajectory_edit(_column("experiment", lambda e: e + 0.5)), "whole numbers"),
+    "time-in-ms": (_trajectory_edit(_column("time", lambda t: t * 1000.0)), "seconds"),
+    "hour-gap": (_trajectory_edit(lambda f: f.assign(time=f["time"] + 3600.0 * (f.index >= 20))), "outside"),
+    "ground-in-degrees": (_trajectory_edit(lambda f: f.assign(ground_pitch=5.0)), "ground_pitch"),
+}
+
+
+def trajectory_cases() -> list[Case]:
+    argv = ["simulate", "--machine", "cat345c-hydraulic", "--trajectory", "{bad}", "--out", "{work}/s.parquet",
+            "--workers", "1", "--quiet"]
+    cases = [Case(f"trajectory-{bad}", "trajectory file", argv, "error", message, setup, None,
+                  ["{work}/s.parquet"]) for bad, (setup, message) in BAD_TRAJECTORIES.items()]
+
+    def replayed(work, inputs, out, err):
+        frame = pq.read_table(work / "s.parquet").to_pandas()
+        assert sorted(frame["experiment"].unique()) == [0, 1] and len(frame) == 802
+
+    cases.append(Case("trajectory-ok", "trajectory file", [a.replace("{bad}", "{in}/trajectory.parquet")
+                                                           for a in argv], "ok", check=replayed))
     return cases
 
 
@@ -456,6 +578,14 @@ def output_cases() -> list[Case]:
              ["report", "--data", "{work}/r/figures/data.parquet", "--model", "{in}/model", "--out", "{work}/r"],
              message=same, setup=lambda work, inputs: _write(work / "r" / "figures" / "data.parquet",
                                                              (inputs / "data.parquet").read_bytes())))
+    # zero writes a new model folder: never inside the calibrated one, never over a file.
+    zero = ["zero", "--model", "{in}/model", "--data", "{in}/machine.parquet", "--out"]
+    add(Case("zero-out-inside-model", "output path", zero + ["{in}/model/zeroed"], message=same))
+    add(Case("zero-out-is-data", "output path", zero + ["{in}/machine.parquet"], message=same))
+    add(Case("zero-out-is-file", "output path", zero + ["{work}/file"], message="is a file",
+             setup=lambda work, inputs: _write(work / "file", "precious")))
+    add(Case("zero-out-under-a-file", "output path", zero + ["{work}/file/m"], message="not a folder",
+             setup=lambda work, inputs: _write(work / "file", "precious")))
     add(Case("estimate-out-is-folder", "output path",
              ["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet", "--out", "{work}"],
              message="folder"))
@@ -837,6 +967,12 @@ def good_cases() -> list[Case]:
                                                 "--out", "{work}/e.parquet"], "ok", check=estimates_ok),
         Case("ok-estimate", "works", ["estimate", "--model", "{in}/ekf", "--data", "{in}/data.parquet",
                                       "--out", "{work}/e.parquet"], "ok", check=estimates_ok),
+        # One NaN every 3 samples: (almost) no estimate, and the notes say which column and how many.
+        Case("ok-estimate-sparse-nan-says-why", "works",
+             ["estimate", "--model", "{in}/ekf", "--data", "{bad}", "--out", "{work}/e.parquet"], "ok",
+             setup=_edit(_set("boom_torque", math.nan, slice(None, None, 3))),
+             check=lambda work, inputs, out, err: ("NaN or infinite values: boom_torque 202 (1 sample in 3)"
+                                                   in " ".join(out.split())) or pytest.fail(out)),
         Case("ok-export-field-log", "works", ["export-mat", "--data", "{in}/field.parquet", "--out", "{work}/d.mat"],
              "ok", check=mat_ok),
         Case("ok-machine-round-trip", "works", ["machines", "{bad}"], "ok", setup=_odd_machine,
@@ -862,7 +998,7 @@ def good_cases() -> list[Case]:
     return c
 
 
-ALL_CASES: list[Case] = (dataset_cases() + model_cases() + machine_cases() + output_cases()
+ALL_CASES: list[Case] = (dataset_cases() + machine_dataset_cases() + trajectory_cases() + model_cases() + machine_cases() + output_cases()
                          + markup_cases() + argument_cases() + estimates_cases() + can_cases() + good_cases())
 
 

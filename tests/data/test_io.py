@@ -155,3 +155,79 @@ def test_machine_pressures_not_in_pascal_are_refused(unit, scale):
             frame[c] = frame[c] * scale
     with pytest.raises(DatasetError, match="instead of Pa"):
         validate_frame(frame, sensor_set="machine")
+
+
+@pytest.fixture(scope="module")
+def machine_frame():
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    return simulate_machine_dataset(3, seed=4).frame
+
+
+@pytest.mark.parametrize("rate", ["boom_rate", "dipper_rate", "bucket_rate"])
+def test_machine_rates_in_degrees_are_refused(machine_frame, rate):
+    """Rates in °/s passed every check (< 50 rad/s) and were weighed as rad/s: -3700 kg 'ok' for a
+    1890 kg payload. The rate's integral over moving windows is 57.3× its angle's change."""
+    from excavator_payload.data.io import validate_frame
+
+    validate_frame(machine_frame, sensor_set="machine")  # rad/s: fine
+    frame = machine_frame.copy()
+    frame[rate] = np.degrees(frame[rate])
+    # (a fast bucket in °/s may already pass 50 "rad/s" and be refused for its magnitude)
+    with pytest.raises(DatasetError, match=rf"'{rate}' (is 5\d\.\d times .*°/s instead of rad/s|reaches)"):
+        validate_frame(frame, sensor_set="machine")
+
+
+@pytest.mark.parametrize("rate", ["boom_rate", "dipper_rate", "boom_accel", "dipper_accel"])
+def test_thesis_rates_in_degrees_are_refused(small, rate):
+    from excavator_payload.data.io import validate_frame
+
+    frame = small.frame.copy()
+    validate_frame(frame, sensor_set="thesis")
+    frame[rate] = np.degrees(frame[rate])
+    with pytest.raises(DatasetError, match=rf"'{rate}' is 5\d\.?\d* times .*instead of rad/s"):
+        validate_frame(frame, sensor_set="thesis")
+
+
+def test_rate_check_survives_nan_gaps_short_and_still_experiments(machine_frame):
+    """NaN gaps, a time gap, a 0.3 s experiment and a still one: judged where it can be, never a crash."""
+    from excavator_payload.data.io import validate_frame
+
+    frame = machine_frame.copy()
+    frame.loc[frame.index[::7], "boom_rate"] = np.nan  # sparse NaNs
+    frame.loc[frame.index[100:160], "dipper_angle"] = np.nan  # a hole
+    validate_frame(frame, sensor_set="machine")
+    frame["bucket_rate"] = np.degrees(frame["bucket_rate"])
+    with pytest.raises(DatasetError, match="bucket_rate"):
+        validate_frame(frame, sensor_set="machine")
+    # A still experiment cannot be judged: degrees or not, it is accepted.
+    still = machine_frame[machine_frame["experiment"] == machine_frame["experiment"].iloc[0]].copy()
+    for angle, rate in (("boom_angle", "boom_rate"), ("dipper_angle", "dipper_rate"),
+                        ("bucket_angle", "bucket_rate")):
+        still[angle] = still[angle].iloc[0]
+        still[rate] = np.degrees(np.random.default_rng(0).normal(0.0, 0.002, len(still)))
+    validate_frame(still, sensor_set="machine")
+    # Short experiments (0.3 s each: one window) are judged together.
+    short = machine_frame.copy()
+    short["experiment"] = short["experiment"] * 1000 + short.groupby("experiment").cumcount() // 30
+    short["time"] = short.groupby("experiment").cumcount() * 0.01
+    validate_frame(short, sensor_set="machine")
+    short["boom_rate"] = np.degrees(short["boom_rate"])
+    with pytest.raises(DatasetError, match="boom_rate"):
+        validate_frame(short, sensor_set="machine")
+
+
+@pytest.mark.parametrize("tilt_deg", [0.8, 5.0, 10.0])
+def test_house_tilt_in_degrees_is_refused(machine_frame, tilt_deg):
+    """A house tilt in degrees reads as that many radians: 5 (a 5° slope) was already refused
+    (> 1 rad), 0.8 (46° 'in rad') weighed ~200 kg off, 'ok'. No excavator works on more than 35°.
+    A tilt under 0.61° in degrees (< 35° read as rad) cannot be told from a slope."""
+    from excavator_payload.data.io import validate_frame
+
+    for column in ("house_pitch", "house_roll"):
+        frame = machine_frame.copy()
+        frame[column] = frame[column] + np.radians(tilt_deg)
+        validate_frame(frame, sensor_set="machine")  # in radians: a slope
+        frame[column] = np.degrees(frame[column])
+        with pytest.raises(DatasetError, match=rf"'{column}' reaches .* implausible in rad .*degrees"):
+            validate_frame(frame, sensor_set="machine")

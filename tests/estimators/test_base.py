@@ -191,3 +191,31 @@ def test_simulated_machine_data_stay_inside_the_plausibility_limits(motion, n):
     low, high = plausibility_limits(MACHINE_SENSORS, load_machine("cat345c-hydraulic"))
     values = data.signals()
     assert np.all((values >= low) & (values <= high))
+
+
+def test_estimate_notes_name_the_non_finite_columns(mj_dataset):
+    """One NaN every few samples leaves (almost) no estimate: every estimator's notes say which
+    column holds how many NaN (the statuses alone left the user guessing)."""
+    from excavator_payload.data.dataset import Dataset
+    from excavator_payload.estimators.base import create_estimator
+
+    data = mj_dataset.subset(mj_dataset.experiment_ids[:2])
+    est = create_estimator("ekf", "cat345c").fit(data)
+    assert est.all_estimate_notes(data, est.estimate(data)) == est.estimate_notes(data, est.estimate(data))
+    frame = data.frame.copy()
+    frame.loc[frame.index[::3], "boom_torque"] = np.nan
+    frame.loc[frame.index[7], "dipper_rate"] = np.inf
+    holed = Dataset(frame, data.meta)
+    estimates = est.estimate(holed)
+    unusable = estimates["status"].isin(["warming_up", "invalid_input", "gap", "no_data"]).mean()
+    assert unusable > 0.2
+    notes = est.all_estimate_notes(holed, estimates)
+    assert len(notes) == 1 + len(est.estimate_notes(holed, estimates))
+    assert "boom_torque 68 (1 sample in 3) of 202 samples" in notes[0]
+    assert "dipper_rate 1 (1 sample in 202)" in notes[0]
+    assert "dipper_accel" not in notes[0]
+    # A few NaN that cost little: no note.
+    frame = data.frame.copy()
+    frame.loc[frame.index[50], "boom_torque"] = np.nan
+    few = Dataset(frame, data.meta)
+    assert est.non_finite_notes(few, est.estimate(few)) == []

@@ -16,6 +16,13 @@ def test_train_zero_evaluate_from_the_cli(tmp_path, capsys):
                  "--out", str(model)]) == 0
     assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(model)]) == 2
     assert "--out must differ" in capsys.readouterr().err
+    # Inside the calibrated model's folder (was accepted), or an existing file (was "Not a directory").
+    assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(model / "zeroed")]) == 2
+    assert "refusing to overwrite" in capsys.readouterr().err and not (model / "zeroed").exists()
+    (tmp_path / "file").write_text("precious")
+    assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(tmp_path / "file")]) == 2
+    assert "is a file; give a folder" in capsys.readouterr().err
+    assert (tmp_path / "file").read_text() == "precious"
     assert main(["zero", "--model", str(model), "--data", str(cal), "--out", str(zeroed)]) == 2
     assert "empty bucket" in capsys.readouterr().err
     assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(zeroed)]) == 0

@@ -298,3 +298,58 @@ def test_work_cycles_are_learnt_and_judged_up_to_their_dump(cycles, monkeypatch)
     monkeypatch.setattr(type(est), "_fit", lambda self, ds: (seen.append(len(ds.frame)), original(self, ds))[1])
     est.fit(cycles)
     assert seen == [len(cut.frame)]
+
+
+def _hand_made(**changes):
+    t = np.arange(0, 6.0001, 0.1)
+    frame = pd.DataFrame({"experiment": 0, "time": t, "boom_angle": 0.1 + 0.3 * np.sin(0.5 * t),
+                          "dipper_angle": -1.2 + 0.2 * np.sin(0.7 * t),
+                          "bucket_angle": -1.0 + 0.3 * np.sin(0.9 * t),
+                          "slew_angle": 0.4 * np.sin(0.4 * t), "payload": 2000.0})
+    for column, fn in changes.items():
+        frame[column] = fn(frame[column]) if callable(fn) else fn
+    return frame
+
+
+@pytest.mark.parametrize("frame,message", [
+    (_hand_made().iloc[:0], "no rows"),
+    (_hand_made(experiment=0.5), "whole numbers"),
+    (_hand_made(time=lambda t: t * 1000.0), "is 'time' in seconds"),
+    (_hand_made(payload=1e7), "more than any excavator lifts"),
+    (_hand_made(ground_pitch=5.0), "'ground_pitch' reaches 5, more than 35°"),
+], ids=["no-rows", "fractional-experiment", "time-in-ms", "huge-payload", "ground-in-degrees"])
+def test_trajectory_table_refusals(frame, message):
+    """Each was a crash (no rows), silently renumbered (0.5 -> 0), simulated for hours (ms), or
+    refused later with a message about the written dataset."""
+    with pytest.raises(DatasetError, match=message):
+        trajectory_from_frame(frame, "t.parquet")
+
+
+@pytest.mark.parametrize("frame,message", [
+    (_hand_made(boom_angle=lambda a: a + 1.5), r"'boom_angle' reaches .* outside the machine's range"),
+    (_hand_made(dipper_angle=lambda a: -a), r"'dipper_angle' reaches .* outside the machine's range"),
+    (pd.concat([_hand_made().iloc[:30], _hand_made(time=lambda t: t + 3600.0).iloc[30:]]),
+     r"'boom_angle' reaches .* outside"),  # an hour's gap: the spline swings wildly
+    (_hand_made(slew_angle=np.degrees), "times faster than the machine's pumps or slew drive"),
+], ids=["boom-out-of-range", "dipper-out-of-range", "time-gap", "slew-in-degrees"])
+def test_trajectory_motion_the_machine_cannot_make_is_refused(frame, message):
+    """Outside the joint ranges the replay gave 6e9 Pa and a message about pressure units; a slew
+    angle in degrees was simulated at 39 times the slew drive's speed."""
+    from excavator_payload.simulation.trajectory import check_trajectory_motion
+
+    machine = load_machine(MACHINE)
+    check_trajectory_motion(trajectory_from_frame(_hand_made()), machine)  # the good one: fine
+    with pytest.raises(DatasetError, match=message):
+        check_trajectory_motion(trajectory_from_frame(frame, "t.parquet"), machine)
+
+
+def test_trajectory_file_that_is_csv_empty_or_a_folder(tmp_path):
+    from excavator_payload.simulation.trajectory import read_trajectory
+
+    _hand_made().to_csv(tmp_path / "t.csv", index=False)
+    (tmp_path / "empty.parquet").write_bytes(b"")
+    (tmp_path / "dir.parquet").mkdir()
+    for name, message in (("t.csv", "must be a Parquet file"), ("empty.parquet", "it is empty"),
+                          ("dir.parquet", "is a folder")):
+        with pytest.raises(DatasetError, match=message):
+            read_trajectory(tmp_path / name)

@@ -10,6 +10,7 @@ Writes are atomic: a temporary file in the same folder is renamed over the targe
 from __future__ import annotations
 
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -36,6 +37,28 @@ from excavator_payload.model.machine import MAX_PAYLOAD
 
 #: A pressure column whose largest value stays below this (Pa, 1 bar) is not in Pa.
 MIN_PEAK_PRESSURE = 1.0e5
+
+#: Largest house pitch or roll of a working machine, rad: 35° (70 %, the gradeability of a tracked
+#: excavator, far beyond its working limits). Tighter than the sensor set's 1 rad (which also
+#: spans the DBC's range): a tilt in degrees reads as that many radians.
+HOUSE_TILT_LIMIT = math.radians(35.0)
+
+#: Each rate is checked against the change of the signal it is the rate of (the change over a
+#: window vs the rate's integral over it): (signal, its rate, unit of the rate, least change of
+#: the signal over a window for the window to be judged, in the signal's unit).
+RATE_PAIRS: dict[str, tuple[tuple[str, str, str, float], ...]] = {
+    "machine": (("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
+                ("bucket_angle", "bucket_rate", "rad/s", 0.02)),
+    "thesis": (("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
+               ("boom_rate", "boom_accel", "rad/s^2", 0.05), ("dipper_rate", "dipper_accel", "rad/s^2", 0.05)),
+}
+#: Length of the windows the rate check compares over, s.
+RATE_WINDOW = 0.5
+#: Moving windows an experiment needs to be judged by the rate check.
+RATE_MIN_WINDOWS = 2
+#: A rate whose integral is more than this times its signal's change (median over the moving
+#: windows) is in degrees: 180/π = 57.3 ≫ √57.3 ≈ 7.6 ≫ 1 (the geometric middle).
+RATE_RATIO_LIMIT = math.sqrt(180.0 / math.pi)
 
 
 def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), kind: str = "file",
@@ -228,6 +251,15 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                 f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in "
                 f"{sensors.units[c]} (are the units degrees instead of SI?)"
             )
+    # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
+    for c in ("house_pitch", "house_roll"):
+        if c not in sensors.signals:
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() > HOUSE_TILT_LIMIT:
+            raise DatasetError(f"{source}: column '{c}' reaches {values.max():.4g}, implausible in rad "
+                               f"(more than 35° of tilt; are the units degrees instead of radians?)")
     # Pressures in bar, kPa, MPa or psi pass the magnitude check above and were weighed as Pa
     # without a word (-6200 kg 'ok' for a 1900 kg payload): the boom cylinder of a working arm
     # holds the arm's weight, tens of bar, and no cylinder line stays below 1 bar for a whole file.
@@ -260,6 +292,63 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                                f"({sensors.sample_period:g} s); is 'time' in seconds?")
     if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
+    _check_rates(frame, sensors, source)
+
+
+def _rate_ratios(frame: pd.DataFrame, signal: str, rate: str, period: float,
+                 min_change: float) -> tuple[pd.Series, float]:
+    """How many times its signal's change each rate's integral is, per experiment.
+
+    Each experiment is cut into windows of :data:`RATE_WINDOW`; over a window where the signal
+    changes by more than ``min_change`` (a moving one) and which has no NaN and no time gap,
+    the ratio is (integral of the rate, trapezoidal) / (last - first value of the signal): 1 if
+    both are in the same unit, whatever the noise, offsets or an IMU lag (both lag alike).
+    Returns the median ratio of every experiment with :data:`RATE_MIN_WINDOWS` moving windows
+    or more, and the median of all moving windows of the file (NaN if fewer): a still
+    experiment cannot be judged and is not.
+    """
+    width = max(2, int(round(RATE_WINDOW / period)))
+    codes = pd.factorize(frame["experiment"].to_numpy())[0]
+    t = frame["time"].to_numpy(dtype=float)
+    x = frame[signal].to_numpy(dtype=float)
+    r = frame[rate].to_numpy(dtype=float)
+    window = pd.Series(codes).groupby(codes).cumcount().to_numpy() // width
+    first = np.ones(len(t), dtype=bool)
+    first[1:] = (codes[1:] != codes[:-1]) | (window[1:] != window[:-1])
+    step = np.zeros(len(t))
+    step[1:] = np.diff(t)
+    increment = np.zeros(len(t))
+    increment[1:] = 0.5 * (r[1:] + r[:-1]) * step[1:]
+    increment[first] = 0.0
+    bad = ~np.isfinite(x) | ~np.isfinite(r) | (~first & ((step > 2.5 * period) | ~np.isfinite(increment)))
+    windows = pd.DataFrame({"e": codes, "w": window, "i": np.where(bad, 0.0, increment), "x": x,
+                            "bad": bad}).groupby(["e", "w"], sort=False).agg(
+        integral=("i", "sum"), x0=("x", "first"), x1=("x", "last"), bad=("bad", "any"), n=("x", "size"))
+    change = windows["x1"] - windows["x0"]
+    moving = ~windows["bad"] & (windows["n"] >= 2) & (change.abs() > min_change)
+    ratio = (windows["integral"] / change)[moving]
+    by_experiment = ratio.groupby(level="e")
+    judged = by_experiment.median()[by_experiment.size() >= RATE_MIN_WINDOWS]
+    judged.index = pd.unique(frame["experiment"].to_numpy())[judged.index.to_numpy()]
+    pooled = float(ratio.median()) if ratio.size >= RATE_MIN_WINDOWS else math.nan
+    return judged, pooled
+
+
+def _check_rates(frame: pd.DataFrame, sensors: SensorSet, source: str) -> None:
+    """Refuse a rate in degrees (°/s, °/s²) whose signal is in radians.
+
+    Rates in °/s pass every magnitude check (an arm turns at < 3 rad/s, 170 °/s) and were
+    weighed as rad/s without a word (-3700 kg 'ok' for a 1890 kg payload).
+    """
+    for signal, rate, unit, min_change in RATE_PAIRS.get(sensors.name, ()):
+        judged, pooled = _rate_ratios(frame, signal, rate, sensors.sample_period, min_change)
+        worst = judged[judged.abs() > RATE_RATIO_LIMIT]
+        where = f" (experiment {worst.index[0]})" if len(worst) else ""
+        ratio = float(worst.iloc[0]) if len(worst) else pooled
+        if np.isfinite(ratio) and abs(ratio) > RATE_RATIO_LIMIT:
+            degrees = unit.replace("rad", "°")
+            raise DatasetError(f"{source}: column '{rate}' is {ratio:.3g} times the rate of change of "
+                               f"'{signal}'{where}; is it in {degrees} instead of {unit}?")
 
 
 def read_estimates(path: str | Path) -> pd.DataFrame:

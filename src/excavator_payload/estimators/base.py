@@ -256,6 +256,11 @@ class Option:
         return value
 
 
+#: Statuses that give no trusted estimate; when more than :data:`UNUSABLE_SHARE` of a dataset's
+#: estimates have them and the inputs hold NaN or infinite values, ``estimate`` says so.
+UNUSABLE_STATUSES = ("warming_up", "invalid_input", "gap", "no_data")
+UNUSABLE_SHARE = 0.2
+
 class Estimator(ABC):
     """Base class of all payload estimators. Subclasses implement the ``_``-methods.
 
@@ -577,8 +582,40 @@ class Estimator(ABC):
     def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         """What a user should know about estimating on ``dataset`` beyond the per-sample status
         (printed by ``estimate``); ``estimates``: what :meth:`estimate` returned on it, if at
-        hand. None by default."""
+        hand. None by default (an estimator adds its own; :meth:`all_estimate_notes` adds the
+        notes every estimator shares)."""
         return []
+
+    def all_estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
+        """The notes ``estimate`` prints: :meth:`non_finite_notes`, then :meth:`estimate_notes`."""
+        return [*self.non_finite_notes(dataset, estimates), *self.estimate_notes(dataset, estimates)]
+
+    def non_finite_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
+        """A note when more than :data:`UNUSABLE_SHARE` of the estimates are ``warming_up``,
+        ``invalid_input``, ``gap`` or ``no_data`` and the estimator's input columns hold NaN or
+        infinite values: which columns, how many. A sparse NaN (one every 50 samples) makes an
+        estimator restart its warm-up at every one and leaves a whole dataset without an
+        estimate; the per-sample statuses alone do not say why."""
+        if estimates is None or "status" not in estimates.columns or len(estimates) == 0:
+            return []
+        unusable = int(estimates["status"].isin(UNUSABLE_STATUSES).sum())
+        if unusable <= UNUSABLE_SHARE * len(estimates):
+            return []
+        columns = [c for c in self.sensor_set.signals if c in dataset.frame.columns]
+        values = dataset.frame[columns].to_numpy(dtype=float)
+        counts = (~np.isfinite(values)).sum(axis=0)
+        bad = [(c, int(n)) for c, n in zip(columns, counts) if n]
+        if not bad:
+            return []
+        total = len(dataset.frame)
+        listed = ", ".join(f"{c} {n} (1 sample in {total / n:.0f})" if n * 2 < total else f"{c} {n}"
+                           for c, n in bad)
+        seen = [s for s in UNUSABLE_STATUSES if (estimates["status"] == s).any()]
+        named = " or ".join(seen) if len(seen) < 3 else ", ".join(seen[:-1]) + " or " + seen[-1]
+        return [f"{unusable} of {len(estimates)} estimates ({100 * unusable / len(estimates):.0f} %) are "
+                f"{named}, and the data have NaN or infinite values: {listed} of "
+                f"{total} samples; each one makes the estimator skip the sample and wait again: fill or "
+                "interpolate them (or drop the column's bad rows) to get estimates"]
 
     def estimate(self, dataset: Dataset) -> pd.DataFrame:
         """Batch estimates: reset at each experiment and step through its samples.

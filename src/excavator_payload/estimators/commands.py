@@ -130,7 +130,7 @@ def register(app: typer.Typer) -> None:
         if seen:
             console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
                           markup=False, highlight=False)
-        for note in est.estimate_notes(dataset, frame):
+        for note in est.all_estimate_notes(dataset, frame):
             console.print(Text.assemble(("note: ", "bold"), note))
 
     @app.command()

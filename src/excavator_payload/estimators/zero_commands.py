@@ -31,11 +31,7 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path):
     from excavator_payload.estimators.classical import calibrated_machine
 
     model, out = Path(model), Path(out)
-    if out.resolve() == model.resolve():
-        raise EstimatorError("--out must differ from --model: the zero check writes a new model folder "
-                             "and keeps the calibrated one")
-    if out.exists() and any(out.iterdir()):
-        raise EstimatorError(f"--out '{out}' exists and is not empty; choose a new folder")
+    check_zero_output(model, data, out)
     estimator = load_estimator(model)
     dataset = read_dataset(data)
     if "payload" not in dataset.frame.columns:
@@ -43,6 +39,18 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path):
     estimator.zero_warnings = calibrated_machine.zero(estimator, dataset)
     estimator.save(out)
     return estimator
+
+
+def check_zero_output(model: Path, data: str | Path, out: Path) -> None:
+    """Refuse an ``--out`` that is ``--model``, inside it, the data, a file or a full folder."""
+    from excavator_payload.data.io import check_output_path
+
+    if out.resolve() == Path(model).resolve():
+        raise EstimatorError("--out must differ from --model: the zero check writes a new model folder "
+                             "and keeps the calibrated one")
+    check_output_path(out, inputs=[model, data], kind="folder")
+    if out.exists() and any(out.iterdir()):
+        raise EstimatorError(f"--out '{out}' exists and is not empty; choose a new folder")
 
 
 def register(app: typer.Typer) -> None:
@@ -59,6 +67,7 @@ def register(app: typer.Typer) -> None:
         """Check zero: re-estimate the sensor offsets from an empty-bucket motion, keep the rest."""
         from excavator_payload.estimators.classical.calibrated_machine import OFFSET_SIGNALS
 
+        check_zero_output(model, data, out)  # before anything is loaded
         before = load_offsets(model)
         estimator = zero_model(model, data, out)
         after = estimator.calibration.offsets

@@ -282,7 +282,7 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     options = dict(options or {})
     if is_hydraulic(machine):
         from excavator_payload.simulation.machine_sensors import get_machine_noise
-        from excavator_payload.simulation.trajectory import read_trajectory
+        from excavator_payload.simulation.trajectory import check_trajectory_motion, read_trajectory
 
         if motion is None:
             motion = "trajectory" if trajectory is not None else "swing"
@@ -307,6 +307,7 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
         if trajectory is not None:
             if not hasattr(trajectory, "experiments"):
                 trajectory = read_trajectory(trajectory)
+            check_trajectory_motion(trajectory, machine)
             available = len(trajectory.experiments) - int(first_experiment)
             if available < 1:
                 raise ExcavatorPayloadError(f"the trajectory file holds {len(trajectory.experiments)} experiment(s)")
