@@ -109,3 +109,33 @@ def test_report_opens_in_chromium_with_all_images(report, tmp_path):
     n, failed = chromium_image_check(broken, tmp_path)
     broken.unlink()
     assert n == 11 and failed == 1
+
+
+def test_report_on_machine_work_cycles(tmp_path):
+    """`report` on the machine sensor set (pressures and IMUs, no joint torques): its own signal
+    figure per chosen experiment (it crashed on the thesis set's joint figure before), and the
+    payload figure draws the load leaving the bucket at the dump, up to which it is judged."""
+    from excavator_payload.cli import main
+    from excavator_payload.data.io import write_dataset
+    from excavator_payload.estimators import create_estimator
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    cycles = simulate_machine_dataset(2, seed=5, session=2, motion="work-cycle")
+    est = create_estimator("inverse-dynamics", machine="cat345c-hydraulic").fit(cycles)
+    est.save(tmp_path / "m")
+    write_dataset(cycles, tmp_path / "c.parquet")
+    assert main(["report", "--data", str(tmp_path / "c.parquet"), "--model", str(tmp_path / "m"),
+                 "--out", str(tmp_path / "r")]) == 0
+    figures_dir = tmp_path / "r" / "figures"
+    signals = sorted(figures_dir.glob("fig_exp*_signals.png"))
+    assert signals and not list(figures_dir.glob("fig_exp*_joints.png"))
+    assert all(p.read_bytes()[:8] == PNG_MAGIC for p in signals)
+    assert (tmp_path / "r" / "report.html").is_file()
+    from excavator_payload.evaluation import figures
+
+    ev = evaluate_estimates(cycles, est.estimate(cycles), label="id", with_bound=False)
+    fig = figures.payload_estimates(cycles, [ev], int(cycles.experiment_ids[0]))
+    labels = [line.get_label() for line in fig.axes[0].get_lines()]
+    assert "payload in the bucket" in labels and "dump: judged up to here" in labels
+    truth = fig.axes[0].get_lines()[0].get_ydata()
+    assert truth[0] == cycles.frame["payload"].iloc[0] and truth[-1] == 0.0

@@ -80,6 +80,52 @@ def joint_measurements(dataset: Dataset, experiment: int) -> Figure:
     return fig
 
 
+def machine_measurements(dataset: Dataset, experiment: int) -> Figure:
+    """One experiment of the machine sensor set: arm angles, slew, cylinder pressures and house
+    inclination (degrees and bar at this edge; the data stay SI). ``plot`` and the report draw it."""
+    rows = _rows(dataset, experiment)
+    t = rows["time"].to_numpy(float)
+    fig, axes = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
+    ax = axes[0]
+    for name, colour in (("boom", "C0"), ("dipper", "C1"), ("bucket", "C2")):
+        ax.plot(t, rows[f"{name}_angle"] * RAD2DEG, colour, label=f"{name} angle")
+    ax.set_ylabel("angle (°)")
+    ax.legend(loc="best", fontsize=8)
+    ax = axes[1]
+    if "true_slew_angle" in rows:
+        slew = rows["true_slew_angle"].to_numpy(float)
+        label = "slew angle (true)"
+    else:  # a field log: integrate the measured slew rate
+        rate = rows["slew_rate"].to_numpy(float)
+        slew = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))])
+        label = "slew angle (∫ slew rate)"
+    ax.plot(t, slew * RAD2DEG, "C3", label=label)
+    ax.set_ylabel("slew (°)")
+    ax2 = ax.twinx()
+    ax2.plot(t, rows["slew_rate"] * RAD2DEG, "C3", alpha=0.35, lw=0.8)
+    ax2.set_ylabel("slew rate (°/s)", color="C3")
+    ax.legend(loc="best", fontsize=8)
+    ax = axes[2]
+    for name, colour in (("boom", "C0"), ("dipper", "C1"), ("bucket", "C2")):
+        ax.plot(t, rows[f"{name}_head_pressure"] / 1e5, colour, lw=0.8, label=f"{name} head")
+        ax.plot(t, rows[f"{name}_rod_pressure"] / 1e5, colour, lw=0.8, ls="--", label=f"{name} rod")
+    relief = (dataset.meta.get("machine") or {}).get("hydraulics", {}).get("relief_pressure")
+    if relief:
+        ax.axhline(relief / 1e5, color="k", lw=0.6, ls=":", label="relief")
+    ax.set_ylabel("pressure (bar)")
+    ax.legend(loc="best", fontsize=7, ncol=4)
+    ax = axes[3]
+    ax.plot(t, rows["house_pitch"] * RAD2DEG, "C4", label="house pitch")
+    ax.plot(t, rows["house_roll"] * RAD2DEG, "C5", label="house roll")
+    ax.set_ylabel("inclination (°)")
+    ax.set_xlabel("time (s)")
+    ax.legend(loc="best", fontsize=8)
+    machine = (dataset.meta.get("machine") or {}).get("name", "?")
+    payload = f", payload {rows['payload'].iloc[0]:.0f} kg" if "payload" in rows else ""
+    fig.suptitle(f"{machine}: experiment {experiment} ({dataset.meta.get('motion', '?')}{payload})")
+    return fig
+
+
 def payload_estimates(dataset: Dataset, evaluations: Sequence[Evaluation], experiment: int,
                       zoom: bool = False) -> Figure:
     """Thesis Figures 7.2, 7.4, …: every estimator's estimate against the true payload.
@@ -92,7 +138,14 @@ def payload_estimates(dataset: Dataset, evaluations: Sequence[Evaluation], exper
     t = rows["time"].to_numpy()
     truth = float(rows["payload"].iloc[0])
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    ax.plot(t, np.full_like(t, truth), "k-", lw=2.2, label="payload")
+    release = dataset.experiment_meta.get(int(experiment), {}).get("release")
+    if release:  # a work cycle: the load leaves the bucket at the dump (judged up to it)
+        a, b = float(release[0]), float(release[1])
+        ax.plot(t, truth * np.clip((b - t) / max(b - a, 1e-9), 0.0, 1.0), "k-", lw=2.2,
+                label="payload in the bucket")
+        ax.axvline(a, color="grey", ls="--", lw=1, label="dump: judged up to here")
+    else:
+        ax.plot(t, np.full_like(t, truth), "k-", lw=2.2, label="payload")
     for i, ev in enumerate(evaluations):
         ax.plot(t, ev.estimates[mask], lw=1.1, label=f"{ev.label} estimate",
                 marker=MARKERS[i % len(MARKERS)], ms=2.5, markevery=10)

@@ -237,8 +237,12 @@ def build_report(out_dir: str | Path, dataset: Dataset, evaluations: Sequence[Ev
                                  "nets, the delay window for time-delay nets).",
                                  images=[(crb_img, "error against Cramér–Rao bound")]))
     for k, exp in enumerate(experiments, start=1):
-        imgs = [(fig(figures.joint_measurements(dataset, exp), f"fig_exp{exp}_joints.png"),
-                 f"measurements at the joints (like thesis Figure 7.{2 * k - 1})")]
+        if dataset.sensor_set.name == "machine":  # pressures and IMUs, not joint torques
+            imgs = [(fig(figures.machine_measurements(dataset, exp), f"fig_exp{exp}_signals.png"),
+                     "angles, slew, cylinder pressures and house inclination")]
+        else:
+            imgs = [(fig(figures.joint_measurements(dataset, exp), f"fig_exp{exp}_joints.png"),
+                     f"measurements at the joints (like thesis Figure 7.{2 * k - 1})")]
         if evaluations:
             imgs.append((fig(figures.payload_estimates(dataset, evaluations, exp), f"fig_exp{exp}_payload.png"),
                          f"payload estimates (like thesis Figure 7.{2 * k})"))
