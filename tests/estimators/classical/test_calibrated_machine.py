@@ -562,3 +562,52 @@ def test_estimate_says_why_a_motion_without_boom_motion_got_no_estimate(momentum
     assert main(["estimate", "--model", str(tmp_path / "m"), "--data", str(tmp_path / "still.parquet"),
                  "--out", str(tmp_path / "e.parquet"), "--quiet"]) == 0
     assert "note: calibrated: no estimate in 1 of 1 experiments" in " ".join(capsys.readouterr().out.split())
+
+
+def test_imu_leak_is_read_off_the_imus_own_signals(setup):
+    """Angle minus integrated rate shows a link IMU's acceleration leak alone: the simulator's
+    k = leak · distance / g is found on three calibration swings, and neither a further output
+    lag on both signals nor new offsets and a gyro bias change it."""
+    from excavator_payload.simulation.machine_sensors import get_machine_noise
+    from scipy.signal import lfilter
+
+    field = get_machine_noise("field")
+    truth = field.acceleration_leak * field.link_imu_distance / 9.81
+    k, std = cm.imu_sensitivities(setup["cal"])
+    assert np.all(std > 0) and np.all(std < 0.1 * truth)
+    assert np.allclose(k, truth, rtol=0.2)
+    assert np.allclose(k[1:], truth, rtol=0.05)
+    frame = setup["cal"].frame.copy()
+    columns = [cm.SIGNALS[i] for i in (*cm.ANGLES, *cm.RATES[:3])]
+    a = np.exp(-0.01 / 0.02)  # a 20 ms first-order lag more, on angles and rates alike
+    for _, rows in frame.groupby("experiment").groups.items():
+        x = frame.loc[rows, columns].to_numpy(float)
+        frame.loc[rows, columns] = lfilter([1 - a], [1, -a], x, axis=0, zi=x[:1] * a)[0]
+    frame[columns[:3]] += [0.003, -0.002, 0.004]
+    frame[columns[3:]] += [0.002, -0.001, 0.0015]
+    moved, _ = cm.imu_sensitivities(Dataset(frame, setup["cal"].meta))
+    assert np.allclose(moved, k, rtol=0.05)
+    # no leak to find in signals that have none: the same motions' true angles and rates
+    if all("true_" + c in frame for c in columns):
+        clean = setup["cal"].frame.copy()
+        for c in columns:
+            clean[c] = clean["true_" + c]
+        none, _ = cm.imu_sensitivities(Dataset(clean, setup["cal"].meta))
+        assert np.all(np.abs(none) < 0.05 * truth)
+
+
+def test_imu_leak_signals_is_held_in_calibration(setup):
+    """``imu_leak="signals"``: the three link sensitivities are the ones read off the signals
+    (held, with their standard errors as posterior), the house's is still fitted; a bad choice
+    is refused in one line."""
+    est = create_estimator("calibrated", PRIOR, balance="differentiated", imu_leak="signals").fit(setup["cal"])
+    k, std = cm.imu_sensitivities(setup["cal"])
+    cal = est.calibration
+    links = slice(len(cm.CALIBRATED_PARAMETERS) + len(cm.OFFSET_SIGNALS) + 1,
+                  len(cm.CALIBRATED_PARAMETERS) + len(cm.OFFSET_SIGNALS) + 4)
+    assert np.array_equal(cal.z[links], k)
+    assert np.allclose(np.sqrt(np.diag(cal.covariance)[links]), std)
+    default = setup["calibrated"].calibration
+    assert not np.allclose(default.z[links], k)
+    with pytest.raises(EstimatorError, match="imu_leak|imu-leak"):
+        create_estimator("calibrated", PRIOR, imu_leak="datasheet")

@@ -46,7 +46,7 @@ from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
 from excavator_payload.estimators.classical.calibrated_machine import (
-    BALANCE_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
+    BALANCE_CHOICES, IMU_LEAK_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -152,6 +152,11 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                            "changes (a dump, the next bucket load), detected as a short memory's "
                            "estimate leaving the whole one by > 10 % of rated and 5 sigma; auto: "
                            "detect in the momentum form, off in the per-sample form", NEW_LOAD_CHOICES),
+        "imu_leak": Option(str, "auto", "machine sensor set: the link IMUs' acceleration leak "
+                           "(tilt read from acceleration): read off each IMU's own angle and rate "
+                           "and held (signals), identified in the calibration fit (fit) or not "
+                           "modelled (none); auto: signals in the momentum form, fit in the "
+                           "per-sample form", IMU_LEAK_CHOICES),
         "balance": Option(str, "momentum", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
