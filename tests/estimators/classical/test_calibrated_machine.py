@@ -611,3 +611,18 @@ def test_imu_leak_signals_is_held_in_calibration(setup):
     assert not np.allclose(default.z[links], k)
     with pytest.raises(EstimatorError, match="imu_leak|imu-leak"):
         create_estimator("calibrated", PRIOR, imu_leak="datasheet")
+
+
+def test_imu_leak_of_a_joint_that_never_moved_stays_at_its_prior(setup):
+    """A boom that stood still through the calibration motions says nothing of its IMU's leak:
+    it keeps 0 and the prior's std (no ratio of noises, no error), the others are still found."""
+    frame = setup["cal"].frame.copy()
+    frame["boom_angle"] = 0.3
+    frame["boom_rate"] = 0.0
+    k, std = cm.imu_sensitivities(Dataset(frame, setup["cal"].meta))
+    assert np.all(np.isfinite(k)) and np.all(np.isfinite(std))
+    assert abs(k[0]) < 1e-6 and std[0] == pytest.approx(cm.IMU_PRIOR_STD[1], rel=1e-6)
+    assert std[2] < 0.05 * cm.IMU_PRIOR_STD[3]
+    empty = setup["cal"].frame.iloc[:10]
+    k, std = cm.imu_sensitivities(Dataset(empty.reset_index(drop=True), setup["cal"].meta))
+    assert np.array_equal(k, np.zeros(3)) and np.array_equal(std, cm.IMU_PRIOR_STD[1:4])

@@ -530,11 +530,13 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
     0.0076-0.0088 / 0.0075-0.0077 / 0.0077-0.0078 s² where the simulator has 0.0076 (three
     draws).
 
+    With the sensitivities' prior (:data:`IMU_PRIOR_STD`, mean 0): a joint the data hardly
+    accelerate keeps about 0 and the prior's std.
+
     Returns
     -------
     k, std : ndarray
-        Sensitivities of the boom, dipper and bucket IMUs (s²) and their standard errors; a
-        joint the data never accelerate keeps 0 and the prior's std.
+        Sensitivities of the boom, dipper and bucket IMUs (s²) and their posterior std.
     """
     f = dataset.frame
     values = f[list(SIGNALS)].to_numpy(float)
@@ -562,18 +564,16 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
             y = v[:, ANGLES[j]] - integral[:, j]
             ys.append(y - Q @ (Q.T @ y))
             xs.append(x - Q @ (Q.T @ x))
-    k, std = np.zeros(3), IMU_PRIOR_STD[1:4].copy()
+    prior = IMU_PRIOR_STD[1:4]
     if not ys:
-        return k, std
+        return np.zeros(3), prior.copy()
     y, X = np.concatenate(ys), np.vstack(xs)
-    info = X.T @ X
-    seen = np.diag(info) > 1e-9 * max(float(np.max(np.diag(info))), 1e-300)
-    if seen.any():
-        k[seen] = np.linalg.lstsq(X[:, seen], y, rcond=None)[0]
-        resid = y - X[:, seen] @ k[seen]
-        sigma2 = float(resid @ resid) / max(len(y) - int(seen.sum()), 1)
-        std[seen] = np.sqrt(np.diag(np.linalg.inv(info[np.ix_(seen, seen)])) * sigma2)
-    return k, std
+    # with the sensitivities' prior (mean 0): a joint the motions hardly accelerate keeps about
+    # 0 instead of a ratio of noises; where they do move it the prior weighs ~1e-6 of the data
+    residual = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+    sigma2 = max(float(residual @ residual) / max(len(y) - 3, 1), 1e-30)
+    posterior = np.linalg.inv(X.T @ X / sigma2 + np.diag(1.0 / prior**2))
+    return posterior @ (X.T @ y) / sigma2, np.sqrt(np.diag(posterior))
 
 
 class MachineCalibration:
