@@ -70,8 +70,10 @@ there. With the
 true machine, offsets and IMU dynamics this form weighs field-noise work cycles within 13.4 kg
 mean MAX and NMPC swings within 24.5 kg, whose MAX is at their start from rest (after 3 s:
 1.5-14.5 kg; the per-sample form at the true machine: 66 kg on the held-force simulator's
-swings — the calibrated parameters of that form partly compensate its differentiator). Calibration in this form identifies the parameters, offsets and the IMU lag
-(the acceleration sensitivities wander). The windows overlap, so their noise model is kept in
+swings — the calibrated parameters of that form partly compensate its differentiator).
+Calibration in this form identifies the parameters, offsets and the IMU lag; the link IMUs'
+acceleration sensitivities, which wander when fitted, are read off the IMUs' own signals
+(:func:`imu_sensitivities`, ``--imu-leak``) and held. The windows overlap, so their noise model is kept in
 per-sample-equivalent variances (:meth:`MachineCalibration.evaluate_windows`): the pressures' and
 the rates' white noise per sample (the rates' through the seal friction and the centrifugal and
 Coriolis forces, and at the window's ends through the momentum), and a standstill's unknown
