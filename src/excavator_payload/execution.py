@@ -348,6 +348,8 @@ class Execution:
             Label of the progress bar.
         progress : bool
             Show the progress bar.
+        console : rich.console.Console, optional
+            Console the progress bar is drawn on (default: rich's own).
 
         Returns
         -------

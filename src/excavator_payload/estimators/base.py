@@ -237,6 +237,9 @@ class Option:
     choices: tuple | None = None
 
     def parse(self, name: str, raw: Any) -> Any:
+        """Convert the raw value ``raw`` of option ``name`` to the option's type (booleans from
+        ``1/0/true/false/yes/no``, lists from comma-separated text) and check it is one of
+        ``choices``; :class:`EstimatorError` otherwise."""
         try:
             if self.type is bool and isinstance(raw, str):
                 if raw.lower() not in ("1", "0", "true", "false", "yes", "no"):
@@ -832,6 +835,7 @@ def register(klass: type[Estimator]) -> type[Estimator]:
 
 
 def estimator_names() -> list[str]:
+    """Names of all estimators (``ekf``, ``ukf``, …, ``lrn``), whether imported yet or not."""
     return list(ESTIMATOR_MODULES)
 
 

@@ -63,6 +63,8 @@ def status_breakdown(status) -> str:
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``train``, ``estimate`` and ``estimators`` to ``app``."""
+
     @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
     def train(
         ctx: typer.Context,

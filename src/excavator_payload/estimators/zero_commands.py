@@ -80,6 +80,9 @@ def register(app: typer.Typer) -> None:
 
 
 def load_offsets(model: Path):
+    """A copy of the sensor offsets of the calibrated model saved in folder ``model``, in
+    ``calibrated_machine.OFFSET_SIGNALS`` order (Pa for pressures, rad for angles);
+    :class:`EstimatorError` when it is not a ``calibrated`` model of the machine sensor set."""
     from excavator_payload.estimators.base import load_estimator
 
     estimator = load_estimator(model)

@@ -223,6 +223,8 @@ def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accur
 
 
 def write_json(path: Path, payload: dict) -> None:
+    """Write ``payload`` as indented JSON (NaN as null) to ``path``, creating its folder; written
+    to a private temporary file and renamed, so a reader never sees half a file."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
     tmp.write_text(json.dumps(to_jsonable(payload), indent=2))

@@ -51,6 +51,12 @@ def cramer_rao_bound(dataset: Dataset, machine: Machine | str | None = None,
 
     Parameters
     ----------
+    dataset : Dataset
+        Thesis-sensor-set data; its noise-free ``true_*`` kinematics are used where present.
+    machine : Machine or str, optional
+        The machine (or preset name or TOML file); default the dataset's.
+    noise : NoisePreset or str, optional
+        The torque noise (or preset name); default the dataset's preset, else ``thesis``.
     window : int or None
         ``None``: the information of the experiment's whole history up to the sample;
         ``N``: of the last ``N`` samples only (NaN before N samples exist).

@@ -66,6 +66,9 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
     pressure_std : float, optional
         White pressure noise, Pa; default the dataset's noise preset where it names one, else
         the calibration's estimate.
+    half_window : int
+        Samples each side of the centred differentiator that gives the accelerations when the
+        dataset has no true ones.
     nuisances : bool
         False: the payload alone (friction and offsets known exactly).
     stiction_episodes : bool
@@ -134,6 +137,9 @@ def procedure_bound(dataset: Dataset, calibration: "cm.MachineCalibration", cali
     prior_std : float
         Relative prior std of the calibrated parameters (``calibrated``'s ``prior_std`` on the
         machine sensor set).
+    half_window : int
+        Samples each side of the centred differentiator that gives the accelerations of data
+        without true ones.
     """
     for name, d in (("test", dataset), ("calibration", calibration_data), ("zero", zero_data)):
         if d is not None and d.sensor_set.name != "machine":

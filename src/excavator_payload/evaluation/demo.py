@@ -212,6 +212,8 @@ class Demo:
         return _concat(parts)
 
     def lifts(self) -> Dataset:
+        """The quasi-static map's calibration lifts at this scale, simulated once and cached in
+        the ``data`` folder."""
         settings = {"what": "lifts", "n": self.scale.lifts, "seed": self.seed + 1,
                     "machine": load_machine(TRUE_MACHINE).to_dict(), "noise": NOISE, "version": __version__}
         path = self.out / "data" / f"lifts-{_key(settings)}.parquet"

@@ -335,6 +335,8 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
     estimates : DataFrame or array
         An estimates table (``experiment``, ``time``, ``payload_estimate``) or an array
         aligned with the dataset's rows.
+    label : str
+        Display name of the estimator (``Evaluation.label``; also names it in error messages).
     discard : int
         Samples not judged at the start of every experiment (default 81).
     window : int or None
@@ -345,7 +347,12 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
         A precomputed bound for the dataset's rows (shared between estimators).
     rated_payload : float, optional
         kg; default the dataset machine's, else 5000 kg.
+    info : dict, optional
+        Where the estimates came from (estimator name, options, model folder or estimates
+        file), kept as ``Evaluation.info``.
 
+    Notes
+    -----
     A work cycle (an experiment whose metadata has the dump's ``release`` times) is judged up to
     its dump; ``summary["judged_to_the_dump"]`` counts them.
     """

@@ -67,6 +67,9 @@ def choose_experiments(dataset: Dataset, count: int = 6) -> list[int]:
 
 @dataclass
 class ReportPaths:
+    """The files :func:`build_report` wrote: ``report.html``, ``report.md``, ``evaluation.json``
+    and the figures (PNG)."""
+
     html: Path
     markdown: Path
     json: Path
@@ -170,10 +173,14 @@ def build_report(out_dir: str | Path, dataset: Dataset, evaluations: Sequence[Ev
 
     Parameters
     ----------
+    out_dir : str or Path
+        Folder to write into (created; its ``figures`` folder is replaced).
     dataset : Dataset
         The test data the evaluations were made on.
     evaluations : sequence of Evaluation
         One per estimator (see :func:`~excavator_payload.evaluation.metrics.evaluate_estimates`).
+    title : str
+        Title of the HTML and Markdown reports (also saved in ``evaluation.json``).
     settings : mapping
         What produced the report (machine, noise, seeds, sizes, commands); versions are added.
     experiments : sequence of int, optional
@@ -184,6 +191,8 @@ def build_report(out_dir: str | Path, dataset: Dataset, evaluations: Sequence[Ev
         The calibrated estimator's accuracy against the number of calibration experiments.
     training_dirs : mapping
         Network label -> its save folder (``training.png`` or ``training_log.csv`` inside).
+    notes : sequence of str
+        Sentences appended to the headline paragraph.
     """
     out_dir = Path(out_dir)
     fig_dir = out_dir / "figures"

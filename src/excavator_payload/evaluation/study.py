@@ -135,6 +135,8 @@ class Cell:
         return {k: list(v) if isinstance(v, tuple) else v for k, v in self.options}
 
     def axis_values(self) -> dict:
+        """The cell's grid coordinates as result columns (``estimator`` is the label, options as
+        sorted JSON)."""
         return {"estimator": self.label, "estimator_name": self.estimator,
                 "options": json.dumps(self.option_dict(), sort_keys=True), "machine": self.machine,
                 "noise": self.noise, "motion": self.motion, "noise_mode": self.noise_mode,
@@ -337,16 +339,23 @@ def data_specs(cell: Cell) -> tuple:
 
 
 def spec_key(spec) -> str:
+    """Cache key of a dataset: a short hash of its ``RunSpec`` and the package version (names its
+    file in the study's ``data`` folder)."""
     return _key({"spec": spec.to_dict(), "version": __version__})
 
 
 def fit_key(cell: Cell, fit_spec) -> str:
+    """Cache key of a fitted estimator: a short hash of the estimator, its options, the machine it
+    believes in, the fit data's :func:`spec_key` and the package version (cells that share it
+    share one fit)."""
     return _key({"estimator": cell.estimator, "options": cell.option_dict(),
                  "machine": _machine_dict(cell.machine), "fit_data": spec_key(fit_spec),
                  "version": __version__})
 
 
 def cell_key(cell: Cell) -> str:
+    """Cache key of a cell's results: a short hash of every field but the label (machines by their
+    contents, not their names) and the package version."""
     values = asdict(cell)
     values["machine"] = _machine_dict(cell.machine)
     values["true_machine"] = _machine_dict(cell.true_machine)

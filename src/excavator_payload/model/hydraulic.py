@@ -424,6 +424,10 @@ class HydraulicArmModel:
     Parameters
     ----------
     machine : HydraulicMachine
+        The machine (a preset name or TOML file is loaded and must be a hydraulic machine).
+    compiled : bool
+        Use the C-compiled ``motion_signals`` and ``cylinder_pressures`` functions (see
+        :func:`compiled_function`) instead of CasADi's interpreted ones.
     """
 
     def __init__(self, machine: HydraulicMachine, compiled: bool = True):
@@ -490,6 +494,8 @@ class HydraulicArmModel:
         return self._ordered("torque_empty", dict(q=q, qd=qd, qdd=qdd, tilt=tilt))
 
     def mass_matrix(self, q, payload):
+        """Mass matrix M(q) of boom, dipper, bucket and slew with payload ``payload`` (kg),
+        kg·m², shape (..., 4, 4)."""
         out = self._call("mass_matrix", [q], payload)
         return out.reshape(out.shape[:-1] + (4, 4))
 

@@ -81,6 +81,9 @@ class Link:
 
 @dataclass(frozen=True, kw_only=True)
 class Payload:
+    """The payload the machine is rated for: rated and largest mass (kg) and the centre of the
+    load in the bucket frame ([u, w], m)."""
+
     rated: float = _f("pos")
     max: float = _f("pos")
     position: tuple[float, float] = _f("vec2")  # centre of the payload in the bucket frame
@@ -127,6 +130,9 @@ class Linkage:
 
 @dataclass(frozen=True, kw_only=True)
 class Hydraulics:
+    """The hydraulic supply: pump flow available to one cylinder function (m³/s), relief
+    pressure (Pa) and the back pressure held on the return side (Pa)."""
+
     pump_flow: float = _f("pos")  # largest flow one cylinder function can get, m³/s
     relief_pressure: float = _f("pos")  # Pa
     back_pressure: float = _f("nonneg")  # pressure held on the return side, Pa

@@ -89,6 +89,8 @@ class Machine:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Machine":
+        """The machine of a flat dict of its fields (as :meth:`to_dict` writes; angle ranges as
+        ``[low, high]``), checked for physical sense; :class:`MachineError` otherwise."""
         if not isinstance(d, dict):
             raise MachineError(f"a machine must be a table of fields, got {type(d).__name__}")
         d = dict(d)

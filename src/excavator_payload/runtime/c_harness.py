@@ -88,6 +88,7 @@ class CompileError(ExcavatorPayloadError):
 
 
 def c_compiler() -> str | None:
+    """Path of the C compiler on ``PATH`` (``cc``, else ``gcc``), or None when there is none."""
     return shutil.which("cc") or shutil.which("gcc")
 
 

@@ -81,6 +81,7 @@ class EstimateEncoder:
         self.statuses = dbc.status_names()
 
     def status_code(self, status: str) -> int:
+        """The raw bus code of ``status`` (its index in :func:`~excavator_payload.runtime.dbc.status_names`)."""
         return self.statuses.index(status)
 
     def frames(self, output: SensorOutput) -> list[can.Message]:

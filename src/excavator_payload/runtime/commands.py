@@ -28,6 +28,8 @@ def _codec(estimator, dbc_file, signal_map):
 
 
 def register(app: typer.Typer) -> None:
+    """Add ``can-dbc``, ``can-record``, ``can-replay``, ``can-run`` and ``export`` to ``app``."""
+
     @app.command("can-dbc")
     def can_dbc(
         sensor_set: str = typer.Option("thesis", "--sensor-set", help="Sensor set: thesis or machine."),

@@ -135,6 +135,9 @@ class SignalLayout:
 
 @dataclass(frozen=True)
 class MessageLayout:
+    """One message of the generated DBC: its name, J1939 PGN, 29-bit frame id and the signals it
+    carries."""
+
     name: str
     pgn: int
     frame_id: int

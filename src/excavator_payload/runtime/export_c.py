@@ -167,6 +167,7 @@ def c_array(name: str, values, per_line: int = 4, kind: str = "static const ep_r
 
 
 def c_identifier(text: str) -> str:
+    """``text`` with every character that may not appear in a C identifier replaced by ``_``."""
     return re.sub(r"\W", "_", text)
 
 
@@ -300,6 +301,9 @@ class BorrowedGate:
     innovation_call: ca.Function
 
     def apply(self, model: CModel, code: str) -> None:
+        """Add the gate to ``model`` in place: its state fields, ``ep_gate_reset`` and
+        ``ep_gate_step``, and the innovation body that judges samples by the gate's residual NIS.
+        ``code`` is the CasADi-generated C the calls are sized against (:func:`casadi_call`)."""
         real = self.real
         zero = "0.0" if real == "double" else "EP_C(0.0)"
         one = "1.0" if real == "double" else "EP_C(1.0)"

@@ -26,6 +26,8 @@ LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc")
 
 
 def check_log_suffix(path: Path) -> None:
+    """Raise :class:`DatasetError` unless ``path`` ends in a CAN log format of
+    :data:`LOG_SUFFIXES` (any case)."""
     if path.suffix.lower() not in LOG_SUFFIXES:
         raise DatasetError(f"'{path}': unknown CAN log format {path.suffix!r}; use one of "
                            f"{', '.join(LOG_SUFFIXES)}")

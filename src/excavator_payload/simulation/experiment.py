@@ -72,6 +72,7 @@ class RunSpec:
     options: tuple = ()
 
     def option(self, name: str, default: Any = None) -> Any:
+        """The value of motion setting ``name`` in :attr:`options`, else ``default``."""
         return dict(self.options).get(name, default)
 
     def to_dict(self) -> dict:

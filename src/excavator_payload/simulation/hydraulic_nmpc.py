@@ -73,6 +73,9 @@ class ControlFailure(RuntimeError):
 
 @dataclass(frozen=True)
 class HydraulicNMPCSettings:
+    """Tunable settings of the hydraulic NMPC: timing (s), cost weights, solver iterations and the
+    force lag (defaults and meaning: see the module docstring)."""
+
     control_period: float = 0.25  # s (0.2 s: ~1.8× the time per experiment, same swings)
     horizon: float = 2.0  # s
     angle_weight: float = 10.0  # per rad² per s

@@ -61,6 +61,7 @@ class MachineNoise:
     description: str = ""
 
     def to_dict(self) -> dict:
+        """All magnitudes as a dict of field name -> value."""
         return asdict(self)
 
 

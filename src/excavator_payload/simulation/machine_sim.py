@@ -145,6 +145,8 @@ def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payl
 
 
 def sample_times(duration: float) -> np.ndarray:
+    """Sample times (s) from 0 to ``duration`` s inclusive at the machine sensor set's
+    :data:`SAMPLE_RATE` (Hz)."""
     n = int(math.floor(duration * SAMPLE_RATE + 1e-9)) + 1
     return np.arange(n) / SAMPLE_RATE
 

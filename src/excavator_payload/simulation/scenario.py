@@ -29,6 +29,7 @@ class Scenario:
     target_pose: tuple[float, float]  # rad
 
     def to_dict(self) -> dict:
+        """The scenario as a JSON-able dict (poses as lists)."""
         d = asdict(self)
         d["start_pose"] = list(self.start_pose)
         d["target_pose"] = list(self.target_pose)

@@ -33,6 +33,7 @@ class NoisePreset:
     description: str = ""
 
     def std_vector(self, columns=SIGNALS) -> np.ndarray:
+        """Standard deviations (SI units) of ``columns``, in that order (default :data:`SIGNALS`)."""
         return np.array([self.std[c] for c in columns], dtype=float)
 
     @property

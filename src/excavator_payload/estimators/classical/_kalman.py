@@ -132,6 +132,8 @@ class KalmanModel:
 
     @staticmethod
     def unpack(packed: np.ndarray):
+        """Split the packed output of :attr:`terms` into ``(f, F, G, h, H, M)`` (column-major
+        matrices, shapes as in the class docstring)."""
         v = np.asarray(packed).ravel()
         f = v[0:5]
         F = v[5:30].reshape(5, 5, order="F")
@@ -400,14 +402,19 @@ class Tuning:
         return self.name == "consistent"
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """The covariances and initial state to save (``Q``, ``R``, ``torque_cov``, ``accel_cov``,
+        ``x0``, ``P0``)."""
         return {"Q": self.Q, "R": self.R, "torque_cov": self.torque_cov, "accel_cov": self.accel_cov,
                 "x0": self.x0, "P0": self.P0}
 
     def config(self) -> dict:
+        """The JSON-able part to save: tuning name, ``init_from_sample`` and noise preset."""
         return {"tuning": self.name, "init_from_sample": self.init_from_sample, "noise": self.noise}
 
     @classmethod
     def restore(cls, config: dict, arrays) -> "Tuning":
+        """The tuning saved by :meth:`config` and :meth:`arrays`; :class:`EstimatorError` when an
+        array is missing, of the wrong shape or not finite."""
         shapes = {"Q": (5, 5), "R": (4, 4), "torque_cov": (2, 2), "accel_cov": (2, 2), "x0": (5,),
                   "P0": (5, 5)}
         values = {}

@@ -232,15 +232,20 @@ class MachineTuning:
     noise: str
 
     def config(self) -> dict:
+        """The JSON-able part to save: the scalar covariances and the noise preset, marked as the
+        machine sensor set's."""
         return {"tuning": "consistent", "sensor_set": "machine", "noise": self.noise,
                 "pressure_std": self.pressure_std, "ripple_fraction": self.ripple_fraction,
                 "payload_walk": self.payload_walk}
 
     def arrays(self) -> dict[str, np.ndarray]:
+        """The arrays to save: ``R_kinematic`` and ``jerk``."""
         return {"R_kinematic": self.R_kinematic, "jerk": self.jerk}
 
     @classmethod
     def restore(cls, config: dict, arrays) -> "MachineTuning":
+        """The tuning saved by :meth:`config` and :meth:`arrays`; :class:`EstimatorError` when a
+        value is missing or a covariance is not positive and finite."""
         try:
             R = np.asarray(arrays["R_kinematic"], float)
             jerk = np.asarray(arrays["jerk"], float)
@@ -346,6 +351,7 @@ class MachineKalman:
         self._build_runtime()
 
     def reset(self) -> None:
+        """Forget the state: the next :meth:`step` starts again from :meth:`initial_state`."""
         self.x: np.ndarray | None = None
         self.P: np.ndarray | None = None
 

@@ -76,6 +76,11 @@ def identify_base_parameters(dataset: Dataset, prior: Machine, variances: np.nda
         Sensor noise variances in :data:`SIGNALS` order (weights :math:`W_k`).
     prior_std : float
         Relative prior standard deviation :math:`s` of every parameter.
+    weighting : {'full', 'diagonal', 'torque'}
+        Residual covariance behind :math:`W_k` (see
+        :func:`~excavator_payload.estimators.classical.inverse_dynamics.residual_covariance`):
+        torque noise plus the kinematic noise through the model, its diagonal, or the torque
+        noise alone.
 
     Returns
     -------

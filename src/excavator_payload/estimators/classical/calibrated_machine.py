@@ -617,6 +617,8 @@ class MachineCalibration:
 
     @staticmethod
     def prior_std(relative: float) -> np.ndarray:
+        """Prior standard deviation of each entry of ``z``: ``relative`` (a share) for every
+        calibrated parameter, then :data:`OFFSET_PRIOR_STD` and :data:`IMU_PRIOR_STD` (SI units)."""
         return np.r_[np.full(len(CALIBRATED_PARAMETERS), relative), OFFSET_PRIOR_STD, IMU_PRIOR_STD]
 
     @property
@@ -862,6 +864,8 @@ class MachineCalibration:
     def kernel(self, half_window: int, forgetting: float, low_speed: str,
                outside_calibration: str = "auto", wait_for_boom: str = "auto",
                new_load: str = "auto") -> "CalibratedKernel":
+        """A streaming :class:`CalibratedKernel` weighing with this calibration (the arguments are
+        its own)."""
         return CalibratedKernel(self, half_window, forgetting, low_speed, outside_calibration, wait_for_boom,
                                 new_load)
 
@@ -1097,6 +1101,8 @@ class CalibratedKernel(PressureRegression):
         self._trigger = None
 
     def reset(self) -> None:
+        """Start again: the base class's reset, plus empty sample and balance-term rings and
+        cleared ``--wait-for-boom`` / ``--new-load`` state."""
         super().reset()
         length = getattr(self, "_width", 1) + 1
         self._ring = np.zeros((2 * length, len(SIGNALS)))
@@ -1415,6 +1421,9 @@ def zero(estimator, dataset: Dataset) -> list[str]:
 
 
 def config(estimator) -> dict:
+    """The JSON-able part of a ``calibrated`` estimator of the machine sensor set to save (the
+    estimator's ``_config``): kernel, noise, calibration experiments, parameter names, balance
+    form and pressure noise (Pa)."""
     return {"kernel": "calibrated_machine", "noise": estimator.noise_name,
             "calibration_experiments": estimator.calibration_experiments,
             "calibrated_parameters": list(CALIBRATED_PARAMETERS),
@@ -1424,6 +1433,9 @@ def config(estimator) -> dict:
 
 
 def arrays(estimator) -> dict[str, np.ndarray]:
+    """The arrays of a ``calibrated`` estimator of the machine sensor set to save (the estimator's
+    ``_arrays``): the identified ``z`` and its covariance, the noise, the window inflation, the
+    covered angle range and the difference scale."""
     cal = estimator.calibration
     return {"z": cal.z, "z_covariance": cal.covariance, "pressure_std": np.array([cal.pressure_std]),
             "rate_var": np.array([cal.rate_var]), "window_inflation": cal.window_inflation,
@@ -1432,6 +1444,9 @@ def arrays(estimator) -> dict[str, np.ndarray]:
 
 
 def restore(estimator, cfg: dict, saved) -> None:
+    """Rebuild ``estimator``'s calibration and kernel from what :func:`config` (``cfg``) and
+    :func:`arrays` (``saved``) wrote; :class:`EstimatorError` when they are corrupt or of
+    another version."""
     arm = _machine_arm(estimator)
     cal = MachineCalibration(arm)
     z = np.asarray(saved["z"], float)

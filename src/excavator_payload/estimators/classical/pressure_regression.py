@@ -123,6 +123,7 @@ class PressureRegression:
         self.reset()
 
     def reset(self) -> None:
+        """Start again: empty the differentiator's window and zero the recursive sums."""
         # the differentiator's window and the newest sample, not yet judged
         self._buffer: deque = deque(maxlen=2 * self.half_window + 2)
         self.num = 0.0

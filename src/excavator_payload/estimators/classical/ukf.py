@@ -101,6 +101,8 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
 
     Parameters
     ----------
+    machine : Machine or str
+        The model the filter believes in (preset name or file), as for ``ekf``.
     alpha, beta, kappa : float
         Sigma-point spread and weights (Wan & van der Merwe). ``alpha = 0.5`` keeps the payload
         sigma points of the broad initial prior above minus the bucket mass.

@@ -105,6 +105,8 @@ MAX_WEIGHTS = {"trainbr": 5000, "adam": 1_000_000}
 
 
 def parse_hidden(raw: Any) -> list[int]:
+    """Hidden-layer sizes from the ``--hidden`` option (any form :func:`parse_int_list` reads):
+    at most 20 layers of 1 to ``MAX_LAYER_SIZE`` neurons each, else :class:`EstimatorError`."""
     sizes = parse_int_list(raw, "--hidden")
     if any(s <= 0 for s in sizes):
         raise EstimatorError(f"--hidden: layer sizes must be positive, got {raw!r}")
@@ -114,6 +116,8 @@ def parse_hidden(raw: Any) -> list[int]:
 
 
 def parse_delays(raw: Any) -> list[int]:
+    """Tapped-delay-line delays in samples from the ``--delays`` option (e.g. ``'0:5'``), sorted:
+    at least one, distinct, between 0 and ``MAX_DELAY``, else :class:`EstimatorError`."""
     delays = parse_int_list(raw, "--delays")
     if not delays:
         raise EstimatorError("--delays: give at least one delay (e.g. '0:5')")
@@ -169,6 +173,7 @@ class Scaler:
         self.gain: np.ndarray | None = None
 
     def fit(self, x: np.ndarray) -> "Scaler":
+        """Fit centre and gain per column of ``x`` (rows are samples); returns ``self``."""
         x = np.asarray(x, dtype=float)
         x = x.reshape(len(x), -1)
         if len(x) == 0 or not np.all(np.isfinite(x)):
@@ -190,10 +195,12 @@ class Scaler:
             raise EstimatorError("scaler is not fitted")
 
     def transform(self, x):
+        """Scale ``x``: ``(x - center) * gain``."""
         self._check()
         return (x - self.center) * self.gain
 
     def inverse(self, y):
+        """Undo :meth:`transform`: ``y / gain + center``."""
         self._check()
         return y / self.gain + self.center
 
@@ -374,6 +381,7 @@ class DelayLine:
         self.reset()
 
     def reset(self) -> None:
+        """Empty the line (or refill it with zeros when ``zero_history``)."""
         self.position = -1  # index of the newest entry
         self.count = self.length if self.zero_history else 0
         self.buffer[:] = 0.0

@@ -144,12 +144,14 @@ class RecurrentStructure:
         return sum(o * i + o for o, i in self.layer_shapes())
 
     def to_dict(self) -> dict:
+        """The structure as a JSON-ready dict (tuples as lists); :meth:`from_dict` reads it."""
         return {"n_signals": self.n_signals, "hidden": list(self.hidden),
                 "input_delays": list(self.input_delays), "feedback_delays": list(self.feedback_delays),
                 "layer_delays": list(self.layer_delays), "recurrent_layers": list(self.recurrent_layers)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "RecurrentStructure":
+        """The structure saved by :meth:`to_dict`."""
         return cls(int(d["n_signals"]), tuple(d["hidden"]), tuple(d["input_delays"]),
                    tuple(d["feedback_delays"]), tuple(d["layer_delays"]), tuple(d["recurrent_layers"]))
 
@@ -207,6 +209,8 @@ def rollout(w: torch.Tensor, u: torch.Tensor, structure: RecurrentStructure,
         Flat weights (layout of :func:`unpack_weights`).
     u : Tensor (n_experiments, T, n_signals)
         Scaled inputs; every experiment runs from its own first sample (no crossing).
+    structure : RecurrentStructure
+        Layer sizes, delays and recurrent layers of the network.
     initial_output : float
         Scaled value of the fed-back output before the first estimate (:math:`\\hat y_k` for
         :math:`k < K`).
@@ -281,6 +285,8 @@ class RecurrentStepper:
         self.reset()
 
     def reset(self) -> None:
+        """Start a new experiment: empty delay lines, fed-back outputs at ``initial_output``,
+        delayed hidden-layer outputs zero."""
         s = self.structure
         self._n = 0
         self._inputs: list[np.ndarray] = []   # newest last, at most max input delay + 1
@@ -290,6 +296,8 @@ class RecurrentStepper:
         self._a_past = [[np.zeros(h)] * n_ld for h in s.hidden]  # per layer, newest last
 
     def step(self, u: np.ndarray) -> float:
+        """Feed one scaled input sample ``u`` (``n_signals``,); return the scaled estimate, or NaN
+        during the first ``structure.warmup`` samples."""
         s = self.structure
         self._inputs.append(u)
         if len(self._inputs) > self._max_in + 1:

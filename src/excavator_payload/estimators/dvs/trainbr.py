@@ -91,6 +91,7 @@ class TrainingLog:
 
     def append(self, epoch, sse, sum_sq_weights, gamma, alpha, beta, mu, validation_sse,
                grad_norm) -> None:
+        """Add one epoch's row (the per-epoch fields in :data:`LOG_COLUMNS` order)."""
         for name, value in zip(LOG_COLUMNS, (epoch, sse, sum_sq_weights, gamma, alpha, beta, mu,
                                              validation_sse, grad_norm)):
             getattr(self, name).append(int(value) if name == "epoch" else float(value))
@@ -103,6 +104,8 @@ class TrainingLog:
     def from_frame(cls, frame: pd.DataFrame, stop_reason: str = "", seconds: float = 0.0,
                    n_errors: int = 0, n_parameters: int = 0, trainer: str = "",
                    best_epoch: int = -1) -> "TrainingLog":
+        """A log from the per-epoch table of :meth:`to_frame` (absent columns become NaN) and the
+        run's summary fields."""
         log = cls(stop_reason=stop_reason, seconds=float(seconds), n_errors=int(n_errors),
                   n_parameters=int(n_parameters), trainer=trainer, best_epoch=int(best_epoch))
         for c in LOG_COLUMNS:
@@ -301,6 +304,8 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
         ``max_fail``); 0 never stops on validation (``trainbr``'s default).
     progress : bool
         Show a rich progress bar with SSE, γ and μ.
+    description : str
+        Label of the progress bar.
     jacobian : callable, optional
         ``jacobian(w) -> J`` (N × P, :math:`\partial e/\partial w`), e.g. an efficient per-sample
         ``torch.func`` Jacobian; default :func:`jacobian_forward` of ``residuals``.
