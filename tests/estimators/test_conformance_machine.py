@@ -112,6 +112,20 @@ def test_save_load_round_trip(name, fitted, data, tmp_path):
 
 
 @pytest.mark.parametrize("name", list(RECIPES))
+def test_pickles_for_the_execution_layer(name, fitted, data):
+    """A big dataset's estimation goes to Dask workers, which receive the fitted estimator
+    pickled (a machine-set ``calibrated`` holding CasADi symbols crashed `evaluate` on 200 work
+    cycles): it pickles, and the copy estimates the same."""
+    import pickle
+
+    est = fitted[name]
+    copy = pickle.loads(pickle.dumps(est))
+    before, after = est.estimate(data["test"]), copy.estimate(data["test"])
+    np.testing.assert_array_equal(before["payload_estimate"].to_numpy(), after["payload_estimate"].to_numpy())
+    assert list(before["status"]) == list(after["status"])
+
+
+@pytest.mark.parametrize("name", list(RECIPES))
 def test_batch_equals_streaming(name, fitted, data):
     est = fitted[name]
     test = data["test"]

@@ -441,11 +441,24 @@ class HydraulicArmModel:
                 raise MachineError(f"machine '{machine.name}' is not a hydraulic machine")
         self.machine = machine
         self.p = parameter_vector(machine)
+        self._compiled = compiled
+        self._bind()
+
+    def _bind(self) -> None:
         self.sym = hydraulic_symbolic()
         self._f = dict(self.sym.functions)
-        if compiled:
+        if self._compiled:
             for name in ("motion_signals", "cylinder_pressures"):
                 self._f[name] = compiled_function(name)
+
+    def __getstate__(self) -> dict:
+        # CasADi's symbolic expressions do not pickle (a Dask worker receives the estimators
+        # that hold this model): the functions are rebuilt from the (cached) symbolic model
+        return {k: v for k, v in self.__dict__.items() if k not in ("sym", "_f")}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind()
 
     def _call(self, name: str, args: list, scalar_payload=None):
         arrays = [np.asarray(a, dtype=float) for a in args]
