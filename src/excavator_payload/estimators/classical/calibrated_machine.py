@@ -514,7 +514,31 @@ def accelerations(dataset: Dataset, half_window: int) -> np.ndarray:
     return out
 
 
-def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WINDOW) -> tuple[np.ndarray, np.ndarray]:
+#: A sample whose angle or rate jumps more than this many robust noise stds (of the second
+#: difference) is a glitch to :func:`imu_sensitivities`: arm motion's own second differences stay
+#: below 1 % of it (a jerk of 340 rad/s³ would reach it).
+GLITCH_SIGMAS = 8.0
+
+
+def _glitches(x: np.ndarray, experiment: np.ndarray, half_window: int) -> np.ndarray:
+    """Rows of ``x`` (angles and rates) near a one-frame glitch: a second difference beyond
+    :data:`GLITCH_SIGMAS` robust stds, widened by ``half_window`` (the derived accelerations see
+    it that far). A rate glitch would otherwise step the integrated rate for the rest of its run."""
+    d2 = np.full_like(x, 0.0)
+    d2[1:-1] = x[2:] - 2 * x[1:-1] + x[:-2]
+    same = np.r_[False, experiment[2:] == experiment[:-2], False] & np.r_[False, experiment[1:-1] == experiment[:-2], False]
+    d2[~same] = 0.0
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(d2) & same[:, None]
+        scale = np.array([np.median(np.abs(d2[finite[:, c], c])) / 0.6745 if finite[:, c].any() else np.inf
+                          for c in range(x.shape[1])])
+        bad = np.any(np.abs(d2) > GLITCH_SIGMAS * np.maximum(scale, 1e-12), axis=1)
+    # a glitch's neighbours carry its second difference too; the accelerations ±half_window
+    return correlate1d(bad.astype(float), np.ones(2 * half_window + 3), mode="constant") > 0
+
+
+def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WINDOW,
+                      machine=None) -> tuple[np.ndarray, np.ndarray]:
     r"""The link IMUs' acceleration sensitivities, read off their own signals.
 
     An inclination IMU's angle and its gyro's rate pass the same output filter, so the angle
@@ -526,8 +550,10 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
               + c + b\,t + \varepsilon,
 
     with :math:`a_j` the link's absolute angular acceleration (the sum of the relative ones,
-    derived from the rates as in calibration), :math:`c, b` per run of contiguous samples.
-    Least squares over the three joints at once, the nuisances projected out per run. Needs no
+    derived from the rates as in calibration), :math:`c, b` per run of contiguous samples (a
+    run ends at a non-finite sample, an angle outside ``machine``'s range or a one-frame glitch,
+    :func:`_glitches`: a rate glitch would step the integral for the rest of the run). Least
+    squares over the three joints at once, the nuisances projected out per run. Needs no
     known payload and no machine file; on ten calibration swings of the field preset it finds
     0.0076-0.0088 / 0.0075-0.0077 / 0.0077-0.0078 s² where the simulator has 0.0076 (three
     draws).
@@ -546,6 +572,10 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
     dt = 1.0 / MACHINE_SENSORS.sample_rate
     exp = f["experiment"].to_numpy()
     ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1)
+    if machine is not None:
+        ranges = machine.angle_ranges
+        ok &= np.all((ranges[:, 0] <= values[:, ANGLES]) & (values[:, ANGLES] <= ranges[:, 1]), axis=1)
+    ok &= ~_glitches(values[:, [*ANGLES, *RATES[:3]]], exp, half_window)
     runs = np.cumsum(np.r_[True, (exp[1:] != exp[:-1]) | ~ok[:-1]])
     absolute = np.cumsum(qdd[:, :3], axis=1)
     ys, xs = [], []
@@ -923,7 +953,7 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
     if imu_leak == "auto":
         imu_leak = "signals" if balance == "momentum" else "fit"
     if imu_leak == "signals":
-        k, k_std = imu_sensitivities(dataset)
+        k, k_std = imu_sensitivities(dataset, machine=arm.machine)
         prior_mean[links] = k
         cal.z = prior_mean.copy()
         cal.covariance[links, links] = k_std**2
