@@ -1,6 +1,6 @@
 """One-frame glitches on the machine sensor set: what the outlier test rejects and what it saves.
 
-Calibrates ``calibrated`` as ``demo --machine`` does (10 calibration motions from the 3 % file,
+Calibrates ``calibrated`` (or ``--estimator``) as ``demo --machine`` does (10 calibration motions from the 3 % file,
 zero check), simulates ``--test`` NMPC swings, swings and work cycles of session 2, then puts one
 glitch into every experiment (sample 300, t = 3 s) of each kind below and compares the final
 estimate with the clean run, with the test on and off (``Estimator.gating``). Also counts the
@@ -8,7 +8,7 @@ rejections on the clean data (false alarms).
 
 Usage::
 
-    python benchmarks/glitch_machine.py [--test 200] [--seed 11]
+    python benchmarks/glitch_machine.py [--test 200] [--seed 11] [--estimator ekf]
 """
 
 from __future__ import annotations
@@ -31,9 +31,11 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--test", type=int, default=200)
     ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--estimator", default="calibrated", choices=["calibrated", "inverse-dynamics", "ekf", "ukf"],
+                    help="fitted as demo --machine fits it (the 3 %% file)")
     a = ap.parse_args()
     cal, zero = dm.calibration_data(10, a.seed), dm.zero_data(a.seed + 1)
-    est = dm.fit_estimators(cal, zero, ["calibrated"])["fitted"]["calibrated"]
+    est = dm.fit_estimators(cal, zero, [a.estimator])["fitted"][a.estimator]
     common = dict(machine="cat345c-hydraulic", session=dm.SESSION_WORK, with_truth=False, workers=1,
                   progress=False)
     sets = {"nmpc": simulate_dataset(a.test, seed=a.seed + 2, motion="nmpc", **common),

@@ -102,6 +102,8 @@ N_KIN = len(KINEMATIC)
 SKIP_SPEED = 1.0
 #: Smallest standard deviations used where a noise preset says 0 (keeps R invertible).
 STD_FLOOR = {"angle": 1e-6, "rate": 1e-6, "pressure": 1e3}
+#: Force variance (N²) that removes a measurement (``--low-speed skip``): no information.
+SKIPPED_VARIANCE = 1e30
 
 
 @lru_cache(maxsize=1)
@@ -222,6 +224,9 @@ class MachineTuning:
     pressure_std : float, Pa; ripple_fraction : float (share of the pressure).
     jerk : (4,) jerk densities; payload_walk : kg/√s.
     noise : name of the noise preset.
+    spike_threshold : (16,) per-signal threshold of the one-frame glitch test
+        (:func:`~.pressure_regression.spike_threshold` of the training data's sample-to-sample
+        changes; ``inf``: no test, as models saved before it).
     """
 
     R_kinematic: np.ndarray
@@ -230,6 +235,11 @@ class MachineTuning:
     jerk: np.ndarray
     payload_walk: float
     noise: str
+    spike_threshold: np.ndarray = None
+
+    def __post_init__(self):
+        if self.spike_threshold is None:
+            self.spike_threshold = np.full(len(SIGNALS), np.inf)
 
     def config(self) -> dict:
         """The JSON-able part to save: the scalar covariances and the noise preset, marked as the
@@ -239,8 +249,8 @@ class MachineTuning:
                 "payload_walk": self.payload_walk}
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The arrays to save: ``R_kinematic`` and ``jerk``."""
-        return {"R_kinematic": self.R_kinematic, "jerk": self.jerk}
+        """The arrays to save: ``R_kinematic``, ``jerk`` and ``spike_threshold``."""
+        return {"R_kinematic": self.R_kinematic, "jerk": self.jerk, "spike_threshold": self.spike_threshold}
 
     @classmethod
     def restore(cls, config: dict, arrays) -> "MachineTuning":
@@ -255,7 +265,12 @@ class MachineTuning:
         if R.shape != (N_KIN,) or jerk.shape != (4,) or not (np.all(R > 0) and np.all(jerk > 0)
                                                              and np.all(np.isfinite(values))):
             raise EstimatorError("saved machine-set filter covariances are corrupt")
-        return cls(R, values[0], values[1], jerk, values[2], str(config.get("noise", "")))
+        # models saved before the glitch test have no thresholds: no test, as then
+        spikes = np.asarray(arrays["spike_threshold"], float) if "spike_threshold" in arrays else \
+            np.full(len(SIGNALS), np.inf)
+        if spikes.shape != (len(SIGNALS),) or np.any(np.isnan(spikes)) or np.any(spikes <= 0):
+            raise EstimatorError("saved machine-set filter: its glitch thresholds are corrupt")
+        return cls(R, values[0], values[1], jerk, values[2], str(config.get("noise", "")), spikes)
 
 
 def machine_tuning(dataset: Dataset, noise_name: str, payload_walk: float) -> MachineTuning:
@@ -378,18 +393,20 @@ class MachineKalman:
         return (self._head2 * (self._pvar + self._ripple * p_head**2)
                 + self._rod2 * (self._pvar + self._ripple * p_rod**2))
 
-    def step(self, values: np.ndarray) -> bool:
-        """Update with one sample and predict to the next; False (state kept) if not finite."""
-        if self.x is None:
-            self.x, self.P = self.initial_state(values)
-        x, P = self.x, self.P
-        # Update 1: angles and rates, h = x[:7].
+    def _kinematic_update(self, x: np.ndarray, P: np.ndarray, values: np.ndarray):
+        """Update 1 (angles and rates, :math:`h = x_{0:7}`): the corrected state and covariance,
+        the innovation and its covariance."""
         S = P[:N_KIN, :N_KIN] + self.R_kin
+        nu = values[KINEMATIC] - x[:N_KIN]
         K = np.linalg.solve(S, P[:N_KIN]).T
-        x = x + K @ (values[KINEMATIC] - x[:N_KIN])
+        x = x + K @ nu
         P = P - K @ P[:N_KIN]
-        P = 0.5 * (P + P.T)
-        # Update 2: piston forces through the symbolic model, at the state after update 1.
+        return x, 0.5 * (P + P.T), nu, S
+
+    def _force_terms(self, x: np.ndarray, P: np.ndarray, values: np.ndarray):
+        """What update 2 needs at state ``x``: the tilt, the measured piston forces, their
+        model (value ``h`` and Jacobian ``H``) and their noise ``R`` (stiction and
+        ``--low-speed skip`` included)."""
         pressures = values[PRESSURES]
         force = pressures[0::2] * self._head - pressures[1::2] * self._rod
         tilt = np.array(ground_tilt(float(values[PITCH]), float(values[ROLL])))
@@ -402,7 +419,26 @@ class MachineKalman:
             # Stiction holds a force that stays for the whole standstill (not white noise, so
             # down-weighting still over-counts it): once the payload is known to skip_std, a
             # cylinder slower than the skip speed gives no force measurement at all.
-            R[np.diag_indices(3)] += np.where(np.abs(speed) < self._v_skip, 1e30, 0.0)
+            R[np.diag_indices(3)] += np.where(np.abs(speed) < self._v_skip, SKIPPED_VARIANCE, 0.0)
+        return tilt, force, h, H, R
+
+    def predict(self) -> None:
+        """One prediction without a measurement: bridges the slot of a sample judged a glitch
+        (the white-jerk chains carry the motion over the hole; restarting the kinematics
+        mid-motion biases the payload)."""
+        if self.x is None:
+            return
+        self.x = self.F @ self.x
+        P = self.F @ self.P @ self.F.T + self.Q
+        self.P = 0.5 * (P + P.T)
+
+    def step(self, values: np.ndarray) -> bool:
+        """Update with one sample and predict to the next; False (state kept) if not finite."""
+        if self.x is None:
+            self.x, self.P = self.initial_state(values)
+        x, P, _, _ = self._kinematic_update(self.x, self.P, values)
+        # Update 2: piston forces through the symbolic model, at the state after update 1.
+        tilt, force, h, H, R = self._force_terms(x, P, values)
         if self.unscented:
             x, P = self._unscented_update(x, P, tilt, force, R)
         else:
