@@ -1470,9 +1470,10 @@ def _machine_ekf_functions(est, single: bool) -> ca.Function:
 
 def _machine_ekf_model(est) -> CModel:
     """``ekf`` fitted on the machine sensor set: ``_kalman_machine.MachineKalman`` with the
-    status rules of ``KalmanEstimatorBase._machine_step`` (no statistical gate: the Python
-    judges no sample on this set)."""
+    status rules of ``KalmanEstimatorBase._machine_step`` (no statistical gate on this set; the
+    one-frame glitch test with its undo, as the Python)."""
     from excavator_payload.estimators.classical import _kalman_machine as km
+    from excavator_payload.estimators.classical.calibrated_machine import NO_LIMIT
 
     mk = est._machine_filter
     if mk is None or mk.unscented:
@@ -1512,6 +1513,54 @@ def _machine_ekf_model(est) -> CModel:
         f"#define EP_MAX_GAP {c_number(o['max_gap'])}",
         f"#define EP_PAYLOAD_WALK_VAR {c_number(mk.tuning.payload_walk ** 2)}  /* kg^2/s */",
         "",
+        "/* KalmanEstimatorBase._judge_previous: a sample is a one-frame glitch when a signal stands",
+        " * out from both neighbours in the same direction by more than z sigma_delta and more than",
+        " * they differ; the filter then goes back to its state before it and predicts over its slot.",
+        " * Off with -DEP_GATING=0 (Estimator.gating = False). */",
+        "#ifndef EP_GATING",
+        f"#define EP_GATING {1 if est.gating else 0}",
+        "#endif",
+        c_array("EP_SPIKE_THRESHOLD", np.minimum(mk.tuning.spike_threshold, NO_LIMIT)).rstrip(),
+        c_array("EP_F", mk.F).rstrip() + "  /* white-jerk transition, row-major */",
+        c_array("EP_Q", mk.Q).rstrip() + "  /* its process noise, row-major */",
+        "",
+        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
+        "{",
+        "    int i;",
+        "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
+        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
+        "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
+        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]",
+        "            && smaller > EP_MATH(fabs)(after[i] - before[i])) return 1;",
+        "    }",
+        "    return 0;",
+        "}",
+        "",
+        "/* MachineKalman.predict: x = F x, P = F P F' + Q, symmetrised (P column-major) */",
+        "static void ep_predict(ep_state *s)",
+        "{",
+        f"    ep_real x[{n}], T[{n * n}], Pn[{n * n}];",
+        "    int i, j, k;",
+        f"    for (i = 0; i < {n}; ++i) {{",
+        "        x[i] = EP_C(0.0);",
+        f"        for (k = 0; k < {n}; ++k) x[i] += EP_F[i * {n} + k] * s->x[k];",
+        "    }",
+        f"    for (i = 0; i < {n}; ++i)",
+        f"        for (j = 0; j < {n}; ++j) {{",
+        f"            T[i + j * {n}] = EP_C(0.0);",
+        f"            for (k = 0; k < {n}; ++k) T[i + j * {n}] += EP_F[i * {n} + k] * s->P[k + j * {n}];",
+        "        }",
+        f"    for (i = 0; i < {n}; ++i)",
+        f"        for (j = 0; j < {n}; ++j) {{",
+        f"            Pn[i + j * {n}] = EP_Q[i * {n} + j];",
+        f"            for (k = 0; k < {n}; ++k) Pn[i + j * {n}] += T[i + k * {n}] * EP_F[j * {n} + k];",
+        "        }",
+        f"    for (i = 0; i < {n}; ++i) {{",
+        "        s->x[i] = x[i];",
+        f"        for (j = 0; j < {n}; ++j) s->P[i + j * {n}] = EP_C(0.5) * (Pn[i + j * {n}] + Pn[j + i * {n}]);",
+        "    }",
+        "}",
+        "",
         "/* MachineKalman.initial_state: angles and rates from the sample (broad prior), accelerations",
         " * 0 +- 1 rad/s^2, payload m_max/2 +- m_max/2 */",
         "static void ep_initial_state(ep_state *s, const ep_real v[EP_N_SIGNALS])",
@@ -1527,8 +1576,34 @@ def _machine_ekf_model(est) -> CModel:
     np_ = n * n
     step = f"""    /* KalmanEstimatorBase._machine_step around MachineKalman.step */
     ep_real packed[{2 * (n + np_)}];
-    int i;
+    int i, undone = 0;
     (void)time;
+#if EP_GATING
+    /* _judge_previous: the sample before this one a glitch? back to the state before it */
+    if (s->n_recent == 2 && s->has_undo && ep_spike(s->recent, s->recent + EP_N_SIGNALS, v)) {{
+        for (i = 0; i < {n}; ++i) s->x[i] = s->undo_x[i];
+        for (i = 0; i < {np_}; ++i) s->P[i] = s->undo_P[i];
+        s->n_filtered = s->undo_n_filtered;
+        ep_predict(s);
+        for (i = 0; i < EP_N_SIGNALS; ++i)
+            s->recent[EP_N_SIGNALS + i] = EP_C(0.5) * (s->recent[i] + v[i]);
+        undone = 1;
+    }}
+#else
+    (void)ep_spike;
+#endif
+    /* the state before this sample (to undo it), and the last two samples */
+    s->has_undo = s->started;
+    if (s->started) {{
+        for (i = 0; i < {n}; ++i) s->undo_x[i] = s->x[i];
+        for (i = 0; i < {np_}; ++i) s->undo_P[i] = s->P[i];
+        s->undo_n_filtered = s->n_filtered;
+    }}
+    if (s->n_recent == 2)
+        for (i = 0; i < EP_N_SIGNALS; ++i) s->recent[i] = s->recent[EP_N_SIGNALS + i];
+    else
+        s->n_recent += 1;
+    for (i = 0; i < EP_N_SIGNALS; ++i) s->recent[(s->n_recent - 1) * EP_N_SIGNALS + i] = v[i];
     if (!s->started) {{
         ep_initial_state(s, v);
         s->started = 1;
@@ -1557,7 +1632,7 @@ def _machine_ekf_model(est) -> CModel:
     for (i = 0; i < {np_}; ++i) s->P[i] = packed[{2 * n + np_} + i];
     if (s->n_filtered <= EP_WARMUP_SAMPLES || s->posterior_std > EP_CONVERGED_STD)
         return EP_STATUS_WARMING_UP;
-    return EP_STATUS_OK;"""
+    return undone ? EP_STATUS_REJECTED : EP_STATUS_OK;"""
     on_gap = f"""    /* KalmanEstimatorBase._on_gap / MachineKalman.restart_kinematics: a short gap restarts the
      * kinematic states from the sample and keeps the payload (its variance grown by the random
      * walk); a long one (or time going back) restarts the filter */
@@ -1570,7 +1645,9 @@ def _machine_ekf_model(est) -> CModel:
     payload_var = s->P[{km.PAYLOAD * (n + 1)}];
     ep_initial_state(s, v);
     s->x[{km.PAYLOAD}] = payload;
-    s->P[{km.PAYLOAD * (n + 1)}] = payload_var + EP_PAYLOAD_WALK_VAR * dt;"""
+    s->P[{km.PAYLOAD * (n + 1)}] = payload_var + EP_PAYLOAD_WALK_VAR * dt;
+    s->n_recent = 0;  /* no neighbours across a gap */
+    s->has_undo = 0;"""
     return CModel(
         description=f"ekf on the machine sensor set: extended Kalman filter on IMU angles and rates and "
                     f"cylinder pressures (machine {est.machine.name}, noise {mk.tuning.noise}, "
@@ -1579,9 +1656,16 @@ def _machine_ekf_model(est) -> CModel:
                       f"ep_real P[{np_}];  /* covariance, column-major */",
                       "int started;      /* x, P initialised */",
                       "int n_filtered;   /* samples since the filter (re)started */",
-                      "ep_real posterior_std;"],
+                      "ep_real posterior_std;",
+                      f"ep_real undo_x[{n}];  /* the state before the last sample (glitch undo) */",
+                      f"ep_real undo_P[{np_}];",
+                      "int undo_n_filtered;",
+                      "int has_undo;",
+                      "ep_real recent[2 * EP_N_SIGNALS];  /* the last two samples used */",
+                      "int n_recent;"],
         definitions=definitions,
-        reset="    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = EP_NAN;",
+        reset="    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = EP_NAN;\n"
+              "    s->has_undo = 0;\n    s->n_recent = 0;",
         step=step, on_gap=on_gap,
         sigma="    /* _estimate_sigma: the payload's posterior standard deviation */\n"
               "    return s->posterior_std;",
