@@ -186,7 +186,10 @@ class KalmanEstimatorBase(Estimator):
             return False
         before, mid = self._recent
         thresholds = mk.tuning.spike_threshold
-        d1, d2 = mid - before, mid - values
+        d1 = mid - before
+        if not (np.abs(d1) > thresholds).any():  # the usual case, in three operations
+            return False
+        d2 = mid - values
         smaller = np.minimum(np.abs(d1), np.abs(d2))
         if not np.any((d1 * d2 > 0) & (smaller > thresholds) & (smaller > np.abs(values - before))):
             return False
