@@ -1070,24 +1070,7 @@ def _pressure_regression_model(est) -> CModel:
         " * z sigma_delta (z: GATE_PROBABILITY two-sided; sigma_delta: the fit data's sample-to-sample",
         " * change); its slot gets the neighbours' mean and is never regressed. Off with",
         " * -DEP_GATING=0 (Estimator.gating = False). */",
-        "#ifndef EP_GATING",
-        f"#define EP_GATING {1 if est.gating else 0}",
-        "#endif",
-        c_array("EP_SPIKE_THRESHOLD", kernel.spike_threshold).rstrip(),
-        "",
-        "/* PressureRegression._spike */",
-        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
-        "{",
-        "    int i;",
-        "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
-        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
-        "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
-        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]",
-        "            && smaller > EP_MATH(fabs)(after[i] - before[i])) return 1;  /* stands out more than",
-        "                                                                      * its neighbours differ */",
-        "    }",
-        "    return 0;",
-        "}",
+        *_c_one_frame_glitch(est.gating, kernel.spike_threshold),
     ]
     if not (calibrated and kernel.low_speed == "model"):
         defs.append(c_array("EP_STILL_SPEED", still_speed).rstrip() + "  /* 3 Stribeck velocities, m/s */")
@@ -1401,6 +1384,31 @@ if (1) {
         state_finite="    return isfinite(s->info);")
 
 
+def _c_one_frame_glitch(gating: bool, thresholds) -> list[str]:
+    """C lines of ``pressure_regression.one_frame_glitch``: ``EP_GATING`` (overridable with
+    -DEP_GATING=0, as ``Estimator.gating = False``), the thresholds and ``ep_spike``."""
+    return [
+        "#ifndef EP_GATING",
+        f"#define EP_GATING {1 if gating else 0}",
+        "#endif",
+        c_array("EP_SPIKE_THRESHOLD", thresholds).rstrip(),
+        "",
+        "/* pressure_regression.one_frame_glitch */",
+        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
+        "{",
+        "    int i;",
+        "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
+        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
+        "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
+        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]",
+        "            && smaller > EP_MATH(fabs)(after[i] - before[i])) return 1;  /* stands out more than",
+        "                                                                      * its neighbours differ */",
+        "    }",
+        "    return 0;",
+        "}",
+    ]
+
+
 def _machine_ekf_functions(est, single: bool) -> ca.Function:
     """One step of ``_kalman_machine.MachineKalman`` (EKF) as a CasADi function of the prior
     ``x`` (12), ``P`` (12×12) and the sample (15), everything else constant:
@@ -1517,24 +1525,9 @@ def _machine_ekf_model(est) -> CModel:
         " * out from both neighbours in the same direction by more than z sigma_delta and more than",
         " * they differ; the filter then goes back to its state before it and predicts over its slot.",
         " * Off with -DEP_GATING=0 (Estimator.gating = False). */",
-        "#ifndef EP_GATING",
-        f"#define EP_GATING {1 if est.gating else 0}",
-        "#endif",
-        c_array("EP_SPIKE_THRESHOLD", np.minimum(mk.tuning.spike_threshold, NO_LIMIT)).rstrip(),
+        *_c_one_frame_glitch(est.gating, np.minimum(mk.tuning.spike_threshold, NO_LIMIT)),
         c_array("EP_F", mk.F).rstrip() + "  /* white-jerk transition, row-major */",
         c_array("EP_Q", mk.Q).rstrip() + "  /* its process noise, row-major */",
-        "",
-        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
-        "{",
-        "    int i;",
-        "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
-        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
-        "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
-        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]",
-        "            && smaller > EP_MATH(fabs)(after[i] - before[i])) return 1;",
-        "    }",
-        "    return 0;",
-        "}",
         "",
         "/* MachineKalman.predict: x = F x, P = F P F' + Q, symmetrised (P column-major) */",
         "static void ep_predict(ep_state *s)",

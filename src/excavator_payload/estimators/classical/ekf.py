@@ -56,6 +56,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
 from excavator_payload.estimators.classical import _kalman as kf
+from excavator_payload.estimators.classical.pressure_regression import one_frame_glitch
 
 COMMON_OPTIONS = {
     "tuning": Option(str, "consistent", "covariances: 'thesis' (§6.1 Q, R, P0, x0) or 'consistent' "
@@ -185,13 +186,7 @@ class KalmanEstimatorBase(Estimator):
         if not self.gating or len(self._recent) < 2 or self._undo is None:
             return False
         before, mid = self._recent
-        thresholds = mk.tuning.spike_threshold
-        d1 = mid - before
-        if not (np.abs(d1) > thresholds).any():  # the usual case, in three operations
-            return False
-        d2 = mid - values
-        smaller = np.minimum(np.abs(d1), np.abs(d2))
-        if not np.any((d1 * d2 > 0) & (smaller > thresholds) & (smaller > np.abs(values - before))):
+        if not one_frame_glitch(before, mid, values, mk.tuning.spike_threshold):
             return False
         mk.x, mk.P, posterior, self._n_filtered = self._undo
         if posterior is not None:

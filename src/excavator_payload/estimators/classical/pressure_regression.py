@@ -157,9 +157,7 @@ class PressureRegression:
 
     def _spike(self, before: np.ndarray, sample: np.ndarray, after: np.ndarray) -> bool:
         """Whether ``sample`` is a one-frame outlier between its neighbours (module doc)."""
-        d1, d2 = sample - before, sample - after
-        smaller = np.minimum(np.abs(d1), np.abs(d2))
-        return bool(np.any((d1 * d2 > 0) & (smaller > self.spike_threshold) & (smaller > np.abs(after - before))))
+        return one_frame_glitch(before, sample, after, self.spike_threshold)
 
     def update(self, time: float, values: np.ndarray) -> bool:
         """Consume one sample; returns whether a sample (the centre of the window) was used.
@@ -188,6 +186,19 @@ class PressureRegression:
     @property
     def estimate(self) -> float:
         return self.num / self.info if self.info > 0 else math.nan
+
+
+def one_frame_glitch(before: np.ndarray, sample: np.ndarray, after: np.ndarray, threshold: np.ndarray) -> bool:
+    """Whether ``sample`` is a one-frame outlier between its neighbours: some signal moves away
+    from both, in the same direction, by more than its ``threshold`` (:func:`spike_threshold`)
+    and more than the neighbours differ from each other (module doc). Shared by the pressure
+    kernels and the machine-set Kalman filters."""
+    d1 = sample - before
+    if not (np.abs(d1) > threshold).any():  # the usual case, in three operations
+        return False
+    d2 = sample - after
+    smaller = np.minimum(np.abs(d1), np.abs(d2))
+    return bool(np.any((d1 * d2 > 0) & (smaller > threshold) & (smaller > np.abs(after - before))))
 
 
 def difference_scale(dataset) -> np.ndarray:
