@@ -1569,7 +1569,8 @@ def _machine_ekf_model(est) -> CModel:
     np_ = n * n
     step = f"""    /* KalmanEstimatorBase._machine_step around MachineKalman.step */
     ep_real packed[{2 * (n + np_)}];
-    int i, undone = 0;
+    int i, undone = 0, hold = 0;
+    ep_real held_std = s->posterior_std;
     (void)time;
 #if EP_GATING
     /* _judge_previous: the sample before this one a glitch? back to the state before it */
@@ -1592,6 +1593,14 @@ def _machine_ekf_model(est) -> CModel:
         for (i = 0; i < {np_}; ++i) s->undo_P[i] = s->P[i];
         s->undo_n_filtered = s->n_filtered;
     }}
+#if EP_GATING
+    /* a sample that jumps from the one before it: its own estimate (and sigma) is the last one
+     * held, so a glitch the next sample reveals is never reported */
+    if (s->started && s->n_recent >= 1 && isfinite(s->last_estimate))
+        for (i = 0; i < EP_N_SIGNALS; ++i)
+            if (EP_MATH(fabs)(v[i] - s->recent[(s->n_recent - 1) * EP_N_SIGNALS + i]) > EP_SPIKE_THRESHOLD[i])
+                hold = 1;
+#endif
     if (s->n_recent == 2)
         for (i = 0; i < EP_N_SIGNALS; ++i) s->recent[i] = s->recent[EP_N_SIGNALS + i];
     else
@@ -1618,9 +1627,9 @@ def _machine_ekf_model(est) -> CModel:
     s->n_filtered += 1;
     {{
         ep_real var = packed[{n} + {n + 1} * {km.PAYLOAD}];
-        s->posterior_std = EP_MATH(sqrt)(var > EP_C(0.0) ? var : EP_C(0.0));
+        s->posterior_std = hold ? held_std : EP_MATH(sqrt)(var > EP_C(0.0) ? var : EP_C(0.0));
     }}
-    *estimate = packed[{km.PAYLOAD}];
+    *estimate = hold ? s->last_estimate : packed[{km.PAYLOAD}];
     for (i = 0; i < {n}; ++i) s->x[i] = packed[{n + np_} + i];
     for (i = 0; i < {np_}; ++i) s->P[i] = packed[{2 * n + np_} + i];
     if (s->n_filtered <= EP_WARMUP_SAMPLES || s->posterior_std > EP_CONVERGED_STD)

@@ -159,19 +159,26 @@ class KalmanEstimatorBase(Estimator):
         (:meth:`~.pressure_regression.PressureRegression._spike`, thresholds from the training
         data), without delaying the estimate: when this sample shows the one before it was a
         glitch, the filter goes back to its state before that sample and predicts over its
-        slot (one frame's estimate was already reported with it). Without this one boom-rate
+        slot. A sample that jumps from the one before it is used, but its own estimate (and
+        sigma) is the last one held, so a glitch is never reported. Without this one boom-rate
         frame of 30 rad/s left the UKF 3163 kg off at the end of a swing, sigma 2.3 kg.
         """
         mk = self._machine_filter
         undone = self._judge_previous(values)
         self._undo = (mk.x, mk.P, getattr(mk, "posterior", None), self._n_filtered) if mk.x is not None else None
+        # a sample that jumps from the one before it may be a glitch the next sample reveals:
+        # its own estimate is held (the last one) so a glitch is never reported, not even once
+        hold = (self.gating and self._undo is not None and bool(self._recent)
+                and math.isfinite(self._last_estimate)
+                and bool((np.abs(values - self._recent[-1]) > mk.tuning.spike_threshold).any()))
         self._recent.append(values.copy())
         del self._recent[:-2]
+        held_std = self._posterior_std
         if not mk.step(values):
             return StepResult(self._last_estimate, Status.INVALID)
         self._n_filtered += 1
-        self._posterior_std = mk.payload_std
-        estimate = mk.estimate
+        self._posterior_std = held_std if hold else mk.payload_std
+        estimate = self._last_estimate if hold else mk.estimate
         if (self._n_filtered <= self.options["warmup_samples"]
                 or self._posterior_std > self.options["converged_std"]):
             return StepResult(estimate, Status.WARMING_UP)
