@@ -155,9 +155,59 @@ def test_hydraulic_angle_limits_are_the_ranges_widened_by_the_sensor_margin():
         lo, hi = machine.angle_ranges[j]
         assert (low[i], high[i]) == pytest.approx((lo - margins[name], hi + margins[name]))
     # signals without a machine rule keep the sensor set's limits
+    i = MACHINE_SENSORS.index("house_roll")
+    assert (low[i], high[i]) == (-MACHINE_SENSORS.plausible_abs["house_roll"],
+                                 MACHINE_SENSORS.plausible_abs["house_roll"])
+
+
+def test_hydraulic_rate_limits_are_what_the_pumps_can_turn_a_joint():
+    """A joint rate is bounded by the pump's flow through the cylinder's smaller area and the
+    joint's smallest moment arm (here from the cylinder lengths by finite differences, not the
+    model's moment_arms), × RATE_LIMIT_FACTOR, plus 6σ of the rate sensors' offset and noise; the
+    slew by max_slew_rate the same way."""
+    from excavator_payload.data.schema import MACHINE_SENSORS
+    from excavator_payload.estimators.base import RATE_LIMIT_FACTOR, plausibility_limits
+    from excavator_payload.model.hydraulic import HydraulicArmModel
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_sensors import PRESETS
+
+    machine = load_machine("cat345c-hydraulic")
+    low, high = plausibility_limits(MACHINE_SENSORS, machine)
+    arm = HydraulicArmModel(machine)
+    field = PRESETS["field"]
+    margin = 6 * (field.rate_offset + field.rate_noise)
+    assert margin > 0
+    h = 1e-6
+    for j, name in enumerate(("boom_rate", "dipper_rate", "bucket_rate")):
+        q = np.zeros((2001, 4))
+        q[:, :3] = (-0.3, -1.3, -0.8)
+        q[:, j] = np.linspace(*machine.angle_ranges[j], 2001)
+        dq = np.zeros(4)
+        dq[j] = h
+        arms = np.abs(arm.cylinder_lengths(q + dq)[:, j] - arm.cylinder_lengths(q - dq)[:, j]) / (2 * h)
+        cyl = machine.cylinders[j]
+        fastest = machine.hydraulics.pump_flow / (cyl.count * min(cyl.head_area, cyl.rod_area)) / arms.min()
+        i = MACHINE_SENSORS.index(name)
+        assert high[i] == pytest.approx(RATE_LIMIT_FACTOR * fastest + margin, rel=1e-3)
+        assert low[i] == -high[i]
     i = MACHINE_SENSORS.index("slew_rate")
-    assert (low[i], high[i]) == (-MACHINE_SENSORS.plausible_abs["slew_rate"],
-                                 MACHINE_SENSORS.plausible_abs["slew_rate"])
+    assert high[i] == pytest.approx(RATE_LIMIT_FACTOR * machine.house.max_slew_rate + margin)
+    # a 345C's boom turns at most about 0.7 rad/s; the sensor set alone allowed 50
+    assert high[MACHINE_SENSORS.index("boom_rate")] < 2.0
+
+
+def test_two_agreeing_rate_glitches_are_out_of_range_on_the_machine_set():
+    """No one-frame test sees two equal bad frames in a row (each agrees with a neighbour); the
+    machine's own rate limit does."""
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    data = simulate_machine_dataset(1, seed=3, motion="lifts")
+    est = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(data)
+    statuses = [est.step(_sample(data, k)).status for k in range(20)]
+    assert Status.OUT_OF_RANGE not in statuses
+    for k in (20, 21):
+        assert est.step(dict(_sample(data, k), boom_rate=30.0)).status is Status.OUT_OF_RANGE
+    assert est.step(_sample(data, 22)).status is not Status.OUT_OF_RANGE
 
 
 def test_an_impossible_bucket_angle_is_rejected_on_the_machine_set():

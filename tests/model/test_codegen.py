@@ -1,4 +1,5 @@
-"""The native-code cache never loads a library that is not the one it built."""
+"""Native code: the cache never loads a library that is not the one it built; ColumnMap gives
+CasADi's own numbers."""
 
 import casadi as ca
 import numpy as np
@@ -38,3 +39,34 @@ def test_damaged_library_is_rebuilt_not_loaded(cache, damage):
     assert again == library and codegen.verified(library)
     native = codegen.native(f)
     np.testing.assert_allclose(np.asarray(native([0.3, 0.7])).ravel(), np.cos([0.3, 0.7]) * 0.7)
+
+
+def test_column_map_equals_casadi_map_bit_for_bit():
+    """ColumnMap (buffer interface) gives the mapped function's own numbers, dense where the
+    output is sparse (a Jacobian with structural zeros), a 1-d input shared by every sample,
+    and empty outputs for no sample."""
+    import casadi as ca
+    import numpy as np
+
+    from excavator_payload.model.codegen import ColumnMap, column_map
+
+    x = ca.SX.sym("x", 3)
+    p = ca.SX.sym("p", 2)
+    y = ca.vertcat(ca.sin(x[0]) * p[0], x[1] * x[2] + p[1], ca.exp(x[2]))
+    f = ca.Function("f", [x, p], [y, ca.jacobian(y, x), ca.sum1(y)])
+    assert f.sparsity_out(1).nnz() < 9  # structural zeros
+    rng = np.random.default_rng(1)
+    n = 37
+    xs, ps = rng.normal(size=(3, n)), rng.normal(size=2)
+    reference = [np.asarray(o) for o in f.map(n, "serial")(xs, np.repeat(ps[:, None], n, 1))]
+    got = ColumnMap(f, n)(xs, ps)
+    assert [g.shape for g in got] == [r.shape for r in reference] == [(3, n), (3, 3 * n), (1, n)]
+    for g, r in zip(got, reference):
+        assert np.array_equal(g, r)
+    # cached per (function, n): the second call reuses the buffers and overwrites them
+    again = column_map(f, n)
+    assert column_map(f, n) is again
+    first = again(xs, ps)[0]
+    second = again(2 * xs, ps)[0]
+    assert not np.array_equal(first, second) and np.array_equal(first, reference[0])
+    assert [o.shape for o in ColumnMap(f, 0)(np.zeros((3, 0)), ps)] == [(3, 0), (3, 0), (1, 0)]

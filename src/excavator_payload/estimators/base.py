@@ -28,7 +28,9 @@ step returns the last estimate (and its sigma) with the status of the check.
    through :data:`MACHINE_RULES`: the angle ranges, and ``|torque| ≤``
    :data:`TORQUE_LIMIT_FACTOR` ``×`` the joint's torque limit; for a hydraulic machine file
    through :data:`HYDRAULIC_RULES`: the links' angle ranges widened by the sensor margin
-   (:func:`angle_sensor_margins`). Estimators without a machine
+   (:func:`angle_sensor_margins`), and each joint rate within :data:`RATE_LIMIT_FACTOR` ``×``
+   the fastest the hydraulics turn it (pump flow, cylinder areas, moment arms; the slew's
+   ``max_slew_rate``) plus the rate sensors' margin (:func:`rate_sensor_margin`). Estimators without a machine
    model (the networks) take the machine of their training data. The limits are saved with the
    model (``estimator.json``, key ``plausibility``).
 3. **Statistically consistent** (``rejected_outlier``): an estimator with a noise model
@@ -163,6 +165,16 @@ HYDRAULIC_RULES: dict[str, tuple[str, str]] = {
 #: Standard deviations of a sensor's offset and white noise the angle margin allows (a 6-sigma
 #: Gaussian draw: about 2e-9 per sample).
 ANGLE_MARGIN_SIGMAS = 6.0
+#: Hydraulic machine files: a measured joint rate must lie within this factor times the fastest
+#: the machine's hydraulics can turn the joint
+#: (:meth:`~excavator_payload.model.hydraulic.HydraulicArmModel.largest_joint_rates`), plus the
+#: rate sensors' offset and noise margin. The factor leaves room for what the pump-flow limit does
+#: not bound (an overrunning load lowered faster than the pump fills the cylinder, a regenerating
+#: valve, a machine file's flow on the low side); without it a glitch of two agreeing rate
+#: frames (no one-frame test sees it) at 30 rad/s passed as plausible against the sensor set's
+#: ±50 rad/s.
+RATE_LIMIT_FACTOR = 2.0
+HYDRAULIC_RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
 
 _CHI2: dict[int, float] = {}
 
@@ -191,6 +203,16 @@ def angle_sensor_margins() -> dict[str, float]:
             spread = ANGLE_MARGIN_SIGMAS * (noise.angle_offset + noise.angle_noise)
             margins[name] = max(margins[name], leak + spread)
     return margins
+
+
+def rate_sensor_margin() -> float:
+    """How far (rad/s) a measured joint rate of the machine sensor set can lie beyond the true
+    one's magnitude, the largest over the sensor model's presets: offset and white noise,
+    :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the IMU's lag is a convex combination
+    of past true rates and adds nothing)."""
+    from excavator_payload.simulation.machine_sensors import PRESETS
+
+    return max(ANGLE_MARGIN_SIGMAS * (n.rate_offset + n.rate_noise) for n in PRESETS.values())
 
 
 def gate_threshold(dof: int) -> float:
@@ -224,6 +246,15 @@ def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple
             else:
                 limit = TORQUE_LIMIT_FACTOR * float(value)
                 low[i], high[i] = max(low[i], -limit), min(high[i], limit)
+        if hydraulic:
+            from excavator_payload.model.hydraulic import HydraulicArmModel
+
+            fastest = HydraulicArmModel(machine).largest_joint_rates()
+            for signal, rate in zip(HYDRAULIC_RATES, fastest):
+                if signal in sensor_set.signals:
+                    i = sensor_set.index(signal)
+                    limit = RATE_LIMIT_FACTOR * rate + rate_sensor_margin()
+                    low[i], high[i] = max(low[i], -limit), min(high[i], limit)
     return low, high
 
 

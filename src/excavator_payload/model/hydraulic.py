@@ -525,6 +525,25 @@ class HydraulicArmModel:
         """∂l_j/∂q_j of the three cylinders, m/rad, shape (..., 3)."""
         return self._call("moment_arms", [q])
 
+    def largest_joint_rates(self, points: int = 400) -> np.ndarray:
+        """The fastest each joint can turn (rad/s; boom, dipper, bucket, slew), from the machine
+        file's hydraulics: a rod moves at most the pump's flow over the cylinders' smaller area
+        (``count`` cylinders share it), turning its joint fastest where its moment arm is
+        smallest over the joint's angle range (a cylinder's arm depends on its own joint's
+        angle only); the slew at ``max_slew_rate``. A joint whose arm reaches 0 in its range
+        (a linkage at its dead point) has no finite limit: inf."""
+        m = self.machine
+        rates = []
+        for j, cyl in enumerate(m.cylinders):
+            grid = np.zeros((points, 4))
+            grid[:, :3] = (-0.3, -1.3, -0.8)  # only joint j's angle matters to its arm
+            grid[:, j] = np.linspace(*m.angle_ranges[j], points)
+            smallest_arm = float(np.min(np.abs(self.moment_arms(grid)[:, j])))
+            rod_speed = m.hydraulics.pump_flow / (cyl.count * min(cyl.head_area, cyl.rod_area))
+            rates.append(rod_speed / smallest_arm if smallest_arm > 0 else np.inf)
+        rates.append(m.house.max_slew_rate)
+        return np.array(rates)
+
     def cylinder_speeds(self, q, qd):
         """Rod speeds l̇_j (m/s, extension positive), shape (..., 3)."""
         return self._call("cylinder_speeds", [q, qd])

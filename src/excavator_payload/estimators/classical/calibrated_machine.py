@@ -161,8 +161,9 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.classical.pressure_regression import (
     ANGLES, PITCH, PRESSURES, RATES, ROLL, PressureRegression)
+from excavator_payload.model.codegen import column_map, native
 from excavator_payload.model.hydraulic import (
-    CYLINDERS, HYDRAULIC_PARAMETER_NAMES, HydraulicArmModel, hydraulic_symbolic)
+    CYLINDERS, HYDRAULIC_PARAMETER_NAMES, HydraulicArmModel, compiled_function, hydraulic_symbolic)
 
 SIGNALS = MACHINE_SENSORS.signals
 DEG = math.pi / 180.0
@@ -347,6 +348,16 @@ def _momentum_terms(x, qdd, p, offsets, imu, sign=None):
         terms = functions["momentum_regression_held"](q, qd, tilt, pressures, sign, p)
     P0, Pm, I0, Fm, lever, speed, stiction, gain = terms
     return ca.vertcat(P0, Pm, I0, Fm), lever, speed, stiction, gain
+
+
+@lru_cache(maxsize=4)
+def compiled(name: str) -> ca.Function:
+    """``residual`` or ``momentum``: the batch functions of calibration and zero, compiled to C
+    (:func:`~excavator_payload.model.codegen.native`; CasADi's virtual machine where no compiler
+    is). Calibration evaluates them on every sample once per iteration: on three swings the
+    virtual machine took 10 of the 15 s. (The streaming kernels, :func:`kernel_function`, are
+    compiled already.)"""
+    return native({"residual": residual_function, "momentum": momentum_function}[name]())
 
 
 @lru_cache(maxsize=1)
@@ -691,12 +702,9 @@ class MachineCalibration:
     # -- batch evaluation ------------------------------------------------------------------
     def evaluate(self, values: np.ndarray, qdd: np.ndarray, payload: np.ndarray, z: np.ndarray):
         """Residuals (n, 3), Jacobian (n, 3, nz), lever, speed, stiction (n, 3) of samples."""
-        f = residual_function()
         n = len(values)
-        fm = f.map(n, "serial")
-        out = fm(values.T, qdd.T, payload[None, :], np.repeat(self.p_file[:, None], n, 1),
-                 np.repeat(z[:, None], n, 1))
-        r, J, lever, speed, stiction, inertia, dr_dm = (np.asarray(o) for o in out)
+        out = column_map(compiled("residual"), n)(values.T, qdd.T, payload[None, :], self.p_file, z)
+        r, J, lever, speed, stiction, inertia, dr_dm = out
         self._payload_sensitivity = dr_dm.T  # ∂r/∂m = -φ (n, 3), for the Cramér–Rao bound
         nz = len(z)
         J = J.reshape(3, n, nz).transpose(1, 0, 2)
@@ -711,9 +719,8 @@ class MachineCalibration:
         The window's lever is its centre's."""
         n = len(values)
         sign = held_direction(self.rod_speeds(values), runs, self._stribeck)
-        out = momentum_function().map(n, "serial")(values.T, qdd.T, np.repeat(self.p_file[:, None], n, 1),
-                                                   np.repeat(z[:, None], n, 1), sign.T)
-        A, dA, lever, speed, stiction, dP0, dPm, integrand_gain = (np.asarray(o) for o in out)
+        out = column_map(compiled("momentum"), n)(values.T, qdd.T, self.p_file, z, sign.T)
+        A, dA, lever, speed, stiction, dP0, dPm, integrand_gain = out
         A, lever, speed, stiction, integrand_gain = A.T, lever.T, speed.T, stiction.T, integrand_gain.T
         dA = dA.reshape(12, n, len(z)).transpose(1, 0, 2)
         dP = dP0.reshape(3, n, 4) + payload[None, :, None] * dPm.reshape(3, n, 4)
@@ -787,8 +794,8 @@ class MachineCalibration:
         """Rod speeds (n, 3) of the raw measured angles and rates at the file's parameters."""
         q = np.zeros((len(values), 4))
         q[:, :3] = values[:, ANGLES]
-        f = hydraulic_symbolic().functions["cylinder_speeds"].map(len(values))
-        return np.asarray(f(q.T, values[:, RATES].T, self.p_file)).T
+        f = column_map(compiled_function("cylinder_speeds"), len(values))
+        return f(q.T, values[:, RATES].T, self.p_file)[0].T
 
     def moving_samples(self, values: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Samples on which each arm cylinder (boom, dipper, bucket) moves: its rod speed at the
@@ -797,9 +804,8 @@ class MachineCalibration:
         n = len(values)
         if n == 0:
             return np.zeros(3, int)
-        out = np.asarray(kernel_function("differentiated").map(n, "serial")(
-            values.T, qdd.T, np.repeat(self.p[:, None], n, 1), np.repeat(self.offset_vector()[:, None], n, 1),
-            np.repeat(np.asarray(self.imu, float)[:, None], n, 1)))
+        out = column_map(kernel_function("differentiated"), n)(
+            values.T, qdd.T, self.p, self.offset_vector(), np.asarray(self.imu, float))[0]
         return np.sum(np.abs(out[9:12].T) >= self._still_speed, axis=0)
 
     def weights(self, lever, speed, stiction, low_speed: str, pressure_std: float) -> np.ndarray:
