@@ -8,7 +8,8 @@ Usage: python benchmarks/bench_hydraulic.py [N_EXPERIMENTS_PER_MOTION=50] [SEED=
 (:func:`~excavator_payload.estimators.base.plausibility_limits` of the machine file) on field-noise
 data of every motion family: ``SESSIONS`` working sessions (their own sensor offsets) of
 ``N_PER_SESSION`` experiments each, and the largest share of the angle margin used beyond the
-machine's angle ranges (0: every angle inside its range), and of each joint rate's limit.
+machine's angle ranges (0: every angle inside its range), of each joint rate's limit, and the
+range of the measured pressures against their limits.
 """
 
 import json
@@ -64,6 +65,8 @@ def plausibility(per_session: int = 25, sessions: int = 8) -> None:
         used = np.zeros(3)
         rates = [MACHINE_SENSORS.index(r) for r in ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")]
         rate_used = np.zeros(4)
+        pressures = [i for i, s in enumerate(signals) if s.endswith("_pressure")]
+        p_range = [np.inf, -np.inf]
         for session in range(sessions):
             ds = simulate_machine_dataset(per_session, seed=5000 + 100 * session, session=100 + session,
                                           motion=motion, workers=1)
@@ -71,6 +74,7 @@ def plausibility(per_session: int = 25, sessions: int = 8) -> None:
             rejected += int(((v < low) | (v > high)).any(axis=1).sum())
             rows, n = rows + len(v), n + ds.n_experiments
             rate_used = np.maximum(rate_used, np.abs(v[:, rates]).max(axis=0) / high[rates])
+            p_range = [min(p_range[0], v[:, pressures].min()), max(p_range[1], v[:, pressures].max())]
             for j in range(3):
                 lo, hi = machine.angle_ranges[j]
                 margin = high[j] - hi
@@ -78,6 +82,9 @@ def plausibility(per_session: int = 25, sessions: int = 8) -> None:
         print(json.dumps({"motion": motion, "experiments": n, "samples": rows, "rejected_samples": rejected,
                           "angle_margin_share_used": [round(float(x), 3) for x in used],
                           "rate_limit_share_used": [round(float(x), 3) for x in rate_used],
+                          "pressure_range_bar": [round(float(x) / 1e5, 1) for x in p_range],
+                          "pressure_limits_bar": [round(float(low[pressures[0]]) / 1e5, 1),
+                                                  round(float(high[pressures[0]]) / 1e5, 1)],
                           "cpu_s": round(time.process_time() - cpu, 1)}), flush=True)
 
 

@@ -196,9 +196,29 @@ def test_hydraulic_rate_limits_are_what_the_pumps_can_turn_a_joint():
     assert high[MACHINE_SENSORS.index("boom_rate")] < 2.0
 
 
+def test_hydraulic_pressure_limits_are_a_vacuum_and_twice_the_relief_pressure():
+    """Gauge pressure never lies below a full vacuum (−1 bar); twice the relief setting leaves
+    room for pressure peaks; both widened by 6σ of the pressure sensors' offset and noise."""
+    from excavator_payload.data.schema import MACHINE_SENSORS
+    from excavator_payload.estimators.base import plausibility_limits
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_sensors import PRESETS
+
+    machine = load_machine("cat345c-hydraulic")
+    low, high = plausibility_limits(MACHINE_SENSORS, machine)
+    field = PRESETS["field"]
+    margin = 6 * (field.pressure_offset + field.pressure_noise)  # 10.8 bar
+    assert margin == pytest.approx(10.8e5)
+    for name in MACHINE_SENSORS.signals:
+        if name.endswith("_pressure"):
+            i = MACHINE_SENSORS.index(name)
+            assert low[i] == pytest.approx(-1e5 - margin)
+            assert high[i] == pytest.approx(2 * 324e5 + margin)  # the preset's 324 bar relief
+
+
 def test_two_agreeing_rate_glitches_are_out_of_range_on_the_machine_set():
     """No one-frame test sees two equal bad frames in a row (each agrees with a neighbour); the
-    machine's own rate limit does."""
+    machine's own rate and pressure limits do."""
     from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
     data = simulate_machine_dataset(1, seed=3, motion="lifts")
@@ -208,6 +228,10 @@ def test_two_agreeing_rate_glitches_are_out_of_range_on_the_machine_set():
     for k in (20, 21):
         assert est.step(dict(_sample(data, k), boom_rate=30.0)).status is Status.OUT_OF_RANGE
     assert est.step(_sample(data, 22)).status is not Status.OUT_OF_RANGE
+    # the same for pressures: two frames of −300 bar, or of 700 bar on a 324-bar machine
+    for k, bad in ((23, -3e7), (24, -3e7), (25, 7e7), (26, 7e7)):
+        assert est.step(dict(_sample(data, k), boom_head_pressure=bad)).status is Status.OUT_OF_RANGE
+    assert est.step(_sample(data, 27)).status is not Status.OUT_OF_RANGE
 
 
 def test_an_impossible_bucket_angle_is_rejected_on_the_machine_set():

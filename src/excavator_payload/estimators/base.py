@@ -30,7 +30,9 @@ step returns the last estimate (and its sigma) with the status of the check.
    through :data:`HYDRAULIC_RULES`: the links' angle ranges widened by the sensor margin
    (:func:`angle_sensor_margins`), and each joint rate within :data:`RATE_LIMIT_FACTOR` ``×``
    the fastest the hydraulics turn it (pump flow, cylinder areas, moment arms; the slew's
-   ``max_slew_rate``) plus the rate sensors' margin (:func:`rate_sensor_margin`). Estimators without a machine
+   ``max_slew_rate``) plus the rate sensors' margin (:func:`rate_sensor_margin`), and each
+   cylinder pressure between a vacuum and :data:`PRESSURE_LIMIT_FACTOR` ``×`` the relief
+   pressure, widened by :func:`pressure_sensor_margin`. Estimators without a machine
    model (the networks) take the machine of their training data. The limits are saved with the
    model (``estimator.json``, key ``plausibility``).
 3. **Statistically consistent** (``rejected_outlier``): an estimator with a noise model
@@ -175,6 +177,14 @@ ANGLE_MARGIN_SIGMAS = 6.0
 #: ±50 rad/s.
 RATE_LIMIT_FACTOR = 2.0
 HYDRAULIC_RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
+#: Hydraulic machine files: a measured cylinder pressure (gauge) must lie between a full vacuum
+#: (−1 bar) and this factor times the machine's relief pressure, each widened by the pressure
+#: sensors' offset and noise margin (:func:`pressure_sensor_margin`). Pressure peaks above the
+#: relief setting (a valve's response time under a shock load, line reliefs set higher than the
+#: main relief) stay well inside twice it; the sensor set alone allowed ±1000 bar, so two
+#: agreeing frames of −300 bar passed as plausible.
+PRESSURE_LIMIT_FACTOR = 2.0
+VACUUM = 1.0e5  # Pa below atmospheric: no gauge pressure lies lower
 
 _CHI2: dict[int, float] = {}
 
@@ -203,6 +213,16 @@ def angle_sensor_margins() -> dict[str, float]:
             spread = ANGLE_MARGIN_SIGMAS * (noise.angle_offset + noise.angle_noise)
             margins[name] = max(margins[name], leak + spread)
     return margins
+
+
+def pressure_sensor_margin() -> float:
+    """How far (Pa) a measured pressure of the machine sensor set can lie outside the true one's
+    range, the largest over the sensor model's presets: offset and white noise,
+    :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the pump ripple is a share of the
+    pressure itself and vanishes at 0)."""
+    from excavator_payload.simulation.machine_sensors import PRESETS
+
+    return max(ANGLE_MARGIN_SIGMAS * (n.pressure_offset + n.pressure_noise) for n in PRESETS.values())
 
 
 def rate_sensor_margin() -> float:
@@ -255,6 +275,11 @@ def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple
                     i = sensor_set.index(signal)
                     limit = RATE_LIMIT_FACTOR * rate + rate_sensor_margin()
                     low[i], high[i] = max(low[i], -limit), min(high[i], limit)
+            margin = pressure_sensor_margin()
+            top = PRESSURE_LIMIT_FACTOR * float(machine.hydraulics.relief_pressure) + margin
+            for i, signal in enumerate(sensor_set.signals):
+                if signal.endswith("_pressure"):
+                    low[i], high[i] = max(low[i], -(VACUUM + margin)), min(high[i], top)
     return low, high
 
 
