@@ -293,3 +293,32 @@ def test_estimate_notes_name_the_non_finite_columns(mj_dataset):
     frame.loc[frame.index[50], "boom_torque"] = np.nan
     few = Dataset(frame, data.meta)
     assert est.non_finite_notes(few, est.estimate(few)) == []
+
+
+def test_estimate_notes_name_the_signals_out_of_range():
+    """A machine file with too low a pump flow makes most samples out_of_range: the notes say
+    which signals, how often, their limits and values, and that the machine file sets them; a
+    clean run has no such note."""
+    import dataclasses
+
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    data = simulate_machine_dataset(2, seed=3)
+    machine = load_machine("cat345c-hydraulic")
+    est = create_estimator("inverse-dynamics", machine).fit(data)
+    assert not [n for n in est.all_estimate_notes(data, est.estimate(data)) if "out_of_range" in n]
+    assert not est.fit_warnings
+    slow = dataclasses.replace(machine, hydraulics=dataclasses.replace(machine.hydraulics, pump_flow=1e-4))
+    est = create_estimator("inverse-dynamics", slow).fit(data)
+    # fit says so first: streaming would skip these samples
+    assert len(est.fit_warnings) == 1 and "training samples lie outside the plausibility limits" \
+        in est.fit_warnings[0] and "boom_rate on" in est.fit_warnings[0]
+    out = est.estimate(data)
+    share = (out["status"] == "out_of_range").mean()
+    assert share > 0.5
+    notes = [n for n in est.all_estimate_notes(data, out) if "out_of_range" in n]
+    assert len(notes) == 1
+    assert f"({100 * share:.0f} %) are out_of_range" in notes[0]
+    assert "boom_rate on" in notes[0] and "rad/s" in notes[0] and "pump_flow" in notes[0]
+    assert "boom_head_pressure" not in notes[0]  # only the signals that were out
