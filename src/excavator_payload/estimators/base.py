@@ -30,9 +30,9 @@ step returns the last estimate (and its sigma) with the status of the check.
    through :data:`HYDRAULIC_RULES`: the links' angle ranges widened by the sensor margin
    (:func:`angle_sensor_margins`), and each joint rate within :data:`RATE_LIMIT_FACTOR` ``×``
    the fastest the hydraulics turn it (pump flow, cylinder areas, moment arms; the slew's
-   ``max_slew_rate``) plus the rate sensors' margin (:func:`rate_sensor_margin`), and each
+   ``max_slew_rate``) plus the rate sensors' margin (:func:`sensor_margin`), and each
    cylinder pressure between a vacuum and :data:`PRESSURE_LIMIT_FACTOR` ``×`` the relief
-   pressure, widened by :func:`pressure_sensor_margin`. Estimators without a machine
+   pressure, widened by the pressure sensors' (:func:`sensor_margin`). Estimators without a machine
    model (the networks) take the machine of their training data. The limits are saved with the
    model (``estimator.json``, key ``plausibility``).
 3. **Statistically consistent** (``rejected_outlier``): an estimator with a noise model
@@ -179,7 +179,7 @@ RATE_LIMIT_FACTOR = 2.0
 HYDRAULIC_RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
 #: Hydraulic machine files: a measured cylinder pressure (gauge) must lie between a full vacuum
 #: (−1 bar) and this factor times the machine's relief pressure, each widened by the pressure
-#: sensors' offset and noise margin (:func:`pressure_sensor_margin`). Pressure peaks above the
+#: sensors' offset and noise margin (:func:`sensor_margin`). Pressure peaks above the
 #: relief setting (a valve's response time under a shock load, line reliefs set higher than the
 #: main relief) stay well inside twice it; the sensor set alone allowed ±1000 bar, so two
 #: agreeing frames of −300 bar passed as plausible.
@@ -215,24 +215,16 @@ def angle_sensor_margins() -> dict[str, float]:
     return margins
 
 
-def pressure_sensor_margin() -> float:
-    """How far (Pa) a measured pressure of the machine sensor set can lie outside the true one's
-    range, the largest over the sensor model's presets: offset and white noise,
-    :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the pump ripple is a share of the
-    pressure itself and vanishes at 0)."""
+def sensor_margin(kind: str) -> float:
+    """How far a measured ``kind`` (``rate``: rad/s, ``pressure``: Pa) of the machine sensor set
+    can lie outside the true one's range, the largest over the sensor model's presets: offset
+    and white noise, :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the IMU's lag is a
+    convex combination of past true rates, and the pump ripple a share of the pressure itself
+    that vanishes at 0: neither adds)."""
     from excavator_payload.simulation.machine_sensors import PRESETS
 
-    return max(ANGLE_MARGIN_SIGMAS * (n.pressure_offset + n.pressure_noise) for n in PRESETS.values())
-
-
-def rate_sensor_margin() -> float:
-    """How far (rad/s) a measured joint rate of the machine sensor set can lie beyond the true
-    one's magnitude, the largest over the sensor model's presets: offset and white noise,
-    :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the IMU's lag is a convex combination
-    of past true rates and adds nothing)."""
-    from excavator_payload.simulation.machine_sensors import PRESETS
-
-    return max(ANGLE_MARGIN_SIGMAS * (n.rate_offset + n.rate_noise) for n in PRESETS.values())
+    return max(ANGLE_MARGIN_SIGMAS * (getattr(n, f"{kind}_offset") + getattr(n, f"{kind}_noise"))
+               for n in PRESETS.values())
 
 
 def gate_threshold(dof: int) -> float:
@@ -270,12 +262,13 @@ def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple
             from excavator_payload.model.hydraulic import HydraulicArmModel
 
             fastest = HydraulicArmModel(machine).largest_joint_rates()
+            margin = sensor_margin("rate")
             for signal, rate in zip(HYDRAULIC_RATES, fastest):
                 if signal in sensor_set.signals:
                     i = sensor_set.index(signal)
-                    limit = RATE_LIMIT_FACTOR * rate + rate_sensor_margin()
+                    limit = RATE_LIMIT_FACTOR * rate + margin
                     low[i], high[i] = max(low[i], -limit), min(high[i], limit)
-            margin = pressure_sensor_margin()
+            margin = sensor_margin("pressure")
             top = PRESSURE_LIMIT_FACTOR * float(machine.hydraulics.relief_pressure) + margin
             for i, signal in enumerate(sensor_set.signals):
                 if signal.endswith("_pressure"):

@@ -24,6 +24,7 @@ import threading
 from pathlib import Path
 
 import casadi as ca
+import numpy as np
 
 log = logging.getLogger(__name__)
 
@@ -146,8 +147,6 @@ class ColumnMap:
     """
 
     def __init__(self, function: ca.Function, n: int):
-        import numpy as np
-
         self.n = int(n)
         self.function = function  # held, so that no other function takes its id in the cache
         # kept alive: the buffers point into it (CasADi has no map over 0 samples: one sample's
@@ -172,12 +171,10 @@ class ColumnMap:
     def __call__(self, *inputs) -> list:
         """Outputs for ``inputs``, each ``(rows, n)`` like the mapped function's ``DM``; an input is
         a ``(rows, n)`` array, or a ``(rows,)`` vector shared by every sample."""
-        import numpy as np
-
         if self.n == 0:
             f = self.function
             return [np.zeros((f.size1_out(i), 0)) for i in range(f.n_out())]
-        for buffer, value, i in zip(self._inputs, inputs, range(len(self._inputs))):
+        for i, (buffer, value) in enumerate(zip(self._inputs, inputs)):
             value = np.asarray(value, dtype=float)
             rows = self._mapped.size1_in(i)
             if value.ndim == 1:

@@ -525,24 +525,36 @@ class HydraulicArmModel:
         """∂l_j/∂q_j of the three cylinders, m/rad, shape (..., 3)."""
         return self._call("moment_arms", [q])
 
-    def largest_joint_rates(self, points: int = 400) -> np.ndarray:
-        """The fastest each joint can turn (rad/s; boom, dipper, bucket, slew), from the machine
-        file's hydraulics: a rod moves at most the pump's flow over the cylinders' smaller area
-        (``count`` cylinders share it), turning its joint fastest where its moment arm is
-        smallest over the joint's angle range (a cylinder's arm depends on its own joint's
-        angle only); the slew at ``max_slew_rate``. A joint whose arm reaches 0 in its range
-        (a linkage at its dead point) has no finite limit: inf."""
-        m = self.machine
-        rates = []
-        for j, cyl in enumerate(m.cylinders):
+    def rod_speed_limits(self) -> np.ndarray:
+        """(3, 2): the fastest each cylinder's rod extends and retracts (m/s): the pump's flow
+        over the piston and the annulus area, shared by the ``count`` cylinders of a joint."""
+        flow = self.machine.hydraulics.pump_flow
+        return np.array([[flow / (c.count * c.head_area), flow / (c.count * c.rod_area)]
+                         for c in self.machine.cylinders])
+
+    def moment_arm_range(self, points: int = 200) -> np.ndarray:
+        """(3, 2): the smallest and largest ``|∂l_j/∂q_j|`` (m/rad) over each joint's angle range,
+        on ``points`` angles (a cylinder's arm depends on its own joint's angle only)."""
+        out = np.zeros((3, 2))
+        for j in range(3):
             grid = np.zeros((points, 4))
             grid[:, :3] = (-0.3, -1.3, -0.8)  # only joint j's angle matters to its arm
-            grid[:, j] = np.linspace(*m.angle_ranges[j], points)
-            smallest_arm = float(np.min(np.abs(self.moment_arms(grid)[:, j])))
-            rod_speed = m.hydraulics.pump_flow / (cyl.count * min(cyl.head_area, cyl.rod_area))
-            rates.append(rod_speed / smallest_arm if smallest_arm > 0 else np.inf)
-        rates.append(m.house.max_slew_rate)
-        return np.array(rates)
+            grid[:, j] = np.linspace(*self.machine.angle_ranges[j], points)
+            arms = np.abs(self.moment_arms(grid)[:, j])
+            out[j] = arms.min(), arms.max()
+        return out
+
+    def largest_joint_rates(self, points: int = 400) -> np.ndarray:
+        """The fastest each joint can turn (rad/s; boom, dipper, bucket, slew), from the machine
+        file's hydraulics: the faster of a rod's two speed limits (:meth:`rod_speed_limits`)
+        at the joint's smallest moment arm over its range (:meth:`moment_arm_range`); the slew
+        at ``max_slew_rate``. A joint whose arm reaches 0 in its range (a linkage at its dead
+        point) has no finite limit: inf."""
+        smallest_arm = self.moment_arm_range(points)[:, 0]
+        rod_speed = self.rod_speed_limits().max(axis=1)
+        with np.errstate(divide="ignore"):
+            rates = np.where(smallest_arm > 0, rod_speed / smallest_arm, np.inf)
+        return np.r_[rates, self.machine.house.max_slew_rate]
 
     def cylinder_speeds(self, q, qd):
         """Rod speeds l̇_j (m/s, extension positive), shape (..., 3)."""

@@ -181,15 +181,12 @@ def hydraulic_bounds(arm: HydraulicArmModel):
     m = arm.machine
     h = m.hydraulics
     low, high, rate = [], [], []
+    rod_speed = arm.rod_speed_limits().min(axis=1)  # the slower direction
+    largest_arm = arm.moment_arm_range(200)[:, 1]
     for j, c in enumerate(m.cylinders):
         high.append(h.relief_pressure * c.head_area - h.back_pressure * c.rod_area)
         low.append(-(h.relief_pressure * c.rod_area - h.back_pressure * c.head_area))
-        grid = np.zeros((200, 4))
-        grid[:, :3] = (-0.3, -1.3, -0.8)
-        grid[:, j] = np.linspace(*m.angle_ranges[j], 200)
-        largest_arm = np.max(np.abs(arm.moment_arms(grid)[:, j]))
-        v = min(h.pump_flow / (c.count * c.head_area), h.pump_flow / (c.count * c.rod_area))
-        rate.append(v / largest_arm)
+        rate.append(rod_speed[j] / largest_arm[j])
     low.append(-m.house.max_slew_torque)
     high.append(m.house.max_slew_torque)
     rate.append(m.house.max_slew_rate)

@@ -128,11 +128,8 @@ def speed_share(arm: HydraulicArmModel, q: np.ndarray, qd: np.ndarray) -> float:
     """Largest share of the hydraulic speed limits a sampled motion uses (> 1: too fast)."""
     m = arm.machine
     speeds = arm.cylinder_speeds(q, qd)
-    flow = m.hydraulics.pump_flow
     ratios = []
-    for j, cyl in enumerate(m.cylinders):
-        v_out = flow / (cyl.count * cyl.head_area)
-        v_in = flow / (cyl.count * cyl.rod_area)
+    for j, (v_out, v_in) in enumerate(arm.rod_speed_limits()):
         ratios.append(np.max(np.where(speeds[:, j] >= 0, speeds[:, j] / v_out, -speeds[:, j] / v_in)))
     ratios.append(np.max(np.abs(qd[:, 3])) / m.house.max_slew_rate)
     return float(max(ratios))
@@ -174,10 +171,8 @@ def shortest_duration(arm: HydraulicArmModel, joint: int, start: float, delta: f
     q[:, :3] = (-0.3, -1.3, -0.8)
     q[:, joint] = start + delta * (10 * s**3 - 15 * s**4 + 6 * s**5)
     rod_speed_per_time = arm.moment_arms(q)[:, joint] * delta * shape  # × 1/T
-    cyl = m.cylinders[joint]
-    flow = m.hydraulics.pump_flow
-    limit = np.where(rod_speed_per_time >= 0, flow / (cyl.count * cyl.head_area),
-                     flow / (cyl.count * cyl.rod_area))
+    v_out, v_in = arm.rod_speed_limits()[joint]
+    limit = np.where(rod_speed_per_time >= 0, v_out, v_in)
     return float(np.max(np.abs(rod_speed_per_time) / limit))
 
 
