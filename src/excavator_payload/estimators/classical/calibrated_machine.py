@@ -742,7 +742,9 @@ class MachineCalibration:
         centres = momentum_windows(runs, half)
         dt = 1.0 / MACHINE_SENSORS.sample_rate
         r, minus_phi = window_residuals(A, payload, centres, half, dt, ramp)
-        J, _ = window_residuals(dA, np.zeros(n), centres, half, dt, ramp)
+        # ∂r/∂z at the known payload: r = r0(z) - m·φ(z), so the payload's lever (its position
+        # in the bucket, the geometry it hangs on) enters through m·∂φ/∂z
+        J, _ = window_residuals(dA, payload, centres, half, dt, ramp)
         self._payload_sensitivity = minus_phi
         w, u = balance_weights(half, ramp)
         # The windows' noise model in per-sample-equivalent variances (what weights() adds to
