@@ -530,6 +530,79 @@ def machine_cases() -> list[Case]:
     return cases
 
 
+# -- hydraulic machine files: absurd but finite numbers that loaded, then hung the simulator,
+# failed it with numpy's words or weighed silently wrong
+def _hydraulic_text(table: str, key: str, value: str, *more: tuple[str, str, str]):
+    """The preset cat345c-hydraulic with ``table.key = value`` (and ``more`` such edits)."""
+    edits = {(table, key): value, **{(t, k): v for t, k, v in more}}
+
+    def make(work, inputs):
+        lines, current = [], ""  # "": the top-level keys
+        for line in load_machine("cat345c-hydraulic").to_toml().splitlines():
+            if line.startswith("["):
+                current = line.strip("[]")
+            name = line.split(" = ")[0]
+            if (current, name) in edits:
+                line = f"{name} = {edits[current, name]}"
+            lines.append(line)
+        return _write(work / "bad.toml", "\n".join(lines) + "\n")
+    return make
+
+
+BAD_HYDRAULIC_MACHINES: dict[str, tuple[Callable, str | None]] = {
+    # simulate ran for ever (a motion over 2000 rad)
+    "angle-range-huge": (_hydraulic_text("boom", "angle_range", "[-1000.0, 1000.0]"), "boom.angle_range"),
+    "angle-range-in-degrees": (_hydraulic_text("dipper", "angle_range", "[-150.0, -15.0]"), "degrees"),
+    # the strokes were never compared with the angle ranges (simulate wrote data)
+    "stroke-unreachable": (_hydraulic_text("boom_cylinder", "stroke", "[0.5, 0.6]"), "boom_cylinder.stroke"),
+    "stroke-in-mm": (_hydraulic_text("bucket_cylinder", "stroke", "[1950.0, 3100.0]"), "bucket_cylinder.stroke"),
+    "linkage-open": (_hydraulic_text("linkage", "rocker_length", "0.01"), "linkage"),
+    # "Maximum allowed size exceeded" / out of memory from the motion planner
+    "pump-flow-1e-300": (_hydraulic_text("hydraulics", "pump_flow", "1e-300"), "pump_flow"),
+    "cylinder-count-1e12": (_hydraulic_text("boom_cylinder", "count", "1000000000000"), "count"),
+    "slew-rate-1e-300": (_hydraulic_text("house", "max_slew_rate", "1e-300"), "max_slew_rate"),
+    "bore-1e10": (_hydraulic_text("boom_cylinder", "bore", "1e10"), "boom_cylinder.bore"),
+    # calibration does not identify gravity: a 4.8 t load weighed as -4.2 t, 'ok'
+    "gravity-1e-300": (_hydraulic_text("", "gravity", "1e-300"), "gravity"),
+    "gravity-in-ft": (_hydraulic_text("", "gravity", "32.17"), "gravity"),
+    "boom-mass-1e300": (_hydraulic_text("boom", "mass", "1e300"), "boom.mass"),
+    "boom-length-1e200": (_hydraulic_text("boom", "length", "1e200"), "boom.length"),
+    "inertia-1e300": (_hydraulic_text("dipper", "inertia", "[1e300, 1e300, 1e300]"), "dipper.inertia"),
+    "payload-position-1e6": (_hydraulic_text("payload", "position", "[1e6, 0.0]"), "payload.position"),
+    "payload-max-1e300": (_hydraulic_text("payload", "max", "1e300"), "payload.max"),
+    # bore² underflows to 0: a division by zero in the rate limits
+    "bore-1e-170": (_hydraulic_text("dipper_cylinder", "bore", "1e-170", ("dipper_cylinder", "rod", "1e-171")),
+                    "dipper_cylinder.bore"),
+}
+
+
+def hydraulic_machine_cases() -> list[Case]:
+    cases = []
+    commands = {
+        "machines": (["machines", "{bad}"], []),
+        "simulate": (["simulate", "--machine", "{bad}", "-n", "1", "--out", "{work}/s.parquet", "--workers", "1",
+                      "--quiet"], ["{work}/s.parquet"]),
+        "train-calibrated": (["train", "calibrated", "--machine", "{bad}", "--data", "{in}/machine.parquet",
+                              "--out", "{work}/m"], ["{work}/m/estimator.json"]),
+    }
+    for bad, (setup, message) in BAD_HYDRAULIC_MACHINES.items():
+        for command, (argv, outputs) in commands.items():
+            cases.append(Case(f"hydraulic-{bad}-{command}", "bad machine file", argv, "error", message, setup,
+                              None, outputs))
+
+    def five_percent_off(work, inputs):
+        from excavator_payload.model.hydraulic_machine import off_by
+
+        return _write(work / "mine.toml", off_by(load_machine("cat345c-hydraulic"), 0.05).to_toml())
+
+    # a roughly right file (every number 5 % off, its strokes no longer a perfect fit) is fine
+    cases.append(Case("hydraulic-5pct-off-simulate", "bad machine file",
+                      ["simulate", "--machine", "{bad}", "-n", "1", "--out", "{work}/s.parquet", "--workers", "1",
+                       "--quiet"], "ok", setup=five_percent_off,
+                      check=lambda work, inputs, out, err: pq.read_table(work / "s.parquet")))
+    return cases
+
+
 def _check_round_trip(work, inputs, out, err):
     path = _write(work / "round.toml", out)
     machine = load_machine(path)
@@ -998,7 +1071,8 @@ def good_cases() -> list[Case]:
     return c
 
 
-ALL_CASES: list[Case] = (dataset_cases() + machine_dataset_cases() + trajectory_cases() + model_cases() + machine_cases() + output_cases()
+ALL_CASES: list[Case] = (dataset_cases() + machine_dataset_cases() + trajectory_cases() + model_cases() + machine_cases()
+                         + hydraulic_machine_cases() + output_cases()
                          + markup_cases() + argument_cases() + estimates_cases() + can_cases() + good_cases())
 
 

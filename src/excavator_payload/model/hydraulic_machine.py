@@ -367,6 +367,9 @@ def _check(m: HydraulicMachine, source: str) -> None:
         c = getattr(m, table)
         if not c.rod < c.bore:
             raise MachineError(f"{source}: field '{table}.rod' must be smaller than the bore")
+        if not (c.rod_area > 0 and math.isfinite(c.head_area)):
+            raise MachineError(f"{source}: fields '{table}.bore' and '{table}.rod' must give a piston "
+                               f"and an annulus area (m), got bore {c.bore!r}, rod {c.rod!r}")
         if c.stroke[0] <= 0:
             raise MachineError(f"{source}: field '{table}.stroke' must be positive lengths")
     if m.boom_cylinder.child_point in (None, ()) or m.dipper_cylinder.child_point in (None, ()):
@@ -378,3 +381,82 @@ def _check(m: HydraulicMachine, source: str) -> None:
         raise MachineError(f"{source}: field 'payload.max' must be ≥ payload.rated")
     if m.hydraulics.back_pressure >= m.hydraulics.relief_pressure:
         raise MachineError(f"{source}: field 'hydraulics.back_pressure' must be below the relief pressure")
+    if not GRAVITY_RANGE[0] <= m.gravity <= GRAVITY_RANGE[1]:
+        # calibration does not identify gravity: 1e-300 weighed a 4.8 t load as -4.2 t, 'ok'
+        raise MachineError(f"{source}: field 'gravity' must be Earth's gravity in m/s² "
+                           f"({GRAVITY_RANGE[0]:g} … {GRAVITY_RANGE[1]:g}), got {m.gravity!r}")
+    for table in TABLES:
+        for key, value in asdict(getattr(m, table)).items():
+            bound, unit = SIZE_LIMITS.get(key, (None, ""))
+            values = value if isinstance(value, tuple) else (value,)
+            if bound is not None and any(abs(v) > bound for v in values):
+                raise MachineError(f"{source}: field '{table}.{key}' must be at most {bound:g} {unit} "
+                                   f"in size, got {list(value) if isinstance(value, tuple) else value!r}")
+    for table in ("boom", "dipper", "bucket"):
+        low, high = getattr(m, table).angle_range
+        if not -2 * math.pi <= low < high <= 2 * math.pi:
+            raise MachineError(f"{source}: field '{table}.angle_range' must lie within -2π … 2π rad "
+                               f"(radians, not degrees), got [{low!r}, {high!r}]")
+    _check_geometry(m, source)
+
+
+#: Earth's gravity at its surface, m/s² (9.78 at the equator to 9.83 at the poles), widened.
+GRAVITY_RANGE = (9.7, 9.9)
+#: The largest size of a field (m, kg, kg·m²): beyond the largest excavators (≈ 1000 t, 30 m
+#: reach) by far; bigger numbers overflowed the geometry or left the simulator without a motion.
+#: A mass or payload as the thesis kind's files (``MAX_PAYLOAD``).
+SIZE_LIMITS: dict[str, tuple[float, str]] = {
+    **{key: (100.0, "m") for key in ("length", "com", "boom_foot", "parent_point", "child_point", "bore",
+                                    "rod", "stroke", "position", "rocker_pivot", "rocker_length",
+                                    "link_length", "bucket_point", "presliding")},
+    **{key: (1.0e6, "kg") for key in ("mass", "rated", "max")},
+    **{key: (1.0e10, "kg·m²") for key in ("inertia", "slew_inertia")},
+}
+#: How far (share of its longest length) a cylinder's pin-to-pin length may leave its
+#: ``stroke`` over the joint's angle range: a roughly right file (e.g. ``off_by`` 5 %) passes, a
+#: stroke that cannot move the joint through its range (in mm, of another cylinder) does not.
+STROKE_TOLERANCE = 0.05
+#: The slowest a machine may cross each joint's angle range (the slew: a half turn) at its pump
+#: flow and ``max_slew_rate``, s. Real machines take seconds; a pump flow 125× too low (the
+#: plausibility notes' example) a minute; beyond this the simulator's motions grow without bound.
+SLOWEST_CROSSING = 600.0
+
+
+def _check_geometry(m: HydraulicMachine, source: str) -> None:
+    """The cylinders can move each joint over its angle range, the bucket linkage closes over
+    it and the hydraulics move each joint over it in a machine's time (one line naming the
+    field otherwise)."""
+    from excavator_payload.model.hydraulic import HydraulicArmModel
+
+    arm = HydraulicArmModel(m, compiled=False)
+    names = ("boom", "dipper", "bucket")
+    points = 200
+    for j, (name, cylinder) in enumerate(zip(names, m.cylinders)):
+        grid = np.zeros((points, 4))
+        grid[:, :3] = (-0.3, -1.3, -0.8)  # a cylinder's length depends on its own joint only
+        grid[:, j] = np.linspace(*m.angle_ranges[j], points)
+        with np.errstate(all="ignore"):
+            lengths = arm.cylinder_lengths(grid)[:, j]
+            if j == 2:
+                margin = arm.linkage_margin(grid)
+        if j == 2 and not np.all(margin > 0):
+            raise MachineError(f"{source}: the bucket linkage does not close over 'bucket.angle_range' "
+                               f"{list(m.bucket.angle_range)} rad: check [linkage] (rocker_length, "
+                               "link_length, rocker_pivot, bucket_point)")
+        short, long = cylinder.stroke
+        slack = STROKE_TOLERANCE * long
+        if not (np.all(np.isfinite(lengths)) and lengths.min() >= short - slack
+                and lengths.max() <= long + slack):
+            raise MachineError(f"{source}: field '{name}_cylinder.stroke' [{short:g}, {long:g}] m cannot "
+                               f"move the {name} over its angle_range: the pins need "
+                               f"{lengths.min():.4g} … {lengths.max():.4g} m")
+    with np.errstate(all="ignore"):
+        rates = arm.largest_joint_rates(points)
+    widths = np.r_[np.diff(m.angle_ranges, axis=1)[:, 0], math.pi]
+    for name, rate, width in zip((*names, "slew"), rates, widths):
+        if not width / rate <= SLOWEST_CROSSING:
+            field_ = "house.max_slew_rate" if name == "slew" else \
+                f"hydraulics.pump_flow, {name}_cylinder.bore / rod / count"
+            raise MachineError(f"{source}: the {name} would take {width / rate:.3g} s to cross "
+                               f"{'a half turn' if name == 'slew' else 'its angle_range'} (at most "
+                               f"{SLOWEST_CROSSING:g} s): check {field_}")
