@@ -231,3 +231,23 @@ def test_house_tilt_in_degrees_is_refused(machine_frame, tilt_deg):
         frame[column] = np.degrees(frame[column])
         with pytest.raises(DatasetError, match=rf"'{column}' reaches .* implausible in rad .*degrees"):
             validate_frame(frame, sensor_set="machine")
+
+
+@pytest.mark.parametrize("sensor_set", ["thesis", "machine"])
+def test_a_boom_angle_without_a_finite_value_is_data_not_a_unit(small, machine_frame, sensor_set):
+    """A boom angle of NaN everywhere (a logger that lost the IMU) leaked numpy's 'All-NaN slice'
+    warning onto stderr; one inf read as "exceeds 2π; angles must be in radians". Both are bad
+    samples (invalid_input when estimating), degrees are still refused."""
+    import warnings
+
+    from excavator_payload.data.io import validate_frame
+
+    frame = (small.frame if sensor_set == "thesis" else machine_frame).copy()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        validate_frame(frame.assign(boom_angle=np.nan), sensor_set=sensor_set)
+        one_inf = frame.copy()
+        one_inf.loc[one_inf.index[7], "boom_angle"] = np.inf
+        validate_frame(one_inf, sensor_set=sensor_set)
+    with pytest.raises(DatasetError, match="boom_angle"):
+        validate_frame(frame.assign(boom_angle=np.degrees(frame["boom_angle"])), sensor_set=sensor_set)

@@ -273,8 +273,9 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                                f"1e5 Pa); are the pressures in bar, kPa, MPa or psi instead of Pa?")
     # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
     for c in ("boom_angle",):
-        values = frame[c].to_numpy(dtype=float)
-        if np.nanmax(np.abs(values)) > 2 * np.pi:
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]  # a NaN or inf is a bad sample, not a unit
+        if values.size and values.max() > 2 * np.pi:
             raise DatasetError(f"{source}: column '{c}' exceeds 2π; angles must be in radians")
     grouped = frame.groupby("experiment", sort=False)
     times = grouped["time"]

@@ -468,6 +468,36 @@ def test_zero_says_how_many_samples_it_could_not_use(setup):
     assert len(warnings) == 1 and f"2 of {len(frame)} samples not used" in warnings[0]
 
 
+@pytest.mark.parametrize("row", [2, -3])
+def test_a_bad_rate_at_an_experiments_edge_is_a_bad_sample(setup, row):
+    """A NaN rate among the first or last samples of an experiment crashed fit and zero (the
+    differentiator's edge fit refuses non-finite values): it is a sample not used, as inside;
+    the slopes of the clean samples are unchanged, those whose window held it are NaN."""
+    frame = setup["zero"].frame.copy()
+    clean = cm.accelerations(setup["zero"], 5)
+    index = frame.index[row]
+    frame.loc[index, "boom_rate"] = np.nan
+    dirty = Dataset(frame, setup["zero"].meta)
+    slopes = cm.accelerations(dirty, 5)
+    touched = np.isnan(slopes[:, 0])
+    assert 1 <= touched.sum() <= 11 and touched[row]
+    np.testing.assert_array_equal(slopes[~touched], clean[~touched])
+    np.testing.assert_array_equal(slopes[:, 1:], clean[:, 1:])
+    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), dirty)
+    assert len(warnings) == 1 and "samples not used" in warnings[0]
+    fit = Dataset(setup["cal"].frame.assign(dipper_rate=lambda f: f["dipper_rate"].where(f.index != 1)),
+                  setup["cal"].meta)
+    assert any("calibration samples not used" in w for w in create_estimator("calibrated", PRIOR).fit(fit).fit_warnings)
+
+
+def test_zero_of_nothing_but_nan_says_so(setup):
+    """Every signal NaN: one line that no sample was usable (a crash in the differentiator)."""
+    frame = setup["zero"].frame.copy()
+    frame[[c for c in cm.SIGNALS]] = np.nan
+    with pytest.raises(EstimatorError, match="at least 50 valid samples"):
+        cm.zero(copy.deepcopy(setup["calibrated"]), Dataset(frame, setup["zero"].meta))
+
+
 def test_zero_says_which_cylinders_it_could_not_check(setup):
     """A zero swing on which the dipper stands still cannot check the dipper's pressure offsets:
     zero says so by name (and still zeroes the rest)."""

@@ -534,8 +534,23 @@ def accelerations(dataset: Dataset, half_window: int) -> np.ndarray:
     window = 2 * half_window + 1
     dt = 1.0 / MACHINE_SENSORS.sample_rate
     for a, b in zip(starts, np.r_[starts[1:], len(exp)]):
-        if b - a >= window:
-            out[a:b] = savgol_filter(rates[a:b], window, 1, deriv=1, delta=dt, axis=0, mode="interp")
+        if b - a < window:
+            continue
+        segment = rates[a:b]
+        bad = ~np.isfinite(segment)
+        if not bad.any():
+            out[a:b] = savgol_filter(segment, window, 1, deriv=1, delta=dt, axis=0, mode="interp")
+            continue
+        # The edges' polynomial fit refuses a non-finite value (one NaN rate among the first or
+        # last samples crashed train and zero): slope the filled rates, then mark every slope
+        # whose window (at the edges, the first or last whole window) held a bad sample.
+        slope = savgol_filter(np.where(bad, 0.0, segment), window, 1, deriv=1, delta=dt, axis=0,
+                              mode="interp")
+        touched = np.stack([np.convolve(bad[:, j], np.ones(window), mode="same") > 0
+                            for j in range(bad.shape[1])], axis=1)
+        touched[:half_window] |= bad[:window].any(axis=0)
+        touched[-half_window:] |= bad[-window:].any(axis=0)
+        out[a:b] = np.where(touched, np.nan, slope)
     return out
 
 
