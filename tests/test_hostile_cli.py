@@ -590,6 +590,13 @@ def hydraulic_machine_cases() -> list[Case]:
             cases.append(Case(f"hydraulic-{bad}-{command}", "bad machine file", argv, "error", message, setup,
                               None, outputs))
 
+    # a hydraulic machine file with thesis-set data (calibrated crashed: AttributeError)
+    for estimator in ("calibrated", "inverse-dynamics", "ekf", "quasi-static"):
+        cases.append(Case(f"hydraulic-machine-thesis-data-train-{estimator}", "bad machine file",
+                          ["train", estimator, "--machine", "cat345c-hydraulic", "--data", "{in}/data.parquet",
+                           "--out", "{work}/m"], "error", "machine-sensor-set data",
+                          outputs=["{work}/m/estimator.json"]))
+
     def five_percent_off(work, inputs):
         from excavator_payload.model.hydraulic_machine import off_by
 

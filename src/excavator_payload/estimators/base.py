@@ -552,6 +552,11 @@ class Estimator(ABC):
         if sensors.name not in self.SENSOR_SETS:
             raise EstimatorError(f"{self.name} does not run on the {sensors.name} sensor set "
                                  f"(it runs on: {', '.join(self.SENSOR_SETS)})")
+        if sensors.name != "machine" and getattr(self.machine, "kind", None) == "hydraulic":
+            # calibrated fitted the thesis set's parameters of a hydraulic file: an AttributeError
+            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes with "
+                                 f"machine-sensor-set data, these are of the {sensors.name} sensor set "
+                                 "(use a 2-link machine file, e.g. --machine cat345c)")
         return sensors
 
     def reset(self) -> None:
