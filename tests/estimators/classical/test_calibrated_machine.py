@@ -93,6 +93,33 @@ def test_save_load_round_trip_and_streaming(setup, tmp_path):
     assert np.isfinite(back.uncertainty) and back.uncertainty < 100
 
 
+@pytest.mark.parametrize("edit", [
+    # the balance form edited in the options (a per-sample calibration read as momentum weighed
+    # silently off) or in the saved state
+    lambda c, a: c["options"].__setitem__("balance", "momentum"),
+    lambda c, a: c["state"].__setitem__("balance", "momentum"),
+    # a negative rate variance: every estimate warming_up, blamed on a boom that never moved
+    lambda c, a: a.__setitem__("rate_var", np.array([-1.0])),
+    lambda c, a: a.__setitem__("rate_var", np.array([1.0, 2.0])),
+    # the offsets' or IMU parameters' layout of another version
+    lambda c, a: c["state"].__setitem__("offset_signals", ["boom_angle"]),
+    lambda c, a: c["state"].__setitem__("imu_parameters", []),
+], ids=["options-balance", "state-balance", "negative-rate-var", "two-rate-vars", "offset-signals",
+        "imu-parameters"])
+def test_a_tampered_saved_calibration_is_refused(setup, tmp_path, edit):
+    import json
+
+    setup["zeroed"].save(tmp_path / "m")
+    cfg = json.loads((tmp_path / "m" / "estimator.json").read_text())
+    with np.load(tmp_path / "m" / "arrays.npz") as npz:
+        saved = {k: npz[k] for k in npz.files}
+    edit(cfg, saved)
+    (tmp_path / "m" / "estimator.json").write_text(json.dumps(cfg))
+    np.savez(tmp_path / "m" / "arrays.npz", **saved)
+    with pytest.raises(EstimatorError, match="corrupt"):
+        load_estimator(tmp_path / "m")
+
+
 def test_low_speed_choices_differ_and_bad_ones_are_refused(setup):
     results = {}
     for low in cm.LOW_SPEED_CHOICES:

@@ -1521,12 +1521,23 @@ def restore(estimator, cfg: dict, saved) -> None:
     std = np.asarray(saved["pressure_std"], float)
     if (z.shape != cal.z.shape or cov.shape != (len(z), len(z)) or std.shape != (1,)
             or not np.all(np.isfinite(z)) or not np.isfinite(std[0]) or std[0] < 0
-            or list(cfg.get("calibrated_parameters", [])) != list(CALIBRATED_PARAMETERS)):
+            or list(cfg.get("calibrated_parameters", [])) != list(CALIBRATED_PARAMETERS)
+            or list(cfg.get("offset_signals", OFFSET_SIGNALS)) != list(OFFSET_SIGNALS)
+            or list(cfg.get("imu_parameters", IMU_PARAMETERS)) != list(IMU_PARAMETERS)):
         raise EstimatorError("saved machine calibration is corrupt or of another version")
+    # The calibration belongs to the balance form it was fitted in: a momentum calibration
+    # read as the per-sample form weighed a 2.5 t mean as 3.4 t, 'ok' (an edited option).
+    if cfg.get("balance", estimator.options["balance"]) != estimator.options["balance"]:
+        raise EstimatorError(f"saved machine calibration was fitted with --balance {cfg.get('balance')!r}, "
+                             f"the options say {estimator.options['balance']!r}")
     cal.z, cal.covariance, cal.pressure_std = z, cov, float(std[0])
     cal.balance = estimator.options["balance"]
     if "rate_var" in saved:
-        cal.rate_var = float(np.asarray(saved["rate_var"], float).ravel()[0])
+        rate_var = np.asarray(saved["rate_var"], float).ravel()
+        # a negative variance left every estimate warming_up, blamed on a boom that never moved
+        if rate_var.shape != (1,) or not np.isfinite(rate_var[0]) or rate_var[0] < 0:
+            raise EstimatorError("saved machine calibration is corrupt or of another version")
+        cal.rate_var = float(rate_var[0])
     if "window_inflation" in saved:
         inflation = np.asarray(saved["window_inflation"], float).ravel()
         if inflation.shape != (3,) or not np.all(np.isfinite(inflation)) or np.any(inflation < 1):
