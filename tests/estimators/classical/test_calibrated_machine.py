@@ -104,8 +104,10 @@ def test_save_load_round_trip_and_streaming(setup, tmp_path):
     # the offsets' or IMU parameters' layout of another version
     lambda c, a: c["state"].__setitem__("offset_signals", ["boom_angle"]),
     lambda c, a: c["state"].__setitem__("imu_parameters", []),
+    # finite but absurd: every state non-finite, zero wrote a model, the C export failed
+    lambda c, a: a.__setitem__("z", a["z"] * 1e300),
 ], ids=["options-balance", "state-balance", "negative-rate-var", "two-rate-vars", "offset-signals",
-        "imu-parameters"])
+        "imu-parameters", "z-1e300"])
 def test_a_tampered_saved_calibration_is_refused(setup, tmp_path, edit):
     import json
 

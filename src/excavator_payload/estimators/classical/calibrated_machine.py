@@ -1510,6 +1510,11 @@ def arrays(estimator) -> dict[str, np.ndarray]:
             "difference_scale": np.asarray(estimator.difference_scale, float)}
 
 
+#: The largest magnitude :func:`restore` accepts in a saved calibration ``z`` (a pressure offset
+#: of 10,000 bar; the preset's calibrations stay below 3e5).
+MAX_CALIBRATION_VALUE = 1e9
+
+
 def restore(estimator, cfg: dict, saved) -> None:
     """Rebuild ``estimator``'s calibration and kernel from what :func:`config` (``cfg``) and
     :func:`arrays` (``saved``) wrote; :class:`EstimatorError` when they are corrupt or of
@@ -1521,6 +1526,9 @@ def restore(estimator, cfg: dict, saved) -> None:
     std = np.asarray(saved["pressure_std"], float)
     if (z.shape != cal.z.shape or cov.shape != (len(z), len(z)) or std.shape != (1,)
             or not np.all(np.isfinite(z)) or not np.isfinite(std[0]) or std[0] < 0
+            # parameter moves, offsets (Pa, rad) and IMU terms: a real calibration's are < 1e6;
+            # 1e300 passed, left every state non-finite and broke the C export with casadi_inf
+            or not np.all(np.abs(z) < MAX_CALIBRATION_VALUE)
             or list(cfg.get("calibrated_parameters", [])) != list(CALIBRATED_PARAMETERS)
             or list(cfg.get("offset_signals", OFFSET_SIGNALS)) != list(OFFSET_SIGNALS)
             or list(cfg.get("imu_parameters", IMU_PARAMETERS)) != list(IMU_PARAMETERS)):
