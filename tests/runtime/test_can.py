@@ -524,3 +524,21 @@ def test_other_sender_of_the_same_pgn_is_ignored(swings, estimator):
     assert mixed.counters["other_senders"] == 4 * 40
     assert [o.status for o in out_mixed] == [o.status for o in out_clean]
     assert [o.estimate for o in out_mixed] == [o.estimate for o in out_clean]
+
+
+def test_a_shuffled_machine_set_log_says_out_of_order(tmp_path, machine_swings):
+    """A machine-set log whose lines are not in time order (merged, never sorted) assembles no
+    sample whole: it was refused as "recorded with another DBC or sensor set?"."""
+    import random
+
+    from excavator_payload.errors import DatasetError
+
+    est = create_estimator("inverse-dynamics", machine="cat345c-hydraulic").fit(machine_swings)
+    clean = tmp_path / "clean.log"
+    record_dataset(machine_swings, clean)
+    lines = clean.read_text().splitlines()
+    random.Random(0).shuffle(lines)
+    log = tmp_path / "shuffled.log"
+    log.write_text("\n".join(lines) + "\n")
+    with pytest.raises(DatasetError, match="out of order"):
+        replay_log(log, PayloadSensor(est))

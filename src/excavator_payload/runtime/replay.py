@@ -91,6 +91,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     experiment = -1
     segment_start = 0.0
     last_frame_time: float | None = None
+    backwards = 0  # frames earlier than the frame before them
     sensor.reset()
 
     def keep(outputs):
@@ -117,6 +118,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                 # time -inf. A frame without a time is an unreadable record.
                 skipped[0] += 1
                 continue
+            if last_frame_time is not None and t < last_frame_time:
+                backwards += 1
             if last_frame_time is None or t - last_frame_time > segment_gap:
                 if sensor.pending:
                     keep([sensor.flush()])
@@ -139,6 +142,10 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                            f"the {sensor.sensor_set.name} sensor set; another DBC (--dbc, "
                            f"--signal-map)?")
     if all(row[3] in ("invalid_input", dbc.STALE) for row in rows):
+        if backwards > 0.01 * fed:
+            # a shuffled log assembles no sample whole: it was blamed on another DBC
+            raise DatasetError(f"CAN log '{path}': its time goes back between {backwards} of {fed} "
+                               f"sensor frames (frames out of order?); sort the log by timestamp")
         # The sensor sets' generated DBCs share their PGNs (0xFF00, ...): a log of the machine
         # set replayed with a thesis model (or the reverse) decoded garbage or NaN in every
         # sample and wrote estimates that were all NaN, with exit status 0.
