@@ -969,6 +969,49 @@ def _user_dbc_and_map(work, inputs):
     return None
 
 
+def _user_files(dbc_edit: Callable = lambda t: t, map_edit: Callable = lambda t: t):
+    """A good log plus the generated thesis DBC and its signal map (``map.toml``), edited."""
+    def make(work, inputs):
+        _user_dbc_and_map(work, inputs)
+        (work / "map.log").rename(work / "map.toml")
+        _write(work / "thesis.dbc", dbc_edit((work / "thesis.dbc").read_text()))
+        _write(work / "map.toml", map_edit((work / "map.toml").read_text()))
+        return _can_log("log.blf", lambda m: m)(work, inputs)
+    return make
+
+
+def _duplicate_first_message(text: str) -> str:
+    start = text.index("BO_ ")
+    return text + "\n" + text[start:text.index("BO_ ", start + 4)]
+
+
+def _first_scale_zero(text: str) -> str:
+    import re
+
+    return re.sub(r"\(([-0-9.e+]+),", "(0,", text, count=1)
+
+
+def _dipper_reads_the_boom(text: str) -> str:
+    tables = {t.split("]")[0]: t for t in text.split("[signals.")[1:]}
+    tables["dipper_angle"] = tables["boom_angle"].replace("boom_angle]", "dipper_angle]", 1)
+    return "".join("[signals." + t for t in tables.values())
+
+
+BAD_USER_DBC: dict[str, tuple[Callable, str]] = {
+    # cantools logged two 'Overwriting message' lines and kept the last definition
+    "dbc-message-twice": (_user_files(dbc_edit=_duplicate_first_message), "twice"),
+    # every frame decoded as the signal's offset: a constant angle, weighed 'ok'
+    "dbc-scale-zero": (_user_files(dbc_edit=_first_scale_zero), "scale"),
+    # a misspelt key was ignored (the factor never applied)
+    "map-misspelt-factor": (_user_files(map_edit=lambda t: t.replace(
+        "\n", "\nfactr = 0.017453292519943295\n", 1)), "factr"),
+    "map-unknown-signal": (_user_files(map_edit=lambda t: t + '[signals.stick_angle]\nmessage = "x"\nsignal = "y"\n'),
+                           "stick_angle"),
+    # the dipper angle read the boom's DBC signal: -786 kg 'ok' on the machine set
+    "map-one-dbc-signal-twice": (_user_files(map_edit=_dipper_reads_the_boom), "same DBC signal"),
+}
+
+
 def _replay_ok(n_ok: int, said: str | None = None):
     def check(work, inputs, out, err):
         frame = pq.read_table(work / "e.parquet").to_pandas()
@@ -1010,6 +1053,10 @@ def can_cases() -> list[Case]:
         c.append(Case(f"can-{key}", "CAN logs", replay, expect, message, setup, outputs=["{work}/e.parquet"]))
     for key, (setup, n_ok, said) in CAN_LOGS_OK.items():
         c.append(Case(f"can-ok-{key}", "CAN logs", replay, "ok", setup=setup, check=_replay_ok(n_ok, said)))
+    for key, (setup, message) in BAD_USER_DBC.items():
+        c.append(Case(f"can-{key}", "CAN logs", replay + ["--dbc", "{work}/thesis.dbc", "--signal-map",
+                                                            "{work}/map.toml"], "error", message, setup,
+                      outputs=["{work}/e.parquet"]))
     same = "refusing to overwrite"
     good_log = _can_log("log.blf", lambda m: m)
     c += [

@@ -36,6 +36,7 @@ resolution, else 32 bits. Messages are filled with signals in column order, 8 by
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from functools import lru_cache
@@ -334,10 +335,36 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
     path = Path(path)
     if not path.is_file():
         raise CanConfigError(f"DBC file '{path}' does not exist")
+    # cantools only logs a message defined twice (same name or frame id) and keeps the last:
+    # two lines on stderr, then frames decoded by whichever definition won
+    logger = logging.getLogger("cantools.database")
+    overwritten = _Collect()
+    logger.addHandler(overwritten)
+    propagate, logger.propagate = logger.propagate, False
     try:
-        return cantools.database.load_file(str(path), database_format="dbc", strict=True)
+        database = cantools.database.load_file(str(path), database_format="dbc", strict=True)
     except Exception as exc:  # cantools raises many types for bad files
         raise CanConfigError(f"'{path}' is not a readable DBC file: {exc}") from None
+    finally:
+        logger.removeHandler(overwritten)
+        logger.propagate = propagate
+    twice = sorted({str(r.args[0]) for r in overwritten.records
+                    if r.levelno >= logging.WARNING and "Overwriting message" in str(r.msg) and r.args})
+    if twice:
+        raise CanConfigError(f"'{path}' defines message(s) {', '.join(map(repr, twice))} twice (the same "
+                             "name or frame id): keep one definition")
+    return database
+
+
+class _Collect(logging.Handler):
+    """Keeps the log records it is handed."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[logging.LogRecord] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)
 
 
 @lru_cache(maxsize=8)
@@ -386,6 +413,18 @@ class SignalCodec:
         missing = [s for s in sensor_set.signals if s not in self.sources]
         if missing:
             raise CanConfigError(f"the signal map does not say where {', '.join(missing)} come from")
+        unknown = [s for s in self.sources if s not in sensor_set.signals]
+        if unknown:  # a misspelt name (its signal is then missing, or mapped twice)
+            raise CanConfigError(f"the signal map names {', '.join(map(repr, unknown))}, not signals of the "
+                                 f"{sensor_set.name} sensor set ({', '.join(sensor_set.signals)})")
+        shared: dict[tuple[str, str], str] = {}
+        for signal in sensor_set.signals:
+            key = (self.sources[signal].message, self.sources[signal].signal)
+            if key in shared:
+                # a copy-paste slip: the dipper angle read the boom's, -786 kg 'ok'
+                raise CanConfigError(f"the signal map reads {shared[key]} and {signal} from the same DBC "
+                                     f"signal {key[0]}.{key[1]}")
+            shared[key] = signal
         self.j1939 = is_j1939(database)
         self.messages: dict[str, object] = {}
         self._by_message: dict[str, list[tuple[int, SignalSource]]] = {}
@@ -396,10 +435,16 @@ class SignalCodec:
             except KeyError:
                 raise CanConfigError(f"{signal}: message {src.message!r} is not in the DBC") from None
             try:
-                message.get_signal_by_name(src.signal)
+                dbc_signal = message.get_signal_by_name(src.signal)
             except KeyError:
                 raise CanConfigError(f"{signal}: message {src.message!r} has no signal "
                                      f"{src.signal!r}") from None
+            scale = float(dbc_signal.conversion.scale)
+            if not (math.isfinite(scale) and scale != 0):
+                # a scale of 0 decodes every frame as the signal's offset: a constant boom angle
+                # weighed 2640 kg 'ok' for 2455 kg
+                raise CanConfigError(f"{signal}: the DBC's scale (factor) of {src.message}.{src.signal} "
+                                     f"must be finite and non-zero, got {dbc_signal.conversion.scale!r}")
             if not (math.isfinite(src.factor) and src.factor != 0 and math.isfinite(src.offset)):
                 raise CanConfigError(f"{signal}: the unit factor must be finite and non-zero")
             self.messages[src.message] = message
@@ -558,6 +603,10 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
     for name, entry in table.items():
         if not isinstance(entry, dict) or not {"message", "signal"} <= set(entry):
             raise CanConfigError(f"signal map '{path}': [signals.{name}] needs 'message' and 'signal'")
+        extra = [k for k in entry if k not in ("message", "signal", "factor", "offset")]
+        if extra:  # a misspelt 'factor' was ignored: the DBC's unit read as SI
+            raise CanConfigError(f"signal map '{path}': [signals.{name}] has unknown key(s) "
+                                 f"{', '.join(map(repr, extra))} (known: message, signal, factor, offset)")
         try:
             out[name] = SignalSource(str(entry["message"]), str(entry["signal"]),
                                      float(entry.get("factor", 1.0)), float(entry.get("offset", 0.0)))
