@@ -250,6 +250,21 @@ def momentum(setup):
     return est
 
 
+def test_momentum_calibration_holds_where_the_arm_stands_on_the_house(momentum):
+    """The boom foot's position relative to the slew axis stays at the file's (moving it with
+    the boom cylinder's base is invisible in the arm's balance but for slewing's centrifugal
+    terms, and the fit used it to absorb what it cannot model); the cylinder base, which sets
+    the boom's moment arm, is still calibrated."""
+    cal = momentum.calibration
+    k = len(cm.CALIBRATED_PARAMETERS)
+    sd = np.sqrt(np.diag(cal.covariance))[:k]
+    for name in cm.HELD_IN_MOMENTUM:
+        i = cm.CALIBRATED_PARAMETERS.index(name)
+        assert cal.z[i] == 0.0 and sd[i] == pytest.approx(0.05), name
+    base = cm.CALIBRATED_PARAMETERS.index("boom_cylinder_parent_x")
+    assert cal.z[base] != 0.0 and sd[base] < 0.05
+
+
 def test_momentum_balance_weighs_and_streams_as_it_estimates(momentum, setup, tmp_path):
     """--balance momentum: calibrated and zeroed in that form, it weighs the test swings better
     than the uncalibrated file, streams what it estimates in batch, and survives save/load."""
