@@ -534,6 +534,18 @@ def test_a_bad_rate_at_an_experiments_edge_is_a_bad_sample(setup, row):
     assert any("calibration samples not used" in w for w in create_estimator("calibrated", PRIOR).fit(fit).fit_warnings)
 
 
+def test_zero_with_a_stuck_sensor_warns_of_its_offsets(setup):
+    """A boom head pressure stuck at its first value in the zero swing moved the zeroed angle
+    offsets by degrees (house pitch -8°) without a word; zero names the offsets beyond any
+    working session's. The clean zero check says nothing."""
+    assert cm.zero(copy.deepcopy(setup["calibrated"]), setup["zero"]) == []
+    frame = setup["zero"].frame.copy()
+    frame["boom_head_pressure"] = frame["boom_head_pressure"].iloc[0]
+    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), Dataset(frame, setup["zero"].meta))
+    far = [w for w in warnings if "far beyond a working session's" in w]
+    assert len(far) == 1 and "°" in far[0]
+
+
 def test_zero_of_nothing_but_nan_says_so(setup):
     """Every signal NaN: one line that no sample was usable (a crash in the differentiator)."""
     frame = setup["zero"].frame.copy()

@@ -223,6 +223,11 @@ IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.005])
 MIN_MOVING_SAMPLES = 200
 #: The same for one cylinder in the zero check (1 s at 100 Hz).
 MIN_ZERO_MOVING_SAMPLES = 100
+#: ``zero`` warns of an offset beyond this many prior standard deviations (:data:`OFFSET_PRIOR_STD`):
+#: 2.5° of angle, 37.5 bar. Clean zero checks reached 4.8 (16 swings of sessions 2-9) and 9.4
+#: (3 empty slopes motions); a stuck or mis-scaled signal in the zero check goes far beyond (a
+#: constant boom head pressure: house pitch -8°, 80; a boom angle stuck at 0: 18°, 179).
+ZERO_OFFSET_WARNING = 25.0
 #: Choices of ``--low-speed``.
 LOW_SPEED_CHOICES = ("model", "downweight", "skip")
 #: Choices of ``--outside-calibration``: what becomes of a joint's window where the joint's angle
@@ -1496,6 +1501,15 @@ def zero(estimator, dataset: Dataset) -> list[str]:
                         f"{MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more wanted. Their pressure offsets "
                         "were not checked and keep the calibration's values: repeat the zero check "
                         "moving the boom, dipper and bucket")
+    offsets = estimator.calibration.z[len(CALIBRATED_PARAMETERS):len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS)]
+    far = [f"{name} {value / 1e5:+.3g} bar" if name.endswith("_pressure") else f"{name} {value / DEG:+.3g}°"
+           for name, value, std in zip(OFFSET_SIGNALS, offsets, OFFSET_PRIOR_STD)
+           if not abs(value) <= ZERO_OFFSET_WARNING * std]
+    if far:
+        warnings.append(f"zero: sensor offsets far beyond a working session's (more than "
+                        f"{ZERO_OFFSET_WARNING:g}× their usual spread): {', '.join(far)}. A stuck, "
+                        "mis-scaled or disconnected sensor in the zero check? Check those signals and "
+                        "repeat it before weighing with this model")
     return warnings
 
 
