@@ -124,6 +124,33 @@ def test_bad_worker_count():
         Execution(workers=0)
 
 
+def test_a_script_without_main_guard_runs_in_this_process_with_one_warning(tmp_path):
+    """`python api.py` calling the API at top level, no `if __name__ == "__main__":`: each new
+    worker process re-runs the script and fails to start (~520 lines of traceback); the job runs
+    in this process instead, with one warning naming the line to guard."""
+    script = tmp_path / "api.py"
+    script.write_text(textwrap.dedent("""\
+        from excavator_payload.execution import Execution
+        with Execution(workers=2) as execution:
+            print(execution.map(abs, [(-1,), (-2,), (-3,)], progress=False), execution._cluster is None)
+        from excavator_payload.execution import unguarded_main_line
+        def called():
+            return unguarded_main_line()
+        print("unguarded", called())
+        if __name__ == "__main__":
+            print("guarded", unguarded_main_line(), called())
+        """))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([SRC, os.environ.get("PYTHONPATH", "")])}
+    env.pop(SCHEDULER_ENV, None)
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["[1, 2, 3] True", f"unguarded ('{script}', 7)", "guarded None None"]
+    assert "Traceback" not in done.stderr and "Nanny" not in done.stderr
+    warning = [line for line in done.stderr.splitlines() if "InProcessWarning" in line]
+    assert len(warning) == 1 and 'if __name__ == "__main__":' in warning[0] and "api.py line 3" in warning[0]
+
+
 # -- in this process ----------------------------------------------------------------------------
 def test_one_worker_or_one_task_runs_in_this_process():
     with Execution(workers=1) as execution:

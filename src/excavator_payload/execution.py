@@ -30,11 +30,20 @@ simulated experiment draws from its own random streams).
 
 An existing scheduler with no worker would hold the tasks forever: the job waits
 :data:`DEFAULT_WORKER_TIMEOUT` seconds (``worker_timeout``, or ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``)
-for a first worker to join, then stops with one line saying how to start one.
+for a first worker to join, then stops with one line saying how to start one; an address where
+something else answers (an HTTP server, Dask's dashboard, a worker) is one line too, after at
+most :data:`CONNECT_TIMEOUT` seconds.
+
+A script run as ``python script.py`` that calls the API from its top-level code without an
+``if __name__ == "__main__":`` guard cannot start local worker processes: each new process
+re-runs the script's top-level code (``spawn`` and ``forkserver`` do that), which would start a
+cluster of its own. There the job runs in this process instead, with one warning saying where
+the guard belongs (:func:`unguarded_main_line`).
 """
 
 from __future__ import annotations
 
+import ast
 import logging
 import os
 import signal
@@ -84,6 +93,14 @@ DEFAULT_WORKER_TIMEOUT = 60.0
 
 class SchedulerError(ExcavatorPayloadError):
     """A scheduler address is malformed, the scheduler cannot be reached or no worker joins it."""
+
+
+class InProcessWarning(RuntimeWarning):
+    """A job that would have run on local worker processes runs in this process instead."""
+
+
+#: Where :class:`InProcessWarning` was shown already (once per line of the user's script).
+_WARNED: dict = {}
 
 
 def worker_timeout(seconds: float | None = None) -> float:
@@ -164,6 +181,49 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+def _guard_test(test: ast.expr) -> bool:
+    """Whether an ``if`` test reads ``__name__`` (``if __name__ == "__main__":`` and its variants)."""
+    return any(isinstance(node, ast.Name) and node.id == "__name__" for node in ast.walk(test))
+
+
+def unguarded_main_line() -> tuple[str, int] | None:
+    """The file and line of the ``__main__`` script's top-level code that is running this call
+    without an ``if __name__ == "__main__":`` guard, else ``None``.
+
+    A new local worker process (started with ``spawn`` or ``forkserver``) re-runs the main
+    script's top-level code; if that code is what starts the cluster, every worker would start
+    one of its own while it bootstraps, and fail (``RuntimeError: An attempt has been made to
+    start a new process before the current process has finished its bootstrapping phase``,
+    ``Nanny failed to start``). ``None`` when the main module is not re-run (an interactive
+    session, ``python -c``, a package's ``__main__``), when the call comes from guarded code, or
+    when the script's source cannot be read (then nothing is known, and nothing is changed).
+    """
+    main = sys.modules.get("__main__")
+    if main is None:
+        return None
+    name = getattr(getattr(main, "__spec__", None), "name", None)
+    if name is not None and (name == "__main__" or name.endswith(".__main__")):
+        return None  # multiprocessing does not re-run these
+    path = getattr(main, "__file__", None)
+    if not path:
+        return None
+    frame = sys._getframe(1)
+    while frame is not None and not (frame.f_globals is vars(main) and frame.f_code.co_name == "<module>"):
+        frame = frame.f_back
+    if frame is None:
+        return None  # not called while the main script's top-level code runs
+    line = frame.f_lineno
+    try:
+        with open(path, "rb") as fh:
+            tree = ast.parse(fh.read(), filename=path)
+    except (OSError, SyntaxError, ValueError):
+        return None
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and _guard_test(node.test) and node.test.end_lineno < line <= node.end_lineno:
+            return None
+    return path, line
 
 
 def _prepare_forkserver() -> None:
@@ -381,12 +441,28 @@ class Execution:
 
             if not tasks:
                 return results
-            if self.runs_in_process(len(tasks)):
+            if self.runs_in_process(len(tasks)) or self._main_script_unguarded(len(tasks)):
                 for index, task in enumerate(tasks):
                     finished(index, function(*(a.value if isinstance(a, Shared) else a for a in task)))
                 return results
             self._map_on_cluster(function, tasks, finished)
         return results
+
+    def _main_script_unguarded(self, n_tasks: int) -> bool:
+        """Whether local worker processes cannot start because the main script would re-run
+        this call in each (:func:`unguarded_main_line`); warns once per line of the script."""
+        if self.scheduler is not None or self._client is not None:
+            return False
+        where = unguarded_main_line()
+        if where is None:
+            return False
+        path, line = where
+        warnings.warn_explicit(
+            f"{n_tasks} tasks run in this process, not on {self.workers} worker processes: new worker "
+            f"processes re-run this script's top-level code ({os.path.basename(path)} line {line}); put "
+            "it under `if __name__ == \"__main__\":` to use them (or pass workers=1 to run here quietly)",
+            InProcessWarning, path, line, registry=_WARNED)
+        return True
 
     def _map_on_cluster(self, function, tasks, finished) -> None:
         from distributed import as_completed
