@@ -810,6 +810,9 @@ def argument_cases() -> list[Case]:
         "evaluate-nothing": (["evaluate", "--data", "{in}/data.parquet"], "nothing to evaluate"),
         "evaluate-discard-negative": (["evaluate", "--data", "{in}/data.parquet", "--model", "{in}/model",
                                        "--discard", "-1"], None),
+        # the table said '0 %' within 1 % for experiments none of which was judged
+        "evaluate-discard-everything": (["evaluate", "--data", "{in}/data.parquet", "--model", "{in}/model",
+                                         "--discard", "101", "--json", "{work}/e.json"], "leaves no sample"),
         "evaluate-discard-text": (["evaluate", "--data", "{in}/data.parquet", "--model", "{in}/model",
                                    "--discard", "many"], None),
         "evaluate-field-log": (["evaluate", "--data", "{in}/field.parquet", "--model", "{in}/model"], "payload"),

@@ -132,6 +132,11 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
     if not dataset.has_payload:
         raise DatasetError("the dataset has no 'payload' column (a field log?): judging needs the "
                            "true payloads")
+    longest = int(dataset.frame.groupby("experiment", sort=False).size().max())
+    if discard >= longest:
+        # the table said '0 %' within 1 % of experiments none of which was judged
+        raise DatasetError(f"--discard {discard} leaves no sample to judge: the longest experiment has "
+                           f"{longest} samples")
     evaluations: list[Evaluation] = []
     bounds: dict = {}
     taken: set = set()
