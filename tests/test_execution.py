@@ -119,6 +119,40 @@ def test_unreachable_scheduler_is_a_clear_error(monkeypatch):
         execution.map(pid_and_square, [(1,), (2,)], progress=False)
 
 
+def test_a_port_where_no_dask_scheduler_answers_is_a_clear_error_not_a_hang(monkeypatch):
+    """`--scheduler` at an HTTP server (e.g. Dask's dashboard port) hung for ever in the handshake."""
+    import http.server
+    import threading
+
+    monkeypatch.setattr("excavator_payload.execution.CONNECT_TIMEOUT", 2.0)
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), http.server.SimpleHTTPRequestHandler)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.server_address[1]}"
+    outcome = []
+
+    def run():
+        try:
+            with Execution(address) as execution:
+                execution.map(pid_and_square, [(1,), (2,)], progress=False)
+        except BaseException as exc:  # noqa: BLE001 - the test looks at it
+            outcome.append(exc)
+
+    try:
+        thread = threading.Thread(target=run, daemon=True)
+        start = time.monotonic()
+        thread.start()
+        thread.join(timeout=30)
+        assert not thread.is_alive(), "still waiting for the handshake after 30 s"
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert time.monotonic() - start < 15
+    assert len(outcome) == 1 and isinstance(outcome[0], SchedulerError), outcome
+    message = str(outcome[0])
+    assert "\n" not in message
+    assert f"cannot reach the Dask scheduler at {address}: no Dask answer within 2 s" in message
+
+
 def test_bad_worker_count():
     with pytest.raises(excavator_payload.errors.ExcavatorPayloadError, match="workers"):
         Execution(workers=0)

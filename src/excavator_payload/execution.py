@@ -286,6 +286,54 @@ def _quiet_dask() -> None:
     warnings.filterwarnings("ignore", message="Creating scratch directories is taking")
 
 
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+def _probe_scheduler(address: str, timeout: float) -> None:
+    """Check within ``timeout`` seconds that a Dask scheduler answers at ``address``.
+
+    ``distributed.Client`` waits for the handshake without a time limit: at a port where
+    something else listens (an HTTP server, Dask's own dashboard) it hung for ever. This asks
+    the server who it is, on an event loop of its own (so also when the caller's thread runs
+    one), and gives up after ``timeout`` seconds.
+
+    Raises
+    ------
+    SchedulerError
+        If nothing listens there, nothing answers like Dask within ``timeout`` seconds, or a
+        Dask server that is not a scheduler (a worker) answers.
+    """
+    import asyncio
+    from concurrent.futures import ThreadPoolExecutor
+
+    from distributed.comm import connect
+
+    async def identity():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    def ask():
+        return asyncio.run(asyncio.wait_for(identity(), timeout))
+
+    with ThreadPoolExecutor(1, thread_name_prefix="scheduler-probe") as pool:
+        try:
+            info = pool.submit(ask).result()
+        except (asyncio.TimeoutError, TimeoutError):
+            raise SchedulerError(f"cannot reach the Dask scheduler at {address}: no Dask answer within "
+                                 f"{timeout:g} s (is that the scheduler's port? not its dashboard's)") from None
+        except Exception as exc:  # noqa: BLE001 - refused, reset, garbage: one line whatever it is
+            raise SchedulerError(f"cannot reach the Dask scheduler at {address}: {_first_line(exc)}") from None
+    kind = info.get("type") if isinstance(info, dict) else None
+    if kind != "Scheduler":
+        raise SchedulerError(f"{address} is not a Dask scheduler (a Dask {kind or 'server'} answers there): "
+                             "give the scheduler's address, as `dask scheduler` prints it")
+
+
 @dataclass
 class Execution:
     """Where and how parallel jobs run; use as a context manager so that a cluster it starts
@@ -368,11 +416,12 @@ class Execution:
         from distributed import Client
 
         if self.scheduler:
+            _probe_scheduler(self.scheduler, CONNECT_TIMEOUT)
             try:
                 client = Client(self.scheduler, set_as_default=False, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError) as exc:
                 raise SchedulerError(f"cannot reach the Dask scheduler at {self.scheduler}: "
-                                     f"{str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+                                     f"{_first_line(exc)}") from None
             try:
                 # Tasks sent to a scheduler without workers would wait forever.
                 client.wait_for_workers(1, timeout=self.worker_timeout)
