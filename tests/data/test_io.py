@@ -251,3 +251,14 @@ def test_a_boom_angle_without_a_finite_value_is_data_not_a_unit(small, machine_f
         validate_frame(one_inf, sensor_set=sensor_set)
     with pytest.raises(DatasetError, match="boom_angle"):
         validate_frame(frame.assign(boom_angle=np.degrees(frame["boom_angle"])), sensor_set=sensor_set)
+
+
+def test_an_implausible_pressure_is_not_asked_about_degrees(machine_frame):
+    """One pressure sample of 5e8 Pa was refused with "are the units degrees instead of SI?"."""
+    from excavator_payload.data.io import validate_frame
+
+    frame = machine_frame.copy()
+    frame.loc[frame.index[100], "boom_head_pressure"] = 5e8
+    with pytest.raises(DatasetError, match="boom_head_pressure") as info:
+        validate_frame(frame, sensor_set="machine")
+    assert "degrees" not in str(info.value) and "Pa" in str(info.value)

@@ -247,9 +247,13 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
         values = frame[c].to_numpy(dtype=float)
         finite = values[np.isfinite(values)]
         if finite.size and np.abs(finite).max() > sensors.plausible_abs[c]:
+            unit = sensors.units[c]
+            # a pressure of 5e8 Pa was asked whether it was in degrees
+            hint = ("are the units degrees instead of SI?" if unit.startswith("rad")
+                    else f"a glitch, or not in {unit}?")
             raise DatasetError(
-                f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in "
-                f"{sensors.units[c]} (are the units degrees instead of SI?)"
+                f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in {unit} ({hint}); "
+                f"the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
             )
     # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
     for c in ("house_pitch", "house_roll"):
