@@ -49,6 +49,38 @@ def test_evaluate_estimates_files(files):
     assert s["estimated_share"] == pytest.approx(97 / 101)
 
 
+def test_default_discard_depends_on_the_sensor_set(files, tmp_path, capsys):
+    """--discard defaults to 81 samples on thesis data (20 Hz) and to 1 s = 100 samples on the
+    machine set (100 Hz: 81 were 0.81 s), and --help says so; an explicit --discard is kept."""
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    d, data, plus10, _ = files
+    out = tmp_path / "eval.json"
+    assert main(["evaluate", "--data", str(data), "--estimates", str(plus10), "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["discard"] == 81 and res["evaluations"][0]["per_experiment"][0]["n_judged"] == 101 - 81
+    swing = simulate_machine_dataset(1, seed=5, session=2, motion="swing")
+    machine_data, machine_est = tmp_path / "swing.parquet", tmp_path / "swing-est.parquet"
+    write_dataset(swing, machine_data)
+    f = swing.frame
+    write_estimates(pd.DataFrame({"experiment": f["experiment"], "time": f["time"],
+                                  "payload_estimate": f["payload"] + 10.0}), machine_est)
+    for option, discard in (([], 100), (["--discard", "81"], 81)):
+        assert main(["evaluate", "--data", str(machine_data), "--estimates", str(machine_est), "--json", str(out),
+                     *option]) == 0
+        res = json.loads(out.read_text())
+        assert res["discard"] == discard
+        assert res["evaluations"][0]["per_experiment"][0]["n_judged"] == len(f) - discard
+    assert main(["report", "--data", str(machine_data), "--estimates", str(machine_est),
+                 "--out", str(tmp_path / "r")]) == 0
+    assert json.loads((tmp_path / "r" / "evaluation.json").read_text())["settings"]["discard"] == 100
+    capsys.readouterr()
+    for command in ("evaluate", "report"):
+        assert main([command, "--help"]) == 0
+        text = " ".join(capsys.readouterr().out.replace("│", " ").split())
+        assert "81 on the thesis sensor set" in text and "100 samples at 100 Hz, on the machine set" in text
+
+
 def test_evaluate_errors_are_one_line(files, capsys):
     d, data, plus10, _ = files
     assert main(["evaluate", "--data", str(d / "nope.parquet"), "--estimates", str(plus10)]) == 2

@@ -14,6 +14,7 @@ from excavator_payload.evaluation.metrics import (
     align_estimates,
     bound_window,
     convergence_time,
+    default_discard,
     display_label,
     evaluate_estimates,
     experiment_metrics,
@@ -183,3 +184,17 @@ def test_align_estimates_matches_on_experiment_and_time(mj_dataset_clean):
         align_estimates(ds, pd.concat([est, est.iloc[:1]]))
     with pytest.raises(DatasetError, match="estimates for"):
         evaluate_estimates(ds, np.zeros(3))
+
+
+def test_default_discard_is_81_samples_on_the_thesis_set_and_1_s_on_the_machine_set(mj_dataset):
+    """81 samples are 4.05 s of the thesis's 20 Hz data but 0.81 s of the machine set's 100 Hz."""
+    from excavator_payload.data.schema import MACHINE_SENSORS, THESIS_SENSORS
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    assert default_discard(THESIS_SENSORS) == 81 and default_discard(MACHINE_SENSORS) == 100
+    payload = mj_dataset.frame["payload"].to_numpy()
+    ev = evaluate_estimates(mj_dataset, payload + 1.0, with_bound=False)
+    assert (ev.per_experiment["n_judged"] == 101 - 81).all()  # as before: thesis Table 7.1
+    swing = simulate_machine_dataset(1, seed=5, session=2, motion="swing")
+    ev = evaluate_estimates(swing, swing.frame["payload"].to_numpy() + 1.0, with_bound=False)
+    assert ev.per_experiment["n_judged"].tolist() == [len(swing.frame) - 100]

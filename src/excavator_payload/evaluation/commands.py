@@ -22,12 +22,13 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import check_output_path, read_dataset, read_estimates, read_metadata
 from excavator_payload.errors import DatasetError, EstimatorError
 from excavator_payload.evaluation.metrics import (
-    DEFAULT_DISCARD,
+    DISCARD_DEFAULT_HELP,
     Evaluation,
     bound_window,
     dataset_bound,
     display_label,
     evaluate_estimates,
+    default_discard,
     to_jsonable,
 )
 
@@ -121,10 +122,11 @@ def _unique(label: str, taken: set) -> str:
 
 
 def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: Sequence[Path] = (),
-                     discard: int = DEFAULT_DISCARD, progress: Progress | None = None,
+                     discard: int | None = None, progress: Progress | None = None,
                      execution=None) -> list[Evaluation]:
     """Evaluate saved models (run on ``dataset``, through ``execution`` if it is big: see
-    :func:`estimate_in_chunks`) and estimates files, in the order given."""
+    :func:`estimate_in_chunks`) and estimates files, in the order given; ``discard`` defaults to
+    :func:`~excavator_payload.evaluation.metrics.default_discard` of the dataset's sensor set."""
     from excavator_payload.estimators.base import load_estimator
 
     if not models and not estimates:
@@ -132,6 +134,8 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
     if not dataset.has_payload:
         raise DatasetError("the dataset has no 'payload' column (a field log?): judging needs the "
                            "true payloads")
+    if discard is None:
+        discard = default_discard(dataset.sensor_set)
     longest = int(dataset.frame.groupby("experiment", sort=False).size().max())
     if discard >= longest:
         # the table said '0 %' within 1 % of experiments none of which was judged
@@ -247,8 +251,9 @@ def register(app: typer.Typer) -> None:
                                              help="Estimates file from `estimate` or another tool: columns "
                                                   "experiment, time, payload_estimate (repeatable).",
                                              metavar="FILE"),
-        discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0,
-                                    help="Samples not judged at the start of every experiment (thesis: 81)."),
+        discard: int = typer.Option(None, "--discard", min=0, show_default=False,
+                                    help="Samples not judged at the start of every experiment "
+                                         f"({DISCARD_DEFAULT_HELP})."),
         json_out: Path = typer.Option(None, "--json", help="Write every figure to this JSON file."),
         workers: int = typer.Option(0, "--workers",
                                     help="Local worker processes estimating a big dataset (0 = all cores)."),
@@ -264,6 +269,8 @@ def register(app: typer.Typer) -> None:
         if json_out is not None:
             check_output_path(json_out, inputs=[data, *model, *estimates], option="--json")
         dataset = read_dataset(data)
+        if discard is None:
+            discard = default_discard(dataset.sensor_set)
         with Execution(scheduler, workers or None) as execution, progress_bar() as progress:
             evaluations = evaluate_sources(dataset, model, estimates, discard, progress, execution)
         console.print(summary_table(evaluations, f"Payload accuracy on {data} "
@@ -289,7 +296,9 @@ def register(app: typer.Typer) -> None:
         model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable).", metavar="DIR"),
         estimates: list[Path] = typer.Option([], "--estimates", help="Estimates file (repeatable).",
                                              metavar="FILE"),
-        discard: int = typer.Option(DEFAULT_DISCARD, "--discard", min=0, help="Samples not judged at the start."),
+        discard: int = typer.Option(None, "--discard", min=0, show_default=False,
+                                    help="Samples not judged at the start of every experiment "
+                                         f"({DISCARD_DEFAULT_HELP})."),
         experiments: str = typer.Option(None, "--experiments",
                                         help="Experiments to plot like thesis Figures 7.1–7.12, e.g. '3,17,42' "
                                              "(default: six spread over the payload range)."),
@@ -313,6 +322,8 @@ def register(app: typer.Typer) -> None:
         check_output_path(out, inputs=[data, *model, *estimates, calibration], kind="folder",
                           replaces=("report.html", "report.md", "evaluation.json", "figures"))
         dataset = read_dataset(data)
+        if discard is None:
+            discard = default_discard(dataset.sensor_set)
         chosen = None
         if experiments:
             try:

@@ -38,10 +38,11 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import ESTIMATE_COLUMNS
+from excavator_payload.data.schema import ESTIMATE_COLUMNS, MACHINE_SENSORS, THESIS_SENSORS
 from excavator_payload.errors import DatasetError
 
-#: Samples discarded at the start of every experiment (thesis Table 7.1: "the first 81 steps").
+#: Samples discarded at the start of every experiment of the thesis sensor set (thesis Table 7.1:
+#: "the first 81 steps", at 20 Hz).
 DEFAULT_DISCARD = 81
 #: Rated payload of the thesis machine (kg), used when the dataset names no machine.
 DEFAULT_RATED_PAYLOAD = 5000.0
@@ -49,6 +50,24 @@ DEFAULT_RATED_PAYLOAD = 5000.0
 INDUSTRY_TOLERANCE = 0.01
 #: Percentiles of |error| reported per experiment (appendix A.3 ``CI``).
 PERCENTILES = (90, 95, 99)
+#: Seconds not judged at the start of every experiment of any other sensor set (the machine set:
+#: its first second, 100 samples at 100 Hz, as :mod:`excavator_payload.evaluation.demo_machine`).
+DEFAULT_DISCARD_SECONDS = 1.0
+
+
+def default_discard(sensor_set) -> int:
+    """Samples not judged at the start of every experiment unless told: :data:`DEFAULT_DISCARD` on
+    the thesis sensor set, the first :data:`DEFAULT_DISCARD_SECONDS` on any other."""
+    if sensor_set.name == THESIS_SENSORS.name:
+        return DEFAULT_DISCARD
+    return int(round(DEFAULT_DISCARD_SECONDS * sensor_set.sample_rate))
+
+
+#: What ``--discard`` defaults to, per sensor set (for ``--help``).
+DISCARD_DEFAULT_HELP = (f"default: {default_discard(THESIS_SENSORS)} on the thesis sensor set, as in thesis "
+                        f"Table 7.1 at {THESIS_SENSORS.sample_rate:g} Hz; the first {DEFAULT_DISCARD_SECONDS:g} s, "
+                        f"{default_discard(MACHINE_SENSORS)} samples at {MACHINE_SENSORS.sample_rate:g} Hz, "
+                        "on the machine set")
 
 #: Summary figures that are reported in kg and in % of the rated payload.
 _KG_SUMMARY = ("mean_max", "std_max", "mean_rms", "std_rms")
@@ -323,7 +342,7 @@ def summarize(per_experiment: pd.DataFrame, rated_payload: float = DEFAULT_RATED
 
 
 def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *, label: str = "estimator",
-                       discard: int = DEFAULT_DISCARD, window: int | None = None,
+                       discard: int | None = None, window: int | None = None,
                        with_bound: bool = True, bound: np.ndarray | None = None,
                        rated_payload: float | None = None, info: dict | None = None) -> Evaluation:
     """Judge estimates against a dataset's true payloads.
@@ -337,8 +356,9 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
         aligned with the dataset's rows.
     label : str
         Display name of the estimator (``Evaluation.label``; also names it in error messages).
-    discard : int
-        Samples not judged at the start of every experiment (default 81).
+    discard : int, optional
+        Samples not judged at the start of every experiment (default :func:`default_discard` of
+        the dataset's sensor set: 81 on the thesis set, 100 = 1 s on the machine set).
     window : int or None
         Cramér–Rao window (see :func:`bound_window`); ``None`` the whole history.
     with_bound : bool
@@ -356,6 +376,8 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
     A work cycle (an experiment whose metadata has the dump's ``release`` times) is judged up to
     its dump; ``summary["judged_to_the_dump"]`` counts them.
     """
+    if discard is None:
+        discard = default_discard(dataset.sensor_set)
     if discard < 0:
         raise DatasetError(f"--discard must be ≥ 0, got {discard}")
     if isinstance(estimates, pd.DataFrame):
