@@ -32,6 +32,24 @@ def test_export_reads_back_in_thesis_layout(mj_dataset, tmp_path):
         assert f"experiment {exp_id}" in str(s["note"][0, 0][0])
 
 
+def test_export_is_as_readable_as_the_other_outputs(mj_dataset, tmp_path):
+    """The .mat file was 0600 (a private temporary file renamed) where a dataset is 0644."""
+    import os
+    import stat
+
+    from excavator_payload.data.io import write_dataset
+
+    ds = mj_dataset.subset(mj_dataset.experiment_ids[:1])
+    previous = os.umask(0o022)
+    try:
+        export_mat(ds, tmp_path / "data.mat")
+        write_dataset(ds, tmp_path / "data.parquet")
+    finally:
+        os.umask(previous)
+    mode = stat.S_IMODE((tmp_path / "data.mat").stat().st_mode)
+    assert mode == 0o644 == stat.S_IMODE((tmp_path / "data.parquet").stat().st_mode)
+
+
 def test_thesis_column_order():
     assert INPUT_NAMES == ("Pos_LA", "Vel_LA", "Accel_LA", "Pos_UA", "Vel_UA", "Accel_UA",
                            "Torque_LA", "Torque_uA")

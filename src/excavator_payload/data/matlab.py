@@ -99,6 +99,9 @@ def export_mat(dataset: Dataset, path: str | Path) -> None:
     try:
         with os.fdopen(fd, "wb") as handle:
             scipy.io.savemat(handle, {"dataset": cells}, do_compression=True, oned_as="column")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; as readable as the other outputs
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
