@@ -218,6 +218,15 @@ BAD_DATASETS: dict[str, tuple[Callable, str | None]] = {
     "fractional-experiment": (_edit(lambda f: f.assign(experiment=f["experiment"] + 0.5)), "experiment"),
     "bad-metadata-json": (lambda work, inputs: _write_frame(work / "bad.parquet", _frame(inputs), b"{not json"),
                           "JSON"),
+    # an edited metadata: train and evaluate crashed (AttributeError, TypeError)
+    "metadata-machine-text": (lambda work, inputs: _write_frame(work / "bad.parquet", _frame(inputs), json.dumps(
+        {**json.loads(_meta(inputs)), "machine": "cat345c"}).encode()), "metadata 'machine'"),
+    "metadata-experiments-text": (lambda work, inputs: _write_frame(work / "bad.parquet", _frame(inputs), json.dumps(
+        {**json.loads(_meta(inputs)), "experiments": "all"}).encode()), "metadata 'experiments'"),
+    # the machine of the metadata, broken: "machine: field 'boom_mass' ..." did not name the file
+    "metadata-machine-broken": (lambda work, inputs: _write_frame(work / "bad.parquet", _frame(inputs), json.dumps(
+        {**json.loads(_meta(inputs)), "machine": {**json.loads(_meta(inputs))["machine"], "boom_mass": -1.0}}
+    ).encode()), "bad.parquet: the machine in its metadata"),
     "unknown-sensor-set": (lambda work, inputs: _write_frame(
         work / "bad.parquet", _frame(inputs), json.dumps({"sensor_set": "sonar"}).encode()), "sensor set"),
 }
@@ -247,6 +256,8 @@ def dataset_cases() -> list[Case]:
                 check = _check_invalid_reported if command == "estimate" else None
             if bad == "torque-1e400" and command == "report":
                 continue  # covered by evaluate; a report takes seconds
+            if bad == "metadata-machine-broken" and command in ("estimate", "train-net1", "export-mat"):
+                continue  # they do not read the data's machine
             cases.append(Case(f"data-{bad}-{command}", "bad dataset", argv, expect,
                               message if expect == "error" else None,
                               setup, check, outputs[command] if expect == "error" else []))

@@ -159,12 +159,18 @@ class Dataset:
         """The :class:`~excavator_payload.model.machine.Machine` that generated the data, if known."""
         from excavator_payload.model.machine import Machine
 
-        m = self.meta.get("machine")
-        if isinstance(m, dict) and m.get("kind") == "hydraulic":  # issue 11: hydraulic machines
-            from excavator_payload.model.hydraulic_machine import HydraulicMachine
+        from excavator_payload.errors import MachineError
 
-            return HydraulicMachine.from_dict(m)
-        return Machine.from_dict(m) if isinstance(m, dict) else None
+        m = self.meta.get("machine")
+        try:
+            if isinstance(m, dict) and m.get("kind") == "hydraulic":  # issue 11: hydraulic machines
+                from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+                return HydraulicMachine.from_dict(m)
+            return Machine.from_dict(m) if isinstance(m, dict) else None
+        except MachineError as exc:  # "machine: field ..." did not say which file
+            where = f"{self.source}: " if self.source is not None else ""
+            raise MachineError(f"{where}the machine in its metadata is not valid: {exc}") from None
 
     def __len__(self) -> int:
         return len(self.frame)

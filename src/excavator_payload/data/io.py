@@ -179,6 +179,7 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
     """
     path = Path(path)
     meta = read_metadata(path)
+    _check_metadata(meta, str(path))
     try:
         frame = pq.read_table(path).to_pandas()
     except (pa.ArrowInvalid, OSError) as exc:
@@ -188,6 +189,33 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
         validate_frame(frame, source=str(path), sensor_set=sensors)
     meta = {**meta, "sensor_set": sensors.name}
     return Dataset(frame.reset_index(drop=True), meta, source=path)
+
+
+def _check_metadata(meta: dict, source: str) -> None:
+    """The shape of the metadata the commands read (an edited file crashed train and evaluate:
+    a 'machine' that was a string, 'experiments' that were not a list of tables)."""
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{source}: its excavator_payload metadata must be a JSON object")
+    if meta.get("machine") is not None and not isinstance(meta["machine"], dict):
+        raise DatasetError(f"{source}: metadata 'machine' must be the machine's tables (a JSON object), "
+                           f"got {type(meta['machine']).__name__}")
+    experiments = meta.get("experiments")
+
+    def numbered(e) -> bool:
+        if not isinstance(e, dict) or isinstance(e.get("experiment"), bool):
+            return False
+        try:
+            int(e["experiment"])  # as Dataset.experiment_meta reads it
+        except (KeyError, TypeError, ValueError, OverflowError):
+            return False
+        return True
+
+    if experiments is not None and not (isinstance(experiments, list) and all(map(numbered, experiments))):
+        raise DatasetError(f"{source}: metadata 'experiments' must be a list of objects, each with its "
+                           "'experiment' number")
+    for key in ("noise", "sensor_set", "motion"):
+        if meta.get(key) is not None and not isinstance(meta[key], str):
+            raise DatasetError(f"{source}: metadata '{key}' must be a name (a string), got {meta[key]!r}")
 
 
 def _sensor_set_of(frame: pd.DataFrame, meta: dict, source: str) -> SensorSet:
