@@ -274,3 +274,25 @@ def test_single_precision_ekf_step_is_the_same_filter(name, models, swings):
             scale = np.sqrt(np.outer(np.diag(P_want), np.diag(P_want)))  # covariances by their stds
             assert np.all(np.abs(P_got - P_want) <= 1e-6 * scale)
         x, P = want[30:35], want[35:60].reshape(5, 5, order="F")
+
+
+def test_a_network_that_does_not_run_on_every_sample_names_its_options(tmp_path):
+    """The refusal named '--smoothing 0' (the exportable value) beside the --decimation at fault."""
+    from types import SimpleNamespace
+
+    from excavator_payload.data.schema import THESIS_SENSORS
+
+    est = SimpleNamespace(name="net1", fitted=True, decimation=5, smoothing=0.0, sensor_set=THESIS_SENSORS)
+    with pytest.raises(EstimatorError, match=r"^net1: a network trained with --decimation 5 has no C export") as caught:
+        export_c(est, tmp_path)
+    assert "--smoothing 0 " not in str(caught.value).split("; train it")[0]
+
+
+def test_what_exports_to_c_is_what_the_help_lists(capsys):
+    from excavator_payload.runtime import export_c as module
+    from excavator_payload.runtime.exportable import C_EXPORTABLE, C_EXPORTABLE_MACHINE
+
+    assert tuple(module._BUILDERS) == C_EXPORTABLE and tuple(module._MACHINE_BUILDERS) == C_EXPORTABLE_MACHINE
+    assert main(["export", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert f"c ({', '.join(C_EXPORTABLE)}; on the machine sensor set: {', '.join(C_EXPORTABLE_MACHINE)})" in text

@@ -73,3 +73,32 @@ def test_onnx_errors_and_cli(network, swings, tmp_path):
     network.save(model)
     assert main(["export", "--model", str(model), "--format", "onnx", "--out", str(tmp_path / "o")]) == 0
     assert (tmp_path / "o" / f"{network.name}.onnx").is_file()
+
+
+@pytest.mark.parametrize("decimation, smoothing, named, not_named", [
+    (5, 0.0, "--decimation 5", "--smoothing"), (1, 0.3, "--smoothing 0.3", "--decimation"),
+    (5, 0.3, "--decimation 5 and --smoothing 0.3", None)])
+def test_a_network_that_does_not_run_on_every_sample_names_its_options(decimation, smoothing, named, not_named):
+    """The refusal said '--decimation 5 or --smoothing 0' although --smoothing 0 exports."""
+    from types import SimpleNamespace
+
+    from excavator_payload.data.schema import MACHINE_SENSORS
+
+    est = SimpleNamespace(name="ffnn", fitted=True, decimation=decimation, smoothing=smoothing,
+                          sensor_set=MACHINE_SENSORS)
+    with pytest.raises(EstimatorError) as caught:
+        onnx_graph(est)
+    message = str(caught.value)
+    assert f"trained with {named} has no ONNX export" in message and "--decimation 1 --smoothing 0" in message
+    if not_named:
+        assert not_named not in message.split("; train it")[0]
+
+
+def test_what_exports_to_onnx_is_what_the_help_lists(capsys):
+    from excavator_payload.runtime import export_onnx
+    from excavator_payload.runtime.exportable import ONNX_EXPORTABLE
+
+    assert tuple(export_onnx._GRAPHS) == ONNX_EXPORTABLE
+    assert main(["export", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.replace("│", " ").split())
+    assert f"onnx ({', '.join(ONNX_EXPORTABLE)})" in text and "ffnn" in ONNX_EXPORTABLE

@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 
 from excavator_payload.errors import DatasetError, EstimatorError
+from excavator_payload.runtime.exportable import format_help
 
 console = Console()
 err_console = Console(stderr=True)
@@ -45,6 +46,8 @@ def register(app: typer.Typer) -> None:
             typer.echo(text, nl=False)
             return
         check_output_path(out)  # a folder or an unwritable place: one line, not a traceback
+        if out.suffix.lower() != ".dbc":  # `--out data.parquet` replaced a dataset with DBC text
+            raise DatasetError(f"--out must end in .dbc, got '{out.name}'")
         tmp = out.with_name(out.name + ".tmp")
         tmp.write_text(text)
         tmp.replace(out)
@@ -167,8 +170,7 @@ def register(app: typer.Typer) -> None:
     @app.command("export")
     def export(
         model: Path = typer.Option(..., "--model", help="Folder of a saved estimator."),
-        fmt: str = typer.Option(..., "--format", help="c (inverse-dynamics, calibrated, ekf, net1, "
-                                "net2) or onnx (net1, net2)."),
+        fmt: str = typer.Option(..., "--format", help=format_help()),
         out: Path = typer.Option(..., "--out", help="Folder to write the files into."),
         precision: str = typer.Option("float64", "--precision", help="C only: float64 (double) or "
                                       "float32 (single-precision FPUs)."),
@@ -176,8 +178,13 @@ def register(app: typer.Typer) -> None:
         """Export a trained estimator as C99 source for an ECU, or as ONNX."""
         from excavator_payload.estimators.base import load_estimator
 
+        from excavator_payload.data.io import check_output_path
+
         if precision not in ("float64", "float32"):
             raise EstimatorError("--precision must be float64 or float32")
+        # a file, a path under a file or the model folder: one line before any work (it was
+        # "File exists ('x')", or the C files written into the model)
+        check_output_path(out, inputs=[model], kind="folder")
         est = load_estimator(model)
         if fmt == "c":
             from excavator_payload.runtime.export_c import export_c

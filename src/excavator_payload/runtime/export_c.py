@@ -116,9 +116,12 @@ from excavator_payload.estimators.base import (
     max_consecutive_rejections,
     plausibility_limits,
 )
+from excavator_payload.runtime.exportable import (
+    C_EXPORTABLE,
+    C_EXPORTABLE_MACHINE,
+    per_sample_refusal,
+)
 
-#: Estimators that can be exported to C.
-C_EXPORTABLE = ("inverse-dynamics", "calibrated", "ekf", "net1", "ffnn", "net2")
 #: Maths functions the generated code may call (mapped to their float variants in single).
 MATH_FUNCTIONS = ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh",
                   "exp", "log", "sqrt", "fabs", "pow", "floor", "ceil", "fmin", "fmax", "erf")
@@ -1995,18 +1998,16 @@ def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") 
         builder = _MACHINE_BUILDERS.get(estimator.name)
         if builder is None:
             raise EstimatorError(f"{estimator.name} on the machine sensor set has no C export; "
-                                 f"exportable there: {', '.join(_MACHINE_BUILDERS)}")
+                                 f"exportable there: {', '.join(C_EXPORTABLE_MACHINE)}")
     else:
         builder = _BUILDERS.get(estimator.name)
     if builder is None:
         raise EstimatorError(f"{estimator.name} has no C export; exportable: {', '.join(C_EXPORTABLE)}")
     if precision not in ("float64", "float32"):
         raise EstimatorError("precision must be float64 or float32")
-    if getattr(estimator, "decimation", 1) != 1 or getattr(estimator, "smoothing", 0.0) != 0.0:
-        raise EstimatorError(f"{estimator.name}: a network with --decimation {estimator.decimation} or "
-                             f"--smoothing {estimator.smoothing:g} has no C export (it runs the "
-                             "network alone on every sample); train it with --decimation 1 "
-                             "--smoothing 0 to export it")
+    refusal = per_sample_refusal(estimator, "C")
+    if refusal:
+        raise EstimatorError(refusal)
     model = builder(estimator)
     base = "ep_" + c_identifier(estimator.name)
     header, source = render(estimator, model, base, precision == "float32")

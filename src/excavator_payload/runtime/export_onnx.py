@@ -29,8 +29,8 @@ import torch
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator
+from excavator_payload.runtime.exportable import ONNX_EXPORTABLE, per_sample_refusal
 
-ONNX_EXPORTABLE = ("net1", "ffnn", "net2")
 OPSET = 17
 
 
@@ -114,16 +114,17 @@ class _NarxGraph(torch.nn.Module):
 
 def onnx_graph(est: Estimator) -> torch.nn.Module:
     """The PyTorch module that is exported (float32)."""
-    if getattr(est, "decimation", 1) != 1 or getattr(est, "smoothing", 0.0) != 0.0:
-        raise EstimatorError(f"{est.name}: a network with --decimation {est.decimation} or "
-                             f"--smoothing {est.smoothing:g} has no ONNX export (it runs the "
-                             "network alone on every sample); train it with --decimation 1 "
-                             "--smoothing 0 to export it")
-    if est.name in ("net1", "ffnn"):
-        return _TimeDelayGraph(est).eval()
-    if est.name == "net2":
-        return _NarxGraph(est).eval()
-    raise EstimatorError(f"{est.name} has no ONNX export; exportable: {', '.join(ONNX_EXPORTABLE)}")
+    graph = _GRAPHS.get(est.name)
+    if graph is None:
+        raise EstimatorError(f"{est.name} has no ONNX export; exportable: {', '.join(ONNX_EXPORTABLE)}")
+    refusal = per_sample_refusal(est, "ONNX")
+    if refusal:
+        raise EstimatorError(refusal)
+    return graph(est).eval()
+
+
+#: The graph of each exportable network (its keys are :data:`ONNX_EXPORTABLE`).
+_GRAPHS = {"net1": _TimeDelayGraph, "ffnn": _TimeDelayGraph, "net2": _NarxGraph}
 
 
 def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
