@@ -1085,6 +1085,22 @@ def can_cases() -> list[Case]:
               "{work}/map.log", "--out", "{work}/map.log"], message=same, setup=_user_dbc_and_map,
              outputs=["{work}/map.log"]),
         Case("can-dbc-out-is-folder", "CAN logs", ["can-dbc", "--out", "{work}"], message="folder"),
+        # it replaced the dataset with the DBC's text
+        Case("can-dbc-out-is-a-dataset", "CAN logs", ["can-dbc", "--out", "{work}/data.parquet"], message=".dbc",
+             setup=lambda work, inputs: _write(work / "data.parquet", (inputs / "data.parquet").read_bytes()),
+             outputs=["{work}/data.parquet"]),
+        # "File exists ('file')" / "Not a directory", or the C files written into the model
+        Case("export-out-is-file", "output path", ["export", "--model", "{in}/model", "--format", "c", "--out",
+                                                   "{work}/file"], message="is a file",
+             setup=lambda work, inputs: _write(work / "file", "precious"), outputs=["{work}/file"]),
+        Case("export-out-under-a-file", "output path", ["export", "--model", "{in}/model", "--format", "c",
+                                                        "--out", "{work}/file/c"], message="not a folder",
+             setup=lambda work, inputs: _write(work / "file", "precious")),
+        Case("export-out-is-the-model", "output path", ["export", "--model", "{in}/model", "--format", "c",
+                                                        "--out", "{in}/model"], message="refusing to overwrite"),
+        Case("plot-out-under-a-file", "output path", ["plot", "--data", "{in}/machine.parquet", "--out",
+                                                      "{work}/file/p.png"], message="not a folder",
+             setup=lambda work, inputs: _write(work / "file", "precious")),
         Case("can-dbc-out-under-a-file", "CAN logs", ["can-dbc", "--out", "{work}/file/x.dbc"],
              message="not a folder", setup=lambda work, inputs: _write(work / "file", "precious")),
     ]

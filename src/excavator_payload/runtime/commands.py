@@ -88,7 +88,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Replay a CAN log through the payload sensor; write the estimates as Parquet."""
         from excavator_payload.data.io import write_estimates
+        from rich.markup import escape
+
         from excavator_payload.estimators.base import load_estimator
+        from excavator_payload.estimators.commands import STATUS_MEANING, status_breakdown
         from excavator_payload.runtime.can_sensor import PayloadSensor
         from excavator_payload.runtime.replay import replay_log
 
@@ -103,17 +106,21 @@ def register(app: typer.Typer) -> None:
         sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map))
         frame = replay_log(log, sensor, segment_gap, progress=True)
         write_estimates(frame, out, meta={"estimator": est.name, "model": str(model), "log": str(log)})
-        n_ok = int((frame["status"] == "ok").sum())
         c = sensor.counters
         dropped = [f"{n} {what}" for n, what in (
             (frame.attrs.get("skipped_records", 0), "unreadable log records skipped"),
             (c["duplicates"], "duplicate frames dropped"),
             (c["other_senders"], "frames of the sensor PGNs from another source address ignored"))
             if n]
-        console.print(f"{est.name}: {len(frame)} estimates ({n_ok} ok) in {frame['experiment'].nunique()} "
-                      f"segment(s) from {c['frames']} frames ({c['ignored']} ignored, "
-                      f"{c['bad_frames']} bad{''.join('; ' + d for d in dropped)}) written to "
-                      f"[bold]{out}[/bold]", highlight=False)
+        # every status, as `estimate` counts them (it said '(9244 ok)', no word of the warming_up)
+        console.print(f"{est.name}: {len(frame)} estimates ({status_breakdown(frame['status'])}) in "
+                      f"{frame['experiment'].nunique()} segment(s) from {c['frames']} frames ({c['ignored']} "
+                      f"ignored, {c['bad_frames']} bad{''.join('; ' + d for d in dropped)}) written to "
+                      f"[bold]{escape(str(out))}[/bold]", highlight=False)
+        seen = [status for status in STATUS_MEANING if (frame["status"] == status).any()]
+        if seen:
+            console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
+                          markup=False, highlight=False)
 
     @app.command("can-run")
     def can_run(

@@ -43,12 +43,13 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", help="Figure file (.png, .pdf or .svg)."),
     ) -> None:
         """Plot one experiment of a hydraulic-machine dataset: angles, slew, pressures, inclination."""
-        from excavator_payload.data.io import read_dataset
+        from excavator_payload.data.io import check_output_path, read_dataset
 
         if out.suffix.lower() not in (".png", ".pdf", ".svg"):
             raise DatasetError(f"--out must end in .png, .pdf or .svg, got '{out.name}'")
         if out.exists() and out.resolve() == Path(data).resolve():
             raise DatasetError("--out would overwrite the dataset")
+        check_output_path(out, inputs=[data])  # under a file: "File exists ('x')" before
         dataset = read_dataset(data)
         k = int(dataset.experiment_ids[0]) if experiment is None else experiment
         plot_experiment(dataset, k, out)
