@@ -171,6 +171,7 @@ def test_a_script_without_main_guard_runs_in_this_process_with_one_warning(tmp_p
         def called():
             return unguarded_main_line()
         print("unguarded", called())
+        print("cell", eval(compile("unguarded_main_line()", "<cell>", "eval")))  # a notebook's
         if __name__ == "__main__":
             print("guarded", unguarded_main_line(), called())
         """))
@@ -179,7 +180,8 @@ def test_a_script_without_main_guard_runs_in_this_process_with_one_warning(tmp_p
     done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env, capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0, done.stderr
-    assert done.stdout.splitlines() == ["[1, 2, 3] True", f"unguarded ('{script}', 7)", "guarded None None"]
+    assert done.stdout.splitlines() == ["[1, 2, 3] True", f"unguarded ('{script}', 7)", "cell None",
+                                        "guarded None None"]
     assert "Traceback" not in done.stderr and "Nanny" not in done.stderr
     warning = [line for line in done.stderr.splitlines() if "InProcessWarning" in line]
     assert len(warning) == 1 and 'if __name__ == "__main__":' in warning[0] and "api.py line 3" in warning[0]

@@ -214,6 +214,8 @@ def unguarded_main_line() -> tuple[str, int] | None:
         frame = frame.f_back
     if frame is None:
         return None  # not called while the main script's top-level code runs
+    if os.path.abspath(frame.f_code.co_filename) != os.path.abspath(path):
+        return None  # code run in the main namespace but not from its file (a notebook's cell)
     line = frame.f_lineno
     try:
         with open(path, "rb") as fh:
