@@ -413,9 +413,10 @@ SIZE_LIMITS: dict[str, tuple[float, str]] = {
     **{key: (1.0e10, "kg·m²") for key in ("inertia", "slew_inertia")},
 }
 #: How far (share of its longest length) a cylinder's pin-to-pin length may leave its
-#: ``stroke`` over the joint's angle range: a roughly right file (e.g. ``off_by`` 5 %) passes, a
-#: stroke that cannot move the joint through its range (in mm, of another cylinder) does not.
-STROKE_TOLERANCE = 0.05
+#: ``stroke`` over the joint's angle range. The stroke enters no computation: a roughly right
+#: file (``off_by`` 10 %: the boom's pins need 5.5 % beyond its stroke) passes; a stroke that
+#: cannot move the joint through its range (in mm, of another cylinder) does not.
+STROKE_TOLERANCE = 0.25
 #: The slowest a machine may cross each joint's angle range (the slew: a half turn) at its pump
 #: flow and ``max_slew_rate``, s. Real machines take seconds; a pump flow 125× too low (the
 #: plausibility notes' example) a minute; beyond this the simulator's motions grow without bound.
