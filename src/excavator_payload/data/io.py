@@ -109,6 +109,24 @@ def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), ki
     return path
 
 
+def new_file_mode() -> int:
+    """The mode a newly created file gets under this process's umask (0o644 under 022).
+
+    Read from ``/proc/self/status`` where Linux has it: setting the umask to read it back (the
+    portable way) races with any other thread writing a file at that moment, which then gets
+    0o666."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
 def atomic_write_table(table: pa.Table, path: str | Path) -> None:
     """Write a Parquet table atomically (temporary file + rename): never a half-written file."""
     path = Path(path)
@@ -117,9 +135,7 @@ def atomic_write_table(table: pa.Table, path: str | Path) -> None:
     os.close(fd)
     try:
         pq.write_table(table, tmp, compression="zstd")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; a data file is as readable as any other
+        os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; a data file is as readable as any other
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):

@@ -26,6 +26,7 @@ import scipy.io
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
+from excavator_payload.data.io import new_file_mode
 from excavator_payload.errors import DatasetError
 
 #: The thesis' column names, in the order of :data:`~excavator_payload.data.schema.SIGNALS`.
@@ -99,9 +100,7 @@ def export_mat(dataset: Dataset, path: str | Path) -> None:
     try:
         with os.fdopen(fd, "wb") as handle:
             scipy.io.savemat(handle, {"dataset": cells}, do_compression=True, oned_as="column")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; as readable as the other outputs
+        os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; as readable as the other outputs
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
