@@ -532,15 +532,21 @@ class HydraulicArmModel:
         return np.array([[flow / (c.count * c.head_area), flow / (c.count * c.rod_area)]
                          for c in self.machine.cylinders])
 
+    def joint_sweep(self, j: int, points: int = 200) -> np.ndarray:
+        """(points, 4) poses sweeping joint ``j`` (boom, dipper, bucket) over its angle range, the
+        other joints at a mid pose: a cylinder's length, speed ratio and moment arm depend on its
+        own joint's angle only."""
+        grid = np.zeros((points, 4))
+        grid[:, :3] = (-0.3, -1.3, -0.8)
+        grid[:, j] = np.linspace(*self.machine.angle_ranges[j], points)
+        return grid
+
     def moment_arm_range(self, points: int = 200) -> np.ndarray:
         """(3, 2): the smallest and largest ``|∂l_j/∂q_j|`` (m/rad) over each joint's angle range,
-        on ``points`` angles (a cylinder's arm depends on its own joint's angle only)."""
+        on ``points`` angles (:meth:`joint_sweep`)."""
         out = np.zeros((3, 2))
         for j in range(3):
-            grid = np.zeros((points, 4))
-            grid[:, :3] = (-0.3, -1.3, -0.8)  # only joint j's angle matters to its arm
-            grid[:, j] = np.linspace(*self.machine.angle_ranges[j], points)
-            arms = np.abs(self.moment_arms(grid)[:, j])
+            arms = np.abs(self.moment_arms(self.joint_sweep(j, points))[:, j])
             out[j] = arms.min(), arms.max()
         return out
 

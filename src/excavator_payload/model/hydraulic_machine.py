@@ -433,9 +433,7 @@ def _check_geometry(m: HydraulicMachine, source: str) -> None:
     names = ("boom", "dipper", "bucket")
     points = 200
     for j, (name, cylinder) in enumerate(zip(names, m.cylinders)):
-        grid = np.zeros((points, 4))
-        grid[:, :3] = (-0.3, -1.3, -0.8)  # a cylinder's length depends on its own joint only
-        grid[:, j] = np.linspace(*m.angle_ranges[j], points)
+        grid = arm.joint_sweep(j, points)
         with np.errstate(all="ignore"):
             lengths = arm.cylinder_lengths(grid)[:, j]
             if j == 2:

@@ -1501,7 +1501,7 @@ def zero(estimator, dataset: Dataset) -> list[str]:
                         f"{MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more wanted. Their pressure offsets "
                         "were not checked and keep the calibration's values: repeat the zero check "
                         "moving the boom, dipper and bucket")
-    offsets = estimator.calibration.z[len(CALIBRATED_PARAMETERS):len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS)]
+    offsets = estimator.calibration.offsets
     far = [f"{name} {value / 1e5:+.3g} bar" if name.endswith("_pressure") else f"{name} {value / DEG:+.3g}°"
            for name, value, std in zip(OFFSET_SIGNALS, offsets, OFFSET_PRIOR_STD)
            if not abs(value) <= ZERO_OFFSET_WARNING * std]
