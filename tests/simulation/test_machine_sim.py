@@ -353,3 +353,54 @@ def test_trajectory_file_that_is_csv_empty_or_a_folder(tmp_path):
                           ("dir.parquet", "is a folder")):
         with pytest.raises(DatasetError, match=message):
             read_trajectory(tmp_path / name)
+
+
+def test_friction_at_rest_lies_anywhere_in_the_band_set_when_the_valve_closed():
+    """A standstill's seal friction is held at u·breakaway (u drawn per standstill, anywhere in
+    [−1, 1]), not at ± breakaway in the direction of the last motion: on ten work cycles few
+    rest samples sit at the band's edge, every one lies within it, and the friction is constant
+    through a standstill whose breakaway band does not shrink."""
+    from excavator_payload.simulation import machine_motions as mm
+
+    arm = machine_sim._arm(load_machine("cat345c-hydraulic"))
+    cylinders = arm.machine.cylinders
+    coulomb = np.array([c.coulomb for c in cylinders])
+    coefficient = np.array([c.load_coefficient for c in cylinders])
+    ratio = np.array([c.static_ratio for c in cylinders])
+    rest_speed = machine_sim.REST_SPEED_SHARE * np.array([c.stribeck_velocity for c in cylinders])
+    shares, us = [], []
+    for k in range(10):
+        rng = np.random.default_rng(k)
+        plan = mm.fit_to_hydraulics(arm, mm.work_cycle_motion(rng, arm))
+        t = machine_sim.sample_times(plan.duration)
+        q, qd, qdd = plan.sample(t)
+        physics = machine_sim.motion_physics(arm, t, q, qd, qdd, plan.tilt, plan.payload_at(t),
+                                             rng.uniform(-1, 1, 3), rng)
+        band = (coulomb + coefficient * np.abs(physics["load"])) * ratio
+        still = np.abs(physics["speeds"]) < rest_speed
+        ratio_at_rest = physics["friction"][still] / band[still]
+        assert np.all(np.abs(ratio_at_rest) <= 1 + 1e-9)
+        shares.append(np.mean(np.abs(ratio_at_rest) > 1 - 1e-3))
+        us.extend(ratio_at_rest.tolist())
+        # the pressures give load + friction, the simulator's force balance
+        head, rod = arm.pressures(physics["load"] + physics["friction"])
+        assert np.allclose(head, physics["head"]) and np.allclose(rod, physics["rod"])
+    assert np.mean(shares) < 0.2  # the held-sign rule put 40-90 % of rest samples at the edge
+    assert np.std(us) > 0.3 and min(us) < -0.5 and max(us) > 0.5  # spread over the band
+
+
+def test_rest_friction_holds_the_closing_value_and_slips_at_the_band():
+    speed = np.array([[1.0], [0.0], [0.0], [0.0], [1.0], [0.0]])
+    band = np.array([[10.0], [10.0], [4.0], [10.0], [10.0], [10.0]])
+    moving = np.full((6, 1), 7.0)
+    out = machine_sim.rest_friction(speed, band, np.array([0.1]), moving, np.array([[0.5], [-1.0]]))
+    assert out[:, 0].tolist() == [7.0, 5.0, 4.0, 5.0, 7.0, -10.0]
+
+
+def test_operator_motions_pause_overshoot_and_stay_within_the_pumps():
+    ds = simulate_dataset(3, seed=4, machine="cat345c-hydraulic", motion="operator", with_truth=True,
+                          workers=1, progress=False)
+    for meta in ds.meta["experiments"]:
+        assert meta["speed_share"] <= 1.0 and abs(meta["overshoot"]) > 0
+        assert np.radians(45) <= abs(meta["slew"]) <= np.radians(80)
+    assert ds.frame.groupby("experiment")["payload"].nunique().eq(1).all()

@@ -141,6 +141,8 @@ MACHINE_MOTIONS: dict[str, Motion] = {
                      description="work cycles of a machine standing on a slope"),
     "lifts": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
                     description="slow calibration lifts"),
+    "operator": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                       description="operator-like lift and slew: a pause, an overshoot, trims all along"),
     "trajectory": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
                          description="prescribed motions replayed from a trajectory file"),
 }

@@ -24,6 +24,9 @@ Motions
 ``slopes``      work cycles on ground tilted up to 10° in a random direction.
 ``lifts``       slow constant-speed boom lifts (calibration runs): dipper and bucket held,
                 no slew, payloads alternating empty / rated.
+``operator``    a loaded lift-and-slew as an operator makes it: the boom lifted in two moves with
+                a pause between, a slew of 45-80° that overshoots and is corrected, dipper and
+                bucket trimmed all along, up to 90 % of the pumps' speed; 9-15 s.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import numpy as np
 from excavator_payload.model.hydraulic import HydraulicArmModel
 
 DEG = np.pi / 180.0
-MACHINE_MOTIONS = ("swing", "work-cycle", "slopes", "lifts")
+MACHINE_MOTIONS = ("swing", "work-cycle", "slopes", "lifts", "operator")
 SAMPLE_RATE = 100.0
 
 
@@ -263,6 +266,57 @@ def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
     motion = Motion(start, steps, duration, tilt=np.asarray(tilt, float), payload=payload,
                     release=release, info={"start_pose": start.tolist(), "carry_pose": carry.tolist(),
                                            "slew": slew})
+    return _clip_to_ranges(motion, machine)
+
+
+def _paced_step(rng, arm, joint, begin, start_angle, delta, share) -> Step:
+    """A minimum-jerk step that uses ``share`` of what the hydraulics allow (operators push
+    the levers hard: up to 90 % of the pumps' speed)."""
+    return Step(joint, begin, max(shortest_duration(arm, joint, start_angle, delta) / share, 0.25),
+                float(delta))
+
+
+def operator_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
+    """A loaded lift and slew with a pause, an overshoot and continuous trims (module doc)."""
+    machine = arm.machine
+    start = dig_pose(rng, machine)
+    carry = carry_pose(rng, machine)
+    share = lambda: _uniform(rng, 0.5, 0.9)  # noqa: E731 - each move its own lever push
+    steps: list[Step] = []
+    t = _uniform(rng, 0.3, 1.0)
+    # the boom in two moves with a pause between (the operator checks the swing path)
+    split = _uniform(rng, 0.3, 0.7)
+    first = _paced_step(rng, arm, 0, t, start[0], split * (carry[0] - start[0]), share())
+    pause = _uniform(rng, 0.4, 1.5)
+    second = _paced_step(rng, arm, 0, first.start + first.duration + pause, start[0] + first.delta,
+                         (1 - split) * (carry[0] - start[0]), share())
+    steps += [first, second]
+    # the slew: past the target, then back (overshoot and correction)
+    slew = _uniform(rng, 45 * DEG, 80 * DEG) * rng.choice([-1, 1])
+    over = _uniform(rng, 0.05, 0.2) * slew
+    swing = _paced_step(rng, arm, 3, t + _uniform(rng, 0.2, 1.2), 0.0, slew + over, share())
+    back = _paced_step(rng, arm, 3, swing.start + swing.duration + _uniform(rng, 0.1, 0.6), slew + over,
+                       -over, share())
+    steps += [swing, back]
+    end = max(s.start + s.duration for s in steps)
+    # dipper and bucket: towards the carry pose, then trimmed all along
+    for joint in (1, 2):
+        main = _paced_step(rng, arm, joint, t + _uniform(rng, 0.0, 2.0), start[joint],
+                           carry[joint] - start[joint], share())
+        steps.append(main)
+        angle = carry[joint]
+        tt = _uniform(rng, 0.5, 1.5)
+        while tt < end + 1.0:
+            delta = _uniform(rng, -6 * DEG, 6 * DEG)
+            trim = _paced_step(rng, arm, joint, tt, angle, delta, share())
+            steps.append(trim)
+            angle += delta
+            tt += trim.duration * _uniform(rng, 0.5, 1.5) + _uniform(rng, 0.0, 1.0)
+    duration = max(s.start + s.duration for s in steps) + _uniform(rng, 0.5, 1.0)
+    payload = _uniform(rng, 0.0, machine.max_payload)
+    motion = Motion(start, steps, duration, tilt=np.asarray(tilt, float), payload=payload,
+                    info={"start_pose": start.tolist(), "carry_pose": carry.tolist(), "slew": slew,
+                          "overshoot": over})
     return _clip_to_ranges(motion, machine)
 
 

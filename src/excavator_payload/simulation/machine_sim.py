@@ -8,9 +8,12 @@ Every experiment is a motion (an NMPC swing, :mod:`.hydraulic_nmpc`; planned in
 1. inverse dynamics gives the joint torques (and the slew torque) of the motion, with the
    house slewing on tilted ground and the payload in the bucket;
 2. each cylinder's load force is its joint torque over its moment arm (÷ count);
-3. seal friction (Coulomb + load-dependent + Stribeck + viscous, with the presliding state
-   that holds the last friction force where a cylinder stops) is added: the pressures must
-   overcome it;
+3. seal friction (Coulomb + load-dependent + Stribeck + viscous, with a presliding state
+   while the rod slides) is added: the pressures must overcome it. Where a rod stands still
+   (:func:`rest_friction`) its valve has closed: the seal holds the friction it had when the
+   valve closed — anywhere within ± the breakaway force, set by how the valve closed — and the
+   trapped oil, far stiffer than the seal's presliding, takes up whatever the load does
+   meanwhile;
 4. the head and rod pressures that give that force (the other side at the back pressure);
 5. the sensors (:mod:`.machine_sensors`) add white noise, the session's offsets, pump ripple
    and the IMUs' dynamic error, at 100 Hz.
@@ -98,15 +101,58 @@ def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.nda
     return out
 
 
+#: A rod slower than this share of its Stribeck velocity stands still (its valve is closed).
+REST_SPEED_SHARE = 0.1
+
+
+def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarray,
+                  friction: np.ndarray, closing: np.ndarray) -> np.ndarray:
+    r"""Seal friction (N) where a rod stands still: held at what it was when the valve closed.
+
+    For each cylinder ``j`` and each standstill (``|speed| <`` ``rest_speed``) starting at
+    sample ``a``, the friction is :math:`F_f = u\,F_b(a)` with :math:`u` the standstill's
+    ``closing`` draw in [−1, 1] (how the valve closed), kept while the rod stands: the oil's
+    stiffness (βA²/V ≈ 3·10⁷ N/m on a boom cylinder) is several times the seal's presliding
+    stiffness (F_C/x_p ≈ 5·10⁶ N/m), so a change of the load goes to the pressures. Where the
+    breakaway :math:`F_b(t)` shrinks below it the seal gives at the band's edge. Moving samples
+    keep ``friction``. ``breakaway`` (n, 3), N; ``closing`` (k, 3), used in order per cylinder.
+    """
+    out = friction.copy()
+    for j in range(speed.shape[1]):
+        still = np.abs(speed[:, j]) < rest_speed[j]
+        edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
+        for k, (a, b) in enumerate(zip(edges[::2], edges[1::2])):
+            held = closing[k % len(closing), j] * breakaway[a, j]
+            out[a:b, j] = np.clip(held, -breakaway[a:b, j], breakaway[a:b, j])
+    return out
+
+
 def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: np.ndarray,
                    qdd: np.ndarray, tilt: np.ndarray, payload: np.ndarray,
-                   friction_initial: np.ndarray) -> dict[str, np.ndarray]:
-    """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination."""
+                   friction_initial: np.ndarray, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
+    """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination.
+
+    ``rng`` draws how each valve closed where a rod stops (:func:`rest_friction`); without it the
+    draws come from ``friction_initial`` (reproducible, for callers without a generator).
+    """
     tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
     sig = arm.motion_signals(q, qd, qdd, tilt, payload)
-    presliding = np.array([c.presliding for c in arm.machine.cylinders])
+    cylinders = arm.machine.cylinders
+    presliding = np.array([c.presliding for c in cylinders])
     states = friction_states(sig["length"], presliding, friction_initial)
-    friction, head, rod = arm.cylinder_pressures(sig["speed"], states, sig["load"])
+    friction, _, _ = arm.cylinder_pressures(sig["speed"], states, sig["load"])
+    # breakaway of the load force (Stribeck peak at rest), per sample and cylinder
+    coulomb = np.array([c.coulomb for c in cylinders])
+    load_coefficient = np.array([c.load_coefficient for c in cylinders])
+    static_ratio = np.array([c.static_ratio for c in cylinders])
+    band = (coulomb + load_coefficient * np.abs(sig["load"])) * static_ratio
+    rest_speed = REST_SPEED_SHARE * np.array([c.stribeck_velocity for c in cylinders])
+    if rng is None:
+        rng = np.random.default_rng(np.frombuffer(np.asarray(friction_initial, float).tobytes(), np.uint32))
+    closing = rng.uniform(-1.0, 1.0, (64, 3))
+    closing[0] = friction_initial  # a motion that starts at rest: the state it was drawn with
+    friction = rest_friction(sig["speed"], band, rest_speed, friction, closing)
+    head, rod = arm.pressures(sig["load"] + friction)
     return {"tau": sig["tau"], "load": sig["load"], "friction": friction, "head": head, "rod": rod,
             "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"]}
 
@@ -160,6 +206,8 @@ def _draw_motion(motion: str, k: int, rng, arm: HydraulicArmModel) -> mm.Motion:
         return mm.work_cycle_motion(rng, arm, tilt=mm.slope_tilt(rng))
     if motion == "lifts":
         return mm.lift_motion(k, arm.machine)
+    if motion == "operator":
+        return mm.operator_motion(rng, arm)
     raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one of "
                                 f"{', '.join(MOTIONS)}")
 
@@ -202,7 +250,8 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
         except ControlFailure as exc:  # a swing the controller cannot plan is redrawn too
             failures.append(str(exc))
             continue
-        physics = motion_physics(arm, time, q, qd, qdd, np.zeros(2), np.full(len(time), payload), friction0)
+        physics = motion_physics(arm, time, q, qd, qdd, np.zeros(2), np.full(len(time), payload), friction0,
+                                 motion_rng)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         share = mm.speed_share(arm, q, qd)
         # The controller bounds speeds at its nodes only and friction is not in its model: a
@@ -240,7 +289,7 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
         q, qd, qdd = plan.sample(time)
         payload_t = plan.payload_at(time)
         friction0 = motion_rng.uniform(-1, 1, 3)
-        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, motion_rng)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         if peak <= relief or motion == "lifts":
             break

@@ -183,7 +183,7 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
     payload = float(rows["payload"].iloc[0])
     motion_rng, noise_rng = machine_rngs(seed, exp_id)
     physics = motion_physics(arm, time, q, qd, qdd, tilt, np.full(len(time), payload),
-                             motion_rng.uniform(-1, 1, 3))
+                             motion_rng.uniform(-1, 1, 3), motion_rng)
     frame = experiment_rows(exp_id, time, q, qd, qdd, physics, payload, noise, offsets, noise_rng,
                             with_truth)
     machine = arm.machine
