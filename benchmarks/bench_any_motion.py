@@ -60,8 +60,7 @@ def calibrations(seed: int) -> dict:
         "10 swings (study)": dm.calibration_data(10, seed),
         "5 swings": dm.calibration_data(5, seed + 1),
         "10 planned swings (README)": simulate_dataset(10, seed=seed + 2, motion="swing", **common),
-        "8 operator motions": dm.simulate_trajectory(
-            lever_trajectory(8, seed + 3, payloads=payloads), seed + 3, dm.SESSION_CALIBRATION),
+        "8 operator motions": simulate_dataset(8, seed=seed + 3, motion="operator", **common),
         "10 lifts": simulate_dataset(10, seed=seed + 4, motion="lifts", **common),
     }
 

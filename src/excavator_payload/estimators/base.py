@@ -104,6 +104,7 @@ class Status(str, Enum):
     REJECTED = "rejected_outlier"  #: inconsistent with the noise model (gate): sample ignored
     REINITIALISED = "reinitialised"  #: restarted after too many rejections in a row; sample used
     STATE_RESET = "state_reset"  #: the estimator's state went non-finite: restarted
+    LOAD_CHANGING = "load_changing"  #: the load is changing (a dump, a fill): estimate of the load before
 
 
 @dataclass(frozen=True)
@@ -395,6 +396,10 @@ class Estimator(ABC):
         self.fitted = False
         #: Doubts about the fit (too little data …), one line each; the CLI prints them.
         self.fit_warnings: list[str] = []
+        # why the fit would weigh worse than the industry's 1 % (train refuses to save it unless
+        # --force), and what the fit says of its own quality (printed by train)
+        self.fit_refusals: list[str] = []
+        self.fit_report: list[str] = []
         #: Whether the statistical gate is on (turn off only to study the bare estimator).
         self.gating = True
         #: Inverse dynamics on the training data's machine and noise, run beside an estimator
@@ -505,6 +510,8 @@ class Estimator(ABC):
         """Fit to ``dataset`` and return ``self``."""
         self.sensor_set = self._check_sensor_set(dataset)
         self.fit_warnings = []
+        self.fit_refusals = []
+        self.fit_report = []
         # a work cycle's payload column is the load carried: after its dump the bucket is empty
         self._fit(dataset.until_dump())
         self._sentinel_source = None

@@ -53,6 +53,7 @@ STATUS_MEANING = {
     "rejected_outlier": "inconsistent with the noise model; sample not used, estimate kept",
     "reinitialised": "too many rejections in a row; the estimator restarted",
     "state_reset": "the estimator's state went non-finite; it restarted",
+    "load_changing": "the load is changing (a dump or a fill): the estimate is the load before, not now",
 }
 
 
@@ -76,6 +77,8 @@ def register(app: typer.Typer) -> None:
         machine: str = typer.Option(None, "--machine",
                                     help="Machine the estimator believes in: preset name or TOML file "
                                          "(default: the dataset's machine).", metavar="NAME|FILE"),
+        force: bool = typer.Option(False, "--force",
+                                   help="Save a fit that says it would weigh worse than 1 % of rated."),
     ) -> None:
         """Fit or train an estimator and save it. Estimator options follow as --name value
         (see `excavator-payload estimators NAME`)."""
@@ -93,6 +96,15 @@ def register(app: typer.Typer) -> None:
         est.fit(dataset)
         for warning in est.fit_warnings:
             console.print(Text.assemble(("warning: ", "bold yellow"), warning))
+        for line in est.fit_report:
+            console.print(line, markup=False, highlight=False)
+        if est.fit_refusals and not force:
+            for reason in est.fit_refusals:
+                console.print(Text.assemble(("refused: ", "bold red"), reason))
+            raise EstimatorError(f"{name}: not saved, it would weigh worse than 1 % of rated (above); "
+                                 "train again with --force to save it anyway")
+        for reason in est.fit_refusals:
+            console.print(Text.assemble(("warning: ", "bold yellow"), reason, " (saved: --force)"))
         est.save(out)
         console.print(Text.assemble("saved to ", (str(out), "bold")))
 

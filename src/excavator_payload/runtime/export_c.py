@@ -1011,13 +1011,15 @@ def _pressure_regression_model(est) -> CModel:
     low-speed rule, recursive sums, status, sigma, gap rule) is written here, line by line
     after the Python.
     """
-    from excavator_payload.estimators.classical.calibrated_machine import NEW_LOAD_SIGMAS, CalibratedKernel
+    from excavator_payload.estimators.classical.calibrated_machine import (
+        CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL)
     from excavator_payload.model.hydraulic import hydraulic_symbolic
 
     kernel = est._pressure
+    model_var = float(getattr(kernel, "model_std", 0.0)) ** 2
     if kernel is None:
         raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
     calibrated = isinstance(kernel, CalibratedKernel)
@@ -1106,6 +1108,8 @@ def _pressure_regression_model(est) -> CModel:
             f"#define EP_SHORT_FORGETTING {c_number(kernel._short_forgetting)}",
             f"#define EP_NEW_LOAD_MIN {c_number(kernel._new_load_min)}",
             f"#define EP_NEW_LOAD_SIGMAS {c_number(NEW_LOAD_SIGMAS)}",
+            f"#define EP_CHANGING_MIN {c_number(kernel._changing_min)}  /* ... load_changing before it */",
+            f"#define EP_CHANGING_SIGMAS {c_number(CHANGING_SIGMAS)}",
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -1200,14 +1204,20 @@ if (1) {
     ep_real change, spread, limit;
     s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
     s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
+    s->changing = 0;
     if ((!EP_WAIT_FOR_BOOM || s->boom_weighed) && s->info_short > EP_C(0.0) && s->info_short < s->info) {
         change = s->num_short / s->info_short - s->num / s->info;
         spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
-        limit = EP_NEW_LOAD_SIGMAS * EP_MATH(sqrt)(spread > EP_C(0.0) ? spread : EP_C(0.0));
+        if (spread < EP_C(0.0)) spread = EP_C(0.0);
+        limit = EP_NEW_LOAD_SIGMAS * EP_MATH(sqrt)(spread);
         if (limit < EP_NEW_LOAD_MIN) limit = EP_NEW_LOAD_MIN;
         if (EP_MATH(fabs)(change) > limit) {  /* a new load: restart the weighing */
             s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
             s->boom_weighed = 0;
+        } else {  /* CalibratedKernel.changing: the load is changing (status load_changing) */
+            limit = EP_CHANGING_SIGMAS * EP_MATH(sqrt)(spread);
+            if (limit < EP_CHANGING_MIN) limit = EP_CHANGING_MIN;
+            s->changing = EP_MATH(fabs)(change) > limit;
         }
     }
 }
@@ -1299,6 +1309,7 @@ if (1) {
         }}
     }}"""
     not_ready = " || (EP_WAIT_FOR_BOOM && !s->boom_weighed)" if calibrated else ""
+    changing_status = "s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" if calibrated else "EP_STATUS_OK"
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
     step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
@@ -1333,7 +1344,8 @@ if (1) {
     }}
     *estimate = s->num / s->info;
     if (rejected) return EP_STATUS_REJECTED;  /* the sample before this one was an outlier */
-    return s->info >= EP_WARM_INFO ? EP_STATUS_OK : EP_STATUS_WARMING_UP;"""
+    if (s->info < EP_WARM_INFO) return EP_STATUS_WARMING_UP;
+    return {changing_status};"""
     on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
      * (the differentiator needs evenly spaced samples), a long one (or time going back)
      * restarts */
@@ -1356,7 +1368,9 @@ if (1) {
         fields.append("unsigned char boom_weighed;  /* a window with weight on the boom seen */")
         fields += ["ep_real num_short;   /* the new-load test's short memory: sum of w phi r */",
                    "ep_real info_short;  /* ... and of w phi^2 */"]
-        reset += "\n    s->boom_weighed = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
+        fields.append("unsigned char changing;  /* the short memory has left the whole one */")
+        reset += ("\n    s->boom_weighed = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
+                  "\n    s->changing = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
                "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"]
@@ -1380,8 +1394,8 @@ if (1) {
         reset=reset,
         step=step, on_gap=on_gap,
         header_defines=defines,
-        sigma="    /* _estimate_sigma: I^(-1/2) */\n"
-              "    return s->info > EP_C(0.0) ? EP_C(1.0) / EP_MATH(sqrt)(s->info) : EP_NAN;",
+        sigma=("    /* _estimate_sigma: sqrt(1/I + s_model^2), the calibration's cross-checked model error */\n"
+               f"    return s->info > EP_C(0.0) ? EP_MATH(sqrt)(EP_C(1.0) / s->info + {c_number(model_var)}) : EP_NAN;"),
         # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps
         # the sum), so only I is watched
         state_finite="    return isfinite(s->info);")

@@ -103,6 +103,9 @@ def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.nda
 
 #: A rod slower than this share of its Stribeck velocity stands still (its valve is closed).
 REST_SPEED_SHARE = 0.1
+#: ... for at least this many samples (0.1 s): a reversal passes zero speed in a sample or two
+#: and its friction turns over through the presliding state, no valve closing in between.
+REST_MIN_SAMPLES = 10
 
 
 def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarray,
@@ -110,7 +113,7 @@ def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarr
     r"""Seal friction (N) where a rod stands still: held at what it was when the valve closed.
 
     For each cylinder ``j`` and each standstill (``|speed| <`` ``rest_speed``) starting at
-    sample ``a``, the friction is :math:`F_f = u\,F_b(a)` with :math:`u` the standstill's
+    sample ``a`` and lasting ``REST_MIN_SAMPLES`` or more, the friction is :math:`F_f = u\,F_b(a)` with :math:`u` the standstill's
     ``closing`` draw in [−1, 1] (how the valve closed), kept while the rod stands: the oil's
     stiffness (βA²/V ≈ 3·10⁷ N/m on a boom cylinder) is several times the seal's presliding
     stiffness (F_C/x_p ≈ 5·10⁶ N/m), so a change of the load goes to the pressures. Where the
@@ -121,7 +124,8 @@ def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarr
     for j in range(speed.shape[1]):
         still = np.abs(speed[:, j]) < rest_speed[j]
         edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
-        for k, (a, b) in enumerate(zip(edges[::2], edges[1::2])):
+        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= REST_MIN_SAMPLES]
+        for k, (a, b) in enumerate(runs):
             held = closing[k % len(closing), j] * breakaway[a, j]
             out[a:b, j] = np.clip(held, -breakaway[a:b, j], breakaway[a:b, j])
     return out

@@ -166,6 +166,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
                           BALANCE_CHOICES),
+        "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
+                            "estimate's sigma: cross (two-fold cross-fit of the calibration "
+                            "motions, 95 % of held-out errors within 2 sigma) or none (sensor "
+                            "noise only)", ("cross", "none")),
     }
 
     def __init__(self, machine=None, **options) -> None:

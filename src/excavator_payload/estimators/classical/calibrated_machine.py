@@ -259,6 +259,12 @@ NEW_LOAD_MEMORY = 1.0
 #: :data:`NEW_LOAD_SIGMAS` standard deviations of the difference, for a new load.
 NEW_LOAD_MIN_SHARE = 0.1
 NEW_LOAD_SIGMAS = 5.0
+#: Before a new load is certain, a short memory leaving the whole one by both
+#: :data:`CHANGING_SIGMAS` and :data:`CHANGING_MIN_SHARE` of the rated payload says the load is
+#: changing (status ``load_changing``): while the bucket dumps, the whole memory still holds the
+#: load before, and calling it ``ok`` reported the old load for the 1-3 s the restart test needs.
+CHANGING_MIN_SHARE = 0.05
+CHANGING_SIGMAS = 5.0
 #: The covered range of each arm angle: these percentiles of the calibration samples (robust to
 #: a glitch), widened by :data:`COVERAGE_MARGIN` each side (rad).
 COVERAGE_PERCENTILES = (0.5, 99.5)
@@ -404,17 +410,27 @@ def momentum_function() -> ca.Function:
                         ca.sum2(dA[6:9, :] ** 2)])
 
 
-def held_direction(speed: np.ndarray, runs: np.ndarray, threshold: np.ndarray) -> np.ndarray:
+#: Slow samples after the last sliding one that keep its friction direction (0.1 s): a reversal
+#: or a slow pass turns the friction over through the presliding state, but once a valve has
+#: closed the seal holds whatever balanced the trapped pressures, anywhere within ± breakaway.
+HELD_SAMPLES = 10
+
+
+def held_direction(speed: np.ndarray, runs: np.ndarray, threshold: np.ndarray,
+                   held: int = HELD_SAMPLES) -> np.ndarray:
     """Each cylinder's presliding state as calibration can know it: the sign of its rod speed
-    where it slides faster than ``threshold`` (per cylinder), held through slower samples (a
-    stopped seal keeps the friction of its last sliding direction), 0 from the start of each
-    run until the first sliding (unknown). ``speed`` (n, 3), ``runs`` a run id per row."""
+    where it slides faster than ``threshold`` (per cylinder), held through up to ``held``
+    slower samples, then 0 — a standstill's friction is unknown within ± breakaway, mean 0, its
+    spread in the windows' standstill variance — and 0 from the start of each run until the
+    first sliding. ``speed`` (n, 3), ``runs`` a run id per row."""
     marks = np.where(np.abs(speed) > threshold, np.sign(speed), np.nan)
     start = np.r_[True, runs[1:] != runs[:-1]]
     marks[start] = np.where(np.isnan(marks[start]), 0.0, marks[start])
     # forward fill: each row takes the last mark at or before it (every run starts with one)
-    index = np.where(np.isnan(marks), 0, np.arange(len(marks))[:, None])
-    return marks[np.maximum.accumulate(index, axis=0), np.arange(marks.shape[1])]
+    rows = np.arange(len(marks))[:, None]
+    index = np.maximum.accumulate(np.where(np.isnan(marks), 0, rows), axis=0)
+    filled = marks[index, np.arange(marks.shape[1])]
+    return np.where(rows - index > held, 0.0, filled)
 
 
 def momentum_windows(runs: np.ndarray, half: int) -> np.ndarray:
@@ -700,6 +716,7 @@ class MachineCalibration:
         # [low, high] of the boom, dipper and bucket angles (offsets removed) the calibration
         # motions covered (angle_coverage; ±NO_LIMIT: not known)
         self.angle_coverage = np.tile([-NO_LIMIT, NO_LIMIT], (3, 1))
+        self.model_std = 0.0  # kg: model error carried in sigma (cross_validated_model_std)
 
     @staticmethod
     def prior_std(relative: float) -> np.ndarray:
@@ -1150,6 +1167,8 @@ class CalibratedKernel(PressureRegression):
         dt = 1.0 / MACHINE_SENSORS.sample_rate
         self._short_forgetting = math.exp(-dt / NEW_LOAD_MEMORY)
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
+        self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
+        self.model_std = float(getattr(cal, "model_std", 0.0))  # kg, in σ beside I^-1/2
         k = np.arange(-self.half_window, self.half_window + 1) * dt
         self._slope = k / float(k @ k)
         self._lever_var = (self._head**2 + self._rod**2) * self.pressure_var
@@ -1201,6 +1220,7 @@ class CalibratedKernel(PressureRegression):
         self.num_short = 0.0  # the short memory of the new-load test (--new-load)
         self.info_short = 0.0
         self.new_loads = 0  # new loads detected since the last reset
+        self.changing = False  # the short memory has left the whole one (status load_changing)
 
     @property
     def ready(self) -> bool:
@@ -1323,6 +1343,7 @@ class CalibratedKernel(PressureRegression):
             return
         self.num_short = self._short_forgetting * self.num_short + d_num
         self.info_short = self._short_forgetting * self.info_short + d_info
+        self.changing = False
         if self.ready and 0.0 < self.info_short < self.info:
             change = self.num_short / self.info_short - self.num / self.info
             spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)
@@ -1330,6 +1351,8 @@ class CalibratedKernel(PressureRegression):
                 self.num = self.info = self.num_short = self.info_short = 0.0
                 self.boom_weighed = False
                 self.new_loads += 1
+            else:
+                self.changing = abs(change) > max(self._changing_min, CHANGING_SIGMAS * math.sqrt(spread))
 
 
 # -- the estimator's machine-sensor-set side (CalibratedEstimator dispatches here) ------------
@@ -1420,6 +1443,62 @@ def _machine_arm(estimator) -> HydraulicArmModel:
     return HydraulicArmModel(estimator.machine, compiled=False)
 
 
+#: Share of held-out calibration samples whose error the reported σ must cover twice
+#: (:func:`cross_validated_model_std`): σ = √(1/I + s_model²) with 2σ ⊇ 95 % of them.
+SIGMA_COVERAGE = 0.95
+#: Fewest calibration experiments for the cross-check (two folds of at least two motions).
+MIN_CROSS_EXPERIMENTS = 4
+
+
+def cross_validated_model_std(estimator, dataset: Dataset, calibrate_fold) -> float:
+    r"""The model error's standard deviation (kg) that σ must carry beside :math:`I^{-1/2}`.
+
+    :math:`I^{-1/2}` is the estimate's spread from the sensor noise alone; the calibrated model
+    itself is only as good as a handful of motions made it, and on other motions its error
+    does not shrink with information (a bias per pose). Two-fold cross-fit: the calibration
+    motions are split in two halves (alternating), each half calibrates a model
+    (``calibrate_fold(subset) -> MachineCalibration``) that weighs the other half; :math:`s` is
+    the least value with :math:`|e| \le 2\sqrt{1/I + s^2}` on :data:`SIGMA_COVERAGE` of the
+    held-out ``ok`` samples after their first second. Half the motions calibrate worse than all
+    of them: the floor errs on the safe side. 0 with fewer than :data:`MIN_CROSS_EXPERIMENTS`.
+    """
+    import copy
+
+    ids = list(dataset.experiment_ids)
+    if len(ids) < MIN_CROSS_EXPERIMENTS:
+        return 0.0
+    errors, variances = [], []
+    for train, test in ((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2])):
+        fold = copy.copy(estimator)  # fit is still running: make the copy estimate-ready
+        fold.fitted, fold.sensor_set, fold.plausible_low = True, dataset.sensor_set, None
+        fold._sentinel = None
+        _install(fold, calibrate_fold(dataset.subset(train)))
+        fold.reset()
+        held = dataset.subset(test)
+        out = fold.estimate(held)
+        f = held.frame
+        t = f["time"].to_numpy(float)
+        start = f.groupby("experiment", sort=False)["time"].transform("min").to_numpy(float)
+        sigma = out["sigma"].to_numpy(float)
+        ok = (out["status"].astype(str).to_numpy() == "ok") & (t - start >= 1.0) & np.isfinite(sigma)
+        errors.append((out["payload_estimate"].to_numpy(float) - f["payload"].to_numpy(float))[ok])
+        variances.append(sigma[ok] ** 2)
+    e, v = np.abs(np.concatenate(errors)), np.concatenate(variances)
+    if not len(e):
+        return 0.0
+
+    def covered(s: float) -> float:
+        return float(np.mean(e <= 2.0 * np.sqrt(v + s * s)))
+
+    if covered(0.0) >= SIGMA_COVERAGE:
+        return 0.0
+    low, high = 0.0, float(e.max())
+    for _ in range(40):
+        mid = 0.5 * (low + high)
+        low, high = (low, mid) if covered(mid) >= SIGMA_COVERAGE else (mid, high)
+    return high
+
+
 def _install(estimator, cal: MachineCalibration) -> None:
     from excavator_payload.estimators.classical.pressure_regression import spike_threshold
 
@@ -1460,7 +1539,7 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
             "samples not used (a signal not finite, or an angle outside the machine's range)")
     still = [f"{joint} {k}" for joint, k in hardly_moved(moving, MIN_MOVING_SAMPLES)]
     if still:
-        estimator.fit_warnings.append(
+        estimator.fit_refusals.append(
             f"{estimator.name}: cylinders that hardly moved in the calibration data (moving samples: "
             f"{', '.join(still)} of {n_valid}; {MIN_MOVING_SAMPLES} or more wanted): what it "
             "learned of them is mostly the machine file's. Calibrate with motions that move the "
@@ -1470,6 +1549,35 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
     estimator.noise_name = "estimated" if pressure_std is None else name
     estimator.calibration_experiments = [int(i) for i in ids]
     estimator.difference_scale = difference_scale(dataset)
+    if estimator.options["model_std"] == "cross":
+        def calibrate_fold(subset):
+            fold = calibrate(arm, subset, prior, estimator.options["low_speed"], estimator.options["half_window"],
+                             pressure_std, estimator.options["balance"], estimator.options["imu_leak"])
+            fold.angle_coverage = angle_coverage(subset, fold.offset_vector())
+            return fold
+
+        cal.model_std = cross_validated_model_std(estimator, dataset, calibrate_fold)
+        rated = float(arm.machine.rated_payload)
+        if len(ids) >= MIN_CROSS_EXPERIMENTS:
+            estimator.fit_report.append(
+                f"calibration: each half of the calibration motions weighs the other within "
+                f"±{2 * cal.model_std:.0f} kg (95 %) beyond the sensor noise; that model error is "
+                "carried in every estimate's sigma")
+        if 2 * cal.model_std > 0.01 * rated:
+            estimator.fit_refusals.append(
+                f"{estimator.name}: each half of the calibration motions weighs the other only within "
+                f"±{2 * cal.model_std:.0f} kg (95 %), more than 1 % of the rated payload "
+                f"({0.01 * rated:.0f} kg): add calibration motions with known loads that move the boom, "
+                "dipper and bucket through the poses you work at, while slewing")
+        if len(ids) < MIN_CROSS_EXPERIMENTS:
+            estimator.fit_warnings.append(
+                f"{estimator.name}: {len(ids)} calibration motions cannot check themselves (the σ "
+                f"of each estimate then carries the sensor noise only; {MIN_CROSS_EXPERIMENTS} or "
+                "more calibrate a model error into it)")
+    low, high = cal.angle_coverage[:, 0] / DEG, cal.angle_coverage[:, 1] / DEG
+    estimator.fit_report.append(
+        "calibration covers boom {:.0f}…{:.0f}°, dipper {:.0f}…{:.0f}°, bucket {:.0f}…{:.0f}° "
+        "(beyond, the bucket is not weighed)".format(low[0], high[0], low[1], high[1], low[2], high[2]))
     _install(estimator, cal)
 
 
@@ -1532,7 +1640,7 @@ def arrays(estimator) -> dict[str, np.ndarray]:
     cal = estimator.calibration
     return {"z": cal.z, "z_covariance": cal.covariance, "pressure_std": np.array([cal.pressure_std]),
             "rate_var": np.array([cal.rate_var]), "window_inflation": cal.window_inflation,
-            "angle_coverage": cal.angle_coverage,
+            "angle_coverage": cal.angle_coverage, "model_std": np.array([getattr(cal, "model_std", 0.0)]),
             "difference_scale": np.asarray(estimator.difference_scale, float)}
 
 
@@ -1577,6 +1685,11 @@ def restore(estimator, cfg: dict, saved) -> None:
         if inflation.shape != (3,) or not np.all(np.isfinite(inflation)) or np.any(inflation < 1):
             raise EstimatorError("saved machine calibration is corrupt or of another version")
         cal.window_inflation = inflation
+    if "model_std" in saved:  # absent in models saved before it: σ from the sensor noise only
+        model_std = np.asarray(saved["model_std"], float).ravel()
+        if model_std.shape != (1,) or not np.isfinite(model_std[0]) or model_std[0] < 0:
+            raise EstimatorError("saved machine calibration is corrupt or of another version")
+        cal.model_std = float(model_std[0])
     if "angle_coverage" in saved:  # absent in models saved before it: no limit
         coverage = np.asarray(saved["angle_coverage"], float)
         if (coverage.shape != (3, 2) or not np.all(np.isfinite(coverage))

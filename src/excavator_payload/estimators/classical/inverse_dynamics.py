@@ -550,6 +550,8 @@ class InverseDynamicsEstimator(Estimator):
             status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
             if self._pressure.rejected:  # the sample before this one was a one-frame outlier
                 status = Status.REJECTED
+            elif status is Status.OK and getattr(self._pressure, "changing", False):
+                status = Status.LOAD_CHANGING  # the short memory has left the whole one
             return StepResult(self._pressure.estimate, status)
         if self._info > 0.0:  # weights use the current estimate, kept physical
             m_w = min(max(self._num / self._info, 0.0), self._max_payload)
@@ -578,8 +580,12 @@ class InverseDynamicsEstimator(Estimator):
         return self._kernel.nis(values, payload, 1.0 / self._info), 2
 
     def _estimate_sigma(self) -> float:
-        """Standard deviation of the estimate from the accumulated information, kg (I^{-1/2})."""
-        return 1.0 / math.sqrt(self._info) if self._info > 0 else math.nan
+        """Standard deviation of the estimate from the accumulated information, kg (I^{-1/2});
+        a calibrated machine kernel adds its model error: √(1/I + s_model²)."""
+        if self._info <= 0:
+            return math.nan
+        model_std = getattr(self._pressure, "model_std", 0.0) if self._pressure is not None else 0.0
+        return math.sqrt(1.0 / self._info + model_std * model_std)
 
     def _state_finite(self) -> bool:
         return math.isfinite(self._num) and math.isfinite(self._info)
