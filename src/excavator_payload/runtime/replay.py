@@ -81,9 +81,6 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                 continue
             if last_frame_time is not None and t < last_frame_time:
                 backwards += 1
-            if spec.name in last_of:
-                intervals.setdefault(spec.name, []).append(t - last_of[spec.name])
-            last_of[spec.name] = t
             if last_frame_time is None or t - last_frame_time > segment_gap:
                 if sensor.pending:
                     keep([sensor.flush()])
@@ -92,7 +89,12 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                 segment_start = t
             last_frame_time = max(t, last_frame_time) if last_frame_time is not None else t
             fed += 1
+            duplicates = sensor.counters["duplicates"]
             keep(sensor.feed(message, spec=spec))
+            if sensor.counters["duplicates"] == duplicates:  # a frame twice is not a rate
+                if spec.name in last_of:
+                    intervals.setdefault(spec.name, []).append(t - last_of[spec.name])
+                last_of[spec.name] = t
             if bar is not None and i % 1000 == 0:
                 bar.update(task, completed=i)
         if sensor.pending:
