@@ -42,7 +42,7 @@ PACKED_MDF = (".mfc", ".mfe", ".mfm")
 UNREADABLE_LOG = (ValueError, OSError, KeyError, IndexError, TypeError, EOFError, NotImplementedError,
                   AttributeError, struct.error, zlib.error, BLFParseError, can.CanError)
 
-_CANUTILS = re.compile(r"^\s*\(\s*[0-9.]+\s*\)\s+\S+\s+[0-9A-Fa-f]+#")
+_CANUTILS = re.compile(r"^\s*\(\s*-?[0-9.]+\s*\)\s+\S+\s+[0-9A-Fa-f]+#")
 _SCREEN = re.compile(
     r"^\s*(?:\((?P<ts>[^)]*)\)\s+)?(?P<ifc>\S+)\s+(?:(?:RX|TX)\s+\S+\s+\S+\s+)?"
     r"(?P<id>[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})\s+\[(?P<len>\d{1,2})\]"
