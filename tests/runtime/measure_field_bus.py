@@ -56,12 +56,14 @@ def main(n=6):
             field = SignalCodec.from_files(data.sensor_set, dbc_path, map_path)
             record_dataset(data, tmp / "lock.blf")
             base = replay_log(tmp / "lock.blf", PayloadSensor(est))
-            for label, kw in (("10 Hz inclination", {}),
-                              ("10 Hz + 1 ms jitter", {"jitter": 0.001}),
-                              ("10 Hz + 1 ms jitter + bursts every 0.5 s", {"jitter": 0.001, "burst_every": 0.5})):
+            for label, kw, tolerance in (
+                    ("10 Hz inclination", {}, 2.5),
+                    ("10 Hz + 1 ms jitter", {"jitter": 0.001}, 2.5),
+                    ("10 Hz + 1 ms jitter + bursts every 0.5 s", {"jitter": 0.001, "burst_every": 0.5}, 2.5),
+                    ("same, --stale-tolerance 3.5", {"jitter": 0.001, "burst_every": 0.5}, 3.5)):
                 log = tmp / "field.blf"
                 record_dataset(data, log, field, **kw)
-                got = replay_log(log, PayloadSensor(est, field))
+                got = replay_log(log, PayloadSensor(est, field, stale_tolerance=tolerance))
                 rows.append((name, label, compare(base, got, period, truth)))
     print("| model | field log | samples | ok (lock-step) | stale | max abs diff kg | p99 kg | mean kg "
           "| final diff max kg | final error lock-step / field kg |")

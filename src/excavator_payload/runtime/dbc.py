@@ -419,6 +419,9 @@ class SignalCodec:
     sources : mapping
         Our signal name -> :class:`SignalSource` in that DBC (for the generated DBC: each
         signal's own message and CamelCase name, factor 1).
+    message_options : mapping, optional
+        DBC message name -> :class:`MessageOptions` (the signal map's ``[messages.<name>]``:
+        its sender's source address, its period).
     """
 
     def __init__(self, sensor_set: SensorSet, database, sources: Mapping[str, SignalSource],
