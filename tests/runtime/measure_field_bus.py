@@ -59,8 +59,9 @@ def main(n=6):
             for label, kw, tolerance in (
                     ("10 Hz inclination", {}, 2.5),
                     ("10 Hz + 1 ms jitter", {"jitter": 0.001}, 2.5),
-                    ("10 Hz + 1 ms jitter + bursts every 0.5 s", {"jitter": 0.001, "burst_every": 0.5}, 2.5),
-                    ("same, --stale-tolerance 3.5", {"jitter": 0.001, "burst_every": 0.5}, 3.5)):
+                    ("10 Hz + 1 ms jitter + bursts every 0.5 s, --stale-tolerance 2.5",
+                     {"jitter": 0.001, "burst_every": 0.5}, 2.5),
+                    ("same, --stale-tolerance 3.5 (default)", {"jitter": 0.001, "burst_every": 0.5}, 3.5)):
                 log = tmp / "field.blf"
                 record_dataset(data, log, field, **kw)
                 got = replay_log(log, PayloadSensor(est, field, stale_tolerance=tolerance))

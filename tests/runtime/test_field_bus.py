@@ -77,8 +77,8 @@ def test_a_silent_inclinometer_is_stale_by_name(files, machine_data, tmp_path):
     got = read_estimates(out)
     stale = got[got["status"] == "stale"]
     assert set(stale["stale_signals"]) == {"house_pitch,house_roll"}
-    # silent from 2.9 s (its last frame) + 2.5 x 0.1 s until its frame at 4.0 s
-    assert stale["log_time"].min() - t0 == pytest.approx(3.16, abs=0.02)
+    # silent from 2.9 s (its last frame) + 3.5 x 0.1 s until its frame at 4.0 s
+    assert stale["log_time"].min() - t0 == pytest.approx(3.26, abs=0.02)
     assert stale["log_time"].max() - t0 == pytest.approx(3.99, abs=0.02)
 
 

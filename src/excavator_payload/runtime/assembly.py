@@ -25,8 +25,9 @@ the frame's timestamp and emits samples on the model's clock:
   message, else it is dropped; time going back by more than :data:`RESTART_BACK` (a sender's
   clock restarted) starts a new clock.
 * **Stale**: a signal whose value is older than its message's period × ``tolerance`` (default
-  :data:`STALE_TOLERANCE`: one lost frame and some jitter pass, two lost frames do not) is
-  *stale*: it goes to the estimator as NaN and the sample names it (:attr:`Sample.stale`). A
+  :data:`STALE_TOLERANCE`: two lost or queued frames and jitter pass, three do not;
+  2.5 made a gateway's queue of three frames stale and cost up to 37 kg, see
+  ``docs/field-bus.md``) is *stale*: it goes to the estimator as NaN and the sample names it (:attr:`Sample.stale`). A
   signal never heard since the start counts from the first frame.
 
 A message's period is the signal map's / DBC's (``GenMsgCycleTime``) where given, else the
@@ -43,7 +44,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 #: A signal older than its period times this is stale.
-STALE_TOLERANCE = 2.5
+STALE_TOLERANCE = 3.5
 #: Share of a frame's offset from its tick that moves the clock (phase lock).
 PHASE_GAIN = 0.02
 #: Time going back by more than this (s) restarts the clock (else: a late frame, held if newest).

@@ -95,7 +95,7 @@ def register(app: typer.Typer) -> None:
         segment_gap: float = typer.Option(2.0, "--segment-gap",
                                           help="A silence of the sensor's own frames longer than this (s) "
                                           "starts a new experiment."),
-        stale_tolerance: float = typer.Option(2.5, "--stale-tolerance", help="A signal older than its "
+        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", help="A signal older than its "
                                               "message's period times this makes the sample 'stale'."),
     ) -> None:
         """Replay a CAN log through the payload sensor; write the estimates as Parquet."""
