@@ -111,26 +111,33 @@ def test_bad_frames_change_status_never_crash(swings, estimator):
             data[0:4] = (0xFE000000).to_bytes(4, "little")
             frames[0] = can.Message(timestamp=0.05 * k, arbitration_id=frames[0].arbitration_id,
                                     is_extended_id=True, data=bytes(data))
-        if k == 14:  # one message lost: the sample is incomplete
+        if k == 14:  # one message lost: its signals are held from the sample before (not stale)
             del frames[3]
         for f in frames:
             outputs += sensor.feed(f)
     status = [o.status for o in outputs]
     assert len(outputs) == 20
-    assert status[8] == status[11] == status[14] == Status.INVALID.value
+    assert status[8] == status[11] == Status.INVALID.value
+    assert status[14] not in (Status.INVALID.value, "stale") and outputs[14].stale == ()
     assert status[5] != Status.INVALID.value  # unknown ids are ignored
     assert sensor.counters["ignored"] == 2 and sensor.counters["bad_frames"] == 2
     assert outputs[9].status in ("ok", "warming_up", "gap")
     assert math.isfinite(outputs[19].estimate)
 
 
-def test_source_address_does_not_matter(swings, estimator):
-    """J1939 receivers match the PGN: sensors at another source address are still read."""
+def test_source_address_is_the_dbcs(swings, estimator):
+    """Issue 30: only the DBC's source address is the sensor (another ECU's frames of the same
+    PGN are not data); the signal map's source_address moves it."""
     codec = SignalCodec.for_sensor_set(swings.sensor_set)
-    sensor = PayloadSensor(estimator)
     frames = _frames(codec, swings.signals()[0], 0.0)
     moved = [can.Message(timestamp=0.0, arbitration_id=(f.arbitration_id & ~0xFF) | 0x42,
                          is_extended_id=True, data=f.data) for f in frames]
+    sensor = PayloadSensor(estimator)
+    assert [o for f in moved for o in sensor.feed(f)] == []
+    assert sensor.counters["other_senders"] == 4
+    options = {m: dbc.MessageOptions(source_address=0x42) for m in codec.message_names}
+    there = SignalCodec(codec.sensor_set, codec.database, codec.sources, options)
+    sensor = PayloadSensor(estimator, there)
     outputs = [o for f in moved for o in sensor.feed(f)]
     assert len(outputs) == 1 and outputs[0].status != Status.INVALID.value
 
@@ -193,7 +200,9 @@ def test_live_virtual_bus_equals_batch_goes_stale_and_recovers(swings, estimator
         assert np.abs(got[both] - want[both]).max() <= dbc.PAYLOAD_RESOLUTION / 2 + 1e-9
         # silence: stale at the sample rate (judged on the receiver's clock)
         received.clear()
-        machine2 = can.Bus(interface="virtual", channel=channel)
+        # the frames keep their stamps: samples 50 ms apart on the sensor's clock (sent at once,
+        # they would all be one tick of the model's clock)
+        machine2 = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
         drain(0.2)
         now = time.time()
         for k in range(3):  # samples stamped now, then silence
@@ -379,22 +388,26 @@ def test_machine_sensor_set_log_round_trip(tmp_path):
 
 
 def test_one_silent_sensor_makes_the_status_stale(swings, estimator):
-    """One message missing for longer than stale_after: 'stale', not just 'invalid_input';
-    it recovers when the message comes back."""
+    """One message missing for longer than its period x the tolerance (3.5): 'stale', naming
+    its signals; held before that (one lost frame is not a silent sensor); it recovers when the
+    message comes back."""
     codec = SignalCodec.for_sensor_set(swings.sensor_set)
     sensor = PayloadSensor(estimator, stale_after=0.16)
     values = swings.signals()
-    status = []
+    outputs = []
     for k in range(40):
         frames = _frames(codec, values[k], 0.05 * k)
         if 10 <= k < 20:
             frames = frames[:3]  # the torque message falls silent for 0.5 s
         for f in frames:
-            status += [o.status for o in sensor.feed(f)]
+            outputs += sensor.feed(f)
+    status = [o.status for o in outputs]
+    assert len(outputs) == 40
     assert status[:10] == list(estimator.estimate(swings.subset(swings.experiment_ids[:1]))["status"][:10])
-    assert status[10:13] == [Status.INVALID.value] * 3   # a lost frame or two: invalid samples
-    assert set(status[13:20]) == {"stale"}
-    assert "stale" not in status[21:]
+    assert "stale" not in status[10:13]               # 0.05 ... 0.15 s old: held
+    assert set(status[13:20]) == {"stale"}            # 0.2 s > 3.5 x 0.05 s
+    assert {o.stale for o in outputs[13:20]} == {("boom_torque", "dipper_torque")}
+    assert "stale" not in status[20:]
 
 
 def test_cli_can_dbc(tmp_path):

@@ -48,9 +48,11 @@ def test_j1939_conventions(sensors):
     assert {s.name: s.dbc.attributes["SPN"].value for s in vw.signals} == {
         "AxleLocation": 928, "AxleWeight": 180, "TrailerWeight": 181, "CargoWeight": 182}
     assert vw.get_signal_by_name("CargoWeight").scale == 2.0
-    # status codes are the Status enum's order, then 'stale'
+    # status codes are the Status enum's order; 'stale' keeps code 9, the one it had before the
+    # enum held it, and the statuses added since come after it
     choices = est.get_signal_by_name("PayloadStatus").choices
-    assert [str(choices[i]) for i in range(len(choices))] == [s.value for s in Status] + ["stale"]
+    assert [str(choices[i]) for i in range(len(choices))] == [s.value for s in Status]
+    assert str(choices[9]) == "stale" and str(choices[10]) == "implausible"
 
 
 def _column(message_layout, name):

@@ -194,6 +194,10 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
         message that says what is wrong.
     """
     path = Path(path)
+    from excavator_payload.data.field_log import is_field_table, read_field_table  # issue 30
+
+    if is_field_table(path):  # a logger's CSV / Parquet without experiments: split at gaps
+        return read_field_table(path, validate=validate)
     meta = read_metadata(path)
     _check_metadata(meta, str(path))
     try:

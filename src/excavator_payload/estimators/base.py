@@ -104,6 +104,11 @@ class Status(str, Enum):
     REJECTED = "rejected_outlier"  #: inconsistent with the noise model (gate): sample ignored
     REINITIALISED = "reinitialised"  #: restarted after too many rejections in a row; sample used
     STATE_RESET = "state_reset"  #: the estimator's state went non-finite: restarted
+    #: the CAN sensor's inputs are older than their period allows (only the runtime says it; here
+    #: so that its code, 9 on the bus since the first release, stays one list with the others)
+    STALE = "stale"
+    #: an estimate outside :data:`PLAUSIBLE_PAYLOAD` of the rated payload: not physical
+    IMPLAUSIBLE = "implausible"
     LOAD_CHANGING = "load_changing"  #: the load is changing (a dump, a fill): estimate of the load before
 
 
@@ -128,6 +133,12 @@ class StepResult:
     status: Status
     sigma: float = math.nan
 
+
+#: An estimate outside these fractions of the machine's rated payload is never ``ok``: a bucket
+#: holds no negative mass beyond the weighing's noise (a few % of rated), and 150 % of rated is
+#: past any bucket's heaped capacity and the arm's lifting limit. Wrong factors in a signal map gave
+#: -5 t with status ok and sigma 0.8 kg.
+PLAUSIBLE_PAYLOAD = (-0.10, 1.50)
 
 #: Probability, per sample, that a good sample is rejected by the statistical gate.
 GATE_PROBABILITY = 1e-6
@@ -410,6 +421,9 @@ class Estimator(ABC):
         #: Plausibility limits per signal (see :func:`plausibility_limits`), set by fit/load.
         self.plausible_low: np.ndarray | None = None
         self.plausible_high: np.ndarray | None = None
+        #: The rated payload, kg, of the machine it believes in (networks: of their training
+        #: data's machine; None: unknown, no plausibility rule), see :meth:`_judged`.
+        self.rated_payload: float | None = _rated(self.machine)
         self._last_time: float | None = None
         self._last_estimate = math.nan
         self._last_sigma = math.nan
@@ -527,6 +541,7 @@ class Estimator(ABC):
                 self._sentinel_source = {"machine": machine.to_dict(), "noise": str(noise)}
         self._build_sentinel()
         # Networks have no machine of their own: their limits come from the data's machine.
+        self.rated_payload = _rated(self.machine if self.machine is not None else _dataset_machine(dataset))
         self.plausible_low, self.plausible_high = plausibility_limits(
             self.sensor_set, self.machine if self.machine is not None else _dataset_machine(dataset))
         parts, rows = _outside_limits(dataset, self.sensor_set, self.plausible_low, self.plausible_high)
@@ -675,7 +690,18 @@ class Estimator(ABC):
             return StepResult(result.estimate, Status.REINITIALISED, sigma)
         if gap and result.status is not Status.STATE_RESET:
             return StepResult(result.estimate, Status.GAP, sigma)
-        return StepResult(result.estimate, result.status, sigma)
+        return self._judged(StepResult(result.estimate, result.status, sigma))
+
+    def _judged(self, result: StepResult) -> StepResult:
+        """``result``, its ``ok`` turned ``implausible`` when the estimate lies outside
+        :data:`PLAUSIBLE_PAYLOAD` of :attr:`rated_payload`: the one place every estimator's
+        streaming and batch output passes (``estimate`` steps through :meth:`step_values`)."""
+        rated = self.rated_payload
+        if result.status is Status.OK and rated is not None:
+            low, high = PLAUSIBLE_PAYLOAD
+            if not low * rated <= result.estimate <= high * rated:
+                return StepResult(result.estimate, Status.IMPLAUSIBLE, result.sigma)
+        return result
 
     def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         """What a user should know about estimating on ``dataset`` beyond the per-sample status
@@ -785,6 +811,7 @@ class Estimator(ABC):
             "plausibility": ({"low": self.plausible_low.tolist(), "high": self.plausible_high.tolist()}
                              if self.plausible_low is not None else None),
             "gate_sentinel": self._sentinel_source,
+            "rated_payload": self.rated_payload,
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
@@ -822,6 +849,16 @@ def _jsonable(obj):
     if isinstance(obj, Enum):
         return obj.value
     return obj
+
+
+def _rated(machine) -> float | None:
+    """A machine's rated payload, kg (None without a machine or a positive rating)."""
+    rated = getattr(machine, "rated_payload", None)
+    try:
+        rated = float(rated)
+    except (TypeError, ValueError):
+        return None
+    return rated if math.isfinite(rated) and rated > 0 else None
 
 
 def _dataset_machine(dataset: Dataset) -> Machine | None:
@@ -884,6 +921,11 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
         est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
         est._restore(state, arrays)
         est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
+        rated = config.get("rated_payload", est.rated_payload)  # older files: the machine's
+        if rated is not None and (isinstance(rated, bool) or not isinstance(rated, (int, float))
+                                  or not math.isfinite(rated) or rated <= 0):
+            raise EstimatorError(f"its rated_payload must be a positive number of kg, got {rated!r}")
+        est.rated_payload = None if rated is None else float(rated)
         source = config.get("gate_sentinel")
         if source is not None:
             if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)

@@ -53,6 +53,8 @@ STATUS_MEANING = {
     "rejected_outlier": "inconsistent with the noise model; sample not used, estimate kept",
     "reinitialised": "too many rejections in a row; the estimator restarted",
     "state_reset": "the estimator's state went non-finite; it restarted",
+    "implausible": "below -10 % or above 150 % of the rated payload: not physical (signal map, units?)",
+    "stale": "a signal is older than its period allows (a sensor fell silent); named in stale_signals",
     "load_changing": "the load is changing (a dump or a fill): the estimate is the load before, not now",
 }
 

@@ -2,30 +2,30 @@
 
 :class:`PayloadSensor` wraps any fitted :class:`~excavator_payload.estimators.base.Estimator`.
 Its sensor set says which signals it needs; a :class:`~excavator_payload.runtime.dbc.SignalCodec`
-says in which frames they arrive. One sample period's signals usually come in several messages:
-the sensor collects them and steps the estimator once per sample,
+says in which frames they arrive. The messages may come at their own rates (pressures at 100 Hz,
+an inclinometer at 10 Hz) with jitter: a :class:`~excavator_payload.runtime.assembly.SampleAssembler`
+holds each signal with its timestamp and makes one sample per model period from the latest
+values, on the model's clock (why the latest and not interpolated: see that module). A signal
+older than its message's period × ``stale_tolerance`` goes to the estimator as NaN and the
+output is ``stale``, naming it (:attr:`SensorOutput.stale`).
 
-* when every sensor message of the period has arrived, or
-* when a message arrives a second time before that (a frame was lost: the sample goes to the
-  estimator with the missing signals as NaN, which it reports as ``invalid_input``), or
-* when the period times out (:meth:`PayloadSensor.poll`, live only).
+**Senders.** A J1939 sensor message is matched by PGN, and only the frames of its own source
+address are it: the signal map's ``source_address`` (``[messages.<name>]``), else the DBC frame
+id's. A generic DBC with the null address 0xFE in its ids names no sender: the message then
+listens to the first address it hears. Frames of another address (another ECU's proprietary-B
+PGN 0xFF01, with its own content) are counted in ``other_senders`` and are not activity:
+they neither decode nor keep a recording's segment open (:mod:`~excavator_payload.runtime.replay`).
 
-The sample's time is the timestamp of its first frame. A frame that repeats the last one of its
-message (same bytes, less than a quarter period later: a log of two bridged channels, or of the
-receive and the transmit echo) is a duplicate and dropped. J1939 sensor messages are matched by
-PGN from any source address, but each message listens to one sender: the DBC's own address as
-soon as it is heard, else the first address heard (a proprietary-B PGN such as 0xFF00 is sent by
-other ECUs of the machine too, with their own content). Frames of other ids are ignored; a
-frame of the wrong length or with an out-of-range or not-available raw value gives NaN signals,
+A frame that repeats the last one of its message (same bytes, less than a quarter of its period
+later: a log of two bridged channels, or of the receive and the transmit echo) is a duplicate
+and dropped. Frames of other ids are ignored; a frame of the wrong length or with an
+out-of-range or not-available raw value gives NaN signals (the sample is then ``invalid_input``),
 never an exception. When no sample has arrived for ``stale_after`` seconds the sensor keeps
 publishing at the sample rate with status ``stale`` (last estimate kept); the next sample
-restarts it as the estimator's gap handling says (:meth:`Estimator._on_gap`). When only some
-sensors fall silent, the samples lack their signals (the estimator keeps its last estimate)
-and are published as ``stale`` too once a missing message has not been seen for
-``stale_after`` seconds (``invalid_input`` before: one lost frame is not a silent sensor). Staleness and
-time-outs are judged on the receiver's clock (the time a frame was received), so interfaces
-whose timestamps count from another epoch (hardware time since boot) work too; the estimator
-sees the frames' own timestamps.
+restarts it as the estimator's gap handling says (:meth:`Estimator._on_gap`). Time-outs are
+judged on the receiver's clock (the time a frame was received), so interfaces whose timestamps
+count from another epoch (hardware time since boot) work too; the samples carry the frames'
+own clock.
 
 :func:`run_bus` is the live loop of ``excavator-payload can-run``.
 """
@@ -43,6 +43,7 @@ import numpy as np
 
 from excavator_payload.estimators.base import Estimator
 from excavator_payload.runtime import dbc
+from excavator_payload.runtime.assembly import STALE_TOLERANCE, Sample, SampleAssembler
 from excavator_payload.runtime.dbc import SignalCodec
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,7 @@ class SensorOutput:
     estimate: float      # kg, NaN when none
     status: str          # a Status value or "stale"
     sigma: float         # kg, one-sigma uncertainty, NaN when unknown
+    stale: tuple[str, ...] = ()  # the signals too old for this sample (status "stale")
 
 
 def estimate_sigma(estimator: Estimator, result) -> float:
@@ -69,6 +71,22 @@ def estimate_sigma(estimator: Estimator, result) -> float:
                 continue
             return value if math.isfinite(value) else math.nan
     return math.nan
+
+
+#: Vehicle Weight's cargo weight resolution (SPN 182), kg/bit.
+CARGO_RESOLUTION = 2.0
+
+
+def j1939_raw(value: float, resolution: float, offset: float, bits: int = 16) -> int:
+    """The raw value of a J1939 signal: "not available" for NaN, the "error" indicator for a
+    value outside the signal's data range (never clamped into a valid-looking number: a -5 t
+    estimate went out as -2000 kg), else the value at ``resolution``."""
+    if not math.isfinite(value):
+        return dbc.not_available(bits)
+    raw = round((value - offset) / resolution)
+    if not 0 <= raw <= dbc.valid_raw_max(bits):
+        return dbc.error_indicator(bits)
+    return int(raw)
 
 
 class EstimateEncoder:
@@ -86,22 +104,20 @@ class EstimateEncoder:
 
     def frames(self, output: SensorOutput) -> list[can.Message]:
         """The two frames that publish ``output``."""
-        na16 = dbc.not_available(16)
-        top = dbc.valid_raw_max(16)
-
-        def raw(value: float, resolution: float, offset: float) -> int:
-            if not math.isfinite(value):
-                return na16
-            return int(min(max(round((value - offset) / resolution), 0), top))
-
-        payload = raw(output.estimate, dbc.PAYLOAD_RESOLUTION, dbc.PAYLOAD_OFFSET)
-        sigma = raw(output.sigma, dbc.PAYLOAD_RESOLUTION, 0.0)
+        payload = j1939_raw(output.estimate, dbc.PAYLOAD_RESOLUTION, dbc.PAYLOAD_OFFSET)
+        sigma = j1939_raw(output.sigma, dbc.PAYLOAD_RESOLUTION, 0.0)
         data = self.estimate_message.encode(
             {"Payload": payload, "PayloadStatus": self.status_code(output.status), "PayloadSigma": sigma},
             scaling=False, padding=True, strict=False)
-        cargo = raw(max(output.estimate, 0.0) if output.status == "ok" else math.nan, 2.0, 0.0)
+        # Vehicle Weight has no status: only an 'ok' estimate is a cargo weight. One below 0 by
+        # less than the signal's 2 kg step is an empty bucket; further below it is not a weight
+        # the signal can carry (error), never a valid-looking 0 kg.
+        estimate = output.estimate
+        if output.status == "ok" and -CARGO_RESOLUTION < estimate < 0:
+            estimate = 0.0
+        cargo = j1939_raw(estimate if output.status == "ok" else math.nan, CARGO_RESOLUTION, 0.0)
         weight = self.weight_message.encode(
-            {"AxleLocation": dbc.not_available(8), "AxleWeight": na16, "TrailerWeight": na16,
+            {"AxleLocation": dbc.not_available(8), "AxleWeight": dbc.not_available(16), "TrailerWeight": dbc.not_available(16),
              "CargoWeight": cargo}, scaling=False, padding=True, strict=False)
         return [can.Message(arbitration_id=self.estimate_message.frame_id, data=data, is_extended_id=True,
                             timestamp=output.time),
@@ -113,10 +129,10 @@ class EstimateEncoder:
         if message.arbitration_id != self.estimate_message.frame_id or len(message.data) != 8:
             return None
         raw = self.estimate_message.decode(bytes(message.data), scaling=False, decode_choices=False)
-        na16 = dbc.not_available(16)
-        payload = (math.nan if raw["Payload"] == na16
+        top = dbc.valid_raw_max(16)
+        payload = (math.nan if raw["Payload"] > top
                    else raw["Payload"] * dbc.PAYLOAD_RESOLUTION + dbc.PAYLOAD_OFFSET)
-        sigma = math.nan if raw["PayloadSigma"] == na16 else raw["PayloadSigma"] * dbc.PAYLOAD_RESOLUTION
+        sigma = math.nan if raw["PayloadSigma"] > top else raw["PayloadSigma"] * dbc.PAYLOAD_RESOLUTION
         return payload, self.statuses[raw["PayloadStatus"]], sigma
 
 
@@ -131,10 +147,13 @@ class PayloadSensor:
         Where the signals are in the frames (default: the sensor set's generated DBC).
     stale_after : float, optional
         Seconds without a sample after which the status is ``stale`` (default 3 sample periods).
+    stale_tolerance : float, optional
+        A signal older than its message's period times this is stale (default
+        :data:`~excavator_payload.runtime.assembly.STALE_TOLERANCE`).
     """
 
     def __init__(self, estimator: Estimator, codec: SignalCodec | None = None,
-                 stale_after: float | None = None) -> None:
+                 stale_after: float | None = None, stale_tolerance: float = STALE_TOLERANCE) -> None:
         if not estimator.fitted:
             from excavator_payload.errors import EstimatorError
 
@@ -145,105 +164,113 @@ class PayloadSensor:
         if self.codec.sensor_set.signals != self.sensor_set.signals:
             raise dbc.CanConfigError(f"the CAN signal map is for the {self.codec.sensor_set.name} sensor "
                                      f"set, the model for {self.sensor_set.name}")
+        if not (math.isfinite(stale_tolerance) and stale_tolerance >= 1):
+            raise dbc.CanConfigError(f"the staleness tolerance must be at least 1 period, got {stale_tolerance!r}")
         self.period = self.sensor_set.sample_period
         self.stale_after = 3 * self.period if stale_after is None else float(stale_after)
         self.encoder = EstimateEncoder()
-        self._needed = frozenset(self.codec.message_names)
+        names = self.codec.message_names
+        self.assembler = SampleAssembler(
+            self.sensor_set.signals, self.period,
+            {m: [i for i, _ in self.codec._by_message[m]] for m in names},
+            {m: self.codec.nominal_period(m) for m in names}, stale_tolerance)
         self.counters = {"frames": 0, "ignored": 0, "samples": 0, "bad_frames": 0, "stale": 0,
                          "duplicates": 0, "other_senders": 0}
+        #: (message, source address) -> frames of a sensor PGN from an address not the message's
+        self.foreign: dict[tuple[str, int], int] = {}
+        self._sender: dict[str, int] = {}  # message -> the address it locked onto (null-address DBC)
         self.reset()
 
     def reset(self) -> None:
-        """Forget the pending sample and restart the estimator."""
+        """Forget the pending sample and restart the estimator (a new recording)."""
         self.estimator.reset()
-        self._values = np.full(len(self.sensor_set.signals), np.nan)
-        self._received: set[str] = set()
-        self._pending_time: float | None = None
+        self.assembler.reset()
         self._pending_received: float | None = None
         self.last_output: SensorOutput | None = None
         self.last_sample_received: float | None = None
-        self._last_seen: dict[str, float] = {}  # message -> receiver time it last arrived
         self._last_frame: dict[str, tuple[float, bytes]] = {}  # message -> (timestamp, data)
-        self._sender: dict[str, int] = {}  # message -> the source address it listens to (J1939)
 
     # -- frames in ---------------------------------------------------------------------------
-    def feed(self, message: can.Message, received_at: float | None = None) -> list[SensorOutput]:
-        """Consume one received frame; returns the estimates it completed (0, 1 or 2).
-
-        ``received_at`` is the receiver's clock at reception (default: the frame's timestamp).
-        """
-        self.counters["frames"] += 1
+    def accepts(self, message: can.Message):
+        """The sensor message ``message`` is a frame of, if it comes from that message's sender,
+        else None (counted: ``ignored`` for other ids, ``other_senders`` for a sensor PGN from
+        another address). A generic DBC's message locks onto the first address heard."""
         if message.is_error_frame or message.is_remote_frame:
             self.counters["ignored"] += 1
-            return []
+            return None
         spec = self.codec.message_of(message.arbitration_id)
         if spec is None:
             self.counters["ignored"] += 1
-            return []
-        if self.codec.j1939 and message.is_extended_id and not self._from_sender(spec, message):
-            self.counters["other_senders"] += 1
-            return []
+            return None
+        if self.codec.j1939 and message.is_extended_id and spec.is_extended_frame:
+            address = message.arbitration_id & 0xFF
+            expected = self.codec.expected_source(spec.name)
+            if expected is None:
+                expected = self._sender.setdefault(spec.name, address)
+            if address != expected:
+                self.counters["other_senders"] += 1
+                key = (spec.name, address)
+                self.foreign[key] = self.foreign.get(key, 0) + 1
+                return None
+        return spec
+
+    def feed(self, message: can.Message, received_at: float | None = None, spec=None) -> list[SensorOutput]:
+        """Consume one received frame; returns the estimates it completed (0, 1 or more).
+
+        ``received_at`` is the receiver's clock at reception (default: the frame's timestamp);
+        ``spec``: what :meth:`accepts` returned for it, if the caller asked already.
+        """
+        self.counters["frames"] += 1
+        if spec is None:
+            spec = self.accepts(message)
+            if spec is None:
+                return []
         stamp, data = float(message.timestamp), bytes(message.data)
         last = self._last_frame.get(spec.name)
         # Without this, a log that holds every frame twice (two channels, or rx and tx echo) was
         # read as a lost frame per message: every sample flushed half-empty, 0 estimates 'ok'.
-        if last is not None and last[1] == data and abs(stamp - last[0]) < 0.25 * self.period:
+        if (last is not None and last[1] == data
+                and abs(stamp - last[0]) < 0.25 * self.assembler.message_period(spec.name)):
             self.counters["duplicates"] += 1
             return []
         self._last_frame[spec.name] = (stamp, data)
-        outputs = []
-        if spec.name in self._received:  # a new period began before the last was complete
-            outputs.append(self.flush())
-        if self._pending_time is None:
-            self._pending_time = float(message.timestamp)
-            self._pending_received = float(message.timestamp if received_at is None else received_at)
-        self._received.add(spec.name)
-        self._last_seen[spec.name] = float(message.timestamp if received_at is None else received_at)
-        decoded = self.codec.decode(spec, bytes(message.data))
+        decoded = self.codec.decode(spec, data)
         if any(v != v for _, v in decoded):
             self.counters["bad_frames"] += 1
-        for i, value in decoded:
-            self._values[i] = value
-        if self._received >= self._needed:
-            outputs.append(self.flush())
+        received = stamp if received_at is None else float(received_at)
+        samples = self.assembler.add(spec.name, stamp, decoded)
+        outputs = [self._step(sample) for sample in samples]
+        if self.assembler.pending:
+            if self._pending_received is None or samples:
+                self._pending_received = received
+        else:
+            self._pending_received = None
+        if outputs:
+            self.last_sample_received = received
         return outputs
 
-    def _from_sender(self, spec, message: can.Message) -> bool:
-        """Whether a J1939 frame of ``spec`` comes from the address this message listens to.
-
-        Matching the PGN alone let another ECU's proprietary-B frames of the same PGN in as
-        sensor data (every sample invalid, or worse, plausible garbage)."""
-        address = message.arbitration_id & 0xFF
-        own = spec.frame_id & 0xFF
-        if address == own:
-            self._sender[spec.name] = own  # the DBC's sender, once heard, is the one
-            return True
-        return self._sender.setdefault(spec.name, address) == address
-
-    def flush(self) -> SensorOutput:
-        """Step the estimator with the pending sample (missing signals NaN) and clear it."""
-        time = self._pending_time if self._pending_time is not None else math.nan
-        now = self._pending_received
-        silent = [m for m in self._needed - self._received
-                  if now is None or now - self._last_seen.get(m, -math.inf) > self.stale_after]
-        values = self._values
-        self._values = np.full(len(self.sensor_set.signals), np.nan)
-        self._received = set()
-        self._pending_time = None
-        self.last_sample_received = self._pending_received
-        self._pending_received = None
-        result = self.estimator.step_values(time, values)
+    def _step(self, sample: Sample) -> SensorOutput:
+        result = self.estimator.step_values(sample.time, sample.values)
         self.counters["samples"] += 1
-        status = dbc.STALE if silent else result.status.value
-        output = SensorOutput(time, float(result.estimate), status,
-                              estimate_sigma(self.estimator, result))
+        status = dbc.STALE if sample.stale else result.status.value
+        output = SensorOutput(sample.time, float(result.estimate), status,
+                              estimate_sigma(self.estimator, result), sample.stale)
         self.last_output = output
         return output
+
+    def flush(self) -> SensorOutput | None:
+        """Step the estimator with the pending sample (what has arrived of it), if any."""
+        samples = self.assembler.flush()
+        received, self._pending_received = self._pending_received, None
+        if not samples:
+            return None
+        self.last_sample_received = received
+        return self._step(samples[0])
 
     @property
     def pending(self) -> bool:
         """Whether part of a sample has arrived."""
-        return self._pending_time is not None
+        return self.assembler.pending
 
     # -- time passing (live) -----------------------------------------------------------------
     def poll(self, now: float) -> list[SensorOutput]:
@@ -252,7 +279,9 @@ class PayloadSensor:
         """
         outputs = []
         if self._pending_received is not None and now - self._pending_received > self.period:
-            outputs.append(self.flush())
+            output = self.flush()
+            if output is not None:
+                outputs.append(output)
         if self.last_sample_received is None or now - self.last_sample_received > self.stale_after:
             last = self.last_output
             self.counters["stale"] += 1

@@ -56,11 +56,18 @@ def register(app: typer.Typer) -> None:
     @app.command("can-record")
     def can_record(
         data: Path = typer.Option(..., "--data", help="Dataset (Parquet) to turn into frames."),
-        out: Path = typer.Option(..., "--out", help="CAN log to write: .asc, .blf, .log, .csv or .trc."),
+        out: Path = typer.Option(..., "--out", help="CAN log to write: .asc, .blf, .log (candump -l), "
+                                 ".csv, .trc or .mf4 (MDF 4 bus logging, as a CANedge writes)."),
         dbc_file: Path = typer.Option(None, "--dbc", help=DBC_HELP),
         signal_map: Path = typer.Option(None, "--signal-map", help=MAP_HELP),
+        jitter: float = typer.Option(0.0, "--jitter", help="Standard deviation (s) of each frame's "
+                                     "timestamp jitter (clipped at 3 sigma and a third of the period)."),
+        burst_every: float = typer.Option(0.0, "--burst-every", help="Every this many seconds, hold one "
+                                          "message back and send 3 of its frames back to back (0: never)."),
+        seed: int = typer.Option(0, "--seed", help="Seed of the jitter and the bursts."),
     ) -> None:
-        """Turn a dataset into a CAN log (every sample as its sensor frames, experiments apart)."""
+        """Turn a dataset into a CAN log (every sample as its sensor frames, experiments apart; each
+        message at its DBC period, GenMsgCycleTime, where it has one)."""
         from excavator_payload.data.io import read_dataset
         from excavator_payload.runtime.dbc import SignalCodec
         from excavator_payload.runtime.record import record_dataset
@@ -71,24 +78,31 @@ def register(app: typer.Typer) -> None:
         check_output_path(out, inputs=[data, dbc_file, signal_map])
         dataset = read_dataset(data)
         codec = SignalCodec.from_files(dataset.sensor_set, dbc_file, signal_map)
-        info = record_dataset(dataset, out, codec, progress=True)
+        info = record_dataset(dataset, out, codec, progress=True, jitter=jitter, burst_every=burst_every,
+                              seed=seed)
         console.print(f"{info['frames']} frames of {info['samples']} samples "
                       f"({info['experiments']} experiments, {info['duration']:.1f} s of bus time) "
                       f"written to [bold]{out}[/bold]")
 
     @app.command("can-replay")
     def can_replay(
-        log: Path = typer.Option(..., "--log", help="Recorded CAN log: .asc, .blf, .log, .csv or .trc."),
+        log: Path = typer.Option(..., "--log", help="Recorded CAN log: .asc, .blf, .log (candump -l or "
+                                 "candump's screen format with timestamps), .txt, .csv, .trc or .mf4."),
         model: Path = typer.Option(..., "--model", help="Folder of a saved estimator."),
         out: Path = typer.Option(..., "--out", help="Estimates file to write (Parquet)."),
         dbc_file: Path = typer.Option(None, "--dbc", help=DBC_HELP),
         signal_map: Path = typer.Option(None, "--signal-map", help=MAP_HELP),
         segment_gap: float = typer.Option(2.0, "--segment-gap",
-                                          help="A silence longer than this (s) starts a new experiment."),
+                                          help="A silence of the sensor's own frames longer than this (s) "
+                                          "starts a new experiment."),
+        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", help="A signal older than its "
+                                              "message's period times this makes the sample 'stale'."),
     ) -> None:
         """Replay a CAN log through the payload sensor; write the estimates as Parquet."""
-        from excavator_payload.data.io import write_estimates
+        import pandas as pd
         from rich.markup import escape
+
+        from excavator_payload.data.io import write_estimates
 
         from excavator_payload.estimators.base import load_estimator
         from excavator_payload.estimators.commands import STATUS_MEANING, status_breakdown
@@ -103,7 +117,9 @@ def register(app: typer.Typer) -> None:
         if not segment_gap > 0:
             raise DatasetError("--segment-gap must be positive")
         est = load_estimator(model)
-        sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map))
+        if not stale_tolerance >= 1:
+            raise DatasetError("--stale-tolerance must be at least 1 (periods)")
+        sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map), stale_tolerance=stale_tolerance)
         frame = replay_log(log, sensor, segment_gap, progress=True)
         write_estimates(frame, out, meta={"estimator": est.name, "model": str(model), "log": str(log)})
         c = sensor.counters
@@ -120,6 +136,11 @@ def register(app: typer.Typer) -> None:
         seen = [status for status in STATUS_MEANING if (frame["status"] == status).any()]
         if seen:
             console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
+                          markup=False, highlight=False)
+        stale = frame["stale_signals"][frame["stale_signals"] != ""]
+        if len(stale):
+            names = pd.Series([n for s in stale for n in s.split(",")]).value_counts()
+            console.print("stale signals: " + ", ".join(f"{n} ({k} samples)" for n, k in names.items()),
                           markup=False, highlight=False)
 
     @app.command("can-run")

@@ -67,6 +67,8 @@ RESOLUTION: dict[str, float] = {
 PRIORITY = 6
 #: Source addresses (J1939 self-configurable address range 128–247).
 SENSOR_ADDRESS = 0xA0
+#: J1939 "null address": generic DBCs (one message per PGN, for any sender) put it in the frame id.
+NULL_ADDRESS = 0xFE
 ESTIMATOR_ADDRESS = 0xA1
 SENSOR_NODE = "ArmSensors"
 ESTIMATOR_NODE = "PayloadEcu"
@@ -187,8 +189,9 @@ def sensor_layout(sensor_set: SensorSet) -> list[MessageLayout]:
 
 
 def status_names() -> list[str]:
-    """Status codes on the bus: the estimators' :class:`Status` enum in order, then ``stale``
-    (the sensor fell silent; only the CAN runtime knows that) unless the enum has it."""
+    """Status codes on the bus: the estimators' :class:`Status` enum in order (it holds
+    ``stale`` at code 9, the code the bus gave it before the enum had it, and the statuses
+    added later after it), then ``stale`` unless the enum has it."""
     from excavator_payload.estimators.base import Status
 
     names = [s.value for s in Status]
@@ -393,6 +396,18 @@ class SignalSource:
     offset: float = 0.0
 
 
+@dataclass(frozen=True)
+class MessageOptions:
+    """What the signal map's ``[messages.<name>]`` table says of one DBC message.
+
+    ``source_address``: the only J1939 source address whose frames are this message (None: the
+    DBC's frame id says it, see :meth:`SignalCodec.expected_source`). ``period``: its nominal
+    period, s (None: the DBC's ``GenMsgCycleTime``, else learnt from the log)."""
+
+    source_address: int | None = None
+    period: float | None = None
+
+
 class SignalCodec:
     """Frames <-> signals of a sensor set, through a DBC and a signal map.
 
@@ -404,9 +419,13 @@ class SignalCodec:
     sources : mapping
         Our signal name -> :class:`SignalSource` in that DBC (for the generated DBC: each
         signal's own message and CamelCase name, factor 1).
+    message_options : mapping, optional
+        DBC message name -> :class:`MessageOptions` (the signal map's ``[messages.<name>]``:
+        its sender's source address, its period).
     """
 
-    def __init__(self, sensor_set: SensorSet, database, sources: Mapping[str, SignalSource]):
+    def __init__(self, sensor_set: SensorSet, database, sources: Mapping[str, SignalSource],
+                 message_options: Mapping[str, MessageOptions] | None = None):
         self.sensor_set = sensor_set
         self.database = database
         self.sources = dict(sources)
@@ -449,9 +468,17 @@ class SignalCodec:
                 raise CanConfigError(f"{signal}: the unit factor must be finite and non-zero")
             self.messages[src.message] = message
             self._by_message.setdefault(src.message, []).append((i, src))
+        self.message_options = dict(message_options or {})
+        strays = [name for name in self.message_options if name not in self.messages]
+        if strays:  # a misspelt message name: its source address would silently not apply
+            raise CanConfigError(f"the signal map's [messages.{strays[0]}] is not a message the map reads "
+                                 f"signals from ({', '.join(self.messages)})")
         self._by_id = {m.frame_id: m for m in self.messages.values()}
-        self._by_pgn = {_pgn(m.frame_id): m for m in self.messages.values()
-                        if m.is_extended_frame} if self.j1939 else {}
+        self._by_pgn: dict[int, list] = {}
+        if self.j1939:
+            for m in self.messages.values():
+                if m.is_extended_frame:
+                    self._by_pgn.setdefault(_pgn(m.frame_id), []).append(m)
 
     @classmethod
     def for_sensor_set(cls, sensor_set: SensorSet | str) -> "SignalCodec":
@@ -471,7 +498,7 @@ class SignalCodec:
         if dbc is None or signal_map is None:
             raise CanConfigError("--dbc and --signal-map go together (the map says which DBC signal "
                                  "is which of ours)")
-        return cls(sensor_set, load_dbc(dbc), read_signal_map(signal_map))
+        return cls(sensor_set, load_dbc(dbc), read_signal_map(signal_map), read_message_map(signal_map))
 
     # -- which frames ------------------------------------------------------------------------
     @property
@@ -480,11 +507,42 @@ class SignalCodec:
         return list(self.messages)
 
     def message_of(self, arbitration_id: int):
-        """The sensor message with this frame id (J1939: any source address), or None."""
+        """The sensor message with this frame id (J1939: its PGN, from any source address), or None.
+
+        Whether the frame's sender is the message's is :meth:`expected_source`'s to say."""
         message = self._by_id.get(arbitration_id)
         if message is None and self._by_pgn:
-            message = self._by_pgn.get(_pgn(arbitration_id))
+            candidates = self._by_pgn.get(_pgn(arbitration_id))
+            if candidates:
+                # two sensors of one PGN at two addresses (two inclinometers of one make):
+                # the one whose address this is, else the first
+                address = arbitration_id & 0xFF
+                message = next((m for m in candidates if self.expected_source(m.name) == address),
+                               candidates[0])
         return message
+
+    def expected_source(self, name: str) -> int | None:
+        """The J1939 source address whose frames are message ``name``: the signal map's
+        ``source_address``, else the DBC frame id's; None where that is the null address 0xFE
+        (a generic DBC: the sensor then listens to the first address it hears) or the DBC is
+        not J1939 (11-bit ids carry no address)."""
+        option = self.message_options.get(name)
+        if option is not None and option.source_address is not None:
+            return option.source_address
+        message = self.messages[name]
+        if not (self.j1939 and message.is_extended_frame):
+            return None
+        address = message.frame_id & 0xFF
+        return None if address == NULL_ADDRESS else address
+
+    def nominal_period(self, name: str) -> float | None:
+        """Message ``name``'s period, s: the signal map's ``period``, else the DBC's
+        ``GenMsgCycleTime``; None when neither says (the sensor learns it from the frames)."""
+        option = self.message_options.get(name)
+        if option is not None and option.period is not None:
+            return option.period
+        cycle = getattr(self.messages[name], "cycle_time", None)
+        return float(cycle) / 1000.0 if cycle else None
 
     # -- decoding ------------------------------------------------------------------------------
     def decode(self, message, data: bytes) -> list[tuple[int, float]]:
@@ -613,6 +671,44 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
         except (TypeError, ValueError):
             raise CanConfigError(f"signal map '{path}': [signals.{name}] factor/offset must be "
                                  "numbers") from None
+    return out
+
+
+def read_message_map(path: str | Path) -> dict[str, MessageOptions]:
+    """The ``[messages.<name>]`` tables of a TOML signal map (optional)::
+
+        [messages.HouseInclination]
+        source_address = 0x21   # only this J1939 sender's frames are the message
+        period = 0.1            # s, when the DBC has no GenMsgCycleTime for it
+    """
+    import tomllib
+
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CanConfigError(f"signal map '{path}' is not valid TOML: {exc}") from None
+    table = data.get("messages", {})
+    if not isinstance(table, dict):
+        raise CanConfigError(f"signal map '{path}': 'messages' must be [messages.<name>] tables")
+    out = {}
+    for name, entry in table.items():
+        if not isinstance(entry, dict):
+            raise CanConfigError(f"signal map '{path}': [messages.{name}] must be a table")
+        extra = [k for k in entry if k not in ("source_address", "period")]
+        if extra:
+            raise CanConfigError(f"signal map '{path}': [messages.{name}] has unknown key(s) "
+                                 f"{', '.join(map(repr, extra))} (known: source_address, period)")
+        address, period = entry.get("source_address"), entry.get("period")
+        if address is not None and (isinstance(address, bool) or not isinstance(address, int)
+                                    or not 0 <= address <= 0xFD):
+            raise CanConfigError(f"signal map '{path}': [messages.{name}] source_address must be a J1939 "
+                                 f"address 0 … 253 (0x00 … 0xFD), got {address!r}")
+        if period is not None and (isinstance(period, bool) or not isinstance(period, (int, float))
+                                   or not math.isfinite(period) or period <= 0):
+            raise CanConfigError(f"signal map '{path}': [messages.{name}] period must be a positive number "
+                                 f"of seconds, got {period!r}")
+        out[name] = MessageOptions(address, None if period is None else float(period))
     return out
 
 

@@ -108,6 +108,7 @@ from excavator_payload import __version__
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import (
     GATE_PROBABILITY,
+    PLAUSIBLE_PAYLOAD,
     GATE_SCALE_HEADROOM,
     GATE_SCALE_RATE,
     Estimator,
@@ -1785,6 +1786,13 @@ ep_real ep_sigma(const ep_state *s);
 #endif /* {guard} */
 """
     statuses = ", ".join(f'"{s.value}"' for s in Status)
+    judged = ""
+    if est.rated_payload is not None:  # Estimator._judged: the one plausibility rule of the output
+        lo, hi = (f * est.rated_payload for f in PLAUSIBLE_PAYLOAD)
+        judged = (f"    /* Estimator._judged (base.py): outside {PLAUSIBLE_PAYLOAD[0]:g} … {PLAUSIBLE_PAYLOAD[1]:g} x "
+                  f"the rated payload is not ok */\n"
+                  f"    if (status == EP_STATUS_OK && !(EP_C({lo!r}) <= result && result <= EP_C({hi!r})))\n"
+                  f"        return EP_STATUS_IMPLAUSIBLE;\n")
     fills = model.fill_rejected is not None
     gate_reset = "\n    ep_gate_reset(s);" if model.borrowed_gate else ""
     gap_body = model.on_gap if model.on_gap is not None else "    (void)time;\n    (void)v;\n    ep_model_reset(s);"
@@ -1998,7 +2006,7 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
     *estimate = result;
     if (reinitialised) return EP_STATUS_REINITIALISED;
     if (gap && status != EP_STATUS_STATE_RESET) return EP_STATUS_GAP;
-    return status;
+{judged}    return status;
 }}
 """
     return header, source

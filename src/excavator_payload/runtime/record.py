@@ -1,10 +1,18 @@
 """``excavator-payload can-record``: a dataset as a CAN log, to exercise the CAN path without a machine.
 
-Every sample becomes the frames of its sensor set's DBC (or of a user DBC and signal map), all
-stamped with the sample's time; experiment ``k`` starts :data:`EXPERIMENT_GAP` seconds after
-the end of experiment ``k-1``, so a replay sees each experiment as one continuous recording
+Every sample becomes the frames of its sensor set's DBC (or of a user DBC and signal map);
+experiment ``k`` starts :data:`EXPERIMENT_GAP` seconds after the end of experiment ``k-1``, so a
+replay sees each experiment as one continuous recording
 (:func:`~excavator_payload.runtime.replay.replay_log` splits at gaps). A NaN signal is sent as
 J1939 "not available", a value outside the DBC range as the J1939 error indicator.
+
+Each message goes out at its own period where the signal map or the DBC gives one
+(``GenMsgCycleTime``; a multiple of the sample period: every n-th sample's values), else with
+every sample: a DBC whose inclinometer message says 100 ms gives a log with it at 10 Hz beside
+the 100 Hz pressures, as on a machine. ``jitter`` (s, standard deviation, clipped at 3 σ and
+at a third of the sample period) moves each frame's timestamp; ``burst_every`` (s) holds one
+message's frames back now and then and sends ``burst_length`` of them back to back, stamped
+when they go out (a gateway's queue). Frames are written in time order.
 """
 
 from __future__ import annotations
@@ -18,23 +26,40 @@ import numpy as np
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.logs import check_suffix
 
 #: Silence between two experiments in a recorded log, s.
 EXPERIMENT_GAP = 5.0
-#: Log formats python-can writes (by file suffix) that ``can-replay`` reads back.
-LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc")
+#: Log formats python-can writes (by file suffix) that ``can-replay`` reads back (.mf4: asammdf).
+LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4")
 
 
 def check_log_suffix(path: Path) -> None:
     """Raise :class:`DatasetError` unless ``path`` ends in a CAN log format of
     :data:`LOG_SUFFIXES` (any case)."""
-    if path.suffix.lower() not in LOG_SUFFIXES:
-        raise DatasetError(f"'{path}': unknown CAN log format {path.suffix!r}; use one of "
-                           f"{', '.join(LOG_SUFFIXES)}")
+    check_suffix(path, LOG_SUFFIXES)
+
+
+def message_strides(codec: SignalCodec, period: float) -> dict[str, int]:
+    """Every how many samples each message goes out (its period / the sample period)."""
+    strides = {}
+    for name in codec.message_names:
+        nominal = codec.nominal_period(name)
+        if nominal is None:
+            strides[name] = 1
+            continue
+        n = nominal / period
+        if n < 0.5 or abs(n - round(n)) > 0.05 * n:
+            raise DatasetError(f"message {name}'s period {nominal:g} s is not a multiple of the data's "
+                               f"sample period {period:g} s: can-record sends every n-th sample")
+        strides[name] = int(round(n))
+    return strides
 
 
 def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None = None,
-                   start_time: float = 0.0, channel: int | str = 1, progress: bool = False) -> dict:
+                   start_time: float = 0.0, channel: int | str = 1, progress: bool = False,
+                   jitter: float = 0.0, burst_every: float = 0.0, burst_length: int = 3,
+                   seed: int = 0) -> dict:
     """Write ``dataset`` as a CAN log ``out`` (format by suffix), atomically.
 
     Returns
@@ -48,6 +73,11 @@ def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None 
     if codec.sensor_set.signals != dataset.sensor_set.signals:
         raise DatasetError(f"the dataset holds the {dataset.sensor_set.name} sensor set, the CAN "
                            f"signal map is for {codec.sensor_set.name}")
+    period = dataset.sensor_set.sample_period
+    if not (np.isfinite(jitter) and jitter >= 0 and np.isfinite(burst_every) and burst_every >= 0):
+        raise DatasetError("--jitter and --burst-every must be non-negative numbers of seconds")
+    strides = message_strides(codec, period)
+    rng = np.random.default_rng(seed)
     frame = dataset.frame
     times = frame["time"].to_numpy(dtype=float)
     values = dataset.signals()
@@ -57,6 +87,8 @@ def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None 
     tmp = out.with_name(f".{out.stem}.partial{out.suffix}")
     n_frames = 0
     offset = start_time
+    limit = min(3 * jitter, period / 3)
+    names = codec.message_names
     bar = None
     if progress:
         from rich.progress import Progress
@@ -68,13 +100,36 @@ def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None 
         with can.Logger(str(tmp)) as writer:
             for a, b in zip(bounds[:-1], bounds[1:]):
                 shift = offset - float(times[a])
+                pending = []  # (stamp, order, message) of this experiment
+                held: list = []  # a burst's frames held back
+                next_burst = float(times[a] + shift) + burst_every if burst_every else np.inf
+                victim = names[int(rng.integers(len(names)))]
                 for i in range(a, b):
                     stamp = float(times[i] + shift)
-                    for fid, data, extended in codec.encode(values[i]):
-                        writer.on_message_received(can.Message(
-                            timestamp=stamp, arbitration_id=fid, is_extended_id=extended,
-                            data=data, channel=channel))
-                        n_frames += 1
+                    for k, (fid, data, extended) in enumerate(codec.encode(values[i])):
+                        name = names[k]
+                        if (i - a) % strides[name]:
+                            continue
+                        t = stamp + (float(np.clip(rng.normal(0, jitter), -limit, limit)) if jitter else 0.0)
+                        msg = can.Message(timestamp=t, arbitration_id=fid, is_extended_id=extended,
+                                          data=data, channel=channel)
+                        if name == victim and stamp >= next_burst:
+                            held.append(msg)
+                            if len(held) == burst_length:  # the queue goes out back to back
+                                for n, h in enumerate(held):
+                                    h.timestamp = t + 1e-4 * n
+                                    pending.append((h.timestamp, len(pending), h))
+                                held = []
+                                next_burst = stamp + burst_every
+                                victim = names[int(rng.integers(len(names)))]
+                            continue
+                        pending.append((t, len(pending), msg))
+                for h in held:
+                    pending.append((h.timestamp, len(pending), h))
+                pending.sort(key=lambda p: (p[0], p[1]))
+                for _, _, msg in pending:
+                    writer.on_message_received(msg)
+                    n_frames += 1
                 offset = float(times[b - 1] + shift) + EXPERIMENT_GAP
                 if bar is not None:
                     bar.advance(task)

@@ -1,84 +1,40 @@
 """``excavator-payload can-replay``: a recorded CAN log through the payload sensor.
 
 The log's frames go through the same :class:`~excavator_payload.runtime.can_sensor.PayloadSensor`
-as on a live bus. A silence longer than ``segment_gap`` seconds ends a *segment* (a recording,
-for example one lift): the sensor restarts and the next segment gets the next experiment
-number, so the estimates of a log made by ``can-record`` line up with ``estimate`` on the
-dataset it came from. Columns: ``experiment``, ``time`` (s since the segment's first sample),
-``payload_estimate`` (kg), ``status``, plus ``payload_sigma`` (kg) and ``log_time`` (the
-log's own timestamp).
+as on a live bus (samples on the model's clock from messages at their own rates; frames of
+other source addresses are not the sensor's). A silence of the sensor's *own* frames longer
+than ``segment_gap`` seconds ends a *segment* (a recording, for example one lift): another
+ECU's traffic, or a sensor PGN from another address, does not keep a segment open. The
+sensor restarts and the next segment gets the next experiment number, so the estimates of a
+log made by ``can-record`` line up with ``estimate`` on the dataset it came from. Columns:
+``experiment``, ``time`` (s since the segment's first sample), ``payload_estimate`` (kg),
+``status``, plus ``payload_sigma`` (kg), ``log_time`` (the log's own timestamp) and
+``stale_signals`` (the signals too old for the sample, comma-separated; empty when none).
+
+Formats: :mod:`~excavator_payload.runtime.logs`. A log in which nothing is the sensor's gets one
+line that says what it does hold (frames, ids, PGNs and source addresses, rates).
 """
 
 from __future__ import annotations
 
-import logging
 import math
-import struct
-import zlib
 from pathlib import Path
 
-import can
 import numpy as np
 import pandas as pd
-from can.io.blf import BLFParseError
 
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
-from excavator_payload.runtime.record import check_log_suffix
+from excavator_payload.runtime.logs import UNREADABLE_LOG, LogSummary, read_frames  # noqa: F401
 
-#: Default silence (s) that separates two recordings in one log.
+#: Default silence (s) of the sensor's own frames that separates two recordings in one log.
 SEGMENT_GAP = 2.0
 
 
-#: What python-can's readers raise on a file that is not the format its suffix says: a
-#: truncated or foreign BLF raises struct.error, zlib.error or BLFParseError, an unsupported TRC
-#: version NotImplementedError (all of them escaped as an internal error before).
-UNREADABLE_LOG = (ValueError, OSError, KeyError, IndexError, TypeError, EOFError, NotImplementedError,
-                  struct.error, zlib.error, BLFParseError, can.CanError)
-
-
-class _SkippedRecords(logging.Handler):
-    """Counts the records python-can's readers skip with a logged warning (a TRC or ASC line
-    they cannot parse): they were printed on stderr, breaking the one-line rule, and the lines
-    were lost without a count."""
-
-    def __init__(self) -> None:
-        super().__init__(logging.WARNING)
-        self.count = 0
-
-    def emit(self, record: logging.LogRecord) -> None:
-        self.count += 1
-
-
 def read_log(path: str | Path, skipped: list[int] | None = None):
-    """Iterate the frames of a CAN log (python-can formats by suffix), one clear line on errors.
-
-    ``skipped``, if given (a list ``[n]``), has the records the reader could not parse and
-    skipped added to ``n``.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise DatasetError(f"CAN log '{path}' is a folder, not a log file")
-    if not path.is_file():
-        raise DatasetError(f"CAN log '{path}' does not exist")
-    check_log_suffix(path)
-    readers = logging.getLogger("can.io")
-    handler = _SkippedRecords()
-    propagate = readers.propagate
-    readers.addHandler(handler)
-    readers.propagate = False
-    try:
-        yield from can.LogReader(str(path))
-    except UNREADABLE_LOG as exc:
-        kind = ("truncated or not a BLF file" if isinstance(exc, (struct.error, zlib.error, BLFParseError))
-                else type(exc).__name__)
-        raise DatasetError(f"CAN log '{path}' could not be read ({kind}): {exc}") from None
-    finally:
-        readers.removeHandler(handler)
-        readers.propagate = propagate
-        if skipped is not None:
-            skipped[0] += handler.count
+    """Iterate the frames of a CAN log (:func:`~excavator_payload.runtime.logs.read_frames`)."""
+    return read_frames(path, skipped)
 
 
 def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEGMENT_GAP,
@@ -91,12 +47,17 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     experiment = -1
     segment_start = 0.0
     last_frame_time: float | None = None
-    backwards = 0  # frames earlier than the frame before them
+    backwards = 0  # sensor frames earlier than the sensor frame before them
+    summary = LogSummary()
+    intervals: dict[str, list[float]] = {}
+    last_of: dict[str, float] = {}
     sensor.reset()
 
     def keep(outputs):
         for o in outputs:
-            rows.append((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time))
+            if o is not None:
+                rows.append((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
+                             ",".join(o.stale)))
 
     bar = None
     if progress:
@@ -106,11 +67,11 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         bar.start()
         task = bar.add_task("replaying (frames)", total=None)
     try:
-        for i, message in enumerate(read_log(path, skipped)):
-            if message.is_error_frame or message.is_remote_frame:
-                continue
-            if sensor.codec.message_of(message.arbitration_id) is None:
-                sensor.counters["ignored"] += 1
+        for i, message in enumerate(read_frames(path, skipped)):
+            summary.add(message)
+            spec = sensor.accepts(message)
+            if spec is None:
+                sensor.counters["frames"] += 1
                 continue
             t = float(message.timestamp)
             if not math.isfinite(t):
@@ -126,9 +87,14 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                 sensor.reset()
                 experiment += 1
                 segment_start = t
-            last_frame_time = t
+            last_frame_time = max(t, last_frame_time) if last_frame_time is not None else t
             fed += 1
-            keep(sensor.feed(message))
+            duplicates = sensor.counters["duplicates"]
+            keep(sensor.feed(message, spec=spec))
+            if sensor.counters["duplicates"] == duplicates:  # a frame twice is not a rate
+                if spec.name in last_of:
+                    intervals.setdefault(spec.name, []).append(t - last_of[spec.name])
+                last_of[spec.name] = t
             if bar is not None and i % 1000 == 0:
                 bar.update(task, completed=i)
         if sensor.pending:
@@ -137,54 +103,87 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         if bar is not None:
             bar.stop()
     if not rows:
-        names = ", ".join(sensor.codec.message_names)
-        raise DatasetError(f"CAN log '{path}': no frame carries the sensor messages ({names}) of "
-                           f"the {sensor.sensor_set.name} sensor set; another DBC (--dbc, "
-                           f"--signal-map)?")
+        raise DatasetError(f"CAN log '{path}': no frame is the sensor messages ({_expected(sensor)}) of "
+                           f"the {sensor.sensor_set.name} sensor set{_foreign(sensor)}; the log holds "
+                           f"{summary.describe()}. Another DBC (--dbc, --signal-map)?")
+    if backwards > 0.01 * fed:
+        # a shuffled log assembles no sample right: it was blamed on another DBC
+        raise DatasetError(f"CAN log '{path}': its time goes back between {backwards} of {fed} "
+                           f"sensor frames (frames out of order?); sort the log by timestamp")
+    check_message_rates(intervals, sensor, path)
     if all(row[3] in ("invalid_input", dbc.STALE) for row in rows):
-        if backwards > 0.01 * fed:
-            # a shuffled log assembles no sample whole: it was blamed on another DBC
-            raise DatasetError(f"CAN log '{path}': its time goes back between {backwards} of {fed} "
-                               f"sensor frames (frames out of order?); sort the log by timestamp")
         # The sensor sets' generated DBCs share their PGNs (0xFF00, ...): a log of the machine
         # set replayed with a thesis model (or the reverse) decoded garbage or NaN in every
         # sample and wrote estimates that were all NaN, with exit status 0.
         bad = sensor.counters["bad_frames"] - bad_before
+        silent = sorted(set(sensor.codec.message_names) - set(last_of))
+        never = f"; never heard: {', '.join(silent)}" if silent else ""
         raise DatasetError(f"CAN log '{path}': no sample in it has all the signals of the model's "
                            f"{sensor.sensor_set.name} sensor set readable ({bad} of {fed} sensor frames "
-                           f"out of the DBC's ranges or not available); recorded with another DBC or "
-                           f"sensor set (--dbc, --signal-map)?")
+                           f"out of the DBC's ranges or not available{never}{_foreign(sensor)}); recorded "
+                           f"with another DBC or sensor set (--dbc, --signal-map)? The log holds "
+                           f"{summary.describe()}")
     frame = pd.DataFrame(rows, columns=["experiment", "time", "payload_estimate", "status",
-                                        "payload_sigma", "log_time"])
+                                        "payload_sigma", "log_time", "stale_signals"])
     frame["experiment"] = frame["experiment"].astype("int64")
-    check_sample_rate(frame, sensor, path)
     frame.attrs["skipped_records"] = skipped[0]
+    frame.attrs["summary"] = summary.describe()
     return frame
 
 
-def check_sample_rate(frame: pd.DataFrame, sensor: PayloadSensor, path) -> None:
-    """Refuse a log whose samples are not at the sensor set's rate (as ``read_dataset`` does).
+def _expected(sensor: PayloadSensor) -> str:
+    parts = []
+    for name in sensor.codec.message_names:
+        message = sensor.codec.messages[name]
+        address = sensor.codec.expected_source(name)
+        if sensor.codec.j1939 and message.is_extended_frame:
+            sender = f" from SA 0x{address:02X}" if address is not None else ""
+            parts.append(f"{name}: PGN 0x{dbc._pgn(message.frame_id):04X}{sender}")
+        else:
+            parts.append(f"{name}: id 0x{message.frame_id:X}")
+    return "; ".join(parts)
 
-    A log at another rate, or with timestamps in ms, was replayed without a word: the estimators
-    differentiate against the timestamps or judge gaps by the sample period, so the estimates
-    were 'gap' throughout or silently wrong (a 40 Hz log weighed by a 20 Hz model as if it were
-    right; a log in ms made every sample its own segment, each one 'ok')."""
-    steps = np.diff(frame["log_time"].to_numpy(dtype=float))
-    same = frame["experiment"].to_numpy()[1:] == frame["experiment"].to_numpy()[:-1]
-    steps = steps[same] if same.any() else steps
-    steps = steps[np.isfinite(steps)]
-    if steps.size == 0:
-        return
-    back = int(np.count_nonzero(steps < 0))
-    if back > 0.01 * steps.size:
-        # frames out of time order (a multi-channel logger's BLF, a merged log): samples are
-        # assembled from frames of different periods, the estimates are mixed up
-        raise DatasetError(f"CAN log '{path}': its time goes back between {back} of {steps.size} "
-                           f"samples (frames out of order?); sort the log by timestamp")
-    period = float(np.median(steps))
+
+def _foreign(sensor: PayloadSensor) -> str:
+    """What the sensor PGNs from other addresses were (a DBC with another sender's address)."""
+    if not sensor.foreign:
+        return ""
+    parts = [f"{name} from SA 0x{address:02X} ({n} frames)" for (name, address), n in
+             sorted(sensor.foreign.items(), key=lambda kv: -kv[1])[:4]]
+    return ("; frames of the sensor PGNs came from other source addresses: " + ", ".join(parts)
+            + " (if that is your sensor, set source_address in the signal map's [messages.<name>])")
+
+
+def check_message_rates(intervals: dict[str, list[float]], sensor: PayloadSensor, path) -> None:
+    """Refuse a log whose sensor messages do not come at the rate the DBC (or the model) says.
+
+    A log at another rate, or with timestamps in ms, was replayed without a word (estimates
+    'gap' throughout or silently wrong). Each message with a nominal period (the DBC's
+    ``GenMsgCycleTime`` or the signal map's ``period``) must come within 0.8 … 1.25 of it; the
+    fastest message must come at least at the model's rate (a slower one gives no sample per
+    period). A message faster than the model without a nominal period is fine: the newest value
+    is taken each period."""
     expected = sensor.sensor_set.sample_period
-    if not 0.8 * expected <= period <= 1.25 * expected:
-        raise DatasetError(f"CAN log '{path}': its samples are {period:.4g} s apart, but the model's "
-                           f"{sensor.sensor_set.name} sensor set samples at "
-                           f"{sensor.sensor_set.sample_rate:g} Hz ({expected:g} s); a log of "
-                           f"another rate, or timestamps not in seconds?")
+    rate = f"{sensor.sensor_set.sample_rate:g} Hz"
+    fastest = (math.inf, "", None)
+    for name, steps in intervals.items():
+        if len(steps) < 3:
+            continue
+        period = float(np.median(steps))
+        nominal = sensor.codec.nominal_period(name)
+        if nominal is not None and not 0.8 * nominal <= period <= 1.25 * nominal:
+            raise DatasetError(f"CAN log '{path}': its {name} frames are {period:.4g} s apart "
+                               f"({_hz(period)}), but the DBC / signal map says {nominal:g} s "
+                               f"({1 / nominal:g} Hz); recorded with another DBC or sensor set, at another rate, or with "
+                               f"timestamps not in seconds?")
+        fastest = min(fastest, (period, name, nominal), key=lambda f: f[0])
+    period, name, nominal = fastest
+    if math.isfinite(period) and period > 1.25 * expected:
+        raise DatasetError(f"CAN log '{path}': its fastest sensor message ({name}) comes every {period:.4g} s "
+                           f"({_hz(period)}), but the model's {sensor.sensor_set.name} sensor set samples at "
+                           f"{rate} ({expected:g} s); recorded with another DBC or sensor set, at another rate, or "
+                           f"with timestamps not in seconds?")
+
+
+def _hz(period: float) -> str:
+    return f"{1 / period:.4g} Hz" if period > 0 else "no time between them"

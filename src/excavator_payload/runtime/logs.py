@@ -1,0 +1,243 @@
+"""CAN log files in: every format ``can-replay`` reads, and what a log holds.
+
+Formats, by suffix (any case) and, for text logs, by their first frame line:
+
+* python-can's: ``.asc`` (Vector), ``.blf``, ``.csv``, ``.trc`` (PEAK), ``.log`` (candump ``-l``);
+* ``.mf4`` (ASAM MDF 4, a CANedge logger's format): the ``CAN_DataFrame`` channel groups of bus
+  logging, read through python-can with ``asammdf``;
+* candump's *screen* format (``  can0  18FF0121   [8]  01 02 …``, what ``candump can0 > x.txt``
+  saves), in ``.log`` or ``.txt``: with ``-t a`` / ``-t A`` / ``-t z`` / ``-t d`` timestamps
+  (absolute, date, zero-based, delta), the ``-x`` direction columns and ``-a`` ASCII tails.
+  Without timestamps it has no time to weigh by: one line says how to record one that does.
+* ``.txt`` holding candump ``-l`` lines.
+
+:class:`LogSummary` counts what went by (ids, PGNs and source addresses, rates) so that a log
+in which nothing matches the sensor's DBC gets a one-line account of what it does hold.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import struct
+import zlib
+from datetime import datetime
+from pathlib import Path
+from typing import Iterator
+
+import can
+from can.io.blf import BLFParseError
+
+from excavator_payload.errors import DatasetError
+
+#: Log formats ``can-replay`` reads (by file suffix, any case).
+READ_SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4", ".txt")
+#: CANedge's compressed / encrypted MDF files: not MDF until its tools have unpacked them.
+PACKED_MDF = (".mfc", ".mfe", ".mfm")
+
+#: What python-can's readers raise on a file that is not the format its suffix says: a
+#: truncated or foreign BLF raises struct.error, zlib.error or BLFParseError, an unsupported TRC
+#: version NotImplementedError (all of them escaped as an internal error before).
+UNREADABLE_LOG = (ValueError, OSError, KeyError, IndexError, TypeError, EOFError, NotImplementedError,
+                  AttributeError, struct.error, zlib.error, BLFParseError, can.CanError)
+
+_CANUTILS = re.compile(r"^\s*\(\s*-?[0-9.]+\s*\)\s+\S+\s+[0-9A-Fa-f]+#")
+_SCREEN = re.compile(
+    r"^\s*(?:\((?P<ts>[^)]*)\)\s+)?(?P<ifc>\S+)\s+(?:(?:RX|TX)\s+\S+\s+\S+\s+)?"
+    r"(?P<id>[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})\s+\[(?P<len>\d{1,2})\]"
+    r"(?P<data>(?:\s+[0-9A-Fa-f]{2}(?![0-9A-Za-z]))*)(?P<rest>.*)$")
+
+
+def check_suffix(path: Path, suffixes=READ_SUFFIXES) -> None:
+    """Raise :class:`DatasetError` unless ``path`` ends in one of ``suffixes`` (any case)."""
+    suffix = path.suffix.lower()
+    if suffix in PACKED_MDF:
+        raise DatasetError(f"'{path}': a CANedge compressed or encrypted log ({path.suffix}); unpack it "
+                           "to .MF4 with the CANedge tools (mdf2finalized / its decoders) first")
+    if suffix not in suffixes:
+        raise DatasetError(f"'{path}': unknown CAN log format {path.suffix!r}; use one of "
+                           f"{', '.join(suffixes)}")
+
+
+class _SkippedRecords(logging.Handler):
+    """Counts the records python-can's readers skip with a logged warning (a TRC or ASC line
+    they cannot parse): they were printed on stderr, breaking the one-line rule, and the lines
+    were lost without a count."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.WARNING)
+        self.count = 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.count += 1
+
+
+def _first_frame_line(path: Path) -> str | None:
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for k, line in enumerate(f):
+            if line.strip() and not line.lstrip().startswith("#"):
+                return line
+            if k > 1000:
+                break
+    return None
+
+
+def text_format(path: Path) -> str:
+    """``canutils`` (candump ``-l``), ``screen`` (candump's default) or ``unknown``, by the first
+    frame line of a text log."""
+    line = _first_frame_line(path)
+    if line is None:
+        return "empty"
+    if _CANUTILS.match(line):
+        return "canutils"
+    if _SCREEN.match(line):
+        return "screen"
+    return "unknown"
+
+
+def read_frames(path: str | Path, skipped: list[int] | None = None) -> Iterator[can.Message]:
+    """Iterate the frames of a CAN log (see the module docstring), one clear line on errors.
+
+    ``skipped``, if given (a list ``[n]``), has the records the reader could not parse and
+    skipped added to ``n``.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise DatasetError(f"CAN log '{path}' is a folder, not a log file")
+    if not path.is_file():
+        raise DatasetError(f"CAN log '{path}' does not exist")
+    check_suffix(path)
+    suffix = path.suffix.lower()
+    skipped = skipped if skipped is not None else [0]
+    if suffix in (".log", ".txt"):
+        kind = text_format(path)
+        if kind == "screen":
+            yield from _read_screen(path, skipped)
+            return
+        if kind == "unknown":
+            line = (_first_frame_line(path) or "").strip()
+            raise DatasetError(f"CAN log '{path}': not a candump log (neither `candump -l` lines "
+                               f"'(1436509052.249713) can0 18FF0121#0102…' nor candump's screen format "
+                               f"'can0  18FF0121   [8]  01 02 …'); its first line is {line[:60]!r}")
+        if kind == "empty":
+            return
+        if suffix == ".txt":
+            yield from _python_can(path, skipped, can.io.canutils.CanutilsLogReader)
+            return
+    yield from _python_can(path, skipped, can.LogReader)
+
+
+def _python_can(path: Path, skipped: list[int], reader) -> Iterator[can.Message]:
+    readers = logging.getLogger("can.io")
+    handler = _SkippedRecords()
+    propagate = readers.propagate
+    readers.addHandler(handler)
+    readers.propagate = False
+    try:
+        yield from reader(str(path))
+    except UNREADABLE_LOG as exc:
+        kind = ("truncated or not a BLF file" if isinstance(exc, (struct.error, zlib.error, BLFParseError))
+                else type(exc).__name__)
+        raise DatasetError(f"CAN log '{path}' could not be read ({kind}): {exc}") from None
+    finally:
+        readers.removeHandler(handler)
+        readers.propagate = propagate
+        skipped[0] += handler.count
+
+
+def _screen_time(text: str) -> float:
+    text = text.strip()
+    if "-" in text[1:] and ":" in text:  # candump -t A: (2015-07-10 08:27:32.249713)
+        return datetime.strptime(text, "%Y-%m-%d %H:%M:%S.%f").timestamp()
+    return float(text)
+
+
+def _read_screen(path: Path, skipped: list[int]) -> Iterator[can.Message]:
+    """candump's screen format. Delta timestamps (``-t d``) are told from absolute and zero-based
+    ones by going back (they do, the others never): a whole log is read first to tell."""
+    rows = []
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            if not line.strip():
+                continue
+            m = _SCREEN.match(line)
+            if m is None:
+                skipped[0] += 1  # an error frame's explanation lines, a cut line
+                continue
+            if m.group("ts") is None:
+                raise DatasetError(
+                    f"CAN log '{path}': candump's screen format without timestamps ('{line.strip()[:40]}'): "
+                    "nothing to weigh by in time; record with `candump -l can0` (a log file) or "
+                    "`candump -ta can0 > log.txt`")
+            try:
+                stamp = _screen_time(m.group("ts"))
+            except ValueError:
+                skipped[0] += 1
+                continue
+            rows.append((stamp, m))
+    stamps = [r[0] for r in rows]
+    steps = [b - a for a, b in zip(stamps, stamps[1:])]
+    if any(s < -1e-6 for s in steps) or (steps and sum(s == 0 for s in steps) > 0.9 * len(steps)):
+        total, stamps = 0.0, []
+        for stamp, _ in rows:
+            total += stamp
+            stamps.append(total)
+    for stamp, (_, m) in zip(stamps, rows):
+        ident = m.group("id")
+        rest = m.group("rest")
+        data = bytes.fromhex("".join(m.group("data").split()))
+        yield can.Message(timestamp=stamp, arbitration_id=int(ident, 16), is_extended_id=len(ident) == 8,
+                          data=data, channel=m.group("ifc"), is_remote_frame="remote request" in rest,
+                          is_error_frame="ERRORFRAME" in rest, check=False)
+
+
+# -- what a log holds --------------------------------------------------------------------------
+def pgn_of(arbitration_id: int) -> int:
+    """PGN of a 29-bit J1939 id (PDU1: destination address dropped)."""
+    pgn = (arbitration_id >> 8) & 0x3FFFF
+    if ((pgn >> 8) & 0xFF) < 240:
+        pgn &= 0x3FF00
+    return pgn
+
+
+class LogSummary:
+    """Frames per id (count, first and last time) of a log, for the line that says what it holds."""
+
+    def __init__(self) -> None:
+        self.ids: dict[tuple[int, bool], list] = {}
+        self.frames = 0
+        self.first = math.inf
+        self.last = -math.inf
+
+    def add(self, message: can.Message) -> None:
+        """Count one frame."""
+        self.frames += 1
+        if message.is_error_frame:
+            return
+        t = float(message.timestamp)
+        key = (int(message.arbitration_id), bool(message.is_extended_id))
+        entry = self.ids.get(key)
+        if entry is None:
+            self.ids[key] = [1, t, t]
+        else:
+            entry[0] += 1
+            entry[1], entry[2] = min(entry[1], t), max(entry[2], t)
+        if math.isfinite(t):
+            self.first, self.last = min(self.first, t), max(self.last, t)
+
+    def describe(self, limit: int = 8) -> str:
+        """``"4319 frames over 43.2 s from 12 ids: 18FF01A0 (PGN 0xFF01, SA 0xA0) 432 at 10 Hz, …"``."""
+        if not self.frames:
+            return "no frames"
+        span = self.last - self.first if math.isfinite(self.first) else 0.0
+        parts = []
+        for (ident, extended), (count, first, last) in sorted(self.ids.items(), key=lambda kv: -kv[1][0])[:limit]:
+            name = (f"{ident:08X} (PGN 0x{pgn_of(ident):04X}, SA 0x{ident & 0xFF:02X})" if extended
+                    else f"{ident:03X}")
+            rate = (count - 1) / (last - first) if count > 1 and last > first else math.nan
+            parts.append(f"{name} {count}" + (f" at {rate:.3g} Hz" if math.isfinite(rate) else ""))
+        more = len(self.ids) - limit
+        tail = f", and {more} more id(s)" if more > 0 else ""
+        return (f"{self.frames} frames over {span:.4g} s from {len(self.ids)} id(s): "
+                + ", ".join(parts) + tail)

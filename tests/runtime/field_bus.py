@@ -1,0 +1,70 @@
+"""A machine's bus laid out as in the field, for the tests and ``measure_field_bus.py``.
+
+The machine sensor set's signals in J1939 proprietary-B messages at 100 Hz from the arm's
+sensor ECU (source address 0xA0), except the house inclination: a separate inclinometer
+(source address 0x21) sending PGN 0xFF21 at 10 Hz, as a slow tilt sensor does.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from excavator_payload.data.schema import get_sensor_set
+from excavator_payload.runtime import dbc
+
+SLOW = ("house_pitch", "house_roll")
+INCLINOMETER_ADDRESS = 0x21
+INCLINOMETER_PGN = 0xFF21
+
+
+def field_dbc_text(slow_ms: int = 100) -> str:
+    """The DBC (with GenMsgCycleTime: 10 ms for the arm, ``slow_ms`` for the inclinometer)."""
+    sensors = get_sensor_set("machine")
+    layout = [s for m in dbc.sensor_layout(sensors) for s in m.signals]
+    fast = [s for s in layout if s.signal not in SLOW]
+    slow = [s for s in layout if s.signal in SLOW]
+    messages = []  # (name, frame id, cycle ms, signals)
+    for k in range(0, len(fast), 2):
+        fid = dbc.frame_id(0xFF00 + k // 2, dbc.SENSOR_ADDRESS)
+        messages.append((f"Arm{k // 2 + 1}", fid, 10, fast[k:k + 2]))
+    messages.append(("HouseInclination", dbc.frame_id(INCLINOMETER_PGN, INCLINOMETER_ADDRESS), slow_ms, slow))
+    lines = ['VERSION ""', "", "NS_ :", "", "BS_:", "", "BU_: ArmSensors Inclinometer PayloadEcu", ""]
+    attributes = []
+    for name, fid, cycle, signals in messages:
+        sender = "Inclinometer" if name == "HouseInclination" else "ArmSensors"
+        lines.append(f"BO_ {fid | 0x80000000} {name}: 8 {sender}")
+        for i, s in enumerate(signals):
+            lines.append(f' SG_ {s.name} : {32 * i}|32@1+ ({s.scale!r},{s.offset!r}) [{s.minimum!r}|{s.maximum!r}] '
+                         f'"{s.unit}" PayloadEcu')
+        lines.append("")
+        attributes.append(f'BA_ "GenMsgCycleTime" BO_ {fid | 0x80000000} {cycle};')
+        attributes.append(f'BA_ "VFrameFormat" BO_ {fid | 0x80000000} 3;')
+    lines += ['BA_DEF_  "ProtocolType" STRING ;',
+              'BA_DEF_ BO_  "VFrameFormat" ENUM  "StandardCAN","ExtendedCAN","reserved","J1939PG";',
+              'BA_DEF_ BO_  "GenMsgCycleTime" INT 0 65535;',
+              'BA_DEF_DEF_  "ProtocolType" "";', 'BA_DEF_DEF_  "VFrameFormat" "J1939PG";',
+              'BA_DEF_DEF_  "GenMsgCycleTime" 0;', 'BA_ "ProtocolType" "J1939";', *attributes, ""]
+    return "\n".join(lines)
+
+
+def field_map_text() -> str:
+    """The signal map of :func:`field_dbc_text` (factor 1: the DBC is in SI)."""
+    sensors = get_sensor_set("machine")
+    layout = [s for m in dbc.sensor_layout(sensors) for s in m.signals]
+    fast = [s for s in layout if s.signal not in SLOW]
+    out = []
+    for k, s in enumerate(fast):
+        out.append(f'[signals.{s.signal}]\nmessage = "Arm{k // 2 + 1}"\nsignal = "{s.name}"\n')
+    for s in layout:
+        if s.signal in SLOW:
+            out.append(f'[signals.{s.signal}]\nmessage = "HouseInclination"\nsignal = "{s.name}"\n')
+    return "\n".join(out)
+
+
+def write_field_files(folder: Path, slow_ms: int = 100) -> tuple[Path, Path]:
+    """``field.dbc`` and ``field-map.toml`` in ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    dbc_path, map_path = folder / "field.dbc", folder / "field-map.toml"
+    dbc_path.write_text(field_dbc_text(slow_ms))
+    map_path.write_text(field_map_text())
+    return dbc_path, map_path

@@ -1,0 +1,188 @@
+"""Log formats of a real bus (issue 30): MF4 (as a CANedge writes it), candump -l and candump's
+screen format, through ``can-replay`` end to end; a log with nothing of the sensor says what it holds."""
+
+from datetime import datetime, timezone
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from excavator_payload.cli import main
+from excavator_payload.data.io import read_estimates, write_dataset
+from excavator_payload.errors import DatasetError
+from excavator_payload.estimators.base import create_estimator
+from excavator_payload.runtime.can_sensor import PayloadSensor
+from excavator_payload.runtime.record import record_dataset
+from excavator_payload.runtime.replay import replay_log
+from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
+
+
+@pytest.fixture(scope="module")
+def swings():
+    return simulate_minimum_jerk(2, seed=7, noise="thesis")
+
+
+@pytest.fixture(scope="module")
+def model(swings, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("model") / "model"
+    create_estimator("inverse-dynamics").fit(swings).save(folder)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def reference(swings, model, tmp_path_factory):
+    """Estimates of the BLF log can-record writes: what every format must give."""
+    from excavator_payload.estimators.base import load_estimator
+
+    log = tmp_path_factory.mktemp("ref") / "ref.blf"
+    record_dataset(swings, log)
+    return replay_log(log, PayloadSensor(load_estimator(model)))
+
+
+def _frames(swings):
+    log_path = None
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        log_path = Path(tmp) / "x.blf"
+        record_dataset(swings, log_path, start_time=1_700_000_000.0)
+        return list(can.LogReader(str(log_path)))
+
+
+def _replay_cli(tmp_path, model, log, *extra):
+    out = tmp_path / "e.parquet"
+    code = main(["can-replay", "--log", str(log), "--model", str(model), "--out", str(out), *extra])
+    return code, (read_estimates(out) if code == 0 else None)
+
+
+def _same(got, reference):
+    assert list(got["status"]) == list(reference["status"])
+    np.testing.assert_allclose(got["payload_estimate"], reference["payload_estimate"], rtol=1e-9)
+
+
+def test_mf4_written_by_can_record(tmp_path, swings, model, reference):
+    data = tmp_path / "d.parquet"
+    write_dataset(swings, data)
+    log = tmp_path / "swings.MF4"
+    assert main(["can-record", "--data", str(data), "--out", str(log)]) == 0
+    code, got = _replay_cli(tmp_path, model, log)
+    assert code == 0
+    _same(got, reference)
+
+
+def test_mf4_built_like_a_canedge_log(tmp_path, swings, model, reference):
+    """An MDF 4 file made with asammdf's own API the way a CANedge logger writes bus logging:
+    a CAN_DataFrame channel group (bus-event flag, CAN bus source), times from the file's start."""
+    from asammdf import MDF, Signal, Source
+    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT, SOURCE_BUS
+
+    frames = _frames(swings)
+    start = frames[0].timestamp
+    dtype = np.dtype([("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"),
+                      ("CAN_DataFrame.IDE", "<u1"), ("CAN_DataFrame.DLC", "<u1"),
+                      ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(8,)u1"),
+                      ("CAN_DataFrame.Dir", "<u1")])
+    records = np.zeros(len(frames), dtype=dtype)
+    records["CAN_DataFrame.BusChannel"] = 1
+    records["CAN_DataFrame.ID"] = [f.arbitration_id for f in frames]
+    records["CAN_DataFrame.IDE"] = 1
+    records["CAN_DataFrame.DLC"] = 8
+    records["CAN_DataFrame.DataLength"] = 8
+    records["CAN_DataFrame.DataBytes"] = np.array([list(f.data) for f in frames], dtype="u1")
+    mdf = MDF(version="4.11")
+    mdf.header.start_time = datetime.fromtimestamp(start, timezone.utc)
+    source = Source(name="CAN1", path="CAN1", comment="", source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)
+    mdf.append(Signal(samples=records, timestamps=np.array([f.timestamp - start for f in frames]),
+                      name="CAN_DataFrame", source=source, flags=Signal.Flags.stream_sync),
+               acq_name="CAN1", acq_source=source)
+    group = mdf.groups[-1].channel_group
+    group.flags |= FLAG_CG_BUS_EVENT
+    log = Path(mdf.save(tmp_path / "00000001.MF4", overwrite=True))  # asammdf may lower the suffix
+    assert log.is_file()
+    code, got = _replay_cli(tmp_path, model, log)
+    assert code == 0
+    _same(got, reference)
+
+
+def test_candump_l_log(tmp_path, swings, model, reference):
+    lines = [f"({f.timestamp:.6f}) can0 {f.arbitration_id:08X}#{bytes(f.data).hex().upper()}" for f in _frames(swings)]
+    for suffix in (".log", ".txt"):
+        log = tmp_path / f"candump-2024-01-01_000000{suffix}"
+        log.write_text("\n".join(lines) + "\n")
+        code, got = _replay_cli(tmp_path, model, log)
+        assert code == 0
+        _same(got, reference)
+
+
+def _screen(f, stamp: str | None, extra=""):
+    data = "  ".join([""] + [" ".join(f"{b:02X}" for b in f.data)]).strip()
+    head = f" ({stamp})" if stamp is not None else ""
+    return f"{head}  can0  {extra}{f.arbitration_id:08X}   [{len(f.data)}]  {data}"
+
+
+@pytest.mark.parametrize("kind", ["absolute", "zero", "delta", "date", "extra-columns"])
+def test_candump_screen_format(tmp_path, swings, model, reference, kind):
+    frames = _frames(swings)
+    t0, lines, previous = frames[0].timestamp, [], frames[0].timestamp
+    for f in frames:
+        if kind == "absolute" or kind == "extra-columns":
+            stamp = f"{f.timestamp:.6f}"
+        elif kind == "zero":
+            stamp = f"{f.timestamp - t0:010.6f}"
+        elif kind == "delta":
+            stamp = f"{f.timestamp - previous:010.6f}"
+        else:
+            stamp = datetime.fromtimestamp(f.timestamp).strftime("%Y-%m-%d %H:%M:%S.%f")
+        previous = f.timestamp
+        lines.append(_screen(f, stamp, "RX - -  " if kind == "extra-columns" else ""))
+    log = tmp_path / "dump.txt"
+    log.write_text("\n".join(lines) + "\n")
+    code, got = _replay_cli(tmp_path, model, log)
+    assert code == 0
+    _same(got, reference)
+
+
+def test_candump_screen_format_without_time_is_one_line(tmp_path, model, swings, capsys):
+    log = tmp_path / "dump.log"
+    log.write_text("\n".join(_screen(f, None) for f in _frames(swings)[:40]) + "\n")
+    capsys.readouterr()
+    code, _ = _replay_cli(tmp_path, model, log)
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1
+    assert "candump -l" in err and "without timestamps" in err
+
+
+def test_a_log_of_other_traffic_says_what_it_holds(tmp_path, model):
+    """No frame of the sensor: one line with the frames, ids, PGNs, source addresses and rates."""
+    log = tmp_path / "truck.asc"
+    with can.Logger(str(log)) as w:
+        for k in range(200):
+            w.on_message_received(can.Message(timestamp=0.01 * k, arbitration_id=0x0CF00400,
+                                              is_extended_id=True, data=bytes(8)))  # EEC1 at 100 Hz
+            if k % 10 == 0:
+                w.on_message_received(can.Message(timestamp=0.01 * k, arbitration_id=0x18FEF100,
+                                                  is_extended_id=True, data=bytes(8)))  # CCVS at 10 Hz
+    with pytest.raises(DatasetError) as info:
+        from excavator_payload.estimators.base import load_estimator
+
+        replay_log(log, PayloadSensor(load_estimator(model)))
+    text = str(info.value)
+    assert "\n" not in text
+    assert "220 frames over 1.99 s from 2 id(s)" in text
+    assert "0CF00400 (PGN 0xF004, SA 0x00) 200 at 100 Hz" in text
+    assert "18FEF100 (PGN 0xFEF1, SA 0x00) 20 at 10 Hz" in text
+    assert "ThesisSensors1: PGN 0xFF00 from SA 0xA0" in text
+
+
+def test_unknown_text_log_and_compressed_mdf_are_one_line(tmp_path, model, capsys):
+    bad = tmp_path / "notes.txt"
+    bad.write_text("hello world\n")
+    packed = tmp_path / "00000001.MFC"
+    packed.write_bytes(b"\x00" * 64)
+    for log, said in ((bad, "not a candump log"), (packed, "compressed or encrypted")):
+        capsys.readouterr()
+        code, _ = _replay_cli(tmp_path, model, log)
+        err = capsys.readouterr().err.strip()
+        assert code == 2 and said in err and len(err.splitlines()) == 1
