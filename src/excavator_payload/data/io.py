@@ -184,8 +184,13 @@ def _read_schema(path: Path) -> pa.Schema:
         raise DatasetError(f"'{path}' is not a readable Parquet file (truncated or another format?): {exc}") from None
 
 
-def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
+def read_dataset(path: str | Path, *, validate: bool = True, machine=None) -> Dataset:
     """Read and validate a dataset written by ``excavator-payload simulate`` (or by you).
+
+    A dataset of the machine sensor set is also checked against the arm's balance for swapped
+    head and rod pressures (:func:`excavator_payload.data.wiring.check_wiring`) with ``machine``
+    (the machine the reading model believes in: a machine, preset name or file) or else the
+    machine in the file's metadata.
 
     Raises
     ------
@@ -204,7 +209,14 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
     if validate:
         validate_frame(frame, source=str(path), sensor_set=sensors)
     meta = {**meta, "sensor_set": sensors.name}
-    return Dataset(frame.reset_index(drop=True), meta, source=path)
+    dataset = Dataset(frame.reset_index(drop=True), meta, source=path)
+    if validate and sensors.name == "machine":
+        from excavator_payload.data.wiring import check_wiring
+        from excavator_payload.model.machine import load_machine
+
+        believed = load_machine(machine) if machine is not None else dataset.machine()
+        check_wiring(dataset.frame, sensors, believed, str(path))
+    return dataset
 
 
 def _check_metadata(meta: dict, source: str) -> None:

@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 from can.io.blf import BLFParseError
 
+from excavator_payload.data.units import SampleWatch
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
@@ -98,6 +99,10 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         for o in outputs:
             rows.append((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time))
 
+    # units and wiring judged on the decoded samples, as a dataset's (data/units.py)
+    watch = SampleWatch(sensor.sensor_set, getattr(sensor.estimator, "machine", None))
+    step_values = sensor.estimator.step_values
+    sensor.estimator.step_values = lambda t, v: (watch.add(experiment, t, v), step_values(t, v))[1]
     bar = None
     if progress:
         from rich.progress import Progress
@@ -134,6 +139,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         if sensor.pending:
             keep([sensor.flush()])
     finally:
+        del sensor.estimator.step_values
         if bar is not None:
             bar.stop()
     if not rows:
@@ -154,6 +160,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                            f"{sensor.sensor_set.name} sensor set readable ({bad} of {fed} sensor frames "
                            f"out of the DBC's ranges or not available); recorded with another DBC or "
                            f"sensor set (--dbc, --signal-map)?")
+    watch.check(f"CAN log '{path}'")
     frame = pd.DataFrame(rows, columns=["experiment", "time", "payload_estimate", "status",
                                         "payload_sigma", "log_time"])
     frame["experiment"] = frame["experiment"].astype("int64")
