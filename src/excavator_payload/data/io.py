@@ -9,6 +9,7 @@ Writes are atomic: a temporary file in the same folder is renamed over the targe
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import os
@@ -256,8 +257,9 @@ def _sensor_set_of(frame: pd.DataFrame, meta: dict, source: str) -> SensorSet:
                 if "payload_estimate" in frame.columns else "")
         closest = max(SENSOR_SETS.values(), key=lambda s: len(set(s.signals) & set(frame.columns)))
         missing = [c for c in closest.columns if c != "payload" and c not in frame.columns]
+        unknown = [str(c) for c in frame.columns if c not in closest.columns]
         raise DatasetError(f"{source}: missing column(s) {', '.join(missing)} of the "
-                           f"{closest.name} sensor set{hint}")
+                           f"{closest.name} sensor set{hint}{_misspelt(missing, unknown)}")
     return found
 
 
@@ -272,11 +274,20 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                else _sensor_set_of(frame, {}, source))
     required = [c for c in sensors.columns if c != "payload"]
     missing = [c for c in required if c not in frame.columns]
+    unknown = [str(c) for c in frame.columns
+               if c not in sensors.columns and c not in sensors.truth_columns]
     if missing:
         hint = ""
         if "payload_estimate" in frame.columns:
             hint = " (this looks like an estimates file, not a dataset)"
-        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}{hint}")
+        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}{hint}{_misspelt(missing, unknown)}")
+    if "payload" not in frame.columns:
+        # a misspelt payload column made a calibration file a field log without a word
+        close = difflib.get_close_matches("payload", [u.lower() for u in unknown], n=1, cutoff=0.8)
+        if close:
+            name = next(u for u in unknown if u.lower() == close[0])
+            raise DatasetError(f"{source}: column '{name}' looks like 'payload' misspelt; rename it "
+                               "(a field log has no payload column at all)")
     if len(frame) == 0:
         raise DatasetError(f"{source}: has no rows")
     has_payload = "payload" in frame.columns
@@ -317,6 +328,16 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
     if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
     _check_rates(frame, sensors, source)
+
+
+def _misspelt(missing: list[str], unknown: list[str]) -> str:
+    """``"; found 'house_pich' (misspelt 'house_pitch'?)"`` for the unknown columns close to missing ones."""
+    pairs = []
+    for c in missing:
+        close = difflib.get_close_matches(c, unknown, n=1, cutoff=0.75)
+        if close:
+            pairs.append(f"'{close[0]}' (misspelt '{c}'?)")
+    return f"; found {', '.join(pairs)}" if pairs else ""
 
 
 def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rates: bool = True) -> None:

@@ -386,19 +386,21 @@ def _check(m: HydraulicMachine, source: str) -> None:
         # calibration does not identify gravity: 1e-300 weighed a 4.8 t load as -4.2 t, 'ok'
         raise MachineError(f"{source}: field 'gravity' must be Earth's gravity in m/s² "
                            f"({GRAVITY_RANGE[0]:g} … {GRAVITY_RANGE[1]:g}), got {m.gravity!r}")
+    _check_proportions(m, source)  # before the absolute sizes: it names the unit of a length
     for table in TABLES:
         for key, value in asdict(getattr(m, table)).items():
             bound, unit = SIZE_LIMITS.get(key, (None, ""))
             values = value if isinstance(value, tuple) else (value,)
             if bound is not None and any(abs(v) > bound for v in values):
+                units = {"m": LENGTH_UNITS, "kg": MASS_UNITS[1:]}.get(unit, ())
                 raise MachineError(f"{source}: field '{table}.{key}' must be at most {bound:g} {unit} "
-                                   f"in size, got {list(value) if isinstance(value, tuple) else value!r}")
+                                   f"in size, got {list(value) if isinstance(value, tuple) else value!r}"
+                                   + _fits(list(values), units, lambda v: max(map(abs, v)) <= bound, first=True))
     for table in ("boom", "dipper", "bucket"):
         low, high = getattr(m, table).angle_range
         if not -2 * math.pi <= low < high <= 2 * math.pi:
             raise MachineError(f"{source}: field '{table}.angle_range' must lie within -2π … 2π rad "
                                f"(radians, not degrees), got [{low!r}, {high!r}]")
-    _check_proportions(m, source)
     _check_geometry(m, source)
 
 
