@@ -386,7 +386,7 @@ def _check(m: HydraulicMachine, source: str) -> None:
         # calibration does not identify gravity: 1e-300 weighed a 4.8 t load as -4.2 t, 'ok'
         raise MachineError(f"{source}: field 'gravity' must be Earth's gravity in m/s² "
                            f"({GRAVITY_RANGE[0]:g} … {GRAVITY_RANGE[1]:g}), got {m.gravity!r}")
-    _check_proportions(m, source)  # before the absolute sizes: it names the unit of a length
+    _check_proportions(m, source)  # lengths against the machine's size first: it names their unit
     for table in TABLES:
         for key, value in asdict(getattr(m, table)).items():
             bound, unit = SIZE_LIMITS.get(key, (None, ""))
@@ -396,6 +396,7 @@ def _check(m: HydraulicMachine, source: str) -> None:
                 raise MachineError(f"{source}: field '{table}.{key}' must be at most {bound:g} {unit} "
                                    f"in size, got {list(value) if isinstance(value, tuple) else value!r}"
                                    + _fits(list(values), units, lambda v: max(map(abs, v)) <= bound, first=True))
+    _check_masses_and_drives(m, source)
     for table in ("boom", "dipper", "bucket"):
         low, high = getattr(m, table).angle_range
         if not -2 * math.pi <= low < high <= 2 * math.pi:
@@ -513,6 +514,14 @@ def _check_proportions(m: HydraulicMachine, source: str) -> None:
                 raise MachineError(f"{source}: field '{table}.{key}' {value:g} m is more than {bound:.3g} m "
                                    f"({BORE_REACH:g} × the arm's {reach:.3g} m reach)"
                                    + _fits(value, LENGTH_UNITS, lambda v: v <= bound, first=True))
+
+
+
+def _check_masses_and_drives(m: HydraulicMachine, source: str) -> None:
+    """Seal numbers, masses and the slew rate against the machine's size (after the absolute
+    sizes: a length of 1e200 m is named as a length, not as a light link)."""
+    for table in ("boom_cylinder", "dipper_cylinder", "bucket_cylinder"):
+        c = getattr(m, table)
         if c.stribeck_velocity > MAX_STRIBECK_VELOCITY:
             raise MachineError(f"{source}: field '{table}.stribeck_velocity' {c.stribeck_velocity:g} m/s is "
                                f"faster than any rod moves (at most {MAX_STRIBECK_VELOCITY:g} m/s); in mm/s?")
