@@ -9,6 +9,7 @@ Writes are atomic: a temporary file in the same folder is renamed over the targe
 
 from __future__ import annotations
 
+import difflib
 import json
 import math
 import os
@@ -184,8 +185,13 @@ def _read_schema(path: Path) -> pa.Schema:
         raise DatasetError(f"'{path}' is not a readable Parquet file (truncated or another format?): {exc}") from None
 
 
-def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
+def read_dataset(path: str | Path, *, validate: bool = True, machine=None) -> Dataset:
     """Read and validate a dataset written by ``excavator-payload simulate`` (or by you).
+
+    A dataset of the machine sensor set is also checked against the arm's balance for swapped
+    head and rod pressures (:func:`excavator_payload.data.wiring.check_wiring`) with ``machine``
+    (the machine the reading model believes in: a machine, preset name or file) or else the
+    machine in the file's metadata.
 
     Raises
     ------
@@ -208,7 +214,14 @@ def read_dataset(path: str | Path, *, validate: bool = True) -> Dataset:
     if validate:
         validate_frame(frame, source=str(path), sensor_set=sensors)
     meta = {**meta, "sensor_set": sensors.name}
-    return Dataset(frame.reset_index(drop=True), meta, source=path)
+    dataset = Dataset(frame.reset_index(drop=True), meta, source=path)
+    if validate and sensors.name == "machine":
+        from excavator_payload.data.wiring import check_wiring
+        from excavator_payload.model.machine import load_machine
+
+        believed = load_machine(machine) if machine is not None else dataset.machine()
+        check_wiring(dataset.frame, sensors, believed, str(path))
+    return dataset
 
 
 def _check_metadata(meta: dict, source: str) -> None:
@@ -248,8 +261,9 @@ def _sensor_set_of(frame: pd.DataFrame, meta: dict, source: str) -> SensorSet:
                 if "payload_estimate" in frame.columns else "")
         closest = max(SENSOR_SETS.values(), key=lambda s: len(set(s.signals) & set(frame.columns)))
         missing = [c for c in closest.columns if c != "payload" and c not in frame.columns]
+        unknown = [str(c) for c in frame.columns if c not in closest.columns]
         raise DatasetError(f"{source}: missing column(s) {', '.join(missing)} of the "
-                           f"{closest.name} sensor set{hint}")
+                           f"{closest.name} sensor set{hint}{_misspelt(missing, unknown)}")
     return found
 
 
@@ -264,11 +278,20 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
                else _sensor_set_of(frame, {}, source))
     required = [c for c in sensors.columns if c != "payload"]
     missing = [c for c in required if c not in frame.columns]
+    unknown = [str(c) for c in frame.columns
+               if c not in sensors.columns and c not in sensors.truth_columns]
     if missing:
         hint = ""
         if "payload_estimate" in frame.columns:
             hint = " (this looks like an estimates file, not a dataset)"
-        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}{hint}")
+        raise DatasetError(f"{source}: missing column(s) {', '.join(missing)}{hint}{_misspelt(missing, unknown)}")
+    if "payload" not in frame.columns:
+        # a misspelt payload column made a calibration file a field log without a word
+        close = difflib.get_close_matches("payload", [u.lower() for u in unknown], n=1, cutoff=0.8)
+        if close:
+            name = next(u for u in unknown if u.lower() == close[0])
+            raise DatasetError(f"{source}: column '{name}' looks like 'payload' misspelt; rename it "
+                               "(a field log has no payload column at all)")
     if len(frame) == 0:
         raise DatasetError(f"{source}: has no rows")
     has_payload = "payload" in frame.columns
@@ -291,44 +314,7 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
     if changes != len(pd.unique(exp)):
         raise DatasetError(f"{source}: rows are not grouped by experiment (an experiment's samples "
                            "are split by another's); sort by experiment, then time")
-    for c in sensors.signals:
-        values = frame[c].to_numpy(dtype=float)
-        finite = values[np.isfinite(values)]
-        if finite.size and np.abs(finite).max() > sensors.plausible_abs[c]:
-            unit = sensors.units[c]
-            # a pressure of 5e8 Pa was asked whether it was in degrees
-            hint = ("are the units degrees instead of SI?" if unit.startswith("rad")
-                    else f"a glitch, or not in {unit}?")
-            raise DatasetError(
-                f"{source}: column '{c}' reaches {np.abs(finite).max():.4g}, implausible in {unit} ({hint}); "
-                f"the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
-            )
-    # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
-    for c in ("house_pitch", "house_roll"):
-        if c not in sensors.signals:
-            continue
-        values = np.abs(frame[c].to_numpy(dtype=float))
-        values = values[np.isfinite(values)]
-        if values.size and values.max() > HOUSE_TILT_LIMIT:
-            raise DatasetError(f"{source}: column '{c}' reaches {values.max():.4g}, implausible in rad "
-                               f"(more than 35° of tilt; are the units degrees instead of radians?)")
-    # Pressures in bar, kPa, MPa or psi pass the magnitude check above and were weighed as Pa
-    # without a word (-6200 kg 'ok' for a 1900 kg payload): the boom cylinder of a working arm
-    # holds the arm's weight, tens of bar, and no cylinder line stays below 1 bar for a whole file.
-    for c in sensors.signals:
-        if sensors.units[c] != "Pa":
-            continue
-        values = np.abs(frame[c].to_numpy(dtype=float))
-        values = values[np.isfinite(values)]
-        if values.size and values.max() < MIN_PEAK_PRESSURE:
-            raise DatasetError(f"{source}: column '{c}' never exceeds {values.max():.4g} Pa (1 bar = "
-                               f"1e5 Pa); are the pressures in bar, kPa, MPa or psi instead of Pa?")
-    # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
-    for c in ("boom_angle",):
-        values = np.abs(frame[c].to_numpy(dtype=float))
-        values = values[np.isfinite(values)]  # a NaN or inf is a bad sample, not a unit
-        if values.size and values.max() > 2 * np.pi:
-            raise DatasetError(f"{source}: column '{c}' exceeds 2π; angles must be in radians")
+    check_signal_units(frame, sensors, source, rates=False)
     grouped = frame.groupby("experiment", sort=False)
     times = grouped["time"]
     if not (times.apply(lambda t: bool(np.all(np.diff(t.to_numpy()) > 0)))).all():
@@ -346,6 +332,72 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
     if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
     _check_rates(frame, sensors, source)
+
+
+def _misspelt(missing: list[str], unknown: list[str]) -> str:
+    """``"; found 'house_pich' (misspelt 'house_pitch'?)"`` for the unknown columns close to missing ones."""
+    pairs = []
+    for c in missing:
+        close = difflib.get_close_matches(c, unknown, n=1, cutoff=0.75)
+        if close:
+            pairs.append(f"'{close[0]}' (misspelt '{c}'?)")
+    return f"; found {', '.join(pairs)}" if pairs else ""
+
+
+def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rates: bool = True) -> None:
+    """The unit checks of :func:`validate_frame` on a sample table (``experiment``, ``time`` and
+    the signals): magnitudes, house tilt and boom angle in radians, every experiment's pressures
+    and torques against the others' (:func:`excavator_payload.data.units.check_experiment_units`),
+    pressures in Pa, and (``rates``) rates against their angles. Also run on the samples decoded
+    from a CAN log (:class:`excavator_payload.data.units.SampleWatch`).
+    """
+    from excavator_payload.data.units import check_experiment_units
+
+    for c in sensors.signals:
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = np.where(np.isfinite(values), values, np.nan)
+        if np.any(values > sensors.plausible_abs[c]):
+            top = int(np.nanargmax(values))
+            unit = sensors.units[c]
+            # a pressure of 5e8 Pa was asked whether it was in degrees
+            hint = ("are the units degrees instead of SI?" if unit.startswith("rad")
+                    else f"a glitch, or not in {unit}?")
+            raise DatasetError(
+                f"{source}: column '{c}' reaches {values[top]:.4g} (experiment "
+                f"{frame['experiment'].iloc[top]:.0f}), implausible in {unit} ({hint}); "
+                f"the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
+            )
+    # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
+    for c in ("house_pitch", "house_roll"):
+        if c not in sensors.signals:
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() > HOUSE_TILT_LIMIT:
+            raise DatasetError(f"{source}: column '{c}' reaches {values.max():.4g}, implausible in rad "
+                               f"(more than 35° of tilt; are the units degrees instead of radians?)")
+    # One experiment (or one signal of it) in another unit among others in SI passes the file-wide
+    # checks (-8960 kg 'ok'): each experiment is judged against the others.
+    check_experiment_units(frame, sensors, source)
+    # Pressures in bar, kPa, MPa or psi pass the magnitude check above and were weighed as Pa
+    # without a word (-6200 kg 'ok' for a 1900 kg payload): the boom cylinder of a working arm
+    # holds the arm's weight, tens of bar, and no cylinder line stays below 1 bar for a whole file.
+    for c in sensors.signals:
+        if sensors.units[c] != "Pa":
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() < MIN_PEAK_PRESSURE:
+            raise DatasetError(f"{source}: column '{c}' never exceeds {values.max():.4g} Pa (1 bar = "
+                               f"1e5 Pa); are the pressures in bar, kPa, MPa or psi instead of Pa?")
+    # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
+    for c in ("boom_angle",):
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]  # a NaN or inf is a bad sample, not a unit
+        if values.size and values.max() > 2 * np.pi:
+            raise DatasetError(f"{source}: column '{c}' exceeds 2π; angles must be in radians")
+    if rates:
+        _check_rates(frame, sensors, source)
 
 
 def _rate_ratios(frame: pd.DataFrame, signal: str, rate: str, period: float,

@@ -90,7 +90,7 @@ def register(app: typer.Typer) -> None:
         check_output_path(out, inputs=[data] + ([machine] if machine and Path(machine).exists() else []),
                           kind="folder", replaces=("estimator.json", "arrays.npz", "training_log.csv",
                                                    "training.png"))
-        dataset = read_dataset(data)
+        dataset = read_dataset(data, machine=machine)  # swapped chambers judged on the believed machine
         if machine is None and klass.NEEDS_MACHINE:
             machine = dataset.machine() or "cat345c"
         est = create_estimator(name, machine=machine, **options)
@@ -134,7 +134,7 @@ def register(app: typer.Typer) -> None:
             raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
         check_output_path(out, inputs=[data, model])
         est = load_estimator(model)
-        dataset = read_dataset(data)
+        dataset = read_dataset(data, machine=est.machine)
         with Execution(scheduler, workers or None) as execution, progress_bar(console) as progress:
             frame = estimate_in_chunks(est, dataset, None if quiet else progress, f"{est.name}: estimating",
                                        execution=execution)

@@ -33,7 +33,7 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path):
     model, out = Path(model), Path(out)
     check_zero_output(model, data, out)
     estimator = load_estimator(model)
-    dataset = read_dataset(data)
+    dataset = read_dataset(data, machine=estimator.machine)
     if "payload" not in dataset.frame.columns:
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
     estimator.zero_warnings = calibrated_machine.zero(estimator, dataset)

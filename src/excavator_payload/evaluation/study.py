@@ -51,6 +51,7 @@ an interruption or with a grown grid, computes only the missing cells.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import itertools
 import json
@@ -257,6 +258,7 @@ def parse_study(raw: dict, source: str = "study") -> Study:
 
     cells: list[Cell] = []
     labels: set[str] = set()
+    planned = 0
     for i, entry in enumerate(entries, start=1):
         where = f"{source}: estimator #{i}"
         if not isinstance(entry, dict) or "name" not in entry:
@@ -268,7 +270,12 @@ def parse_study(raw: dict, source: str = "study") -> Study:
             klass = estimator_class(str(entry["name"]))
         except ExcavatorPayloadError as exc:
             raise StudyError(f"{where}: {exc}") from None
-        options = dict(entry.get("options", {}))
+        options = entry.get("options", {})
+        if not isinstance(options, dict):
+            # dict("epochs=3") crashed with an internal error
+            raise StudyError(f"{where}: 'options' must be a table, e.g. options = {{ epochs = 300 }}, got "
+                             f"{type(options).__name__} {options!r}")
+        options = dict(options)
         unknown_options = sorted(set(options) - set(klass.OPTIONS))
         if unknown_options:
             raise StudyError(f"{where} ({entry['name']}): unknown option(s) {', '.join(unknown_options)}; "
@@ -288,6 +295,10 @@ def parse_study(raw: dict, source: str = "study") -> Study:
             label, n = f"{base} #{n}", n + 1
         labels.add(label)
         frozen_options = tuple(sorted((k, tuple(v) if isinstance(v, list) else v) for k, v in options.items()))
+        planned += math.prod(len(v) for v in axes.values())
+        if planned > MAX_CELLS:  # counted before the grid is built: a 10⁶-cell grid hung here
+            raise StudyError(f"{source}: the grid has at least {planned:,} cells, more than the {MAX_CELLS:,} one "
+                             "study may have; split the study or shorten its axes")
         for combo in itertools.product(*axes.values()):
             values = dict(zip(axes, combo))
             cells.append(Cell(
@@ -309,8 +320,41 @@ def parse_study(raw: dict, source: str = "study") -> Study:
         if axis not in all_axes:
             raise StudyError(f"{source}: [report] {key} = '{axis}' is not an axis: choose one of "
                              f"{', '.join(all_axes)}")
-    return Study(str(raw.get("name", Path(source).stem)), str(raw.get("description", "")), cells,
-                 all_axes, rows, columns, source, raw)
+    study = Study(str(raw.get("name", Path(source).stem)), str(raw.get("description", "")), cells,
+                  all_axes, rows, columns, source, raw)
+    experiments = study_experiments(study)
+    if experiments > MAX_EXPERIMENTS:
+        raise StudyError(f"{source}: the study simulates {experiments:.3g} experiments over {len(cells):,} "
+                         f"cells, more than the {MAX_EXPERIMENTS:.0e} one run may ask for; lower "
+                         "test_experiments / fit_experiments or split the study")
+    return study
+
+
+#: A study with more cells is refused (split it); counted before the grid is built.
+MAX_CELLS = 100_000
+#: A study simulating more experiments is refused.
+MAX_EXPERIMENTS = 10_000_000
+#: Beyond these the ``study`` command asks before it starts (or needs ``--yes``).
+CONFIRM_CELLS = 2_000
+CONFIRM_EXPERIMENTS = 100_000
+
+
+def study_experiments(study: Study) -> int:
+    """Experiments the study simulates: each distinct dataset (cells share fit and test data
+    with the same machine, noise, motion, size, seed and noise mode) counted once."""
+    datasets = {}
+    for c in study.cells:
+        datasets[("fit", c.true_machine, c.fit_noise, c.fit_motion, c.fit_experiments, c.seed,
+                  c.noise_mode)] = c.fit_experiments
+        datasets[("test", c.true_machine, c.noise, c.motion, c.test_experiments, c.seed,
+                  c.noise_mode)] = c.test_experiments
+    return int(sum(datasets.values()))
+
+
+def study_size(study: Study) -> str:
+    """One line: cells, estimators, experiments to simulate."""
+    return (f"study '{study.name}': {len(study.cells):,} cells ({len(study.axes['estimator'])} estimator(s)), "
+            f"{study_experiments(study):,} experiments to simulate (fewer if cached)")
 
 
 # -- keys ---------------------------------------------------------------------------------------
@@ -320,9 +364,15 @@ def _key(obj: Any) -> str:
 
 
 def _machine_dict(name: str) -> dict | None:
+    return _machine_json(name) and json.loads(_machine_json(name))
+
+
+@functools.lru_cache(maxsize=64)
+def _machine_json(name: str) -> str | None:
+    """A machine's tables as JSON, read once per name (every cell's key needs them)."""
     from excavator_payload.model.machine import load_machine
 
-    return None if name == "none" else load_machine(name).to_dict()
+    return None if name == "none" else json.dumps(load_machine(name).to_dict())
 
 
 def data_specs(cell: Cell) -> tuple:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -27,15 +28,34 @@ def register(app: typer.Typer) -> None:
                                            "else local worker processes)."),
         workers: int = typer.Option(0, "--workers", help="Local worker processes (0 = all cores)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+        yes: bool = typer.Option(False, "--yes", help="Start a big study without asking (more than "
+                                 "2000 cells or 100 000 experiments)."),
     ) -> None:
         """Run a study: every cell of the grid simulated, fitted, estimated and judged; one Parquet of
         per-experiment results and a report page. Cells already computed in OUT are reused."""
-        from excavator_payload.evaluation.study import load_study, run_study
+        from excavator_payload.evaluation.study import (
+            CONFIRM_CELLS,
+            CONFIRM_EXPERIMENTS,
+            load_study,
+            run_study,
+            study_experiments,
+            study_size,
+        )
         from excavator_payload.execution import Execution, interrupted_message
 
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
         plan = load_study(config)
+        # the size, said before anything starts (10⁹ experiments started without a word)
+        console.print(study_size(plan), markup=False, highlight=False, soft_wrap=True)
+        experiments = study_experiments(plan)
+        if (len(plan.cells) > CONFIRM_CELLS or experiments > CONFIRM_EXPERIMENTS) and not yes:
+            if not sys.stdin.isatty():
+                raise ExcavatorPayloadError(f"a study of {len(plan.cells):,} cells and {experiments:,} experiments "
+                                            f"is big (asked before more than {CONFIRM_CELLS:,} cells or "
+                                            f"{CONFIRM_EXPERIMENTS:,} experiments): add --yes to start it")
+            if not typer.confirm("start it?", default=False, err=True):
+                raise typer.Exit(1)
         start = time.perf_counter()
         try:
             with Execution(scheduler, workers or None) as execution:

@@ -379,25 +379,180 @@ def _check(m: HydraulicMachine, source: str) -> None:
                            "cylinder drives the linkage joint (see [linkage])")
     if m.payload.max < m.payload.rated:
         raise MachineError(f"{source}: field 'payload.max' must be ≥ payload.rated")
+    _check_relief(m, source)
     if m.hydraulics.back_pressure >= m.hydraulics.relief_pressure:
         raise MachineError(f"{source}: field 'hydraulics.back_pressure' must be below the relief pressure")
     if not GRAVITY_RANGE[0] <= m.gravity <= GRAVITY_RANGE[1]:
         # calibration does not identify gravity: 1e-300 weighed a 4.8 t load as -4.2 t, 'ok'
         raise MachineError(f"{source}: field 'gravity' must be Earth's gravity in m/s² "
                            f"({GRAVITY_RANGE[0]:g} … {GRAVITY_RANGE[1]:g}), got {m.gravity!r}")
+    _check_proportions(m, source)  # lengths against the machine's size first: it names their unit
     for table in TABLES:
         for key, value in asdict(getattr(m, table)).items():
             bound, unit = SIZE_LIMITS.get(key, (None, ""))
             values = value if isinstance(value, tuple) else (value,)
             if bound is not None and any(abs(v) > bound for v in values):
+                units = {"m": LENGTH_UNITS, "kg": MASS_UNITS[1:]}.get(unit, ())
                 raise MachineError(f"{source}: field '{table}.{key}' must be at most {bound:g} {unit} "
-                                   f"in size, got {list(value) if isinstance(value, tuple) else value!r}")
+                                   f"in size, got {list(value) if isinstance(value, tuple) else value!r}"
+                                   + _fits(list(values), units, lambda v: max(map(abs, v)) <= bound, first=True))
+    _check_masses_and_drives(m, source)
     for table in ("boom", "dipper", "bucket"):
         low, high = getattr(m, table).angle_range
         if not -2 * math.pi <= low < high <= 2 * math.pi:
             raise MachineError(f"{source}: field '{table}.angle_range' must lie within -2π … 2π rad "
                                f"(radians, not degrees), got [{low!r}, {high!r}]")
     _check_geometry(m, source)
+
+
+# -- numbers against the machine's own size ---------------------------------------------------
+# A number in another unit (a centre of mass in cm, a pump flow in L/min, a slew rate in °/s)
+# passed the absolute limits above and was used. Each is judged against what a machine of this
+# file's size can be, and the message names the unit in which the number makes sense.
+
+#: A point on a link (centre of mass, pin) lies within this many link lengths of the link's joint.
+POINT_REACH = 1.5
+#: A point on the house (its centre of mass, the boom foot, the boom cylinder's pin) lies within this
+#: share of the arm's reach (boom + dipper + bucket) of the slew axis.
+HOUSE_POINT_REACH = 0.5
+#: A cylinder's bore or rod is at most this share of the arm's reach.
+BORE_REACH = 0.1
+#: A link's mass per metre of its length, kg/m: 60-6600 from a 1-t to a 300-t machine, widened.
+LINEAR_DENSITY = (5.0, 5.0e4)
+#: The house's mass over the arm's (boom + dipper + bucket): 2 on the presets, widened.
+HOUSE_TO_ARM = (0.3, 30.0)
+#: The rated payload over the house and arm's mass: 0.17 on the presets, widened.
+PAYLOAD_SHARE = (0.005, 1.0)
+#: Relief pressure of a mobile machine's implement circuit, Pa (100-700 bar, widened).
+RELIEF_RANGE = (5.0e6, 7.0e7)
+#: Fastest crossing of a joint's angle range at the pump flow, s (the presets' bucket: 0.24 s at
+#: its smallest moment arm).
+FASTEST_CROSSING = 0.05
+#: Fastest half turn of the house at max_slew_rate, s (the presets: 4.5 s; 30 rpm is a half turn in 1 s).
+FASTEST_HALF_TURN = 1.0
+#: Time the swing drive takes to reach max_slew_rate at max_slew_torque with the empty arm, s
+#: (0.6-4.3 s from a 0.3× to a 2× preset).
+SLEW_START = (0.02, 120.0)
+#: Stribeck velocity of a seal, m/s, and presliding displacement, m, at most.
+MAX_STRIBECK_VELOCITY = 1.0
+MAX_PRESLIDING = 0.05
+
+#: Units a length, pressure, flow, rate or torque is mistaken in, with their size in SI.
+LENGTH_UNITS = (("cm", 0.01), ("mm", 0.001), ("in", 0.0254))
+PRESSURE_UNITS = (("bar", 1.0e5), ("MPa", 1.0e6), ("kPa", 1.0e3), ("psi", 6894.757))
+FLOW_UNITS = (("L/min", 1.0e-3 / 60.0), ("L/s", 1.0e-3))
+SLEW_RATE_UNITS = (("°/s", math.pi / 180.0), ("rpm", 2.0 * math.pi / 60.0))
+TORQUE_UNITS = (("kN·m", 1.0e3),)
+MASS_UNITS = (("t", 1000.0), ("g", 0.001))
+
+
+def _fits(value, units, ok, first: bool = False) -> str:
+    """``"; in cm?"``: the units in which ``value`` passes ``ok(value × size)``, for the message
+    (``first``: only the first of them, the likeliest: a length that fits in cm fits in mm too)."""
+    names = [name for name, size in units if ok(_scaled(value, size))]
+    names = names[:1] if first else names
+    return f"; in {' or '.join(names)}?" if names else ""
+
+
+def _scaled(value, size):
+    return [v * size for v in value] if isinstance(value, (tuple, list)) else value * size
+
+
+def _show(value) -> str:
+    return f"[{', '.join(f'{v:g}' for v in value)}]" if isinstance(value, (tuple, list)) else f"{value:g}"
+
+
+def _check_relief(m: HydraulicMachine, source: str) -> None:
+    """The relief pressure in Pa (checked before the back pressure is compared with it)."""
+    low, high = RELIEF_RANGE
+    relief = m.hydraulics.relief_pressure
+    if not low <= relief <= high:
+        raise MachineError(f"{source}: field 'hydraulics.relief_pressure' {relief:g} Pa is outside what a "
+                           f"machine's relief valve is set to ({low:g}-{high:g} Pa = {low / 1e5:g}-{high / 1e5:g} bar)"
+                           + _fits(relief, PRESSURE_UNITS, lambda v: low <= v <= high))
+
+
+def _check_proportions(m: HydraulicMachine, source: str) -> None:
+    """Every number against the machine's own size (see the constants above); one line naming
+    the field, what a machine of this size has, and the unit the number would make sense in."""
+    reach = m.boom.length + m.dipper.length + m.bucket.length
+
+    def norm(v) -> float:
+        return math.sqrt(sum(x * x for x in v))
+
+    points = [("house.com", m.house.com, HOUSE_POINT_REACH * reach, "the slew axis (half the arm's reach)"),
+              ("house.boom_foot", m.house.boom_foot, HOUSE_POINT_REACH * reach, "the slew axis (half the arm's reach)"),
+              ("boom_cylinder.parent_point", m.boom_cylinder.parent_point, HOUSE_POINT_REACH * reach,
+               "the slew axis (half the arm's reach)")]
+    for link, carried in (("boom", ("boom_cylinder.child_point", "dipper_cylinder.parent_point")),
+                          ("dipper", ("dipper_cylinder.child_point", "bucket_cylinder.parent_point",
+                                      "linkage.rocker_pivot")),
+                          ("bucket", ("payload.position", "linkage.bucket_point"))):
+        length = getattr(m, link).length
+        what = f"the {link} pin ({POINT_REACH:g} × its {length:g} m length)"
+        for name in (f"{link}.com", *carried):
+            table, key = name.split(".")
+            points.append((name, getattr(getattr(m, table), key), POINT_REACH * length, what))
+    for name, value, bound, what in points:
+        if value in (None, ()):
+            continue
+        if norm(value) > bound:
+            raise MachineError(f"{source}: field '{name}' {_show(value)} lies {norm(value):.4g} m from "
+                               f"{what}, more than {bound:.3g} m on this machine"
+                               + _fits(value, LENGTH_UNITS, lambda v: norm(v) <= bound, first=True))
+    for name in ("rocker_length", "link_length"):
+        value, bound = getattr(m.linkage, name), POINT_REACH * m.bucket.length
+        if value > bound:
+            raise MachineError(f"{source}: field 'linkage.{name}' {value:g} m is longer than {bound:.3g} m "
+                               f"({POINT_REACH:g} × the bucket's length)"
+                               + _fits(value, LENGTH_UNITS, lambda v: v <= bound, first=True))
+    for table in ("boom_cylinder", "dipper_cylinder", "bucket_cylinder"):
+        c, bound = getattr(m, table), BORE_REACH * reach
+        for key in ("bore", "rod"):
+            value = getattr(c, key)
+            if value > bound:
+                raise MachineError(f"{source}: field '{table}.{key}' {value:g} m is more than {bound:.3g} m "
+                                   f"({BORE_REACH:g} × the arm's {reach:.3g} m reach)"
+                                   + _fits(value, LENGTH_UNITS, lambda v: v <= bound, first=True))
+
+
+
+def _check_masses_and_drives(m: HydraulicMachine, source: str) -> None:
+    """Seal numbers, masses and the slew rate against the machine's size (after the absolute
+    sizes: a length of 1e200 m is named as a length, not as a light link)."""
+    for table in ("boom_cylinder", "dipper_cylinder", "bucket_cylinder"):
+        c = getattr(m, table)
+        if c.stribeck_velocity > MAX_STRIBECK_VELOCITY:
+            raise MachineError(f"{source}: field '{table}.stribeck_velocity' {c.stribeck_velocity:g} m/s is "
+                               f"faster than any rod moves (at most {MAX_STRIBECK_VELOCITY:g} m/s); in mm/s?")
+        if c.presliding > MAX_PRESLIDING:
+            raise MachineError(f"{source}: field '{table}.presliding' {c.presliding:g} m is more than a "
+                               f"seal's elastic travel (at most {MAX_PRESLIDING:g} m); in mm?")
+    low, high = LINEAR_DENSITY
+    for link in ("boom", "dipper", "bucket"):
+        body = getattr(m, link)
+        if not low <= body.mass / body.length <= high:
+            raise MachineError(f"{source}: field '{link}.mass' {body.mass:g} kg is {body.mass / body.length:.3g} "
+                               f"kg per metre of its {body.length:g} m length (links weigh {low:g}-{high:g} kg/m)"
+                               + _fits(body.mass, MASS_UNITS, lambda v: low <= v / body.length <= high))
+    arm = m.boom.mass + m.dipper.mass + m.bucket.mass
+    low, high = HOUSE_TO_ARM
+    if not low <= m.house.mass / arm <= high:
+        raise MachineError(f"{source}: field 'house.mass' {m.house.mass:g} kg is {m.house.mass / arm:.3g} times "
+                           f"the arm's {arm:g} kg (a house weighs {low:g}-{high:g} times its arm)"
+                           + _fits(m.house.mass, MASS_UNITS, lambda v: low <= v / arm <= high))
+    low, high = PAYLOAD_SHARE
+    total = m.house.mass + arm
+    if not low <= m.payload.rated / total <= high:
+        raise MachineError(f"{source}: field 'payload.rated' {m.payload.rated:g} kg is {m.payload.rated / total:.3g} "
+                           f"of the house and arm's {total:g} kg (a machine is rated for {low:g}-{high:g} of it)"
+                           + _fits(m.payload.rated, MASS_UNITS, lambda v: low <= v / total <= high))
+    half_turn = math.pi / m.house.max_slew_rate
+    if half_turn < FASTEST_HALF_TURN:
+        raise MachineError(f"{source}: field 'house.max_slew_rate' {m.house.max_slew_rate:g} rad/s turns the "
+                           f"house half a turn in {half_turn:.3g} s (a machine takes seconds)"
+                           + _fits(m.house.max_slew_rate, SLEW_RATE_UNITS,
+                                   lambda v: FASTEST_HALF_TURN <= math.pi / v <= SLOWEST_CROSSING))
 
 
 #: Earth's gravity at its surface, m/s² (9.78 at the equator to 9.83 at the poles), widened.
@@ -452,6 +607,28 @@ def _check_geometry(m: HydraulicMachine, source: str) -> None:
     with np.errstate(all="ignore"):
         rates = arm.largest_joint_rates(points)
     widths = np.r_[np.diff(m.angle_ranges, axis=1)[:, 0], math.pi]
+    crossing = widths[:3] / rates[:3]
+    fastest = int(np.argmin(crossing))
+    if crossing[fastest] < FASTEST_CROSSING:
+        flow = m.hydraulics.pump_flow
+        # the crossing time scales as 1/flow: the units in which the flow gives a machine's times
+        units = [name for name, size in FLOW_UNITS
+                 if FASTEST_CROSSING <= crossing.min() / size and crossing.max() / size <= SLOWEST_CROSSING]
+        raise MachineError(f"{source}: field 'hydraulics.pump_flow' {flow:g} m³/s would move the "
+                           f"{names[fastest]} across its angle_range in {crossing[fastest]:.3g} s (a machine "
+                           f"takes seconds: at least {FASTEST_CROSSING:g} s)"
+                           + (f"; in {' or '.join(units)}?" if units else ""))
+    with np.errstate(all="ignore"):
+        kinetic, _ = arm.energy(arm.joint_sweep(0, 3)[1], np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(2), 0.0)
+    slew_inertia = 2.0 * float(np.squeeze(kinetic))  # K = ½ J ψ̇² at ψ̇ = 1 rad/s
+    start = slew_inertia * m.house.max_slew_rate / m.house.max_slew_torque
+    low, high = SLEW_START
+    if np.isfinite(start) and not low <= start <= high:
+        units = [name for name, size in TORQUE_UNITS if low <= start / size <= high]
+        raise MachineError(f"{source}: field 'house.max_slew_torque' {m.house.max_slew_torque:g} N·m takes "
+                           f"{start:.3g} s to bring the house and arm ({slew_inertia:.3g} kg·m²) to max_slew_rate "
+                           f"(a machine takes {low:g}-{high:g} s)"
+                           + (f"; in {' or '.join(units)}?" if units else ""))
     for name, rate, width in zip((*names, "slew"), rates, widths):
         if not width / rate <= SLOWEST_CROSSING:
             field_ = "house.max_slew_rate" if name == "slew" else \

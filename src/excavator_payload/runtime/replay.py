@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from excavator_payload.data.units import SampleWatch
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
@@ -59,6 +60,10 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                 rows.append((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
                              ",".join(o.stale)))
 
+    # units and wiring judged on the decoded samples, as a dataset's (data/units.py)
+    watch = SampleWatch(sensor.sensor_set, getattr(sensor.estimator, "machine", None))
+    step_values = sensor.estimator.step_values
+    sensor.estimator.step_values = lambda t, v: (watch.add(experiment, t, v), step_values(t, v))[1]
     bar = None
     if progress:
         from rich.progress import Progress
@@ -100,6 +105,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         if sensor.pending:
             keep([sensor.flush()])
     finally:
+        del sensor.estimator.step_values
         if bar is not None:
             bar.stop()
     if not rows:
@@ -123,6 +129,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                            f"out of the DBC's ranges or not available{never}{_foreign(sensor)}); recorded "
                            f"with another DBC or sensor set (--dbc, --signal-map)? The log holds "
                            f"{summary.describe()}")
+    watch.check(f"CAN log '{path}'")
     frame = pd.DataFrame(rows, columns=["experiment", "time", "payload_estimate", "status",
                                         "payload_sigma", "log_time", "stale_signals"])
     frame["experiment"] = frame["experiment"].astype("int64")

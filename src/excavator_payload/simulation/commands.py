@@ -51,6 +51,14 @@ def register(app: typer.Typer) -> None:
                                       help="Hydraulic machine: every experiment carries this mass (kg) "
                                            "instead of a drawn one; 0 makes an empty-bucket motion for "
                                            "`zero`."),
+        smooth: float = typer.Option(None, "--smooth", metavar="SECONDS",
+                                     help="With --trajectory: filter the angles (zero-phase Gaussian, "
+                                          "standard deviation SECONDS/2) before the spline; for logs "
+                                          "whose angles come in steps."),
+        allow_overspeed: bool = typer.Option(False, "--allow-overspeed",
+                                             help="With --trajectory: simulate motions faster than the "
+                                                  "pumps or slew drive give (refused otherwise), with a "
+                                                  "warning per experiment."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Simulate experiments (thesis §5.3) and write them to a dataset file.
@@ -66,15 +74,25 @@ def register(app: typer.Typer) -> None:
         # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
         # a run description; objects travel inside.
         spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
-                         session=session, trajectory=trajectory, payload=payload)
+                         session=session, trajectory=trajectory, payload=payload, smooth=smooth,
+                         allow_overspeed=allow_overspeed)
         motion, noise = spec.motion, spec.noise.name
+        replayed = spec.option("trajectory")
+        if replayed is not None:
+            for line in replayed.warnings:
+                console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
+            if replayed.ignored:
+                console.print(f"note: column(s) {', '.join(replayed.ignored)} of the trajectory file are "
+                              "not trajectory columns and were ignored", markup=False, highlight=False,
+                              soft_wrap=True)
         start = time.perf_counter()
         try:
             with Execution(scheduler, workers or None) as execution:
                 dataset = simulate_to_file(out, experiments, seed=seed, machine=spec.machine,
                                            noise=spec.noise, with_truth=with_truth, motion=motion,
                                            progress=not quiet, execution=execution, session=session,
-                                           trajectory=spec.option("trajectory"), payload=payload)
+                                           trajectory=spec.option("trajectory"), payload=payload,
+                                           allow_overspeed=allow_overspeed)
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "

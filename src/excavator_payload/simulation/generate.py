@@ -36,6 +36,7 @@ folder is removed once the dataset file has been written (atomically).
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import logging
@@ -270,7 +271,8 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
               noise: str | NoisePreset | None = None, with_truth: bool = False, motion: str | None = None,
               first_experiment: int = 0, frozen_noise_seed: int | None = None,
               options: dict | None = None, session: int = 0, trajectory=None,
-              payload: float | None = None) -> RunSpec:
+              payload: float | None = None, smooth: float | None = None,
+              allow_overspeed: bool = False) -> RunSpec:
     """Check the arguments and resolve the names into a :class:`RunSpec` (at the edge, once).
 
     ``noise`` and ``motion`` default to the machine kind's own (thesis: ``thesis`` noise and
@@ -279,12 +281,20 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     :class:`~excavator_payload.simulation.trajectory.Trajectory`) are for a hydraulic machine,
     and so is ``payload`` (kg: every generated experiment carries this mass instead of a drawn
     one, e.g. 0 for a zero-check motion; a trajectory file's payload column sets its own).
+    ``smooth`` (s) filters a trajectory's angles first
+    (:func:`~excavator_payload.simulation.trajectory.smooth_trajectory`); ``allow_overspeed``
+    simulates a trajectory faster than the pumps instead of refusing it (the trajectory's
+    ``warnings`` say where).
     """
     machine = load_machine(machine)
     options = dict(options or {})
     if is_hydraulic(machine):
         from excavator_payload.simulation.machine_sensors import get_machine_noise
-        from excavator_payload.simulation.trajectory import check_trajectory_motion, read_trajectory
+        from excavator_payload.simulation.trajectory import (
+            check_trajectory_motion,
+            read_trajectory,
+            smooth_trajectory,
+        )
 
         if motion is None:
             motion = "trajectory" if trajectory is not None else "swing"
@@ -306,10 +316,16 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
                 raise ExcavatorPayloadError(f"--payload must be between 0 and the machine's maximum "
                                             f"payload, {machine.max_payload:g} kg; got {payload!r}")
             options["payload"] = float(payload)
+        if trajectory is None and (smooth is not None or allow_overspeed):
+            raise ExcavatorPayloadError("--smooth and --allow-overspeed go with a trajectory file (--trajectory)")
         if trajectory is not None:
             if not hasattr(trajectory, "experiments"):
                 trajectory = read_trajectory(trajectory)
-            check_trajectory_motion(trajectory, machine)
+            if smooth is not None:
+                trajectory = smooth_trajectory(trajectory, smooth)
+            warned = check_trajectory_motion(trajectory, machine, allow_overspeed=allow_overspeed)
+            if warned:
+                trajectory = dataclasses.replace(trajectory, warnings=tuple(warned))
             available = len(trajectory.experiments) - int(first_experiment)
             if available < 1:
                 raise ExcavatorPayloadError(f"the trajectory file holds {len(trajectory.experiments)} experiment(s)")
@@ -317,6 +333,8 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
                 and isinstance(n_experiments, (int, np.integer)) else n_experiments
             options["trajectory"] = trajectory
     else:
+        if smooth is not None or allow_overspeed:
+            raise ExcavatorPayloadError("--smooth and --allow-overspeed go with a trajectory file (--trajectory)")
         if session or trajectory is not None or payload is not None:
             raise ExcavatorPayloadError("--session, --trajectory and --payload apply to a hydraulic machine only")
         motion = "nmpc" if motion is None else motion
@@ -415,7 +433,8 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
                      workers: int | None = None, motion: str | None = None, first_experiment: int = 0,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
-                     session: int = 0, trajectory=None, payload: float | None = None) -> Dataset:
+                     session: int = 0, trajectory=None, payload: float | None = None,
+                     allow_overspeed: bool = False) -> Dataset:
     """Simulate ``n_experiments`` experiments in memory.
 
     Parameters
@@ -455,6 +474,8 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
     payload : float, optional
         Hydraulic machine: the mass (kg) every generated experiment carries instead of a drawn
         one (0: an empty bucket, as a zero check needs).
+    allow_overspeed : bool
+        Hydraulic machine: simulate a trajectory faster than the pumps give instead of refusing it.
 
     Returns
     -------
@@ -463,7 +484,8 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         the experiments whose simulation failed, with the reason.
     """
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, first_experiment,
-                     frozen_noise_seed, session=session, trajectory=trajectory, payload=payload)
+                     frozen_noise_seed, session=session, trajectory=trajectory, payload=payload,
+                     allow_overspeed=allow_overspeed)
     _check_arguments(n_experiments, seed, workers, spec.motion, first_experiment, spec.machine)
     if execution is not None:
         return simulate_spec(spec, first_experiment, n_experiments, execution, progress)
@@ -502,7 +524,8 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
                      with_truth: bool = False, workers: int | None = None, motion: str | None = None,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
-                     session: int = 0, trajectory=None, payload: float | None = None) -> Dataset:
+                     session: int = 0, trajectory=None, payload: float | None = None,
+                     allow_overspeed: bool = False) -> Dataset:
     """Simulate and write the dataset to ``out`` (Parquet, atomic); resume an interrupted run.
 
     Finished chunks of experiments are kept in ``<out>.partial/`` until the file is written;
@@ -519,7 +542,8 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
     if out.is_dir():
         raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed,
-                     session=session, trajectory=trajectory, payload=payload)
+                     session=session, trajectory=trajectory, payload=payload,
+                     allow_overspeed=allow_overspeed)
     _check_arguments(n_experiments, seed, workers, spec.motion, 0, spec.machine)
     source = dict(spec.options).get("trajectory")
     if source is not None and Path(source.source).resolve() == out.resolve():

@@ -13,11 +13,21 @@ time. A motion recorded on a real machine, or made by hand, can so be pushed thr
 simulator (``excavator-payload simulate --machine cat345c-hydraulic --motion trajectory
 --trajectory FILE``); its pressures are those the model needs for that motion, and the
 experiment's metadata say whether it stayed within the relief pressure and the pumps' speed.
+
+A motion the machine cannot make is refused before anything is simulated, with the real reason
+(:func:`check_trajectory_motion`): a joint outside its range; angles that come in steps (a
+quantised or sample-and-hold log), whose spline accelerates at hundreds of rad/s² and needs
+pressures far beyond the relief valve (``--smooth SECONDS`` filters them, :func:`smooth_trajectory`);
+a motion faster than the pumps or the slew drive give (a replay faster than the machine flatters
+the estimator; ``--allow-overspeed`` simulates it anyway, flagged); or one many times faster (an
+angle in degrees, time in ms). Unknown columns are named: a misspelt optional column (``ground_pich``)
+is refused, any other is reported as ignored.
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,6 +48,12 @@ class Trajectory:
     source: str
     digest: str
     experiments: list[tuple[int, pd.DataFrame]]
+    #: Columns of the file that are no trajectory column (reported, not used).
+    ignored: tuple[str, ...] = ()
+    #: Width of the Gaussian filter applied (--smooth, s), 0 for none.
+    smoothed: float = 0.0
+    #: What check_trajectory_motion let through with a warning (--allow-overspeed), one line each.
+    warnings: tuple[str, ...] = ()
 
 
 #: Median time between a trajectory's samples above which 'time' is not in seconds (hand-made
@@ -46,6 +62,18 @@ MAX_MEDIAN_STEP = 5.0
 #: A motion asking for more than this many times the speed the pumps (or the slew drive) give
 #: is a unit mistake (an angle in degrees, time in ms), not a motion a machine makes.
 MAX_SPEED_SHARE = 3.0
+#: Share of the pumps' (or slew drive's) speed a replayed motion may use: as the NMPC swings'.
+OVERSPEED_TOLERANCE = 1.05
+#: A replayed motion whose cylinder forces exceed this multiple of what the relief pressure gives
+#: cannot be made by the machine (its pressures would be beyond any sensor's range).
+FORCE_LIMIT = 2.0
+#: Standard deviation (s) of the Gaussian filter that tells steps from motion: when filtering the
+#: angles this little lowers the peak force or speed by :data:`STEP_FACTOR` or more, they come
+#: from the steps between samples, not from the motion.
+STEP_PROBE = 0.05
+STEP_FACTOR = 2.0
+#: Smallest unknown-column similarity (difflib ratio) that makes it a misspelt known column.
+MISSPELT_CUTOFF = 0.8
 #: Slack on the machine's joint ranges (the spline may overshoot a recorded end stop a little), rad.
 RANGE_SLACK = np.radians(1.0)
 
@@ -55,6 +83,16 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
     from excavator_payload.data.io import HOUSE_TILT_LIMIT
     from excavator_payload.model.machine import MAX_PAYLOAD
 
+    import difflib
+
+    known = REQUIRED + OPTIONAL
+    unknown = [str(c) for c in frame.columns if c not in known]
+    for c in unknown:
+        absent = [k for k in known if k not in frame.columns]
+        close = difflib.get_close_matches(c, absent, n=1, cutoff=MISSPELT_CUTOFF)
+        if close:  # a misspelt optional column was silently ignored: level ground was simulated
+            raise DatasetError(f"{source}: column '{c}' is not a trajectory column; did you mean "
+                               f"'{close[0]}'? (columns: {', '.join(known)})")
     missing = [c for c in REQUIRED if c not in frame.columns]
     if missing:
         raise DatasetError(f"{source}: trajectory is missing column(s) {', '.join(missing)} "
@@ -81,6 +119,11 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
     exp = frame["experiment"].to_numpy(dtype=float)
     if not np.all(exp == np.round(exp)):
         raise DatasetError(f"{source}: column 'experiment' must hold whole numbers")
+    if (exp < 0).any():
+        # accepted here before, then every experiment failed ("expected non-negative integer"):
+        # an experiment's number seeds its noise
+        raise DatasetError(f"{source}: column 'experiment' holds negative numbers (from {exp.min():.0f}); "
+                           "experiments are numbered from 0 (the number seeds each experiment's noise)")
     experiments = []
     for exp_id, rows in frame.groupby("experiment", sort=False):
         t = rows["time"].to_numpy(dtype=float)
@@ -95,7 +138,40 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
             raise DatasetError(f"{source}: 'payload' must be constant within experiment {exp_id}")
         experiments.append((int(exp_id), rows.reset_index(drop=True)))
     digest = hashlib.sha256(pd.util.hash_pandas_object(frame, index=False).values.tobytes()).hexdigest()[:16]
-    return Trajectory(source, digest, experiments)
+    return Trajectory(source, digest, experiments, ignored=tuple(unknown))
+
+
+def smooth_trajectory(trajectory: Trajectory, seconds: float) -> Trajectory:
+    """The trajectory with every angle resampled at the simulator's rate and filtered by a
+    zero-phase Gaussian kernel of standard deviation ``seconds`` / 2 (``--smooth SECONDS``).
+
+    A log whose angles come in steps (a quantised sensor, or a slow one logged at a fast rate
+    and held between its samples) has a spline through every step: accelerations of hundreds
+    of rad/s² that no arm makes. The filter keeps the motion (no lag) and removes the steps;
+    tilt is interpolated linearly, the payload kept.
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    from excavator_payload.simulation.machine_sim import SAMPLE_RATE
+
+    if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and 0 < seconds <= 10):
+        raise DatasetError(f"--smooth must be a time in seconds between 0 and 10, got {seconds!r}")
+    experiments = []
+    for exp_id, rows in trajectory.experiments:
+        t = rows["time"].to_numpy(dtype=float)
+        n = int(np.floor((t[-1] - t[0]) * SAMPLE_RATE + 1e-9)) + 1
+        time = t[0] + np.arange(n) / SAMPLE_RATE
+        out = {"experiment": np.full(n, exp_id), "time": time}
+        for c in ANGLE_COLUMNS:
+            angles = np.interp(time, t, rows[c].to_numpy(dtype=float))
+            out[c] = gaussian_filter1d(angles, sigma=0.5 * seconds * SAMPLE_RATE, mode="nearest")
+        for c in OPTIONAL:
+            if c in rows.columns:
+                out[c] = np.interp(time, t, rows[c].to_numpy(dtype=float))
+        out["payload"] = np.full(n, float(rows["payload"].iloc[0]))
+        experiments.append((exp_id, pd.DataFrame(out)))
+    digest = hashlib.sha256(f"{trajectory.digest} smoothed {seconds!r}".encode()).hexdigest()[:16]
+    return Trajectory(trajectory.source, digest, experiments, trajectory.ignored, float(seconds))
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
@@ -120,20 +196,47 @@ def read_trajectory(path: str | Path) -> Trajectory:
     return trajectory_from_frame(frame, str(path))
 
 
-def check_trajectory_motion(trajectory: Trajectory, machine) -> None:
-    """Refuse motions the machine cannot make: joints outside their ranges, or a motion many
-    times faster than its pumps and slew drive allow (an angle in degrees, time in ms).
+def _demand(arm, q, qd, qdd, tilt, payload: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample: the share of each cylinder's speed limit and of the slew rate (n, 4), and of
+    the force each cylinder gives at the relief pressure (n, 3), from the machine's model."""
+    m = arm.machine
+    sig = arm.motion_signals(q, qd, qdd, tilt, payload)
+    limits = arm.rod_speed_limits()
+    rod = sig["speed"]
+    speed = np.column_stack([np.where(rod >= 0, rod / limits[:, 0], -rod / limits[:, 1]),
+                             np.abs(qd[:, 3]) / m.house.max_slew_rate])
+    relief, back = m.hydraulics.relief_pressure, m.hydraulics.back_pressure
+    push = np.array([relief * c.head_area - back * c.rod_area for c in m.cylinders])
+    pull = np.array([relief * c.rod_area - back * c.head_area for c in m.cylinders])
+    load = sig["load"]
+    return speed, np.where(load >= 0, load / push, -load / pull)
 
-    The replay would push such a motion through the model and give absurd pressures (or a
+
+def _step_interval(rows: pd.DataFrame, column: str) -> float:
+    """Median time between the changes of a recorded angle (s; NaN when it changes fewer than 3 times)."""
+    t = rows["time"].to_numpy(dtype=float)
+    changes = np.flatnonzero(np.diff(rows[column].to_numpy(dtype=float)) != 0)
+    return float(np.median(np.diff(t[changes + 1]))) if len(changes) >= 3 else math.nan
+
+
+def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bool = False) -> list[str]:
+    """Refuse motions the machine cannot make, naming the real reason (module docstring):
+    joints outside their ranges; angles in steps whose spline accelerations need far more than
+    the relief pressure (or speed) gives; a motion faster than the pumps or slew drive (refused
+    unless ``allow_overspeed``: then one warning line per experiment is returned); a motion many
+    times faster (a unit mistake: an angle in degrees, time in ms).
+
+    The replay would push such a motion through the model and give absurd pressures (and a
     message about pressures in the wrong unit); checked once, before any experiment is simulated.
     """
-    from excavator_payload.simulation.machine_motions import speed_share
     from excavator_payload.simulation.machine_sim import SAMPLE_RATE, _arm
 
     arm = _arm(machine)
     ranges = machine.angle_ranges
+    names = ("boom", "dipper", "bucket", "slew")
+    warnings = []
     for exp_id, rows in trajectory.experiments:
-        _, q, qd, _, _ = interpolate(rows, SAMPLE_RATE)
+        time, q, qd, qdd, tilt = interpolate(rows, SAMPLE_RATE)
         for j, name in enumerate(ANGLE_COLUMNS[:3]):
             low, high = ranges[j]
             if q[:, j].min() < low - RANGE_SLACK or q[:, j].max() > high + RANGE_SLACK:
@@ -141,11 +244,55 @@ def check_trajectory_motion(trajectory: Trajectory, machine) -> None:
                 raise DatasetError(f"{trajectory.source}: experiment {exp_id}: '{name}' reaches {worst:.3g} rad, "
                                    f"outside the machine's range [{low:.3g}, {high:.3g}] rad (between "
                                    "the samples too: a time gap makes the spline swing)")
-        share = speed_share(arm, q, qd)
+        payload = float(rows["payload"].iloc[0])
+        speed, force = _demand(arm, q, qd, qdd, tilt, payload)
+        too_fast, too_strong = speed.max() > OVERSPEED_TOLERANCE, force.max() > FORCE_LIMIT
+        if not (too_fast or too_strong):
+            continue
+        stepped = False
+        if not trajectory.smoothed:
+            # does a little filtering take the excess away? then it comes from steps between samples
+            probe = smooth_trajectory(Trajectory(trajectory.source, "", [(exp_id, rows)]), 2 * STEP_PROBE)
+            _, q2, qd2, qdd2, tilt2 = interpolate(probe.experiments[0][1], SAMPLE_RATE)
+            speed2, force2 = _demand(arm, q2, qd2, qdd2, tilt2, payload)
+            stepped = ((too_strong and force2.max() * STEP_FACTOR <= force.max())
+                       or (too_fast and speed2.max() * STEP_FACTOR <= speed.max()))
+        where = trajectory.source
+        if stepped:
+            i, j = np.unravel_index(int(np.argmax(force)), force.shape) if too_strong else \
+                np.unravel_index(int(np.argmax(speed)), speed.shape)
+            interval = _step_interval(rows, ANGLE_COLUMNS[j])
+            advice = max(0.1, round(2 * interval, 2)) if math.isfinite(interval) else 0.2
+            need = (f"{force[i, j]:.3g} times the force its cylinder gives at the relief pressure" if too_strong
+                    else f"{speed[i, j]:.3g} times the speed the pumps give")
+            raise DatasetError(
+                f"{where}: experiment {exp_id} at t = {time[i]:.2f} s: the spline through the recorded "
+                f"{names[j]} angle accelerates at {qdd[i, j]:.3g} rad/s², which needs {need}: the angles "
+                f"come in steps (a quantised or held signal{f', every {interval:.3g} s' if math.isfinite(interval) else ''}), "
+                f"not in a motion the machine makes; smooth them with --smooth {advice:g} (seconds) or "
+                "record them finer")
+        share = float(speed.max())
         if share > MAX_SPEED_SHARE:
-            raise DatasetError(f"{trajectory.source}: experiment {exp_id} moves {share:.3g} times faster than "
+            raise DatasetError(f"{where}: experiment {exp_id} moves {share:.3g} times faster than "
                                "the machine's pumps or slew drive allow; are the angles (slew_angle too) "
                                "in radians and 'time' in seconds?")
+        if too_strong:
+            i, j = np.unravel_index(int(np.argmax(force)), force.shape)
+            raise DatasetError(
+                f"{where}: experiment {exp_id} at t = {time[i]:.2f} s: the {names[j]} cylinder would need "
+                f"{force[i, j]:.3g} times the force it gives at the relief pressure (payload {payload:g} kg, "
+                f"{names[j]} acceleration {qdd[i, j]:.3g} rad/s²): a motion or payload this machine cannot "
+                "make; check the payload column and the machine file")
+        i, j = np.unravel_index(int(np.argmax(speed)), speed.shape)
+        drive = "slew drive (house.max_slew_rate)" if j == 3 else "pumps (hydraulics.pump_flow)"
+        text = (f"experiment {exp_id} at t = {time[i]:.2f} s: the {names[j]} moves at {share:.3g} times the "
+                f"speed the {drive} give")
+        if not allow_overspeed:
+            # a replay faster than the machine flatters the estimator (issue 28): refused unless asked
+            raise DatasetError(f"{where}: {text}; slow the motion down (stretch 'time'), or simulate it "
+                               "anyway with --allow-overspeed (flagged in the metadata)")
+        warnings.append(f"{text}: simulated anyway (--allow-overspeed); its pressures are no machine's")
+    return warnings
 
 
 def interpolate(rows: pd.DataFrame, sample_rate: float):
