@@ -40,7 +40,7 @@ def register(app: typer.Typer) -> None:
         motion: str = typer.Option(None, "--motion",
                                    help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
                                         "lifts); for a hydraulic machine swing (default), nmpc, work-cycle, "
-                                        "slopes, lifts or trajectory."),
+                                        "slopes, lifts, operator, shift (trucks of 2-6 work cycles) or trajectory."),
         session: int = typer.Option(0, "--session",
                                     help="Hydraulic machine: working session, draws the sensor offsets "
                                          "(independently of --seed)."),
@@ -51,6 +51,10 @@ def register(app: typer.Typer) -> None:
                                       help="Hydraulic machine: every experiment carries this mass (kg) "
                                            "instead of a drawn one; 0 makes an empty-bucket motion for "
                                            "`zero`."),
+        truck_target: float = typer.Option(None, "--truck-target", metavar="KG",
+                                           help="Hydraulic machine, --motion shift: the load each truck "
+                                                "(experiment) aims at; its passes' fills are drawn towards "
+                                                "it (default: 4 passes at 90 % of rated)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Simulate experiments (thesis §5.3) and write them to a dataset file.
@@ -66,7 +70,8 @@ def register(app: typer.Typer) -> None:
         # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
         # a run description; objects travel inside.
         spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
-                         session=session, trajectory=trajectory, payload=payload)
+                         session=session, trajectory=trajectory, payload=payload,
+                         truck_target=truck_target)
         motion, noise = spec.motion, spec.noise.name
         start = time.perf_counter()
         try:
@@ -74,7 +79,8 @@ def register(app: typer.Typer) -> None:
                 dataset = simulate_to_file(out, experiments, seed=seed, machine=spec.machine,
                                            noise=spec.noise, with_truth=with_truth, motion=motion,
                                            progress=not quiet, execution=execution, session=session,
-                                           trajectory=spec.option("trajectory"), payload=payload)
+                                           trajectory=spec.option("trajectory"), payload=payload,
+                                           truck_target=truck_target)
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "

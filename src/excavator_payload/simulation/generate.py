@@ -145,6 +145,8 @@ MACHINE_MOTIONS: dict[str, Motion] = {
                        description="operator-like lift and slew: a pause, an overshoot, trims all along"),
     "trajectory": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
                          description="prescribed motions replayed from a trajectory file"),
+    "shift": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                    description="a day of loading: one truck of 2-6 work cycles per experiment"),
 }
 
 
@@ -270,7 +272,7 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
               noise: str | NoisePreset | None = None, with_truth: bool = False, motion: str | None = None,
               first_experiment: int = 0, frozen_noise_seed: int | None = None,
               options: dict | None = None, session: int = 0, trajectory=None,
-              payload: float | None = None) -> RunSpec:
+              payload: float | None = None, truck_target: float | None = None) -> RunSpec:
     """Check the arguments and resolve the names into a :class:`RunSpec` (at the edge, once).
 
     ``noise`` and ``motion`` default to the machine kind's own (thesis: ``thesis`` noise and
@@ -279,6 +281,7 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     :class:`~excavator_payload.simulation.trajectory.Trajectory`) are for a hydraulic machine,
     and so is ``payload`` (kg: every generated experiment carries this mass instead of a drawn
     one, e.g. 0 for a zero-check motion; a trajectory file's payload column sets its own).
+    ``truck_target`` (kg) is the load each truck of ``motion="shift"`` aims at.
     """
     machine = load_machine(machine)
     options = dict(options or {})
@@ -306,6 +309,19 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
                 raise ExcavatorPayloadError(f"--payload must be between 0 and the machine's maximum "
                                             f"payload, {machine.max_payload:g} kg; got {payload!r}")
             options["payload"] = float(payload)
+        if truck_target is not None or motion == "shift":
+            if motion != "shift":
+                raise ExcavatorPayloadError("--truck-target goes with --motion shift (and only with it)")
+            if payload is not None:
+                raise ExcavatorPayloadError("--payload does not go with --motion shift: each pass draws "
+                                            "its fill towards --truck-target")
+            if truck_target is not None:
+                most = machine.max_payload * 6
+                if (isinstance(truck_target, bool) or not isinstance(truck_target, (int, float, np.number))
+                        or not 0.0 < float(truck_target) <= most):
+                    raise ExcavatorPayloadError(f"--truck-target must be above 0 and at most 6 passes of the "
+                                                f"machine's maximum payload, {most:g} kg; got {truck_target!r}")
+                options["truck_target"] = float(truck_target)
         if trajectory is not None:
             if not hasattr(trajectory, "experiments"):
                 trajectory = read_trajectory(trajectory)
@@ -317,8 +333,9 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
                 and isinstance(n_experiments, (int, np.integer)) else n_experiments
             options["trajectory"] = trajectory
     else:
-        if session or trajectory is not None or payload is not None:
-            raise ExcavatorPayloadError("--session, --trajectory and --payload apply to a hydraulic machine only")
+        if session or trajectory is not None or payload is not None or truck_target is not None:
+            raise ExcavatorPayloadError("--session, --trajectory, --payload and --truck-target apply to a "
+                                        "hydraulic machine only")
         motion = "nmpc" if motion is None else motion
         preset = get_noise_preset("thesis" if noise is None else noise)
     _check_arguments(n_experiments, seed, None, motion, first_experiment, machine)
@@ -415,7 +432,8 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
                      workers: int | None = None, motion: str | None = None, first_experiment: int = 0,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
-                     session: int = 0, trajectory=None, payload: float | None = None) -> Dataset:
+                     session: int = 0, trajectory=None, payload: float | None = None,
+                     truck_target: float | None = None) -> Dataset:
     """Simulate ``n_experiments`` experiments in memory.
 
     Parameters
@@ -463,7 +481,8 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         the experiments whose simulation failed, with the reason.
     """
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, first_experiment,
-                     frozen_noise_seed, session=session, trajectory=trajectory, payload=payload)
+                     frozen_noise_seed, session=session, trajectory=trajectory, payload=payload,
+                     truck_target=truck_target)
     _check_arguments(n_experiments, seed, workers, spec.motion, first_experiment, spec.machine)
     if execution is not None:
         return simulate_spec(spec, first_experiment, n_experiments, execution, progress)
@@ -502,7 +521,8 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
                      with_truth: bool = False, workers: int | None = None, motion: str | None = None,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
-                     session: int = 0, trajectory=None, payload: float | None = None) -> Dataset:
+                     session: int = 0, trajectory=None, payload: float | None = None,
+                     truck_target: float | None = None) -> Dataset:
     """Simulate and write the dataset to ``out`` (Parquet, atomic); resume an interrupted run.
 
     Finished chunks of experiments are kept in ``<out>.partial/`` until the file is written;
@@ -519,7 +539,8 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
     if out.is_dir():
         raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed,
-                     session=session, trajectory=trajectory, payload=payload)
+                     session=session, trajectory=trajectory, payload=payload,
+                     truck_target=truck_target)
     _check_arguments(n_experiments, seed, workers, spec.motion, 0, spec.machine)
     source = dict(spec.options).get("trajectory")
     if source is not None and Path(source.source).resolve() == out.resolve():
