@@ -91,6 +91,8 @@ class Truck:
     passes: list[Pass] = field(default_factory=list)
     target: float | None = None
     true_total: float | None = None
+    true_passes: int | None = None  # passes the truth holds
+    matched: int | None = None  # of them, found by one detected pass each
 
     @property
     def total(self) -> float:
@@ -182,14 +184,18 @@ def split_trucks(frame: pd.DataFrame) -> list[pd.DataFrame]:
     return out
 
 
-def _truth_match(passes: list[Pass], truth: list[dict]) -> None:
+def _truth_match(passes: list[Pass], truth: list[dict]) -> int:
     """Each detected pass's true weight: the true pass whose release follows its dump start
-    within 3 s (the load starts to leave part-way through the bucket's opening)."""
+    within 3 s (the load starts to leave part-way through the bucket's opening). Returns how
+    many true passes were found (a second detection of the same one gets no true weight)."""
+    found: set[int] = set()
     for p in passes:
-        for t in truth:
-            if t["release"][0] - 3.0 <= p.time_dump <= t["release"][1]:
+        for i, t in enumerate(truth):
+            if t["release"][0] - 3.0 <= p.time_dump <= t["release"][1] and i not in found:
                 p.true_weight = float(t["payload"])
+                found.add(i)
                 break
+    return len(found)
 
 
 def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
@@ -210,7 +216,8 @@ def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
         out.passes.append(Pass(truck, k, float(time[dig]), float(time[dump]), t_lock, w, s,
                                "ok" if w is not None else "not_weighed", reason))
     if truth:
-        _truth_match(out.passes, truth)
+        out.matched = _truth_match(out.passes, truth)
+        out.true_passes = len(truth)
         out.true_total = float(sum(t["payload"] for t in truth))
     return out
 
@@ -227,7 +234,7 @@ def file_key(path: str | Path) -> str:
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
     run INTEGER PRIMARY KEY AUTOINCREMENT, source TEXT NOT NULL, data TEXT, model TEXT,
-    started REAL, finished REAL);
+    rated REAL, started REAL, finished REAL);
 CREATE TABLE IF NOT EXISTS passes (
     source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, pass INTEGER NOT NULL,
     time_dig REAL, time_dump REAL, time_lock REAL, weight REAL, sigma REAL, status TEXT NOT NULL,
@@ -236,6 +243,7 @@ CREATE TABLE IF NOT EXISTS passes (
 CREATE TABLE IF NOT EXISTS trucks (
     source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, passes INTEGER NOT NULL,
     total REAL NOT NULL, target REAL, unweighed INTEGER NOT NULL, true_total REAL,
+    true_passes INTEGER, matched INTEGER,
     UNIQUE (source, truck));
 """
 
@@ -253,10 +261,10 @@ class ShiftRecord:
         except sqlite3.DatabaseError as exc:
             raise DatasetError(f"--db '{path}' is not a usable SQLite database: {exc}") from None
 
-    def start_run(self, source: str, data: str, model: str) -> int:
+    def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
         with self.db:
-            cur = self.db.execute("INSERT INTO runs (source, data, model, started) VALUES (?, ?, ?, ?)",
-                                  (source, data, model, _time.time()))
+            cur = self.db.execute("INSERT INTO runs (source, data, model, rated, started) VALUES (?, ?, ?, ?, ?)",
+                                  (source, data, model, rated, _time.time()))
         return int(cur.lastrowid)
 
     def finish_run(self, run: int) -> None:
@@ -273,19 +281,21 @@ class ShiftRecord:
                 [(source, run, p.truck, p.index, p.time_dig, p.time_dump, p.time_lock, p.weight, p.sigma,
                   p.status, p.reason, p.true_weight) for p in truck.passes])
             self.db.execute(
-                "INSERT INTO trucks (source, run, truck, passes, total, target, unweighed, true_total) "
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) DO UPDATE SET run = excluded.run, "
-                "passes = excluded.passes, total = excluded.total, target = excluded.target, "
-                "unweighed = excluded.unweighed, true_total = excluded.true_total",
+                "INSERT INTO trucks (source, run, truck, passes, total, target, unweighed, true_total, "
+                "true_passes, matched) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) "
+                "DO UPDATE SET run = excluded.run, passes = excluded.passes, total = excluded.total, "
+                "target = excluded.target, unweighed = excluded.unweighed, true_total = excluded.true_total, "
+                "true_passes = excluded.true_passes, matched = excluded.matched",
                 (source, run, truck.truck, len(truck.passes), truck.total, truck.target, truck.unweighed,
-                 truck.true_total))
+                 truck.true_total, truck.true_passes, truck.matched))
 
     def close(self) -> None:
         self.db.close()
 
 
 def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The ``passes`` and ``trucks`` tables of a shift record."""
+    """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
+    payload the runs' models had, kg, if one)."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"--db '{path}' does not exist")
@@ -293,8 +303,10 @@ def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
             passes = pd.read_sql_query("SELECT * FROM passes ORDER BY source, truck, pass", db)
             trucks = pd.read_sql_query("SELECT * FROM trucks ORDER BY source, truck", db)
+            rated = db.execute("SELECT MAX(rated) FROM runs").fetchone()[0]
     except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
         raise DatasetError(f"--db '{path}' is not a shift record (made by `loadout --db`): {exc}") from None
+    passes.attrs["rated"] = rated
     return passes, trucks
 
 
@@ -303,3 +315,141 @@ def passes_frame(trucks: list[Truck]) -> pd.DataFrame:
     rows = [asdict(p) for t in trucks for p in t.passes]
     cols = [f.name for f in Pass.__dataclass_fields__.values()]
     return pd.DataFrame(rows, columns=cols).rename(columns={"index": "pass"})
+
+
+def truck_table(truck: Truck):
+    """A rich table of one truck's passes, with the running total and what is left."""
+    from rich.table import Table
+
+    title = f"truck {truck.truck}"
+    if truck.target is not None:
+        title += f" — target {truck.target:,.0f} kg"
+    table = Table(title=title)
+    for col in ("pass", "weight kg", "σ kg", "status", "total kg", "left kg"):
+        table.add_column(col, justify="right" if col != "status" else "left")
+    running = 0.0
+    for p in truck.passes:
+        running += p.weight or 0.0
+        left = "" if truck.target is None else f"{truck.target - running:,.0f}"
+        table.add_row(str(p.index), "—" if p.weight is None else f"{p.weight:,.0f}",
+                      "—" if p.sigma is None else f"{p.sigma:.1f}",
+                      p.status if not p.reason else f"{p.status}: {p.reason}", f"{running:,.0f}", left)
+    return table
+
+
+def run_loadout(estimator, dataset, record: ShiftRecord | None, source: str, target: float | None,
+                on_truck=None, data_name: str = "", model_name: str = "") -> list[Truck]:
+    """Weigh every truck of ``dataset`` and record each as it is done (``on_truck(truck)``
+    after each, for a live view). ``target`` (kg) overrides the data's truck targets."""
+    metas = dataset.experiment_meta
+    run = (record.start_run(source, data_name, model_name, getattr(estimator, "rated_payload", None))
+           if record is not None else 0)
+    trucks: list[Truck] = []
+    for rows in split_trucks(dataset.frame):
+        meta = metas.get(int(rows["experiment"].iloc[0]), {})
+        truck_target = target if target is not None else meta.get("truck_target")
+        # trucks numbered 1, 2, … in the order of the data: the same data, the same numbers
+        truth = meta.get("passes") if len(split_trucks_of(rows, dataset)) == 1 else None
+        truck = weigh_truck(estimator, rows, len(trucks) + 1, truck_target, truth)
+        trucks.append(truck)
+        if record is not None:
+            record.write_truck(source, run, truck)
+        if on_truck is not None:
+            on_truck(truck)
+    if record is not None:
+        record.finish_run(run)
+    return trucks
+
+
+def split_trucks_of(rows: pd.DataFrame, dataset) -> list[int]:
+    """How many trucks the experiment of ``rows`` was split into (truth only for whole ones)."""
+    k = int(rows["experiment"].iloc[0])
+    t = dataset.frame.loc[dataset.frame["experiment"] == k, "time"].to_numpy(float)
+    return list(range(int(np.sum(np.diff(t) >= TRUCK_GAP)) + 1))
+
+
+def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | None = None) -> dict:
+    """Counts and, where the record has the truth, errors: passes within 1 % of ``rated`` (kg;
+    without it not counted), trucks within 0.5 % of their load."""
+    weighed = passes[passes["status"] == "ok"]
+    out = {"trucks": int(len(trucks)), "passes": int(len(passes)), "not_weighed": int((passes["status"] != "ok").sum()),
+           "total": float(trucks["total"].sum())}
+    known = weighed.dropna(subset=["true_weight"])
+    if len(known):
+        err = (known["weight"] - known["true_weight"]).to_numpy(float)
+        out["pass_error_rms"] = float(np.sqrt(np.mean(err**2)))
+        out["pass_error_max"] = float(np.max(np.abs(err)))
+        if rated:
+            out["passes_within_1pct"] = float(np.mean(np.abs(err) <= 0.01 * rated))
+    tk = trucks.dropna(subset=["true_total"])
+    if len(tk):
+        terr = (tk["total"] - tk["true_total"]).to_numpy(float)
+        out["truck_error_max"] = float(np.max(np.abs(terr)))
+        out["trucks_within_half_pct"] = float(np.mean(np.abs(terr) <= 0.005 * tk["true_total"].to_numpy(float)))
+    tp = trucks.dropna(subset=["true_passes"])
+    if len(tp):
+        out["missed"] = int((tp["true_passes"] - tp["matched"]).sum())
+        out["extra"] = int((tp["passes"] - tp["matched"]).sum())
+    return out
+
+
+def write_shift_report(db: str | Path, out: str | Path, rated: float | None = None) -> Path:
+    """A shift report from a record: ``shift.md`` (trucks, passes, totals, against the truth
+    where recorded) and ``pass_weights.png`` (histogram of pass weights). Returns the Markdown."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    passes, trucks = read_record(db)
+    rated = rated if rated is not None else passes.attrs.get("rated")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s = shift_summary(passes, trucks, rated)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    weights = passes.loc[passes["status"] == "ok", "weight"].to_numpy(float)
+    ax.hist(weights, bins=max(5, min(30, len(weights) // 2 or 1)), color="#4477aa")
+    ax.set_xlabel("pass weight, kg")
+    ax.set_ylabel("passes")
+    ax.set_title(f"{len(weights)} passes weighed")
+    fig.tight_layout()
+    png = out / "pass_weights.png"
+    tmp = out / ".pass_weights.tmp.png"
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(png)
+
+    def num(v, fmt=",.0f"):
+        return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+    lines = ["# Shift report", "", f"Record: `{db}`", "",
+             f"- trucks: {s['trucks']}", f"- passes: {s['passes']} ({s['not_weighed']} not weighed)",
+             f"- total loaded: {num(s['total'])} kg"]
+    if "pass_error_rms" in s:
+        lines += [f"- pass weight error against the truth: RMS {s['pass_error_rms']:.1f} kg, "
+                  f"largest {s['pass_error_max']:.1f} kg"]
+    if "passes_within_1pct" in s:
+        lines += [f"- passes within 1 % of rated ({0.01 * rated:g} kg): {100 * s['passes_within_1pct']:.1f} %"]
+    if "trucks_within_half_pct" in s:
+        lines += [f"- trucks within 0.5 % of their load: {100 * s['trucks_within_half_pct']:.1f} % "
+                  f"(largest error {s['truck_error_max']:.1f} kg)"]
+    if "missed" in s:
+        lines += [f"- true passes missed: {s['missed']}; detected passes that match no true one "
+                  f"(doubled or spurious): {s['extra']}"]
+    lines += ["", "![pass weights](pass_weights.png)", "", "## Trucks", "",
+              "| source | truck | passes | not weighed | total kg | target kg | true kg |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in trucks.itertuples():
+        lines.append(f"| {r.source[:8]} | {r.truck} | {r.passes} | {r.unweighed} | {num(r.total)} | "
+                     f"{num(r.target)} | {num(r.true_total)} |")
+    lines += ["", "## Passes", "", "| source | truck | pass | locked at s | weight kg | σ kg | status | true kg |",
+              "|---|---:|---:|---:|---:|---:|---|---:|"]
+    for r in passes.rename(columns={"pass": "n"}).itertuples():
+        status = r.status if not r.reason else f"{r.status}: {r.reason}"
+        lines.append(f"| {r.source[:8]} | {r.truck} | {r.n} | {num(r.time_lock, '.2f')} | {num(r.weight)} | "
+                     f"{num(r.sigma, '.1f')} | {status} | {num(r.true_weight)} |")
+    md = out / "shift.md"
+    tmp = out / ".shift.md.tmp"
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(md)
+    return md
