@@ -52,10 +52,12 @@ import pandas as pd
 from excavator_payload.errors import DatasetError
 
 #: A curl of the bucket by more than this (rad) ends a dig: the cut fills the bucket. Work
-#: cycles curl 65-125°; the bucket's "ready" curl on the return is 10-40°.
-DIG_CURL = math.radians(50.0)
-#: An opening by more than this (rad) after a dig is a dump (work cycles open 100-120°).
-DUMP_OPEN = math.radians(60.0)
+#: cycles curl 65-125° (halved near the end of the bucket's range); the bucket's "ready" curl
+#: on the return is 10-40°.
+DIG_CURL = math.radians(45.0)
+#: An opening by more than this (rad) after a dig is a dump: work cycles open 100-120°, or
+#: half that near the end of the bucket's range (60° missed 4 of 50 passes in a 10-truck shift).
+DUMP_OPEN = math.radians(40.0)
 #: A bucket move is where its smoothed rate exceeds this (rad/s) in one direction (the
 #: operator's corrections over the truck: 2° in 0.5 s, below it).
 MOVE_RATE = 0.15
