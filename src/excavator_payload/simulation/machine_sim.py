@@ -397,7 +397,7 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
                              with_truth: bool = False, workers: int | None = 1,
                              first_experiment: int = 0, trajectory=None,
                              progress: bool = False, payload: float | None = None,
-                             **execution) -> Dataset:
+                             truck_target: float | None = None, **execution) -> Dataset:
     """Simulate experiments of a hydraulic machine in memory.
 
     A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_dataset`
@@ -429,6 +429,8 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     payload : float, optional
         Every generated experiment carries this mass (kg) instead of a drawn one (0: an empty
         bucket, as ``zero`` needs); the motions are those drawn without it.
+    truck_target : float, optional
+        ``motion="shift"``: the load (kg) each truck aims at.
     """
     from excavator_payload.model.machine import load_machine
     from excavator_payload.simulation.generate import simulate_dataset
@@ -439,7 +441,8 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     return simulate_dataset(n_experiments, seed=seed, machine=machine, noise=noise,
                             with_truth=with_truth, workers=workers, motion=motion,
                             first_experiment=first_experiment, progress=progress, session=session,
-                            trajectory=trajectory, payload=payload, **execution)
+                            trajectory=trajectory, payload=payload, truck_target=truck_target,
+                            **execution)
 
 
 def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: int = 0,
