@@ -291,8 +291,13 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def report(
-        data: Path = typer.Option(..., "--data", help="Test dataset with the true payloads (Parquet)."),
-        out: Path = typer.Option(..., "--out", help="Folder to write report.html, report.md and figures/ in."),
+        data: Path = typer.Option(None, "--data", help="Test dataset with the true payloads (Parquet)."),
+        out: Path = typer.Option(..., "--out", help="Folder to write report.html, report.md and figures/ in "
+                                 "(with --db: shift.md and pass_weights.png)."),
+        db: Path = typer.Option(None, "--db", help="A shift record of `loadout --db`: write a shift report "
+                                "(passes, trucks, totals, histogram of pass weights) instead."),
+        rated: float = typer.Option(None, "--rated", metavar="KG",
+                                    help="With --db: the rated payload to count passes within 1 % of (default: the recorded model's)."),
         model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable).", metavar="DIR"),
         estimates: list[Path] = typer.Option([], "--estimates", help="Estimates file (repeatable).",
                                              metavar="FILE"),
@@ -318,6 +323,20 @@ def register(app: typer.Typer) -> None:
 
         if workers < 0:
             raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
+        if db is not None:
+            from excavator_payload.runtime.loadout import write_shift_report
+
+            if data is not None or model or estimates:
+                raise DatasetError("--db writes a shift report from the record alone; it does not go "
+                                   "with --data, --model or --estimates")
+            if rated is not None and not (math.isfinite(rated) and rated > 0):
+                raise DatasetError(f"--rated must be a mass above 0 kg, got {rated:g}")
+            check_output_path(out, inputs=[db], kind="folder", replaces=("shift.md", "pass_weights.png"))
+            md = write_shift_report(db, out, rated)
+            console.print(Text.assemble("shift report: ", (str(md), "bold")))
+            return
+        if data is None:
+            raise DatasetError("report needs --data (an evaluation) or --db (a shift report)")
 
         check_output_path(out, inputs=[data, *model, *estimates, calibration], kind="folder",
                           replaces=("report.html", "report.md", "evaluation.json", "figures"))

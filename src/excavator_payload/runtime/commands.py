@@ -31,6 +31,10 @@ def _codec(estimator, dbc_file, signal_map):
 def register(app: typer.Typer) -> None:
     """Add ``can-dbc``, ``can-record``, ``can-replay``, ``can-run`` and ``export`` to ``app``."""
 
+    from excavator_payload.runtime import loadout_command
+
+    loadout_command.register(app)
+
     @app.command("can-dbc")
     def can_dbc(
         sensor_set: str = typer.Option("thesis", "--sensor-set", help="Sensor set: thesis or machine."),

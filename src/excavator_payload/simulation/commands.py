@@ -40,7 +40,7 @@ def register(app: typer.Typer) -> None:
         motion: str = typer.Option(None, "--motion",
                                    help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
                                         "lifts); for a hydraulic machine swing (default), nmpc, work-cycle, "
-                                        "slopes, lifts or trajectory."),
+                                        "slopes, lifts, operator, shift (trucks of 2-6 work cycles) or trajectory."),
         session: int = typer.Option(0, "--session",
                                     help="Hydraulic machine: working session, draws the sensor offsets "
                                          "(independently of --seed)."),
@@ -59,6 +59,10 @@ def register(app: typer.Typer) -> None:
                                              help="With --trajectory: simulate motions faster than the "
                                                   "pumps or slew drive give (refused otherwise), with a "
                                                   "warning per experiment."),
+        truck_target: float = typer.Option(None, "--truck-target", metavar="KG",
+                                           help="Hydraulic machine, --motion shift: the load each truck "
+                                                "(experiment) aims at; its passes' fills are drawn towards "
+                                                "it (default: 4 passes at 90 % of rated)."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
         """Simulate experiments (thesis §5.3) and write them to a dataset file.
@@ -75,7 +79,7 @@ def register(app: typer.Typer) -> None:
         # a run description; objects travel inside.
         spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
                          session=session, trajectory=trajectory, payload=payload, smooth=smooth,
-                         allow_overspeed=allow_overspeed)
+                         allow_overspeed=allow_overspeed, truck_target=truck_target)
         motion, noise = spec.motion, spec.noise.name
         replayed = spec.option("trajectory")
         if replayed is not None:
@@ -92,7 +96,7 @@ def register(app: typer.Typer) -> None:
                                            noise=spec.noise, with_truth=with_truth, motion=motion,
                                            progress=not quiet, execution=execution, session=session,
                                            trajectory=spec.option("trajectory"), payload=payload,
-                                           allow_overspeed=allow_overspeed)
+                                           allow_overspeed=allow_overspeed, truck_target=truck_target)
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "

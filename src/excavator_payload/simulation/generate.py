@@ -146,6 +146,8 @@ MACHINE_MOTIONS: dict[str, Motion] = {
                        description="operator-like lift and slew: a pause, an overshoot, trims all along"),
     "trajectory": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
                          description="prescribed motions replayed from a trajectory file"),
+    "shift": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
+                    description="a day of loading: one truck of 2-6 work cycles per experiment"),
 }
 
 
@@ -272,7 +274,7 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
               first_experiment: int = 0, frozen_noise_seed: int | None = None,
               options: dict | None = None, session: int = 0, trajectory=None,
               payload: float | None = None, smooth: float | None = None,
-              allow_overspeed: bool = False) -> RunSpec:
+              allow_overspeed: bool = False, truck_target: float | None = None) -> RunSpec:
     """Check the arguments and resolve the names into a :class:`RunSpec` (at the edge, once).
 
     ``noise`` and ``motion`` default to the machine kind's own (thesis: ``thesis`` noise and
@@ -285,6 +287,7 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     (:func:`~excavator_payload.simulation.trajectory.smooth_trajectory`); ``allow_overspeed``
     simulates a trajectory faster than the pumps instead of refusing it (the trajectory's
     ``warnings`` say where).
+    ``truck_target`` (kg) is the load each truck of ``motion="shift"`` aims at.
     """
     machine = load_machine(machine)
     options = dict(options or {})
@@ -318,6 +321,19 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
             options["payload"] = float(payload)
         if trajectory is None and (smooth is not None or allow_overspeed):
             raise ExcavatorPayloadError("--smooth and --allow-overspeed go with a trajectory file (--trajectory)")
+        if truck_target is not None or motion == "shift":
+            if motion != "shift":
+                raise ExcavatorPayloadError("--truck-target goes with --motion shift (and only with it)")
+            if payload is not None:
+                raise ExcavatorPayloadError("--payload does not go with --motion shift: each pass draws "
+                                            "its fill towards --truck-target")
+            if truck_target is not None:
+                most = machine.max_payload * 6
+                if (isinstance(truck_target, bool) or not isinstance(truck_target, (int, float, np.number))
+                        or not 0.0 < float(truck_target) <= most):
+                    raise ExcavatorPayloadError(f"--truck-target must be above 0 and at most 6 passes of the "
+                                                f"machine's maximum payload, {most:g} kg; got {truck_target!r}")
+                options["truck_target"] = float(truck_target)
         if trajectory is not None:
             if not hasattr(trajectory, "experiments"):
                 trajectory = read_trajectory(trajectory)
@@ -335,8 +351,9 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     else:
         if smooth is not None or allow_overspeed:
             raise ExcavatorPayloadError("--smooth and --allow-overspeed go with a trajectory file (--trajectory)")
-        if session or trajectory is not None or payload is not None:
-            raise ExcavatorPayloadError("--session, --trajectory and --payload apply to a hydraulic machine only")
+        if session or trajectory is not None or payload is not None or truck_target is not None:
+            raise ExcavatorPayloadError("--session, --trajectory, --payload and --truck-target apply to a "
+                                        "hydraulic machine only")
         motion = "nmpc" if motion is None else motion
         preset = get_noise_preset("thesis" if noise is None else noise)
     _check_arguments(n_experiments, seed, None, motion, first_experiment, machine)
@@ -434,7 +451,7 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
                      session: int = 0, trajectory=None, payload: float | None = None,
-                     allow_overspeed: bool = False) -> Dataset:
+                     allow_overspeed: bool = False, truck_target: float | None = None) -> Dataset:
     """Simulate ``n_experiments`` experiments in memory.
 
     Parameters
@@ -485,7 +502,7 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
     """
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, first_experiment,
                      frozen_noise_seed, session=session, trajectory=trajectory, payload=payload,
-                     allow_overspeed=allow_overspeed)
+                     allow_overspeed=allow_overspeed, truck_target=truck_target)
     _check_arguments(n_experiments, seed, workers, spec.motion, first_experiment, spec.machine)
     if execution is not None:
         return simulate_spec(spec, first_experiment, n_experiments, execution, progress)
@@ -525,7 +542,7 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
                      progress: bool = True, scheduler: str | None = None,
                      frozen_noise_seed: int | None = None, execution: Execution | None = None,
                      session: int = 0, trajectory=None, payload: float | None = None,
-                     allow_overspeed: bool = False) -> Dataset:
+                     allow_overspeed: bool = False, truck_target: float | None = None) -> Dataset:
     """Simulate and write the dataset to ``out`` (Parquet, atomic); resume an interrupted run.
 
     Finished chunks of experiments are kept in ``<out>.partial/`` until the file is written;
@@ -543,7 +560,7 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
         raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed,
                      session=session, trajectory=trajectory, payload=payload,
-                     allow_overspeed=allow_overspeed)
+                     allow_overspeed=allow_overspeed, truck_target=truck_target)
     _check_arguments(n_experiments, seed, workers, spec.motion, 0, spec.machine)
     source = dict(spec.options).get("trajectory")
     if source is not None and Path(source.source).resolve() == out.resolve():

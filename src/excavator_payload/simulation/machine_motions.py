@@ -27,6 +27,9 @@ Motions
 ``operator``    a loaded lift-and-slew as an operator makes it: the boom lifted in two moves with
                 a pause between, a slew of 45-80° that overshoots and is corrected, dipper and
                 bucket trimmed all along, up to 90 % of the pumps' speed; 9-15 s.
+``shift``       one truck loaded: 2-6 work cycles one after another (:func:`shift_motion`), each
+                with its own fill, entering the bucket during the curl and leaving at the dump,
+                with the operator's pauses between passes.
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ import numpy as np
 from excavator_payload.model.hydraulic import HydraulicArmModel
 
 DEG = np.pi / 180.0
-MACHINE_MOTIONS = ("swing", "work-cycle", "slopes", "lifts", "operator")
+MACHINE_MOTIONS = ("swing", "work-cycle", "slopes", "lifts", "operator", "shift")
 SAMPLE_RATE = 100.0
 
 
@@ -97,14 +100,20 @@ class Motion:
     payload: float = 0.0
     release: tuple[float, float] | None = None  # the load leaves the bucket between these times
     info: dict = field(default_factory=dict)
+    #: loads one after another (a shift): (fill start, fill end, release start, release end, kg)
+    #: each; the mass enters linearly over its fill and leaves over its release. Overrides
+    #: ``payload`` / ``release`` in :meth:`payload_at`.
+    loads: list[tuple[float, float, float, float, float]] | None = None
 
     def stretched(self, factor: float) -> "Motion":
         """The same motion ``factor`` times slower."""
         steps = [Step(s.joint, s.start * factor, s.duration * factor, s.delta,
                       None if s.ramp is None else s.ramp * factor) for s in self.steps]
         release = None if self.release is None else (self.release[0] * factor, self.release[1] * factor)
+        loads = None if self.loads is None else [
+            (a * factor, b * factor, c * factor, d * factor, m) for a, b, c, d, m in self.loads]
         return Motion(self.initial.copy(), steps, self.duration * factor, self.tilt.copy(),
-                      self.payload, release, dict(self.info))
+                      self.payload, release, dict(self.info), loads)
 
     def sample(self, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) at ``time``, each (n, 4)."""
@@ -121,6 +130,11 @@ class Motion:
 
     def payload_at(self, time: np.ndarray) -> np.ndarray:
         """Mass in the bucket at ``time`` (falls linearly to 0 over the release window)."""
+        if self.loads is not None:
+            mass = np.zeros(len(time))
+            for a, b, c, d, m in self.loads:
+                mass += m * np.clip((time - a) / (b - a), 0.0, 1.0) * np.clip((d - time) / (d - c), 0.0, 1.0)
+            return mass
         if self.release is None:
             return np.full(len(time), float(self.payload))
         a, b = self.release
@@ -267,6 +281,67 @@ def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
                     release=release, info={"start_pose": start.tolist(), "carry_pose": carry.tolist(),
                                            "slew": slew})
     return _clip_to_ranges(motion, machine)
+
+
+#: Passes per truck in a shift (the issue: 2-6).
+SHIFT_PASSES = (2, 6)
+
+
+def shift_passes(rng, truck_target: float, machine) -> list[float]:
+    """Fills (kg) of the passes that load a truck of ``truck_target`` kg.
+
+    As many passes as a bucket at 90 % of rated needs (2-6), each of the target's share
+    × 0.85-1.10 (the operator's fill varies), within 20 % of rated … the maximum payload:
+    the truck's true load is their sum, near but not at the target, as on a real site.
+    """
+    rated = float(machine.rated_payload)
+    n = int(np.clip(np.ceil(truck_target / (0.9 * rated)), *SHIFT_PASSES))
+    share = truck_target / n
+    return [float(np.clip(share * _uniform(rng, 0.85, 1.10), 0.2 * rated, machine.max_payload))
+            for _ in range(n)]
+
+
+def shift_motion(rng, arm: HydraulicArmModel, truck_target: float) -> Motion:
+    """One truck: work cycles (:func:`work_cycle_motion`) chained in time.
+
+    Between two passes the operator pauses 0.5-4 s, then moves the arm from where the return
+    left it to the next cut (each joint a minimum-jerk step the hydraulics allow). Each pass's
+    fill enters the bucket during its curl and leaves during its dump's release window
+    (:attr:`Motion.loads`). ``info["passes"]``: per pass its fill and times.
+    """
+    machine = arm.machine
+    fills = shift_passes(rng, truck_target, machine)
+    steps: list[Step] = []
+    loads: list[tuple[float, float, float, float, float]] = []
+    passes: list[dict] = []
+    initial = pose = None
+    end = 0.0
+    for i, fill in enumerate(fills):
+        cycle = work_cycle_motion(rng, arm)
+        if i == 0:
+            initial, offset = cycle.initial.copy(), 0.0
+        else:
+            offset = end + _uniform(rng, 0.5, 4.0)  # the operator's pause between passes
+            moved = offset
+            for j in range(3):
+                delta = float(cycle.initial[j] - pose[j])
+                if abs(delta) > 1e-9:
+                    st = _step(rng, arm, j, offset, pose[j], delta, 1.0, 2.0)
+                    steps.append(st)
+                    moved = max(moved, st.start + st.duration)
+            offset = moved + _uniform(rng, 0.2, 0.6)
+        steps += [Step(st.joint, st.start + offset, st.duration, st.delta, st.ramp) for st in cycle.steps]
+        curl = cycle.steps[0]  # the cut's end: the bucket curls the load in
+        fill_window = (offset + curl.start, offset + curl.start + curl.duration)
+        release = (offset + cycle.release[0], offset + cycle.release[1])
+        loads.append((*fill_window, *release, fill))
+        passes.append({"pass": i + 1, "payload": fill, "start": offset, "fill": list(fill_window),
+                       "release": list(release), "end": offset + cycle.duration})
+        q, _, _ = cycle.sample(np.array([cycle.duration]))
+        pose = q[0]
+        end = offset + cycle.duration
+    return Motion(initial, steps, end, payload=float(sum(fills)), loads=loads,
+                  info={"truck_target": float(truck_target), "passes": passes})
 
 
 def _paced_step(rng, arm, joint, begin, start_angle, delta, share) -> Step:

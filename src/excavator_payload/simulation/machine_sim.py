@@ -311,6 +311,50 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
     return frame, meta
 
 
+def default_truck_target(machine) -> float:
+    """Truck target (kg) of ``--motion shift`` without ``--truck-target``: 4 passes at 90 % of rated."""
+    return 4 * 0.9 * float(machine.rated_payload)
+
+
+def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
+                              offsets: dict, truck_target: float, with_truth: bool) -> tuple[pd.DataFrame, dict]:
+    """Truck ``k`` of a shift (:func:`~.machine_motions.shift_motion`): its passes chained in
+    one experiment, redrawn until within the relief pressure.
+
+    The dataset schema keeps ``payload`` constant within an experiment, so the ``payload``
+    column (and the metadata's ``payload``) is the truck's true load; the mass in the bucket
+    over time is in the metadata's ``passes``: each pass's true fill (kg) and times (s),
+    ``fill`` (the load enters, linearly) and ``release`` (it leaves, linearly).
+    """
+    machine = arm.machine
+    motion_rng, noise_rng = machine_rngs(seed, k)
+    relief = machine.hydraulics.relief_pressure
+    for attempt in range(1, MAX_ATTEMPTS + 1):
+        plan = mm.fit_to_hydraulics(arm, mm.shift_motion(motion_rng, arm, truck_target))
+        time = sample_times(plan.duration)
+        q, qd, qdd = plan.sample(time)
+        payload_t = plan.payload_at(time)
+        friction0 = motion_rng.uniform(-1, 1, 3)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, motion_rng)
+        peak = float(max(physics["head"].max(), physics["rod"].max()))
+        if peak <= relief:
+            break
+    else:
+        raise ValueError(f"no truck within the relief pressure in {MAX_ATTEMPTS} draws")
+    frame = experiment_rows(k, time, q, qd, qdd, physics, plan.payload, noise, offsets, noise_rng,
+                            with_truth)
+    stretch = float(plan.info["time_stretch"])
+    passes = [{"pass": p["pass"], "payload": float(p["payload"]),
+               **{key: [stretch * v for v in p[key]] for key in ("fill", "release")},
+               "start": stretch * p["start"], "end": stretch * p["end"]} for p in plan.info["passes"]]
+    meta = {"experiment": int(k), "seed": int(seed), "payload": float(plan.payload), "motion": "shift",
+            "truck": int(k), "truck_target": float(truck_target), "passes": passes,
+            "tilt": [float(v) for v in plan.tilt], "duration": float(time[-1]),
+            "peak_pressure": peak, "within_relief": True, "draws": attempt, "status": "ok",
+            "time_stretch": stretch, "speed_share": float(plan.info["speed_share"])}
+    return frame, meta
+
+
 def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
     """Experiment ``experiment`` of the run ``spec`` (the entry of
     :data:`excavator_payload.simulation.generate.MACHINE_MOTIONS`): a generated motion, or the
@@ -322,6 +366,11 @@ def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
 
         return simulate_trajectory_experiment(experiment, spec.seed, arm, spec.noise, offsets,
                                               spec.option("trajectory"), spec.with_truth)
+    if spec.motion == "shift":
+        target = spec.option("truck_target")
+        return simulate_shift_experiment(experiment, spec.seed, arm, spec.noise, offsets,
+                                         default_truck_target(spec.machine) if target is None else target,
+                                         spec.with_truth)
     payload = spec.option("payload")
     if spec.motion == "nmpc":
         return simulate_nmpc_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.with_truth,
@@ -348,7 +397,7 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
                              with_truth: bool = False, workers: int | None = 1,
                              first_experiment: int = 0, trajectory=None,
                              progress: bool = False, payload: float | None = None,
-                             **execution) -> Dataset:
+                             truck_target: float | None = None, **execution) -> Dataset:
     """Simulate experiments of a hydraulic machine in memory.
 
     A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_dataset`
@@ -380,6 +429,8 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     payload : float, optional
         Every generated experiment carries this mass (kg) instead of a drawn one (0: an empty
         bucket, as ``zero`` needs); the motions are those drawn without it.
+    truck_target : float, optional
+        ``motion="shift"``: the load (kg) each truck aims at.
     """
     from excavator_payload.model.machine import load_machine
     from excavator_payload.simulation.generate import simulate_dataset
@@ -390,7 +441,8 @@ def simulate_machine_dataset(n_experiments: int, seed: int = 0, session: int = 0
     return simulate_dataset(n_experiments, seed=seed, machine=machine, noise=noise,
                             with_truth=with_truth, workers=workers, motion=motion,
                             first_experiment=first_experiment, progress=progress, session=session,
-                            trajectory=trajectory, payload=payload, **execution)
+                            trajectory=trajectory, payload=payload, truck_target=truck_target,
+                            **execution)
 
 
 def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: int = 0,

@@ -1,0 +1,457 @@
+"""A day of loading: one weight per bucket pass, a total per truck, a shift's record.
+
+What a scale in the cab shows (issue 30, "A day of loading"): every pass weighed before its
+dump, the truck's running total against its target and what the last pass should carry, and
+a record of every pass and truck of the shift.
+
+Phases, from the signals alone
+------------------------------
+The bucket's own motion says where a pass is (:func:`bucket_moves`): a **dig** ends with the
+bucket curling in by more than :data:`DIG_CURL` (the cut fills it), a **dump** is the bucket
+opening by more than :data:`DUMP_OPEN` after a dig (the load leaves). Between them the arm
+lifts while slewing (**lift-swing**: boom rising or slewing), after the dump it **returns**.
+A state machine (empty → dig → loaded → dump → empty) keeps the moves an operator makes in
+between from counting: an opening while empty (moving the bucket to the next cut) is no dump,
+a second curl while loaded (a correction) restarts the pass's dig.
+
+One weight per pass
+-------------------
+The estimator (the ``calibrated`` one restarts on a new load by itself: statuses
+``load_changing`` while a load leaves or enters, ``warming_up`` until the boom has been
+weighed again) runs over the whole log; a pass's weight is its **last** ``ok`` estimate and σ
+between the dig's end and the dump's start, locked at that time. A pass with no ``ok``
+estimate there is reported with status ``not_weighed`` and the reason (the statuses it had
+instead), never skipped or guessed.
+
+Trucks
+------
+In a dataset each experiment is one truck; within one, a gap of :data:`TRUCK_GAP` s or more
+between samples starts a new truck (a log of the arm's frames).
+
+Record
+------
+:class:`ShiftRecord`: SQLite tables ``passes(source, truck, pass, time_lock, weight, sigma,
+status, …)`` and ``trucks(source, truck, passes, total, target, …)``, unique by
+``(source, truck[, pass])`` where ``source`` is the SHA-256 of the data file: a rerun on the
+same data replaces its rows (never doubles them) and each truck is written in one
+transaction (a crash loses at most the truck being written; a rerun completes it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import sqlite3
+import time as _time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.errors import DatasetError
+
+#: A curl of the bucket by more than this (rad) ends a dig: the cut fills the bucket. Work
+#: cycles curl 65-125° (halved near the end of the bucket's range); the bucket's "ready" curl
+#: on the return is 10-40°.
+DIG_CURL = math.radians(45.0)
+#: An opening by more than this (rad) after a dig is a dump: work cycles open 100-120°, or
+#: half that near the end of the bucket's range (60° missed 4 of 50 passes in a 10-truck shift).
+DUMP_OPEN = math.radians(40.0)
+#: A bucket move is where its smoothed rate exceeds this (rad/s) in one direction (the
+#: operator's corrections over the truck: 2° in 0.5 s, below it).
+MOVE_RATE = 0.15
+#: Smoothing of the rates before the phases are read (s, moving mean).
+SMOOTHING = 0.2
+#: A gap of at least this (s) without samples starts a new truck.
+TRUCK_GAP = 30.0
+#: The phase of each sample (:func:`phases`).
+PHASES = ("dig", "lift-swing", "dump", "return")
+
+
+@dataclass
+class Pass:
+    """One bucket pass: its phases' times (s), its locked weight (kg) and σ, its status."""
+
+    truck: int
+    index: int  # 1, 2, … within the truck
+    time_dig: float  # the dig's curl ends (the bucket is full)
+    time_dump: float  # the dump starts
+    time_lock: float | None  # the sample the weight was locked at
+    weight: float | None
+    sigma: float | None
+    status: str  # "ok" or "not_weighed"
+    reason: str = ""
+    true_weight: float | None = None
+
+
+@dataclass
+class Truck:
+    """One truck: its passes and total (kg); ``target`` as given or from the data."""
+
+    truck: int
+    passes: list[Pass] = field(default_factory=list)
+    target: float | None = None
+    true_total: float | None = None
+    true_passes: int | None = None  # passes the truth holds
+    matched: int | None = None  # of them, found by one detected pass each
+
+    @property
+    def total(self) -> float:
+        return float(sum(p.weight for p in self.passes if p.weight is not None))
+
+    @property
+    def unweighed(self) -> int:
+        return sum(p.weight is None for p in self.passes)
+
+    @property
+    def remaining(self) -> float | None:
+        """What the last pass should carry: the target less the total so far."""
+        return None if self.target is None else self.target - self.total
+
+
+def _smooth(x: np.ndarray, period: float) -> np.ndarray:
+    n = max(1, int(round(SMOOTHING / period)))
+    return np.convolve(x, np.ones(n) / n, mode="same")
+
+
+def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int, float]]:
+    """The bucket's moves: (first sample, last sample, change of angle in rad) of each run where
+    its smoothed rate stays beyond :data:`MOVE_RATE` in one direction (+: opening, −: curling)."""
+    period = float(np.median(np.diff(time))) if len(time) > 1 else 0.01
+    r = _smooth(rate, period)
+    sign = np.where(r > MOVE_RATE, 1, np.where(r < -MOVE_RATE, -1, 0))
+    moves = []
+    edges = np.flatnonzero(np.diff(np.r_[0, sign, 0]))
+    for a, b in zip(edges[:-1], edges[1:]):
+        if sign[a] != 0:
+            moves.append((int(a), int(b - 1), float(angle[b - 1] - angle[a])))
+    return moves
+
+
+def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int]]:
+    """(dig end, dump start) sample of each pass, from the bucket's moves (module doc)."""
+    passes, dig = [], None
+    for a, b, change in bucket_moves(time, angle, rate):
+        if change < -DIG_CURL:
+            dig = b  # a new cut, or a correction of the last one: the latest curl counts
+        elif change > DUMP_OPEN and dig is not None:
+            passes.append((dig, a))
+            dig = None
+    return passes
+
+
+def phases(frame: pd.DataFrame) -> np.ndarray:
+    """Phase of each sample of one truck (:data:`PHASES`; "" before the first dig): the dig's
+    curl, lift-swing until the dump, the dump's opening, then return (and the wait before the
+    next cut) until the next curl."""
+    time = frame["time"].to_numpy(float)
+    out = np.full(len(time), "", dtype=object)
+    angle, rate = frame["bucket_angle"].to_numpy(float), frame["bucket_rate"].to_numpy(float)
+    moves = bucket_moves(time, angle, rate)
+    found = find_passes(time, angle, rate)
+    for k, (dig, dump) in enumerate(found):
+        curl = next(a for a, b, c in moves if b == dig)
+        end = next(b for a, b, c in moves if a == dump)
+        following = (next(a for a, b, c in moves if b == found[k + 1][0]) if k + 1 < len(found)
+                     else len(time))
+        out[curl:dig + 1] = "dig"
+        out[dig + 1:dump] = "lift-swing"
+        out[dump:end + 1] = "dump"
+        out[end + 1:following] = "return"
+    return out
+
+
+def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, status: np.ndarray,
+                start: int, stop: int) -> tuple[float | None, float | None, float | None, str]:
+    """The last ``ok`` estimate in samples ``start … stop-1``: (time, weight, σ, reason if none)."""
+    window = np.asarray(status[start:stop]) == "ok"
+    ok = np.flatnonzero(window & np.isfinite(estimate[start:stop]))
+    if len(ok):
+        i = start + int(ok[-1])
+        return float(time[i]), float(estimate[i]), float(sigma[i]), ""
+    seen = pd.Series(status[start:stop]).value_counts()
+    what = ", ".join(f"{k} {100 * v / max(stop - start, 1):.0f} %" for k, v in seen.items()) or "no samples"
+    return None, None, None, f"no ok estimate between the dig and the dump ({what})"
+
+
+def split_trucks(frame: pd.DataFrame) -> list[pd.DataFrame]:
+    """One frame per truck: per experiment, cut where :data:`TRUCK_GAP` s pass without a sample."""
+    out = []
+    for _, rows in frame.groupby("experiment", sort=False):
+        t = rows["time"].to_numpy(float)
+        cuts = np.flatnonzero(np.diff(t) >= TRUCK_GAP) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)]):
+            out.append(rows.iloc[a:b].reset_index(drop=True))
+    return out
+
+
+def _truth_match(passes: list[Pass], truth: list[dict]) -> int:
+    """Each detected pass's true weight: the true pass whose release follows its dump start
+    within 3 s (the load starts to leave part-way through the bucket's opening). Returns how
+    many true passes were found (a second detection of the same one gets no true weight)."""
+    found: set[int] = set()
+    for p in passes:
+        for i, t in enumerate(truth):
+            if t["release"][0] - 3.0 <= p.time_dump <= t["release"][1] and i not in found:
+                p.true_weight = float(t["payload"])
+                found.add(i)
+                break
+    return len(found)
+
+
+def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
+                truth: list[dict] | None = None) -> Truck:
+    """The passes of one truck's samples ``rows`` weighed by ``estimator`` (reset first)."""
+    from excavator_payload.data.dataset import Dataset
+
+    rows = rows.copy()
+    rows["experiment"] = 0
+    est = estimator.estimate(Dataset(rows, {"sensor_set": estimator.sensor_set.name}))
+    time = rows["time"].to_numpy(float)
+    estimate, sigma = est["payload_estimate"].to_numpy(float), est["sigma"].to_numpy(float)
+    status = est["status"].to_numpy(object)
+    out = Truck(truck, target=target)
+    for k, (dig, dump) in enumerate(find_passes(time, rows["bucket_angle"].to_numpy(float),
+                                                rows["bucket_rate"].to_numpy(float)), start=1):
+        t_lock, w, s, reason = lock_weight(time, estimate, sigma, status, dig, dump)
+        out.passes.append(Pass(truck, k, float(time[dig]), float(time[dump]), t_lock, w, s,
+                               "ok" if w is not None else "not_weighed", reason))
+    if truth:
+        out.matched = _truth_match(out.passes, truth)
+        out.true_passes = len(truth)
+        out.true_total = float(sum(t["payload"] for t in truth))
+    return out
+
+
+def file_key(path: str | Path) -> str:
+    """SHA-256 of a file's bytes: the same data, wherever it lies, is the same source."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    run INTEGER PRIMARY KEY AUTOINCREMENT, source TEXT NOT NULL, data TEXT, model TEXT,
+    rated REAL, started REAL, finished REAL);
+CREATE TABLE IF NOT EXISTS passes (
+    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, pass INTEGER NOT NULL,
+    time_dig REAL, time_dump REAL, time_lock REAL, weight REAL, sigma REAL, status TEXT NOT NULL,
+    reason TEXT, true_weight REAL,
+    UNIQUE (source, truck, pass));
+CREATE TABLE IF NOT EXISTS trucks (
+    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, passes INTEGER NOT NULL,
+    total REAL NOT NULL, target REAL, unweighed INTEGER NOT NULL, true_total REAL,
+    true_passes INTEGER, matched INTEGER,
+    UNIQUE (source, truck));
+"""
+
+
+class ShiftRecord:
+    """The shift's SQLite record (module doc): rerunning the same data replaces, never doubles."""
+
+    def __init__(self, path: str | Path):
+        path = Path(path)
+        if path.is_dir():
+            raise DatasetError(f"--db '{path}' is a folder; give a file name such as shift.sqlite")
+        try:
+            self.db = sqlite3.connect(path)
+            self.db.executescript(SCHEMA)
+        except sqlite3.DatabaseError as exc:
+            raise DatasetError(f"--db '{path}' is not a usable SQLite database: {exc}") from None
+
+    def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
+        with self.db:
+            cur = self.db.execute("INSERT INTO runs (source, data, model, rated, started) VALUES (?, ?, ?, ?, ?)",
+                                  (source, data, model, rated, _time.time()))
+        return int(cur.lastrowid)
+
+    def finish_run(self, run: int) -> None:
+        with self.db:
+            self.db.execute("UPDATE runs SET finished = ? WHERE run = ?", (_time.time(), run))
+
+    def write_truck(self, source: str, run: int, truck: Truck) -> None:
+        """One truck and its passes in one transaction; an earlier run's rows of it replaced."""
+        with self.db:
+            self.db.execute("DELETE FROM passes WHERE source = ? AND truck = ?", (source, truck.truck))
+            self.db.executemany(
+                "INSERT INTO passes (source, run, truck, pass, time_dig, time_dump, time_lock, weight, "
+                "sigma, status, reason, true_weight) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(source, run, p.truck, p.index, p.time_dig, p.time_dump, p.time_lock, p.weight, p.sigma,
+                  p.status, p.reason, p.true_weight) for p in truck.passes])
+            self.db.execute(
+                "INSERT INTO trucks (source, run, truck, passes, total, target, unweighed, true_total, "
+                "true_passes, matched) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) "
+                "DO UPDATE SET run = excluded.run, passes = excluded.passes, total = excluded.total, "
+                "target = excluded.target, unweighed = excluded.unweighed, true_total = excluded.true_total, "
+                "true_passes = excluded.true_passes, matched = excluded.matched",
+                (source, run, truck.truck, len(truck.passes), truck.total, truck.target, truck.unweighed,
+                 truck.true_total, truck.true_passes, truck.matched))
+
+    def close(self) -> None:
+        self.db.close()
+
+
+def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
+    payload the runs' models had, kg, if one)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"--db '{path}' does not exist")
+    try:
+        with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
+            passes = pd.read_sql_query("SELECT * FROM passes ORDER BY source, truck, pass", db)
+            trucks = pd.read_sql_query("SELECT * FROM trucks ORDER BY source, truck", db)
+            rated = db.execute("SELECT MAX(rated) FROM runs").fetchone()[0]
+    except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
+        raise DatasetError(f"--db '{path}' is not a shift record (made by `loadout --db`): {exc}") from None
+    passes.attrs["rated"] = rated
+    return passes, trucks
+
+
+def passes_frame(trucks: list[Truck]) -> pd.DataFrame:
+    """Every pass of ``trucks`` as a table (the Parquet export)."""
+    rows = [asdict(p) for t in trucks for p in t.passes]
+    cols = [f.name for f in Pass.__dataclass_fields__.values()]
+    return pd.DataFrame(rows, columns=cols).rename(columns={"index": "pass"})
+
+
+def truck_table(truck: Truck):
+    """A rich table of one truck's passes, with the running total and what is left."""
+    from rich.table import Table
+
+    title = f"truck {truck.truck}"
+    if truck.target is not None:
+        title += f" — target {truck.target:,.0f} kg"
+    table = Table(title=title)
+    for col in ("pass", "weight kg", "σ kg", "status", "total kg", "left kg"):
+        table.add_column(col, justify="right" if col != "status" else "left")
+    running = 0.0
+    for p in truck.passes:
+        running += p.weight or 0.0
+        left = "" if truck.target is None else f"{truck.target - running:,.0f}"
+        table.add_row(str(p.index), "—" if p.weight is None else f"{p.weight:,.0f}",
+                      "—" if p.sigma is None else f"{p.sigma:.1f}",
+                      p.status if not p.reason else f"{p.status}: {p.reason}", f"{running:,.0f}", left)
+    return table
+
+
+def run_loadout(estimator, dataset, record: ShiftRecord | None, source: str, target: float | None,
+                on_truck=None, data_name: str = "", model_name: str = "") -> list[Truck]:
+    """Weigh every truck of ``dataset`` and record each as it is done (``on_truck(truck)``
+    after each, for a live view). ``target`` (kg) overrides the data's truck targets."""
+    metas = dataset.experiment_meta
+    run = (record.start_run(source, data_name, model_name, getattr(estimator, "rated_payload", None))
+           if record is not None else 0)
+    trucks: list[Truck] = []
+    for rows in split_trucks(dataset.frame):
+        meta = metas.get(int(rows["experiment"].iloc[0]), {})
+        truck_target = target if target is not None else meta.get("truck_target")
+        # trucks numbered 1, 2, … in the order of the data: the same data, the same numbers
+        truth = meta.get("passes") if len(split_trucks_of(rows, dataset)) == 1 else None
+        truck = weigh_truck(estimator, rows, len(trucks) + 1, truck_target, truth)
+        trucks.append(truck)
+        if record is not None:
+            record.write_truck(source, run, truck)
+        if on_truck is not None:
+            on_truck(truck)
+    if record is not None:
+        record.finish_run(run)
+    return trucks
+
+
+def split_trucks_of(rows: pd.DataFrame, dataset) -> list[int]:
+    """How many trucks the experiment of ``rows`` was split into (truth only for whole ones)."""
+    k = int(rows["experiment"].iloc[0])
+    t = dataset.frame.loc[dataset.frame["experiment"] == k, "time"].to_numpy(float)
+    return list(range(int(np.sum(np.diff(t) >= TRUCK_GAP)) + 1))
+
+
+def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | None = None) -> dict:
+    """Counts and, where the record has the truth, errors: passes within 1 % of ``rated`` (kg;
+    without it not counted), trucks within 0.5 % of their load."""
+    weighed = passes[passes["status"] == "ok"]
+    out = {"trucks": int(len(trucks)), "passes": int(len(passes)), "not_weighed": int((passes["status"] != "ok").sum()),
+           "total": float(trucks["total"].sum())}
+    known = weighed.dropna(subset=["true_weight"])
+    if len(known):
+        err = (known["weight"] - known["true_weight"]).to_numpy(float)
+        out["pass_error_rms"] = float(np.sqrt(np.mean(err**2)))
+        out["pass_error_max"] = float(np.max(np.abs(err)))
+        if rated:
+            out["passes_within_1pct"] = float(np.mean(np.abs(err) <= 0.01 * rated))
+    tk = trucks.dropna(subset=["true_total"])
+    if len(tk):
+        terr = (tk["total"] - tk["true_total"]).to_numpy(float)
+        out["truck_error_max"] = float(np.max(np.abs(terr)))
+        out["trucks_within_half_pct"] = float(np.mean(np.abs(terr) <= 0.005 * tk["true_total"].to_numpy(float)))
+    tp = trucks.dropna(subset=["true_passes"])
+    if len(tp):
+        out["missed"] = int((tp["true_passes"] - tp["matched"]).sum())
+        out["extra"] = int((tp["passes"] - tp["matched"]).sum())
+    return out
+
+
+def write_shift_report(db: str | Path, out: str | Path, rated: float | None = None) -> Path:
+    """A shift report from a record: ``shift.md`` (trucks, passes, totals, against the truth
+    where recorded) and ``pass_weights.png`` (histogram of pass weights). Returns the Markdown."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    passes, trucks = read_record(db)
+    rated = rated if rated is not None else passes.attrs.get("rated")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s = shift_summary(passes, trucks, rated)
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    weights = passes.loc[passes["status"] == "ok", "weight"].to_numpy(float)
+    ax.hist(weights, bins=max(5, min(30, len(weights) // 2 or 1)), color="#4477aa")
+    ax.set_xlabel("pass weight, kg")
+    ax.set_ylabel("passes")
+    ax.set_title(f"{len(weights)} passes weighed")
+    fig.tight_layout()
+    png = out / "pass_weights.png"
+    tmp = out / ".pass_weights.tmp.png"
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    tmp.replace(png)
+
+    def num(v, fmt=",.0f"):
+        return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+    lines = ["# Shift report", "", f"Record: `{db}`", "",
+             f"- trucks: {s['trucks']}", f"- passes: {s['passes']} ({s['not_weighed']} not weighed)",
+             f"- total loaded: {num(s['total'])} kg"]
+    if "pass_error_rms" in s:
+        lines += [f"- pass weight error against the truth: RMS {s['pass_error_rms']:.1f} kg, "
+                  f"largest {s['pass_error_max']:.1f} kg"]
+    if "passes_within_1pct" in s:
+        lines += [f"- passes within 1 % of rated ({0.01 * rated:g} kg): {100 * s['passes_within_1pct']:.1f} %"]
+    if "trucks_within_half_pct" in s:
+        lines += [f"- trucks within 0.5 % of their load: {100 * s['trucks_within_half_pct']:.1f} % "
+                  f"(largest error {s['truck_error_max']:.1f} kg)"]
+    if "missed" in s:
+        lines += [f"- true passes missed: {s['missed']}; detected passes that match no true one "
+                  f"(doubled or spurious): {s['extra']}"]
+    lines += ["", "![pass weights](pass_weights.png)", "", "## Trucks", "",
+              "| source | truck | passes | not weighed | total kg | target kg | true kg |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in trucks.itertuples():
+        lines.append(f"| {r.source[:8]} | {r.truck} | {r.passes} | {r.unweighed} | {num(r.total)} | "
+                     f"{num(r.target)} | {num(r.true_total)} |")
+    lines += ["", "## Passes", "", "| source | truck | pass | locked at s | weight kg | σ kg | status | true kg |",
+              "|---|---:|---:|---:|---:|---:|---|---:|"]
+    for r in passes.rename(columns={"pass": "n"}).itertuples():
+        status = r.status if not r.reason else f"{r.status}: {r.reason}"
+        lines.append(f"| {r.source[:8]} | {r.truck} | {r.n} | {num(r.time_lock, '.2f')} | {num(r.weight)} | "
+                     f"{num(r.sigma, '.1f')} | {status} | {num(r.true_weight)} |")
+    md = out / "shift.md"
+    tmp = out / ".shift.md.tmp"
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(md)
+    return md
