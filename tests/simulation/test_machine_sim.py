@@ -390,11 +390,20 @@ def test_friction_at_rest_lies_anywhere_in_the_band_set_when_the_valve_closed():
 
 
 def test_rest_friction_holds_the_closing_value_and_slips_at_the_band():
-    speed = np.array([[1.0], [0.0], [0.0], [0.0], [1.0], [0.0]])
-    band = np.array([[10.0], [10.0], [4.0], [10.0], [10.0], [10.0]])
-    moving = np.full((6, 1), 7.0)
-    out = machine_sim.rest_friction(speed, band, np.array([0.1]), moving, np.array([[0.5], [-1.0]]))
-    assert out[:, 0].tolist() == [7.0, 5.0, 4.0, 5.0, 7.0, -10.0]
+    """A standstill of REST_MIN_SAMPLES or more holds u·breakaway from its first sample (its
+    own u, in order), giving at the band's edge where the band shrinks; a two-sample dip (a
+    reversal) and moving samples keep the sliding friction."""
+    n_rest = machine_sim.REST_MIN_SAMPLES
+    speed = np.r_[1.0, np.zeros(n_rest + 2), 1.0, 0.0, 0.0, 1.0, np.zeros(n_rest), 1.0][:, None]
+    band = np.full_like(speed, 10.0)
+    band[5] = 4.0
+    moving = np.full_like(speed, 7.0)
+    out = machine_sim.rest_friction(speed, band, np.array([0.1]), moving, np.array([[0.5], [-1.0]]))[:, 0]
+    first = slice(1, n_rest + 3)
+    assert out[0] == 7.0 and out[n_rest + 3] == 7.0
+    assert out[5] == 4.0 and np.all(np.delete(out[first], 4) == 5.0)
+    assert np.all(out[n_rest + 4:n_rest + 7] == 7.0)  # the short dip and the sample after it
+    assert np.all(out[n_rest + 7:2 * n_rest + 7] == -10.0) and out[-1] == 7.0
 
 
 def test_operator_motions_pause_overshoot_and_stay_within_the_pumps():

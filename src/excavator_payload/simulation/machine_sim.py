@@ -82,21 +82,27 @@ def _arm(machine: HydraulicMachine) -> HydraulicArmModel:
 
 
 # -- physics of one motion ------------------------------------------------------------------
-def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.ndarray) -> np.ndarray:
+def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.ndarray,
+                    forced: np.ndarray | None = None) -> np.ndarray:
     """Presliding (Dahl) state s ∈ [-1, 1] of each cylinder along its length history.
 
     ds/dx = (1 − s·sign(dx)) / x_p, integrated exactly between samples: s follows the sign of
     the motion over the presliding displacement x_p and keeps its value while the cylinder
-    stands still (stiction holds the last friction force).
+    stands still. ``forced`` (n, 3, NaN elsewhere) sets s where a standstill holds the friction
+    its valve left (:func:`rest_friction`), so that the motion after it starts from there.
     """
     dx = np.diff(lengths, axis=0)
     decay = np.exp(-np.abs(dx) / presliding)
     direction = np.sign(dx)
     out = np.empty_like(lengths)
     s = np.asarray(initial, dtype=float).copy()
+    if forced is not None:
+        s = np.where(np.isnan(forced[0]), s, forced[0])
     out[0] = s
     for i in range(len(dx)):
         s = direction[i] + (s - direction[i]) * decay[i]
+        if forced is not None:
+            s = np.where(np.isnan(forced[i + 1]), s, forced[i + 1])
         out[i + 1] = s
     return out
 
@@ -143,8 +149,6 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
     sig = arm.motion_signals(q, qd, qdd, tilt, payload)
     cylinders = arm.machine.cylinders
     presliding = np.array([c.presliding for c in cylinders])
-    states = friction_states(sig["length"], presliding, friction_initial)
-    friction, _, _ = arm.cylinder_pressures(sig["speed"], states, sig["load"])
     # breakaway of the load force (Stribeck peak at rest), per sample and cylinder
     coulomb = np.array([c.coulomb for c in cylinders])
     load_coefficient = np.array([c.load_coefficient for c in cylinders])
@@ -155,7 +159,13 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
         rng = np.random.default_rng(np.frombuffer(np.asarray(friction_initial, float).tobytes(), np.uint32))
     closing = rng.uniform(-1.0, 1.0, (64, 3))
     closing[0] = friction_initial  # a motion that starts at rest: the state it was drawn with
-    friction = rest_friction(sig["speed"], band, rest_speed, friction, closing)
+    held = rest_friction(sig["speed"], band, rest_speed, np.full_like(band, np.nan), closing)
+    # the presliding state through a standstill is the held friction's share of the band, so
+    # the motion after it turns the friction over from there (not from the last sliding one:
+    # that left a one-sample pressure dip where a rod started again)
+    states = friction_states(sig["length"], presliding, friction_initial, held / band)
+    friction, _, _ = arm.cylinder_pressures(sig["speed"], states, sig["load"])
+    friction = np.where(np.isnan(held), friction, held)
     head, rod = arm.pressures(sig["load"] + friction)
     return {"tau": sig["tau"], "load": sig["load"], "friction": friction, "head": head, "rod": rod,
             "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"]}
