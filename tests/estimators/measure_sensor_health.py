@@ -65,7 +65,7 @@ def main(model, paths, seed=0):
         flagged = (out["status"] == "sensor_fault").to_numpy() & late
         names = out.loc[flagged, "fault"].value_counts().head(3).to_dict()
         false_rows.append((family, int(late.sum()), int(flagged.sum()), names, _time.perf_counter() - t0))
-        for e in data.experiments:
+        for e in data.frame["experiment"].unique():
             one = data.frame[data.frame["experiment"] == e].reset_index(drop=True)
             n = len(one)
             for kind, signals in KINDS.items():
