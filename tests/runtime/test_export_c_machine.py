@@ -68,7 +68,11 @@ def _machine_models(data):
 
 @pytest.fixture(scope="module")
 def machine_models(machine_swings):
-    return dict(_machine_models(machine_swings))
+    models = dict(_machine_models(machine_swings))
+    for est in models.values():
+        # the C kernels have no sensor health monitor (estimators.health) yet: compare the rest
+        est.health = False
+    return models
 
 
 NAMES = ["inverse-dynamics", "calibrated-skip", "calibrated-downweight", "calibrated-model",

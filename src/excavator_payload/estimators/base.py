@@ -110,6 +110,9 @@ class Status(str, Enum):
     #: an estimate outside :data:`PLAUSIBLE_PAYLOAD` of the rated payload: not physical
     IMPLAUSIBLE = "implausible"
     LOAD_CHANGING = "load_changing"  #: the load is changing (a dump, a fill): estimate of the load before
+    #: a sensor is faulty (stuck, dropped out, disagreeing with its redundancy; named in
+    #: ``StepResult.fault``): sample not used, estimate kept (see :mod:`.health`)
+    SENSOR_FAULT = "sensor_fault"
 
 
 @dataclass(frozen=True)
@@ -132,6 +135,8 @@ class StepResult:
     estimate: float
     status: Status
     sigma: float = math.nan
+    #: the faulty signals and kinds while ``status`` is ``sensor_fault``, ``"signal:kind,..."``
+    fault: str = ""
 
 
 #: An estimate outside these fractions of the machine's rated payload is never ``ok``: a bucket
@@ -430,6 +435,10 @@ class Estimator(ABC):
         self._n_seen = 0
         self._n_rejected = 0
         self._gate_scale = 1.0
+        #: Whether the per-signal health monitor runs (machine sensor set; see :mod:`.health`).
+        self.health = True
+        self._health = None
+        self._health_for = None
 
     @property
     def _hydraulic(self) -> bool:
@@ -590,6 +599,8 @@ class Estimator(ABC):
         self._n_rejected = 0
         self._gate_scale = 1.0
         self._last_used = None
+        if self._health is not None:
+            self._health.reset()
         if self._sentinel is not None:
             self._sentinel.reset()
         self._reset()
@@ -629,6 +640,15 @@ class Estimator(ABC):
             self.plausible_low, self.plausible_high = plausibility_limits(self.sensor_set, self.machine)
         if not (np.all(values >= self.plausible_low) and np.all(values <= self.plausible_high)):
             return self._kept(Status.OUT_OF_RANGE)
+        if self.health:
+            if self._health_for is not self.sensor_set:
+                from excavator_payload.estimators.health import for_sensor_set
+
+                self._health, self._health_for = for_sensor_set(self.sensor_set), self.sensor_set
+            fault = self._health.step(time, values) if self._health is not None else ""
+            if fault:
+                # not used: the next healthy sample sees a hole in time and bridges it as a gap
+                return StepResult(self._last_estimate, Status.SENSOR_FAULT, self._last_sigma, fault)
         gap = False
         if self._last_time is not None:
             dt = time - self._last_time
@@ -778,6 +798,7 @@ class Estimator(ABC):
         est = np.full(len(dataset.frame), np.nan)
         sigma = np.full(len(dataset.frame), np.nan)
         status = np.empty(len(dataset.frame), dtype=object)
+        fault = np.full(len(dataset.frame), "", dtype=object)
         times = dataset.frame["time"].to_numpy(dtype=float)
         values = dataset.signals(self.sensor_set.signals)
         exp = dataset.frame["experiment"].to_numpy()
@@ -790,9 +811,12 @@ class Estimator(ABC):
             self.reset()
             for i in range(a, b):
                 r = self.step_values(times[i], values[i])
-                est[i], status[i], sigma[i] = r.estimate, r.status.value, r.sigma
-        return pd.DataFrame({"experiment": exp, "time": times, "payload_estimate": est,
-                             "status": status, "sigma": sigma})
+                est[i], status[i], sigma[i], fault[i] = r.estimate, r.status.value, r.sigma, r.fault
+        frame = pd.DataFrame({"experiment": exp, "time": times, "payload_estimate": est,
+                              "status": status, "sigma": sigma})
+        if self.sensor_set.name == "machine":
+            frame["fault"] = fault  # "signal:kind,..." while sensor_fault (see .health)
+        return frame
 
     # -- persistence -----------------------------------------------------------------------
     def save(self, directory: str | Path) -> Path:

@@ -58,6 +58,7 @@ class SensorOutput:
     status: str          # a Status value or "stale"
     sigma: float         # kg, one-sigma uncertainty, NaN when unknown
     stale: tuple[str, ...] = ()  # the signals too old for this sample (status "stale")
+    fault: str = ""  # "signal:kind,..." while the status is sensor_fault (estimators.health)
 
 
 def estimate_sigma(estimator: Estimator, result) -> float:
@@ -169,6 +170,9 @@ class PayloadSensor:
         self.period = self.sensor_set.sample_period
         self.stale_after = 3 * self.period if stale_after is None else float(stale_after)
         self.encoder = EstimateEncoder()
+        from excavator_payload.runtime.dm1 import DM1Transmitter
+
+        self.dm1 = DM1Transmitter(self.sensor_set)  # the faults on the bus (J1939 DM1)
         names = self.codec.message_names
         self.assembler = SampleAssembler(
             self.sensor_set.signals, self.period,
@@ -254,7 +258,7 @@ class PayloadSensor:
         self.counters["samples"] += 1
         status = dbc.STALE if sample.stale else result.status.value
         output = SensorOutput(sample.time, float(result.estimate), status,
-                              estimate_sigma(self.estimator, result), sample.stale)
+                              estimate_sigma(self.estimator, result), sample.stale, result.fault)
         self.last_output = output
         return output
 
@@ -290,8 +294,9 @@ class PayloadSensor:
         return outputs
 
     def frames(self, output: SensorOutput) -> list[can.Message]:
-        """The frames that publish ``output``."""
-        return self.encoder.frames(output)
+        """The frames that publish ``output``: the estimate, and a DM1 while a sensor is faulty
+        (once a second) and once after it clears (:mod:`~excavator_payload.runtime.dm1`)."""
+        return self.encoder.frames(output) + self.dm1.update(output.time, output.fault)
 
 
 def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,

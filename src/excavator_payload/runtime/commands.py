@@ -146,6 +146,8 @@ def register(app: typer.Typer) -> None:
             names = pd.Series([n for s in stale for n in s.split(",")]).value_counts()
             console.print("stale signals: " + ", ".join(f"{n} ({k} samples)" for n, k in names.items()),
                           markup=False, highlight=False)
+        for line in sensor.dm1.summary():  # what the bus would have carried (J1939 DM1)
+            console.print(line, markup=False, highlight=False)
 
     @app.command("can-run")
     def can_run(

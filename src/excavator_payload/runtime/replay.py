@@ -9,7 +9,9 @@ sensor restarts and the next segment gets the next experiment number, so the est
 log made by ``can-record`` line up with ``estimate`` on the dataset it came from. Columns:
 ``experiment``, ``time`` (s since the segment's first sample), ``payload_estimate`` (kg),
 ``status``, plus ``payload_sigma`` (kg), ``log_time`` (the log's own timestamp) and
-``stale_signals`` (the signals too old for the sample, comma-separated; empty when none).
+``stale_signals`` (the signals too old for the sample, comma-separated; empty when none) and
+``fault`` (``signal:kind,...`` while the status is ``sensor_fault``). The DM1 messages the sensor
+would have sent go through ``sensor.dm1`` (:meth:`~excavator_payload.runtime.dm1.DM1Transmitter.summary`).
 
 Formats: :mod:`~excavator_payload.runtime.logs`. A log in which nothing is the sensor's gets one
 line that says what it does hold (frames, ids, PGNs and source addresses, rates).
@@ -53,12 +55,14 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     intervals: dict[str, list[float]] = {}
     last_of: dict[str, float] = {}
     sensor.reset()
+    sensor.dm1.reset()
 
     def keep(outputs):
         for o in outputs:
             if o is not None:
                 rows.append((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
-                             ",".join(o.stale)))
+                             ",".join(o.stale), o.fault))
+                sensor.dm1.update(o.time, o.fault)
 
     # units and wiring judged on the decoded samples, as a dataset's (data/units.py)
     watch = SampleWatch(sensor.sensor_set, getattr(sensor.estimator, "machine", None))
@@ -89,6 +93,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
             if last_frame_time is None or t - last_frame_time > segment_gap:
                 if sensor.pending:
                     keep([sensor.flush()])
+                if rows:
+                    sensor.dm1.update(rows[-1][5], "")  # a new recording: its faults end here
                 sensor.reset()
                 experiment += 1
                 segment_start = t
@@ -131,7 +137,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                            f"{summary.describe()}")
     watch.check(f"CAN log '{path}'")
     frame = pd.DataFrame(rows, columns=["experiment", "time", "payload_estimate", "status",
-                                        "payload_sigma", "log_time", "stale_signals"])
+                                        "payload_sigma", "log_time", "stale_signals", "fault"])
     frame["experiment"] = frame["experiment"].astype("int64")
     frame.attrs["skipped_records"] = skipped[0]
     frame.attrs["summary"] = summary.describe()
