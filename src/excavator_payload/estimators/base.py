@@ -535,6 +535,9 @@ class Estimator(ABC):
         self.fit_warnings = []
         self.fit_refusals = []
         self.fit_report = []
+        # noise-free simulated data hold exact constants (a rod chamber at the back pressure, no
+        # slew) that look like stuck sensors; the health monitor judges signals with noise
+        self.health = str(dataset.meta.get("noise")) != "none"
         # a work cycle's payload column is the load carried: after its dump the bucket is empty
         self._fit(dataset.until_dump())
         self._sentinel_source = None
@@ -836,6 +839,7 @@ class Estimator(ABC):
                              if self.plausible_low is not None else None),
             "gate_sentinel": self._sentinel_source,
             "rated_payload": self.rated_payload,
+            "health": bool(self.health),
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
@@ -950,6 +954,7 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
                                   or not math.isfinite(rated) or rated <= 0):
             raise EstimatorError(f"its rated_payload must be a positive number of kg, got {rated!r}")
         est.rated_payload = None if rated is None else float(rated)
+        est.health = config.get("health", True) is not False  # fitted on noise-free data: off
         source = config.get("gate_sentinel")
         if source is not None:
             if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)

@@ -51,6 +51,8 @@ DISAGREE_LIMIT = 0.035
 DISAGREE_PER_RATE_CHANGE = 0.5
 #: A fault stays active until its condition has been clear this long, s.
 HOLD = 0.2
+#: Samples in a row an angle and its rate must disagree: one is a glitch for the outlier gate.
+DISAGREE_SAMPLES = 2
 
 #: J1939-73 failure mode identifier of each kind.
 FMI = {"stuck": 7, "dropout": 5, "disagree": 2}
@@ -99,6 +101,7 @@ class HealthMonitor:
         self.count = 0
         self.zeros = np.zeros(len(self.signals), int)
         self.active: dict[tuple[int, str], int] = {}  # (signal, kind) -> samples since last seen
+        self.disagreeing: dict[int, int] = {}  # angle -> samples in a row its rate disagrees
         self.last_time: float | None = None
 
     def step(self, time: float, values: np.ndarray) -> str:
@@ -139,7 +142,13 @@ class HealthMonitor:
                 integral = 0.5 * self.period * (recent[1:, r] + recent[:-1, r]).sum()
                 span = recent[:, r].max() - recent[:, r].min()
                 if abs(moved - integral) > DISAGREE_LIMIT + DISAGREE_PER_RATE_CHANGE * span:
-                    found += [(a, "disagree"), (r, "disagree")]
+                    # a one-frame spike is the outlier gate's (rejected, the estimate untouched);
+                    # a disagreement that lasts two samples is the sensor's
+                    self.disagreeing[a] = self.disagreeing.get(a, 0) + 1
+                    if self.disagreeing[a] >= DISAGREE_SAMPLES:
+                        found += [(a, "disagree"), (r, "disagree")]
+                else:
+                    self.disagreeing[a] = 0
         if self.count < self.n_stuck:
             return found
         w = self.buffer[end - self.n_stuck:end]

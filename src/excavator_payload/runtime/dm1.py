@@ -129,6 +129,7 @@ class DM1Transmitter:
         self.reset()
 
     def reset(self) -> None:
+        """Forget every active and past fault (a new log segment or a restarted sensor)."""
         self.active: dict[tuple[int, int], DtcEpisode] = {}
         self.occurrences: dict[tuple[int, int], int] = {}
         self.episodes: list[DtcEpisode] = []

@@ -264,12 +264,14 @@ class ShiftRecord:
             raise DatasetError(f"--db '{path}' is not a usable SQLite database: {exc}") from None
 
     def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
+        """Record the start of a loadout run over ``source`` (the data's hash); returns its id."""
         with self.db:
             cur = self.db.execute("INSERT INTO runs (source, data, model, rated, started) VALUES (?, ?, ?, ?, ?)",
                                   (source, data, model, rated, _time.time()))
         return int(cur.lastrowid)
 
     def finish_run(self, run: int) -> None:
+        """Mark run ``run`` finished (a run without it was interrupted)."""
         with self.db:
             self.db.execute("UPDATE runs SET finished = ? WHERE run = ?", (_time.time(), run))
 
@@ -292,6 +294,7 @@ class ShiftRecord:
                  truck.true_total, truck.true_passes, truck.matched))
 
     def close(self) -> None:
+        """Close the database."""
         self.db.close()
 
 

@@ -493,6 +493,8 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
         one (0: an empty bucket, as a zero check needs).
     allow_overspeed : bool
         Hydraulic machine: simulate a trajectory faster than the pumps give instead of refusing it.
+    truck_target : float, optional
+        Hydraulic machine, ``motion="shift"``: the load (kg) each truck (experiment) aims at.
 
     Returns
     -------

@@ -71,6 +71,13 @@ def machine_rngs(seed: int, experiment: int) -> tuple[np.random.Generator, np.ra
     return np.random.default_rng(a), np.random.default_rng(b)
 
 
+def closing_rng(seed: int, experiment: int) -> np.random.Generator:
+    """A third independent stream of the experiment: how its valves close (:func:`rest_friction`).
+    Its own stream, so that the motions and the noise drawn stay those of the same seed before
+    friction at rest was drawn (SeedSequence children do not depend on how many are spawned)."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(experiment), 11]).spawn(3)[2])
+
+
 _ARMS: dict[str, HydraulicArmModel] = {}
 
 
@@ -163,7 +170,8 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
     # the presliding state through a standstill is the held friction's share of the band, so
     # the motion after it turns the friction over from there (not from the last sliding one:
     # that left a one-sample pressure dip where a rod started again)
-    states = friction_states(sig["length"], presliding, friction_initial, held / band)
+    share = np.divide(held, band, out=np.full_like(band, np.nan), where=band > 0)
+    states = friction_states(sig["length"], presliding, friction_initial, share)
     friction, _, _ = arm.cylinder_pressures(sig["speed"], states, sig["load"])
     friction = np.where(np.isnan(held), friction, held)
     head, rod = arm.pressures(sig["load"] + friction)
@@ -246,6 +254,7 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
     ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
+    valves = closing_rng(seed, k)
     relief = machine.hydraulics.relief_pressure
     from excavator_payload.simulation.hydraulic_nmpc import ControlFailure
 
@@ -265,7 +274,7 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
             failures.append(str(exc))
             continue
         physics = motion_physics(arm, time, q, qd, qdd, np.zeros(2), np.full(len(time), payload), friction0,
-                                 motion_rng)
+                                 valves)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         share = mm.speed_share(arm, q, qd)
         # The controller bounds speeds at its nodes only and friction is not in its model: a
@@ -293,6 +302,7 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
     ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
+    valves = closing_rng(seed, k)
     relief = machine.hydraulics.relief_pressure
     for attempt in range(1, MAX_ATTEMPTS + 1):
         drawn = _draw_motion(motion, k, motion_rng, arm)
@@ -303,7 +313,7 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
         q, qd, qdd = plan.sample(time)
         payload_t = plan.payload_at(time)
         friction0 = motion_rng.uniform(-1, 1, 3)
-        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, motion_rng)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, valves)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         if peak <= relief or motion == "lifts":
             break
@@ -338,6 +348,7 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
     """
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
+    valves = closing_rng(seed, k)
     relief = machine.hydraulics.relief_pressure
     for attempt in range(1, MAX_ATTEMPTS + 1):
         plan = mm.fit_to_hydraulics(arm, mm.shift_motion(motion_rng, arm, truck_target))
@@ -345,7 +356,7 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
         q, qd, qdd = plan.sample(time)
         payload_t = plan.payload_at(time)
         friction0 = motion_rng.uniform(-1, 1, 3)
-        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, motion_rng)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, valves)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         if peak <= relief:
             break

@@ -318,6 +318,7 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
     from excavator_payload.simulation.machine_sim import (
         SAMPLE_RATE,
         experiment_rows,
+        closing_rng,
         machine_rngs,
         motion_physics,
     )
@@ -330,7 +331,7 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
     payload = float(rows["payload"].iloc[0])
     motion_rng, noise_rng = machine_rngs(seed, exp_id)
     physics = motion_physics(arm, time, q, qd, qdd, tilt, np.full(len(time), payload),
-                             motion_rng.uniform(-1, 1, 3), motion_rng)
+                             motion_rng.uniform(-1, 1, 3), closing_rng(seed, exp_id))
     frame = experiment_rows(exp_id, time, q, qd, qdd, physics, payload, noise, offsets, noise_rng,
                             with_truth)
     machine = arm.machine
