@@ -638,8 +638,20 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
 
     One epoch is one Adam step on all residuals (no regularisation term, no mini-batches), so
     it is comparable epoch-for-epoch with :func:`train_br`, though it needs many more epochs.
-    The log has the same columns; γ, α, β, μ are NaN.
+    The log has the same columns; γ, α, β, μ are NaN. Torch runs single-threaded here: a step's
+    operations are too small to gain from threads, and on a busy machine threads waiting for
+    each other at every operation made them many times slower.
     """
+    from excavator_payload.execution import numeric_threads
+
+    with numeric_threads(1):
+        return _train_adam(residuals, w0, epochs=epochs, lr=lr, validation=validation,
+                           progress=progress, description=description, max_seconds=max_seconds,
+                           best_validation=best_validation, validation_patience=validation_patience)
+
+
+def _train_adam(residuals, w0, *, epochs, lr, validation, progress, description, max_seconds,
+                best_validation, validation_patience):
     start = time.perf_counter()
     w = w0.detach().to(torch.float64).clone().requires_grad_(True)
     opt = torch.optim.Adam([w], lr=lr)
