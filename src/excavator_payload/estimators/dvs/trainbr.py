@@ -17,15 +17,16 @@ of :math:`F/2` is :math:`\beta H + \alpha I`, :math:`H = J^\top J`, and its grad
 
 One epoch
 ---------
-1. **Normal equations** (most of the work, :math:`N P^2` flops):
+1. **Normal equations** (most of the work, :math:`N P^2` flops): one Gram matrix
 
-   .. math:: H = J^\top J = \sum_k J_k^\top J_k, \qquad J^\top e = \sum_k J_k^\top e_k ,
+   .. math:: [J\;e]^\top [J\;e] = \begin{bmatrix} H & J^\top e \\ e^\top J & e^\top e
+             \end{bmatrix}, \qquad H = J^\top J ,
 
-   summed over fixed blocks of :data:`GRAM_BLOCK_ROWS` rows (:func:`row_blocks`), each a
-   symmetric rank-k update (BLAS ``syrk``, half the flops of a general product), computed by
-   the job's threads in any order and added in block order: the same bits for any thread count.
-   A :class:`BlockJacobian` computes :math:`J` block by block, so that the whole
-   :math:`N\times P` matrix is never held.
+   from :data:`GRAM_TILES` × :data:`GRAM_TILES` column tiles (symmetric rank-k updates, BLAS
+   ``syrk``, on the diagonal, general products beside them), each a task for the job's
+   threads. A :class:`BlockJacobian` fills :math:`J` in row blocks (:func:`row_blocks`), also
+   as tasks, into one array kept for the whole training. Neither split depends on the thread
+   count: the same bits for any number of threads.
 2. **Levenberg–Marquardt step**, tried with growing damping :math:`\mu` until :math:`F`
    decreases (:func:`lm_step`):
 
@@ -61,8 +62,8 @@ Threads
 -------
 A run uses the cores its job is given (:func:`excavator_payload.execution.job_threads`, or
 ``threads``), as its own pool of workers over the blocks of step 1 and beside the trials of
-step 2; inside, torch and every BLAS run single-threaded (:func:`~excavator_payload.execution.
-numeric_threads`). Coarse blocks, taken by whichever worker is free, degrade gracefully when
+step 2; inside, torch and every BLAS run single-threaded
+(:func:`~excavator_payload.execution.numeric_threads`). Coarse blocks, taken by whichever worker is free, degrade gracefully when
 another job holds a core; the libraries' own threads did not: a threaded eigensolver waits for
 every thread many times per call, and took 35× longer on a loaded 2-core machine. Until this
 release an epoch took an eigen-decomposition of :math:`H` (:math:`\approx 9P^3` flops), which made
