@@ -21,6 +21,19 @@ Where the tasks run
 * a job of one task, or ``workers=1`` without a scheduler, runs in this process: starting a
   cluster costs 1–3 s, more than small jobs take.
 
+Threads
+-------
+A job uses the cores it is given and no more (:func:`job_threads`): the cores this process may
+run on (its CPU affinity, e.g. ``taskset``), or fewer when ``$EXCAVATOR_PAYLOAD_THREADS`` (or
+``OMP_NUM_THREADS`` as the job started) says so. Each local worker process gets its share,
+``job_threads() // workers`` (at least 1), through its environment and
+:func:`numeric_threads` at start. Numeric code sets its libraries' pools explicitly with
+:func:`numeric_threads` (torch's intra-op pool, and every BLAS / OpenMP pool that
+``threadpoolctl`` finds): a library left to its default starts one thread per core in every
+process, and on a machine with other work those threads fight over the cores (``trainbr``
+ran 35× slower so). On a Dask cluster of your own, set ``EXCAVATOR_PAYLOAD_THREADS`` in the
+workers' environment to their share of the machine.
+
 A task lost with a dead worker is run again on another one (Dask does that); a task that raises
 is retried ``retries`` times before its error reaches the caller, except for a user error (an
 :class:`~excavator_payload.errors.ExcavatorPayloadError`: bad input fails the same way every
@@ -183,6 +196,66 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+#: Environment variable: threads one job (a command, or one local worker process) may use for its
+#: numerics; default: the cores it may run on. Never more than those.
+THREADS_ENV = "EXCAVATOR_PAYLOAD_THREADS"
+#: ``OMP_NUM_THREADS`` as this process started: Dask's nanny sets ``OMP_NUM_THREADS=1`` in the
+#: process that starts local workers (``distributed.nanny.pre-spawn-environ``), which is no
+#: request of the user's and must not make the commands that follow single-threaded.
+_OMP_AT_START = os.environ.get("OMP_NUM_THREADS")
+
+
+def job_threads() -> int:
+    """Threads this job may use: ``$EXCAVATOR_PAYLOAD_THREADS``, else ``OMP_NUM_THREADS`` as the
+    process started, else the cores this process may run on; capped at those cores.
+
+    Raises
+    ------
+    ExcavatorPayloadError
+        If ``$EXCAVATOR_PAYLOAD_THREADS`` is set but is not a whole number ≥ 1.
+    """
+    cores = default_workers()
+    text = os.environ.get(THREADS_ENV, "").strip()
+    if text:
+        try:
+            n = int(text)
+        except ValueError:
+            n = 0
+        if n < 1:
+            raise ExcavatorPayloadError(f"${THREADS_ENV} must be a whole number ≥ 1, got {text!r}")
+        return min(n, cores)
+    try:  # OMP_NUM_THREADS may be a list ("4,2": nested levels); its first level counts
+        n = int((_OMP_AT_START or "").split(",")[0])
+    except ValueError:
+        n = 0
+    return min(n, cores) if n >= 1 else cores
+
+
+def worker_threads(workers: int) -> int:
+    """Threads of each of ``workers`` local worker processes: their share of :func:`job_threads`."""
+    return max(1, job_threads() // max(1, int(workers)))
+
+
+@contextmanager
+def numeric_threads(threads: int):
+    """Inside the block torch's intra-op pool (when torch is loaded) and every BLAS / OpenMP pool
+    ``threadpoolctl`` finds (numpy's and scipy's OpenBLAS, torch's OpenMP) use ``threads``
+    threads; the previous settings come back after."""
+    from threadpoolctl import threadpool_limits
+
+    threads = max(1, int(threads))
+    torch = sys.modules.get("torch")  # never imported here: simulations do not need it
+    before = torch.get_num_threads() if torch is not None else None
+    with threadpool_limits(limits=threads):
+        if torch is not None:
+            torch.set_num_threads(threads)
+        try:
+            yield
+        finally:
+            if torch is not None:
+                torch.set_num_threads(before)
+
+
 def _guard_test(test: ast.expr) -> bool:
     """Whether an ``if`` test reads ``__name__`` (``if __name__ == "__main__":`` and its variants)."""
     return any(isinstance(node, ast.Name) and node.id == "__name__" for node in ast.walk(test))
@@ -239,8 +312,9 @@ def _prepare_forkserver() -> None:
 
 
 def start_local_cluster(workers: int):
-    """A Dask ``LocalCluster`` of ``workers`` single-threaded worker processes, started the way
-    this layer starts them (:data:`LOCAL_START_METHOD`, :data:`LOCAL_WORKER_CONFIG`, workers that
+    """A Dask ``LocalCluster`` of ``workers`` worker processes running one task at a time, each
+    with its share of the cores for its numerics (:func:`worker_threads`), started the way this
+    layer starts them (:data:`LOCAL_START_METHOD`, :data:`LOCAL_WORKER_CONFIG`, workers that
     ignore Ctrl-C); close it when done."""
     import dask
     from distributed import LocalCluster
@@ -254,8 +328,13 @@ def start_local_cluster(workers: int):
         # Without a dashboard the scheduler still serves health checks, on another port if
         # 8787 is taken (a second cluster): nothing the user needs to hear about.
         warnings.filterwarnings("ignore", message="Port .* is already in use")
+        # Each worker's share of the cores, in its environment (read by libraries it imports
+        # later and by job_threads(); the nanny's own default is 1 thread).
+        share = str(worker_threads(workers))
+        env = {THREADS_ENV: share, "OMP_NUM_THREADS": share, "MKL_NUM_THREADS": share,
+               "OPENBLAS_NUM_THREADS": share}
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                            silence_logs=logging.ERROR, preload=[__name__])
+                            silence_logs=logging.ERROR, preload=[__name__], env=env)
 
 
 @contextmanager
@@ -275,9 +354,18 @@ def _interrupts_ignored():
 def dask_setup(worker) -> None:
     """Dask preload hook, run by every local worker as it starts (also one its nanny restarts
     after a crash): the workers ignore Ctrl-C; the command stops them itself, without a
-    traceback from each worker."""
+    traceback from each worker. The libraries the worker has loaded already (from the fork
+    server) take its share of the cores (:func:`job_threads` reads the share from its
+    environment), since they read their thread counts when they were loaded."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from threadpoolctl import threadpool_limits
+
+    threads = job_threads()
+    threadpool_limits(limits=threads)  # kept for the worker's life
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(threads)
 
 
 def _quiet_dask() -> None:

@@ -7,7 +7,13 @@ import pandas as pd
 import pytest
 import torch
 
-from excavator_payload.estimators.dvs.common import mlp_forward, mlp_sizes, n_weights, nguyen_widrow_init
+from excavator_payload.estimators.dvs.common import (
+    mlp_forward,
+    mlp_output_jacobian,
+    mlp_sizes,
+    n_weights,
+    nguyen_widrow_init,
+)
 from excavator_payload.estimators.dvs.trainbr import (
     LOG_COLUMNS,
     TrainingLog,
@@ -220,3 +226,199 @@ def test_without_best_validation_the_last_weights_come_back():
                       validation=validation, progress=False)
     assert log.best_epoch == -1
     assert torch.equal(w, calls[-1])
+
+
+# -- the Cholesky epoch against the eigen-decomposition it replaced ---------------------------------
+def _eigh_step(H, g, alpha, beta, mu):
+    """The step as the previous release took it: one eigen-decomposition of H."""
+    s, V = np.linalg.eigh(H)
+    s = s.clip(min=0.0)
+    return -(V @ ((V.T @ g) / (beta * s + mu + alpha)))
+
+
+def _eigh_gamma(H, alpha, beta):
+    s = np.linalg.eigvalsh(H).clip(min=0.0)
+    return len(s) - alpha * np.sum(1.0 / (beta * s + alpha)) if alpha > 0 else float(len(s))
+
+
+def _net_problem(n=300, hidden=(6, 5), seed=0):
+    """A small MLP fit (rank-deficient-ish Gauss–Newton Hessian, like the real nets')."""
+    gen = torch.Generator().manual_seed(seed)
+    x = torch.rand(n, 4, generator=gen, dtype=torch.float64) * 2 - 1
+    t = torch.sin(2 * x[:, 0]) * x[:, 1] + 0.3 * x[:, 2] ** 2 + 0.01 * torch.randn(n, generator=gen, dtype=torch.float64)
+    sizes = mlp_sizes(4, list(hidden))
+
+    def residuals(w):
+        return t - mlp_forward(w, x, sizes)[:, 0]
+
+    return residuals, x, sizes, nguyen_widrow_init(sizes, torch.Generator().manual_seed(seed + 1))
+
+
+@pytest.mark.parametrize("alpha, beta, mu", [(0.0, 1.0, 0.005), (0.37, 120.0, 1e-3), (2.5, 3e4, 1e-9),
+                                             (1e-3, 50.0, 10.0), (0.8, 7e3, 0.0)])
+def test_cholesky_step_and_gamma_equal_the_eigendecomposition(alpha, beta, mu):
+    from excavator_payload.estimators.dvs.trainbr import effective_parameters, lm_step
+
+    residuals, x, sizes, w = _net_problem()
+    J = -mlp_output_jacobian(w, x, sizes).numpy()
+    e = residuals(w).numpy()
+    H = J.T @ J
+    g = beta * (J.T @ e) + alpha * w.numpy()
+    step = lm_step(np.asfortranarray(np.triu(H)), g, alpha, beta, mu)  # reads the upper triangle only
+    ref = _eigh_step(H, g, alpha, beta, mu)
+    np.testing.assert_allclose(step, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+    assert effective_parameters(H, alpha, beta) == pytest.approx(_eigh_gamma(H, alpha, beta), rel=1e-9, abs=1e-9)
+
+
+def test_a_matrix_that_is_not_positive_definite_is_a_failed_trial():
+    from excavator_payload.estimators.dvs.trainbr import effective_parameters, lm_step
+
+    H = np.diag([4.0, 1.0, 0.0])  # singular: μ + α = 0 leaves it singular, any shift > 0 does not
+    assert lm_step(H, np.ones(3), 0.0, 1.0, 0.0) is None
+    np.testing.assert_allclose(lm_step(H, np.ones(3), 0.0, 1.0, 1.0), -1 / np.array([5.0, 2.0, 1.0]))
+    assert effective_parameters(H, 0.5, 2.0) == pytest.approx(3 - 0.5 * (1 / 8.5 + 1 / 2.5 + 1 / 0.5))
+
+
+def _train_br_eigh(residuals, jacobian, w0, epochs, mu=0.005):
+    """The previous release's trainbr epoch (eigh of JᵀJ), as a reference."""
+    w = w0.clone()
+    e = residuals(w)
+    alpha, beta, P, N = 0.0, 1.0, w.numel(), e.numel()
+    e_d, e_w, sse, gammas = float(e @ e), float(w @ w), [], []
+    for _ in range(epochs):
+        J = jacobian(w).numpy()
+        H, g = J.T @ J, beta * (J.T @ e.numpy()) + alpha * w.numpy()
+        cost = beta * e_d + alpha * e_w
+        while True:
+            w_new = w + torch.from_numpy(_eigh_step(H, g, alpha, beta, mu))
+            e_new = residuals(w_new)
+            if beta * float(e_new @ e_new) + alpha * float(w_new @ w_new) < cost:
+                break
+            mu *= 10.0
+        w, e, mu = w_new, e_new, mu * 0.1
+        e_d, e_w = float(e @ e), float(w @ w)
+        gamma = _eigh_gamma(H, alpha, beta)
+        alpha, beta = gamma / (2 * e_w), (N - gamma) / (2 * e_d)
+        sse.append(e_d)
+        gammas.append(gamma)
+    return w, sse, gammas
+
+
+def _block_jacobian(x, sizes, size):
+    from excavator_payload.estimators.dvs.trainbr import BlockJacobian, row_blocks
+
+    rows = row_blocks(len(x), size)
+    return BlockJacobian([lambda w, out=None, r=r: mlp_output_jacobian(w, x[r], sizes, negate=True, out=out)
+                          for r in rows], rows)
+
+
+@pytest.mark.parametrize("blocks", [False, True])
+def test_training_follows_the_eigendecomposition_epochs(blocks):
+    residuals, x, sizes, w0 = _net_problem()
+    jacobian = _block_jacobian(x, sizes, 70) if blocks else (lambda w: -mlp_output_jacobian(w, x, sizes))
+    w_ref, sse_ref, gamma_ref = _train_br_eigh(residuals, lambda w: -mlp_output_jacobian(w, x, sizes), w0, 25)
+    w, log = train_br(residuals, w0, epochs=25, progress=False, jacobian=jacobian, min_grad=0.0, threads=2)
+    assert log.epoch[-1] == 25
+    np.testing.assert_allclose(log.sse[1:], sse_ref, rtol=1e-9)
+    np.testing.assert_allclose(log.gamma[1:], gamma_ref, rtol=1e-9)
+    np.testing.assert_allclose(w.numpy(), w_ref.numpy(), rtol=1e-7, atol=1e-9)
+    assert log.gamma[-1] < 0.9 * log.n_parameters  # the regularisation took hold: a real test of γ
+
+
+def test_same_bits_for_any_thread_count():
+    residuals, x, sizes, w0 = _net_problem(n=400)
+    jacobian = _block_jacobian(x, sizes, 50)
+    runs = [train_br(residuals, w0, epochs=12, progress=False, jacobian=jacobian, threads=n) for n in (1, 2, 3)]
+    for w, log in runs[1:]:
+        assert torch.equal(w, runs[0][0])
+        pd.testing.assert_frame_equal(log.to_frame(), runs[0][1].to_frame(), check_exact=True)
+
+
+def test_threads_inside_training_are_the_jobs_not_the_libraries():
+    """The blocks run on at most `threads` threads of trainbr's own pool; torch and BLAS are
+    single-threaded inside (their pools would fight ours), and come back afterwards."""
+    import threading
+
+    from threadpoolctl import threadpool_info
+
+    from excavator_payload.estimators.dvs.trainbr import BlockJacobian, row_blocks
+
+    residuals, x, sizes, w0 = _net_problem(n=600)
+    rows = row_blocks(len(x), 40)
+    seen = []
+
+    def block(r):
+        def run(w, out=None):
+            seen.append((threading.current_thread().name, torch.get_num_threads(),
+                         {i["num_threads"] for i in threadpool_info()}))
+            return mlp_output_jacobian(w, x[r], sizes, negate=True, out=out)
+        return run
+
+    torch.set_num_threads(2)
+    try:
+        train_br(residuals, w0, epochs=3, progress=False, jacobian=BlockJacobian([block(r) for r in rows], rows),
+                 threads=2)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(1)
+    names = {name for name, _, _ in seen}
+    assert names and all(name.startswith("trainbr") for name in names) and len(names) <= 2
+    assert {n for _, n, _ in seen} == {1} and set().union(*(s for _, _, s in seen)) == {1}
+    seen.clear()
+    train_br(residuals, w0, epochs=1, progress=False, jacobian=BlockJacobian([block(r) for r in rows], rows),
+             threads=1)
+    assert {name for name, _, _ in seen} == {threading.main_thread().name}
+
+
+def test_default_threads_are_the_cores_the_job_is_given(tmp_path):
+    """In a process allowed one core (its CPU affinity), or told one thread, trainbr runs its
+    blocks in the calling thread; given two cores it uses a pool of its own, never more
+    threads than cores."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent("""
+        import os, sys, threading, torch
+        from excavator_payload.estimators.dvs.common import mlp_forward, mlp_output_jacobian, mlp_sizes, nguyen_widrow_init
+        from excavator_payload.estimators.dvs.trainbr import BlockJacobian, row_blocks, train_br
+        from excavator_payload.execution import job_threads
+        x = torch.linspace(-1, 1, 400, dtype=torch.float64)[:, None]
+        sizes = mlp_sizes(1, [5])
+        rows = row_blocks(400, 20)
+        cores = sorted(os.sched_getaffinity(0))
+
+        def probe(n_cores, threads_env=None):
+            os.sched_setaffinity(0, set(cores[:n_cores]))
+            os.environ.pop("EXCAVATOR_PAYLOAD_THREADS", None)
+            if threads_env:
+                os.environ["EXCAVATOR_PAYLOAD_THREADS"] = threads_env
+            names = set()
+            def block(r):
+                def run(w, out=None):
+                    names.add(threading.current_thread().name)
+                    return mlp_output_jacobian(w, x[r], sizes, negate=True, out=out)
+                return run
+            train_br(lambda w: torch.sin(3 * x[:, 0]) - mlp_forward(w, x, sizes)[:, 0],
+                     nguyen_widrow_init(sizes, torch.Generator().manual_seed(0)), epochs=2, progress=False,
+                     jacobian=BlockJacobian([block(r) for r in rows], rows))
+            return f"{job_threads()}:{'pool' if any(n.startswith('trainbr') for n in names) else 'here'}"
+
+        print(probe(1), probe(len(cores), "1"), probe(2), probe(2, "64"))
+    """)
+    path = tmp_path / "probe.py"
+    path.write_text(script)
+    environ = {k: v for k, v in os.environ.items() if k not in ("OMP_NUM_THREADS", "EXCAVATOR_PAYLOAD_THREADS")}
+
+    def run(**env):
+        done = subprocess.run([sys.executable, str(path)], capture_output=True, text=True, timeout=120,
+                              env={**environ, **env})
+        assert done.returncode == 0, done.stderr
+        return done.stdout.split()
+
+    one_core, told_one, two_cores, told_too_many = run()
+    assert one_core == "1:here" and told_one == "1:here"
+    if len(os.sched_getaffinity(0)) >= 2:
+        assert two_cores == "2:pool" and told_too_many == "2:pool"  # never more than the cores
+    assert run(OMP_NUM_THREADS="1")[2] == "1:here"  # OMP_NUM_THREADS as the job started is a request too

@@ -281,7 +281,7 @@ def mlp_forward(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int]) -> torch
 
 
 def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int],
-                        negate: bool = False) -> torch.Tensor:
+                        negate: bool = False, out: torch.Tensor | None = None) -> torch.Tensor:
     r"""Per-sample gradients :math:`\partial y_i/\partial w` of a single-output MLP, ``(N, P)``.
 
     Backpropagation written out: with :math:`\delta_L = 1` and
@@ -304,6 +304,9 @@ def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int],
         commutes with every product and sum here), without the extra pass and the extra copy
         of an ``(N, P)`` array a separate negation costs: on the machine set ``N·P`` is about
         10⁸ and that copy was a quarter of an epoch.
+    out : torch.Tensor, optional
+        ``(N, P)`` float64 array to write into (and return), e.g. rows of a buffer trainbr keeps
+        for the whole training; its last dimension must be contiguous. Default: a new array.
 
     Notes
     -----
@@ -317,7 +320,11 @@ def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int],
     for W, b in layers[:-1]:
         acts.append(torch.tanh(acts[-1] @ W.T + b))
     n = x.shape[0]
-    out = torch.empty(n, w.shape[-1], dtype=x.dtype)
+    if out is None:
+        out = torch.empty(n, w.shape[-1], dtype=x.dtype)
+    elif out.shape != (n, w.shape[-1]) or out.dtype != x.dtype or out.stride(-1) != 1:
+        raise ValueError(f"mlp_output_jacobian: out must be a ({n}, {w.shape[-1]}) {x.dtype} array "
+                         f"with contiguous rows, got {tuple(out.shape)} {out.dtype}")
     # column offset of each layer's (W, b) block in the flat weight vector
     offsets, k = [], 0
     for n_prev, n_next in zip(sizes[:-1], sizes[1:]):

@@ -47,6 +47,7 @@ import torch
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Status, StepResult, register
+from excavator_payload.estimators.dvs.trainbr import BlockJacobian, row_blocks
 from excavator_payload.estimators.dvs.common import (
     DelayLine,
     NeuralEstimator,
@@ -87,12 +88,14 @@ class TimeDelayNetwork(NeuralEstimator):
         def residuals(w):
             return t - mlp_forward(w, X, sizes)[:, 0]
 
-        def jacobian(w):
+        def rows_jacobian(rows):
             # ∂e_i/∂w = −∂y(x_i)/∂w (backpropagation per sample, equal to torch.func's per-sample
-            # gradients, tested; several times faster), negated inside: no second (N, P) array
-            return mlp_output_jacobian(w, X, sizes, negate=True)
+            # gradients, tested; several times faster), negated inside: no second (N, P) array;
+            # rows are independent, so trainbr computes them block by block on its threads
+            return lambda w, out=None: mlp_output_jacobian(w, X[rows], sizes, negate=True, out=out)
 
-        return residuals, jacobian
+        blocks = row_blocks(len(X))
+        return residuals, BlockJacobian([rows_jacobian(rows) for rows in blocks], blocks)
 
     def _use_weights(self, w: np.ndarray) -> None:
         self._layers = [(np.ascontiguousarray(W), np.ascontiguousarray(b))

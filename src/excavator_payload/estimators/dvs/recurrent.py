@@ -53,6 +53,7 @@ import torch
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, Status, StepResult, register
+from excavator_payload.estimators.dvs.trainbr import GRAM_BLOCK_ROWS, BlockJacobian
 from excavator_payload.estimators.dvs.common import (
     NeuralEstimator,
     neural_options,
@@ -615,14 +616,24 @@ class RecurrentNetwork(NeuralEstimator):
         def residuals(w):
             return torch.cat([(t - rollout(w, u, structure, y0)).reshape(-1) for u, t in groups])
 
-        def jacobian(w):
-            if structure.recurrent_layers and structure.layer_delays:
-                blocks = [bptt_jacobian(w, u, structure, y0) for u, _ in groups]
-            else:
-                blocks = [narx_jacobian(w, u, structure, y0)[1] for u, _ in groups]
-            return -torch.cat([b.reshape(-1, b.shape[-1]) for b in blocks])  # e = t − ŷ
+        def experiments_jacobian(u):
+            def block(w, out=None):
+                if structure.recurrent_layers and structure.layer_delays:
+                    S = bptt_jacobian(w, u, structure, y0)
+                else:
+                    S = narx_jacobian(w, u, structure, y0)[1]
+                return torch.neg(S.reshape(-1, S.shape[-1]), out=out)  # e = t − ŷ
+            return block
 
-        return residuals, jacobian
+        # experiments are independent: trainbr computes their Jacobian in blocks on its threads
+        blocks, rows, start = [], [], 0
+        for u, t in groups:
+            n_steps = t.shape[1]
+            for part in torch.tensor_split(u, min(len(u), max(1, round(len(u) * n_steps / GRAM_BLOCK_ROWS)))):
+                blocks.append(experiments_jacobian(part))
+                rows.append(slice(start, start + len(part) * n_steps))
+                start += len(part) * n_steps
+        return residuals, BlockJacobian(blocks, rows)
 
     # -- streaming -------------------------------------------------------------------------
     def _use_weights(self, w: np.ndarray) -> None:

@@ -2,47 +2,86 @@ r"""Levenberg–Marquardt training with Bayesian regularisation (MATLAB ``trainb
 
 The thesis trains its networks with MATLAB's ``trainbr`` (appendix A.3), which implements
 MacKay's Bayesian regularisation in the Gauss–Newton approximation of Foresee & Hagan (1997).
+
+Model
+-----
 With residuals :math:`e = t - y(w)` (targets minus outputs, in scaled units) over :math:`N`
 targets and :math:`P` weights, the cost is
 
-.. math:: F(w) = \beta E_D + \alpha E_W, \qquad E_D = e^\top e, \qquad E_W = w^\top w .
+.. math:: F(w) = \beta E_D + \alpha E_W, \qquad E_D = e^\top e, \qquad E_W = w^\top w ,
 
-With :math:`J = \partial e / \partial w` (an :math:`N\times P` matrix) one epoch is
+:math:`\beta` the precision of the data, :math:`\alpha` that of the Gaussian prior on the
+weights. With :math:`J = \partial e / \partial w` (:math:`N\times P`) the Gauss–Newton Hessian
+of :math:`F/2` is :math:`\beta H + \alpha I`, :math:`H = J^\top J`, and its gradient
+:math:`g = \beta J^\top e + \alpha w`.
 
-1. the Levenberg–Marquardt step, tried with increasing damping :math:`\mu` until :math:`F`
-   decreases,
+One epoch
+---------
+1. **Normal equations** (most of the work, :math:`N P^2` flops): one Gram matrix
 
-   .. math:: \Delta w = -\big(\beta J^\top J + (\mu + \alpha) I\big)^{-1}
-             \big(\beta J^\top e + \alpha w\big),
+   .. math:: [J\;e]^\top [J\;e] = \begin{bmatrix} H & J^\top e \\ e^\top J & e^\top e
+             \end{bmatrix}, \qquad H = J^\top J ,
 
-   :math:`\mu \leftarrow \mu\,\mu_{dec}` on success, :math:`\mu \leftarrow \mu\,\mu_{inc}`
-   on failure (up to :math:`\mu_{max}`);
-2. the re-estimation of the hyper-parameters with the effective number of parameters
-   :math:`\gamma`,
+   from :data:`GRAM_TILES` × :data:`GRAM_TILES` column tiles (symmetric rank-k updates, BLAS
+   ``syrk``, on the diagonal, general products beside them), each a task for the job's
+   threads. A :class:`BlockJacobian` fills :math:`J` in row blocks (:func:`row_blocks`), also
+   as tasks, into one array kept for the whole training. Neither split depends on the thread
+   count: the same bits for any number of threads.
+2. **Levenberg–Marquardt step**, tried with growing damping :math:`\mu` until :math:`F`
+   decreases (:func:`lm_step`):
 
-   .. math:: \gamma = P - \alpha\,\mathrm{tr}\big((\beta J^\top J + \alpha I)^{-1}\big),\qquad
-             \alpha = \frac{\gamma}{2 E_W}, \qquad \beta = \frac{N - \gamma}{2 E_D}.
+   .. math:: (\beta H + (\mu + \alpha) I)\,\Delta w = -g, \qquad
+             \beta H + (\mu + \alpha) I = R^\top R \;(\text{Cholesky}),\qquad
+             \Delta w = -R^{-1} R^{-\top} g ,
+
+   :math:`\mu \leftarrow \mu\,\mu_{dec}` on success, :math:`\mu \leftarrow \mu\,\mu_{inc}` on
+   failure (a matrix that is not numerically positive definite is a failed trial too), up
+   to :math:`\mu_{max}`. One Cholesky factorisation, :math:`P^3/3` flops, per trial.
+3. **Re-estimation** of the hyper-parameters with the effective number of parameters
+   :math:`\gamma`, at the epoch's :math:`H` and the :math:`\alpha, \beta` the step used
+   (:func:`effective_parameters`), once per accepted step:
+
+   .. math:: \gamma = P - \alpha\,\mathrm{tr}\big((\beta H + \alpha I)^{-1}\big),\qquad
+             \alpha \leftarrow \frac{\gamma}{2 E_W}, \qquad
+             \beta \leftarrow \frac{N - \gamma}{2 E_D} ,
+
+   the trace from one more Cholesky factor: with :math:`\beta H + \alpha I = R^\top R`,
+   :math:`(\beta H + \alpha I)^{-1} = R^{-1}R^{-\top}` and
+   :math:`\mathrm{tr}(R^{-1}R^{-\top}) = \|R^{-1}\|_F^2`, the sum of the squares of the
+   triangular inverse (LAPACK ``potrf`` then ``trtri``, :math:`2P^3/3` flops). This is
+   MATLAB's own formula (``gamk = numParameters - alph*trace(inv(beta*jj + ii*alph))``), and
+   equals :math:`\sum_i \beta s_i/(\beta s_i + \alpha)` over the eigenvalues :math:`s_i` of
+   :math:`H`. With more than one thread it runs beside the step's trials.
 
 Training starts as MATLAB does, with :math:`\alpha = 0, \beta = 1` (plain Levenberg–Marquardt
-for the first step), and stops after ``epochs`` epochs, when the gradient norm
-:math:`\|\nabla F\| = 2\|\beta J^\top e + \alpha w\|` falls below ``min_grad``, or when
-:math:`\mu` exceeds :math:`\mu_{max}`.
+for the first step, :math:`\gamma = P`), and stops after ``epochs`` epochs, when the gradient
+norm :math:`\|\nabla F\| = 2\|g\|` falls below ``min_grad``, or when :math:`\mu` exceeds
+:math:`\mu_{max}`.
 
-One eigen-decomposition :math:`J^\top J = V\,\mathrm{diag}(s)\,V^\top` per epoch makes every
-trial step and the trace cheap: :math:`(\beta J^\top J + cI)^{-1} = V\,\mathrm{diag}
-(1/(\beta s + c))\,V^\top`.
+Threads
+-------
+A run uses the cores its job is given (:func:`excavator_payload.execution.job_threads`, or
+``threads``), as its own pool of workers over the blocks of step 1 and beside the trials of
+step 2; inside, torch and every BLAS run single-threaded
+(:func:`~excavator_payload.execution.numeric_threads`). Coarse blocks, taken by whichever worker is free, degrade gracefully when
+another job holds a core; the libraries' own threads did not: a threaded eigensolver waits for
+every thread many times per call, and took 35× longer on a loaded 2-core machine. Until this
+release an epoch took an eigen-decomposition of :math:`H` (:math:`\approx 9P^3` flops), which made
+every trial and the trace cheap but cost as much as the normal equations.
 
 References
 ----------
 D. J. C. MacKay, "Bayesian interpolation", Neural Computation 4(3), 1992.
 F. D. Foresee, M. T. Hagan, "Gauss–Newton approximation to Bayesian learning", ICNN 1997.
+M. T. Hagan, M. B. Menhaj, "Training feedforward networks with the Marquardt algorithm",
+IEEE Trans. Neural Networks 5(6), 1994.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -50,6 +89,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 import torch
+from scipy.linalg import lapack as _lapack
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 Residuals = Callable[[torch.Tensor], torch.Tensor]
@@ -193,41 +233,201 @@ def jacobian_forward(residuals: Residuals, w: torch.Tensor, chunk_size: int = 64
 
 
 # -- linear algebra of an epoch ------------------------------------------------------------
-def _numpy_blas_single_threaded() -> bool:
-    return any(os.environ.get(v) == "1" for v in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
-                                                   "MKL_NUM_THREADS"))
+#: Rows of one block of a :class:`BlockJacobian` (as :func:`row_blocks` cuts them): about 5 MB
+#: of J for the thesis nets' 601 weights, work enough for a thread, and blocks enough to
+#: balance over the threads.
+GRAM_BLOCK_ROWS = 1024
+#: The Gram matrix :math:`[J\,e]^\top [J\,e]` is computed as 2 × 2 column tiles: two
+#: symmetric products (``syrk``) on the diagonal, one general product beside them, half the
+#: work each way for two threads. Narrower tiles repack J once per tile column and cost
+#: more (×1.2–1.5 for 4–6 tiles, measured); the tiles do not depend on the thread count, so
+#: neither do the bits.
+GRAM_TILES = 2
 
 
-def _gram(J: torch.Tensor) -> torch.Tensor:
-    """JᵀJ, most of an epoch's cost.
+def row_blocks(n_rows: int, size: int = GRAM_BLOCK_ROWS) -> list[slice]:
+    """``n_rows`` rows cut into ``ceil(n_rows / size)`` contiguous blocks of (nearly) equal size."""
+    n_rows = int(n_rows)
+    k = max(1, -(-n_rows // int(size)))
+    edges = [(i * n_rows) // k for i in range(k + 1)]
+    return [slice(lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
 
-    numpy evaluates ``A.T @ A`` as a symmetric rank-k update (BLAS syrk), half the work of the
-    general product torch does, but its BLAS threads ignore ``torch.set_num_threads`` and
-    thrash on a busy machine; so numpy is used only when its BLAS is pinned to one thread
-    (``OPENBLAS_NUM_THREADS=1`` or ``OMP_NUM_THREADS=1``), torch otherwise.
+
+class BlockJacobian:
+    r"""A Jacobian :math:`J = \partial e/\partial w` computed in independent row blocks.
+
+    ``blocks[k](w, out)`` fills ``out`` (an ``(n_k, P)`` float64 tensor with contiguous rows,
+    or ``None``: a new one) with rows ``rows[k]`` of :math:`J` and returns it. :func:`train_br`
+    computes the blocks on its threads, straight into one array it keeps for the whole
+    training (a new :math:`N\times P` array every epoch costs its fresh pages, as much as
+    filling it).
+
+    Parameters
+    ----------
+    blocks : sequence of callable
+        ``block(w, out=None) -> J_k``.
+    rows : sequence of slice
+        The rows of :math:`e` each block covers (``slice(start, stop)``): together every row,
+        in order, as :func:`row_blocks` gives them.
     """
-    if _numpy_blas_single_threaded():
-        J_np = J.numpy()
-        return torch.from_numpy(J_np.T @ J_np)
-    return J.T @ J
+
+    def __init__(self, blocks, rows):
+        self.blocks, self.rows = tuple(blocks), tuple(rows)
+        if not self.blocks or len(self.blocks) != len(self.rows):
+            raise ValueError("BlockJacobian: one row slice per block, at least one block")
+        stops = [0] + [r.stop for r in self.rows[:-1]]
+        if any(r.start != stop or r.stop < r.start for r, stop in zip(self.rows, stops)):
+            raise ValueError("BlockJacobian: the row slices must follow each other from row 0")
+
+    @property
+    def n_rows(self) -> int:
+        """Rows of the whole Jacobian."""
+        return self.rows[-1].stop
+
+    def __call__(self, w: torch.Tensor) -> torch.Tensor:
+        """The whole Jacobian (the blocks stacked)."""
+        return torch.cat([block(w, None) for block in self.blocks])
 
 
-def _eigh(A: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Eigen-decomposition of the (P × P) JᵀJ.
+def _run(pool: ThreadPoolExecutor | None, tasks) -> list:
+    """Results of the ``tasks`` (callables without arguments), in their order: on ``pool``'s
+    threads, which take them as they come free, or here without a pool."""
+    if pool is None:
+        return [task() for task in tasks]
+    return [future.result() for future in [pool.submit(task) for task in tasks]]
 
-    On a busy machine train with ``OMP_NUM_THREADS=1`` (or ``OPENBLAS_NUM_THREADS=1``): the
-    threaded LAPACK eigensolver synchronises its threads many times per call and waits for a
-    core each time another process holds one. Measured on this 2-core machine at load ~4:
-    P = 601 (thesis net1) 8.8 s with 2 threads against 0.056 s with one, P = 1141 (net1 on the
-    machine set) 10–15 s against 0.22 s: most of an epoch (the 26 epochs in 30 minutes of the
-    first machine-set training). The default is left threaded because a single-threaded
-    eigensolver changes the trained thesis networks in the last bits (≈1e-13 relative after 15
-    epochs), and their published figures are kept bit-identical.
+
+class _NormalEquations:
+    r""":math:`H = J^\top J` and :math:`J^\top e` of every epoch (step 1 of an epoch)."""
+
+    def __init__(self, jac, n_errors: int, n_params: int, pool: ThreadPoolExecutor | None):
+        self.jac, self.n_errors, self.n_params, self.pool = jac, n_errors, n_params, pool
+        self.buffer = None
+        if isinstance(jac, BlockJacobian) and jac.n_rows != n_errors:
+            raise ValueError(f"train_br: the Jacobian's blocks cover {jac.n_rows} rows, "
+                             f"expected {n_errors}")
+
+    def __call__(self, w: torch.Tensor, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(H, Jᵀe)`` at ``w`` with residuals ``e``; ``H`` in Fortran order, upper triangle
+        (and the diagonal tiles) filled."""
+        P = self.n_params
+        if isinstance(self.jac, BlockJacobian):
+            if self.buffer is None:  # [J e], kept: the Gram of it holds Jᵀe in its last column
+                self.buffer = np.empty((self.n_errors, P + 1))
+            Je = self.buffer
+            _run(self.pool, [self._block_task(k, w) for k in range(len(self.jac.blocks))])
+            Je[:, P] = e
+            G = self._gram(Je)
+            return G[:P, :P], G[:P, P].copy()
+        J = self.jac(w).detach()
+        if J.shape != (self.n_errors, P):
+            raise ValueError(f"train_br: Jacobian has shape {tuple(J.shape)}, "
+                             f"expected {(self.n_errors, P)}")
+        J = np.ascontiguousarray(J.numpy())
+        jte = []
+        return self._gram(J, extra=lambda: jte.append(J.T @ e)), jte[0]
+
+    def _block_task(self, k: int, w: torch.Tensor):
+        def task():
+            rows = self.jac.rows[k]
+            out = torch.from_numpy(self.buffer[rows, :self.n_params])
+            J_k = self.jac.blocks[k](w, out).detach()
+            if J_k.shape != out.shape:
+                raise ValueError(f"train_br: Jacobian block {k} has shape {tuple(J_k.shape)}, "
+                                 f"expected {tuple(out.shape)}")
+            if J_k.data_ptr() != out.data_ptr():  # a block that made its own array
+                out.copy_(J_k)
+        return task
+
+    def _gram(self, A: np.ndarray, extra=None) -> np.ndarray:
+        r""":math:`A^\top A` (Fortran order) from :data:`GRAM_TILES` × :data:`GRAM_TILES` column
+        tiles, upper ones only; ``extra`` runs as one more task beside them."""
+        n = A.shape[1]
+        edges = [(i * n) // GRAM_TILES for i in range(GRAM_TILES + 1)]
+        cols = [slice(lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
+        G = np.zeros((n, n), order="F")
+
+        def tile(a, b):
+            def task():
+                A_a = A[:, cols[a]]
+                # the same operand on both sides: numpy takes the symmetric product (syrk)
+                G[cols[a], cols[b]] = A_a.T @ A_a if a == b else A_a.T @ A[:, cols[b]]
+            return task
+
+        pairs = sorted(((a, b) for a in range(GRAM_TILES) for b in range(a, GRAM_TILES)),
+                       key=lambda ab: ab[0] == ab[1])  # the general products (twice the work) first
+        _run(self.pool, [tile(a, b) for a, b in pairs] + ([extra] if extra is not None else []))
+        return G
+
+
+def _factor(H: np.ndarray, beta: float, shift: float) -> np.ndarray | None:
+    r"""Upper Cholesky factor :math:`R` of :math:`\beta H + \text{shift}\,I` (from ``H``'s upper
+    triangle), or ``None`` when that matrix is not numerically positive definite."""
+    A = np.multiply(H, beta, order="F")
+    diagonal = np.arange(A.shape[0])
+    A[diagonal, diagonal] += shift
+    R, info = _lapack.dpotrf(A, lower=0, clean=1, overwrite_a=1)
+    if info < 0:
+        raise ValueError(f"dpotrf: illegal argument {-info}")
+    return R if info == 0 else None
+
+
+def lm_step(H: np.ndarray, gradient: np.ndarray, alpha: float, beta: float,
+            mu: float) -> np.ndarray | None:
+    r"""The Levenberg–Marquardt step :math:`\Delta w = -(\beta H + (\mu + \alpha) I)^{-1} g` by
+    a Cholesky factorisation.
+
+    Parameters
+    ----------
+    H : numpy.ndarray
+        :math:`J^\top J` (``P × P``; its upper triangle is read).
+    gradient : numpy.ndarray
+        :math:`g = \beta J^\top e + \alpha w`, half the gradient of :math:`F`.
+    alpha, beta, mu : float
+        Prior and data precisions and the damping.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        :math:`\Delta w`; ``None`` when the damped matrix is not numerically positive definite
+        (a failed trial: the caller raises :math:`\mu`).
     """
-    if _numpy_blas_single_threaded():
-        s, V = np.linalg.eigh(A.numpy())
-        return torch.from_numpy(s), torch.from_numpy(V)
-    return torch.linalg.eigh(A)
+    R = _factor(H, beta, mu + alpha)
+    if R is None:
+        return None
+    x, info = _lapack.dpotrs(R, gradient, lower=0)
+    if info != 0:
+        raise ValueError(f"dpotrs: illegal argument {-info}")
+    return -x
+
+
+def effective_parameters(H: np.ndarray, alpha: float, beta: float) -> float:
+    r"""The effective number of parameters :math:`\gamma = P - \alpha\,\mathrm{tr}((\beta H +
+    \alpha I)^{-1})` (MacKay; MATLAB ``trainbr``), :math:`P` when :math:`\alpha = 0`.
+
+    The trace is :math:`\|R^{-1}\|_F^2` for the Cholesky factor :math:`R^\top R = \beta H +
+    \alpha I`; should that matrix not be numerically positive definite, it comes from the
+    eigenvalues :math:`s_i \ge 0` of :math:`H` instead (:math:`\gamma = \sum_i \beta s_i/(\beta
+    s_i + \alpha)`).
+
+    Parameters
+    ----------
+    H : numpy.ndarray
+        :math:`J^\top J` (``P × P``; its upper triangle is read).
+    alpha, beta : float
+        Prior and data precisions.
+    """
+    n_params = H.shape[0]
+    if not alpha > 0:
+        return float(n_params)
+    R = _factor(H, beta, alpha)
+    if R is not None:
+        R_inv, info = _lapack.dtrtri(R, lower=0, overwrite_c=1)
+        if info == 0:
+            flat = R_inv.ravel(order="K")  # the strict lower triangle is zero
+            return float(n_params - alpha * float(flat @ flat))
+    s = np.linalg.eigvalsh(np.triu(H) + np.triu(H, 1).T).clip(min=0.0)
+    return float(n_params - alpha * np.sum(1.0 / (beta * s + alpha)))
 
 
 # -- trainers -------------------------------------------------------------------------------
@@ -280,10 +480,11 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
              mu_dec: float = 0.1, mu_inc: float = 10.0, mu_max: float = 1e10,
              min_grad: float = 1e-7, validation: Callable[[torch.Tensor], float] | None = None,
              progress: bool = True, description: str = "trainbr",
-             jacobian: JacobianFn | None = None,
+             jacobian: JacobianFn | BlockJacobian | None = None,
              max_seconds: float | None = None, best_validation: bool = False,
-             validation_patience: int = 0) -> tuple[torch.Tensor, TrainingLog]:
-    r"""Train by Levenberg–Marquardt with Bayesian regularisation (MATLAB ``trainbr``).
+             validation_patience: int = 0, threads: int | None = None) -> tuple[torch.Tensor, TrainingLog]:
+    r"""Train by Levenberg–Marquardt with Bayesian regularisation (MATLAB ``trainbr``; the
+    equations are in the module's docstring).
 
     Parameters
     ----------
@@ -306,12 +507,16 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
         Show a rich progress bar with SSE, γ and μ.
     description : str
         Label of the progress bar.
-    jacobian : callable, optional
+    jacobian : callable or BlockJacobian, optional
         ``jacobian(w) -> J`` (N × P, :math:`\partial e/\partial w`), e.g. an efficient per-sample
-        ``torch.func`` Jacobian; default :func:`jacobian_forward` of ``residuals``.
+        ``torch.func`` Jacobian, or a :class:`BlockJacobian` (cheaper: computed block by block
+        on the threads); default :func:`jacobian_forward` of ``residuals``.
     max_seconds : float, optional
         Stop (reason ``"time limit"``) when training has run this long (MATLAB's
         ``trainParam.time``).
+    threads : int, optional
+        Threads to use (default: the cores the job is given,
+        :func:`excavator_payload.execution.job_threads`). The result does not depend on it.
 
     Returns
     -------
@@ -319,6 +524,34 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
         The trained weights (float64).
     log : TrainingLog
     """
+    from excavator_payload.execution import job_threads, numeric_threads
+
+    threads = job_threads() if threads is None else int(threads)
+    if threads < 1:
+        raise ValueError(f"train_br: threads must be ≥ 1, got {threads}")
+    # torch and BLAS single-threaded inside; the job's cores work through this pool instead
+    with numeric_threads(1), (ThreadPoolExecutor(threads, thread_name_prefix="trainbr")
+                              if threads > 1 else _no_pool()) as pool:
+        return _train_br(residuals, w0, epochs=epochs, mu=mu, mu_dec=mu_dec, mu_inc=mu_inc,
+                         mu_max=mu_max, min_grad=min_grad, validation=validation,
+                         progress=progress, description=description, jacobian=jacobian,
+                         max_seconds=max_seconds, best_validation=best_validation,
+                         validation_patience=validation_patience, pool=pool)
+
+
+class _no_pool:
+    """Stands in for a thread pool when there is one thread: everything runs in this one."""
+
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+def _train_br(residuals, w0, *, epochs, mu, mu_dec, mu_inc, mu_max, min_grad, validation,
+              progress, description, jacobian, max_seconds, best_validation, validation_patience,
+              pool):
     start = time.perf_counter()
     jac = jacobian if jacobian is not None else (lambda v: jacobian_forward(residuals, v))
     w = w0.detach().to(torch.float64).clone()
@@ -329,6 +562,7 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
     if n_errors == 0:
         raise ValueError("train_br: no residuals (no training targets)")
     log = TrainingLog(n_errors=n_errors, n_parameters=n_params, trainer="trainbr")
+    normal_equations = _NormalEquations(jac, n_errors, n_params, pool)
 
     alpha, beta = 0.0, 1.0  # MATLAB: plain LM for the first step, then Bayesian updates
     e_d = float(e @ e)
@@ -342,36 +576,30 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
     with _progress(progress) as bar:
         task = bar.add_task(description, total=epochs, sse=e_d, gamma=gamma, mu=mu)
         for epoch in range(1, epochs + 1):
-            J = jac(w).detach()
-            if J.shape != (n_errors, n_params):
-                raise ValueError(f"train_br: Jacobian has shape {tuple(J.shape)}, "
-                                 f"expected {(n_errors, n_params)}")
-            jtj = _gram(J)
-            jte = J.T @ e
-            # gradient of F/2 = β Jᵀe + α w
-            half_grad = beta * jte + alpha * w
-            grad_norm = 2.0 * float(torch.linalg.vector_norm(half_grad))
+            H, jte = normal_equations(w, e.numpy())
+            # half the gradient of F: g = β Jᵀe + α w
+            half_grad = beta * jte + alpha * w.numpy()
+            grad_norm = 2.0 * float(np.linalg.norm(half_grad))
             if grad_norm < min_grad:
                 stop_reason = f"minimum gradient reached ({grad_norm:.2e} < {min_grad:g})"
                 log.grad_norm[-1] = grad_norm
                 break
-            s, V = _eigh(jtj)
-            s = s.clamp_min(0.0)
-            g_rot = V.T @ half_grad  # the gradient in the eigenbasis of JᵀJ
+            # γ of this epoch (its H, the α and β of its step) beside the trials
+            gamma_job = pool.submit(effective_parameters, H, alpha, beta) if pool is not None else None
             cost = beta * e_d + alpha * e_w
             accepted = False
             while mu <= mu_max:
-                # Δw = −(βJᵀJ + (μ+α)I)⁻¹ (βJᵀe + αw)
-                step = -(V @ (g_rot / (beta * s + mu + alpha)))
-                w_new = w + step
-                with torch.no_grad():
-                    e_new = residuals(w_new).detach()
-                e_d_new = float(e_new @ e_new)
-                e_w_new = float(w_new @ w_new)
-                cost_new = beta * e_d_new + alpha * e_w_new
-                if math.isfinite(cost_new) and cost_new < cost:
-                    accepted = True
-                    break
+                step = lm_step(H, half_grad, alpha, beta, mu)
+                if step is not None:  # else not positive definite: a failed trial
+                    w_new = w + torch.from_numpy(step)
+                    with torch.no_grad():
+                        e_new = residuals(w_new).detach()
+                    e_d_new = float(e_new @ e_new)
+                    e_w_new = float(w_new @ w_new)
+                    cost_new = beta * e_d_new + alpha * e_w_new
+                    if math.isfinite(cost_new) and cost_new < cost:
+                        accepted = True
+                        break
                 mu *= mu_inc
             if not accepted:
                 stop_reason = f"maximum mu reached (mu > {mu_max:g})"
@@ -380,10 +608,8 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
             mu_used = mu
             w, e, e_d, e_w = w_new, e_new, e_d_new, e_w_new
             mu *= mu_dec
-            # Bayesian re-estimation with the Gauss–Newton Hessian of this epoch:
-            # γ = P − α tr((βJᵀJ + αI)⁻¹) = Σ βs/(βs + α)   (α = 0 gives γ = P)
-            gamma = float(n_params - alpha * torch.sum(1.0 / (beta * s + alpha)).item()) \
-                if alpha > 0 else float(n_params)
+            # Bayesian re-estimation with the Gauss–Newton Hessian of this epoch (α = 0: γ = P)
+            gamma = gamma_job.result() if gamma_job is not None else effective_parameters(H, alpha, beta)
             alpha = gamma / (2.0 * e_w) if e_w > 0 else 1.0
             beta = (n_errors - gamma) / (2.0 * e_d) if e_d > 0 else 1.0
             if beta <= 0:  # more effective parameters than errors: fall back to LM weighting
@@ -413,8 +639,20 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
 
     One epoch is one Adam step on all residuals (no regularisation term, no mini-batches), so
     it is comparable epoch-for-epoch with :func:`train_br`, though it needs many more epochs.
-    The log has the same columns; γ, α, β, μ are NaN.
+    The log has the same columns; γ, α, β, μ are NaN. Torch runs single-threaded here: a step's
+    operations are too small to gain from threads, and on a busy machine threads waiting for
+    each other at every operation made them many times slower.
     """
+    from excavator_payload.execution import numeric_threads
+
+    with numeric_threads(1):
+        return _train_adam(residuals, w0, epochs=epochs, lr=lr, validation=validation,
+                           progress=progress, description=description, max_seconds=max_seconds,
+                           best_validation=best_validation, validation_patience=validation_patience)
+
+
+def _train_adam(residuals, w0, *, epochs, lr, validation, progress, description, max_seconds,
+                best_validation, validation_patience):
     start = time.perf_counter()
     w = w0.detach().to(torch.float64).clone().requires_grad_(True)
     opt = torch.optim.Adam([w], lr=lr)
@@ -454,4 +692,5 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
     return watch.finish(w.detach(), log), log
 
 
-__all__ = ["TrainingLog", "LOG_COLUMNS", "train_br", "train_adam", "jacobian_forward"]
+__all__ = ["TrainingLog", "LOG_COLUMNS", "train_br", "train_adam", "jacobian_forward", "BlockJacobian",
+           "row_blocks", "lm_step", "effective_parameters", "GRAM_BLOCK_ROWS", "GRAM_TILES"]
