@@ -18,8 +18,8 @@ import os
 import sys
 
 if "--threads" not in " ".join(sys.argv) or "--threads 1" in " ".join(sys.argv):
-    # pin numpy's BLAS before numpy loads: single-threaded measurements, and train_br may then
-    # use numpy's faster symmetric product (see trainbr._gram)
+    # pin numpy's BLAS before numpy loads: single-threaded measurements (trainbr itself runs
+    # BLAS single-threaded and parallelises its own normal equations, execution.job_threads)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     os.environ.setdefault("OMP_NUM_THREADS", "1")
 

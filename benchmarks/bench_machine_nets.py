@@ -9,8 +9,8 @@ Usage::
     # the same count from ONE session (1, the calibration session), to see what sessions teach
     PYTHONPATH=src python benchmarks/bench_machine_nets.py data --out nets-data-1 --sessions 1 --per-motion 54 \\
         --seed 40000
-    # train (any estimator options after --; on a busy machine with OMP_NUM_THREADS=1, see
-    # trainbr._eigh), then judge on the tests of bench_machine_study.py
+    # train (any estimator options after --; threads: execution.job_threads), then judge on
+    # the tests of bench_machine_study.py
     PYTHONPATH=src python benchmarks/bench_machine_nets.py train net1 nets-data/train_val.parquet \\
         net1-d5 -- --decimation 5 --delays 0:5
     PYTHONPATH=src python benchmarks/bench_machine_nets.py judge net1-d5 machine-study --n-test 200
