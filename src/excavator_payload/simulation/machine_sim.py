@@ -295,6 +295,24 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
     return frame, meta
 
 
+def _within_relief(arm: HydraulicArmModel, draw, motion_rng: np.random.Generator,
+                   valves: np.random.Generator, what: str, any_peak: bool = False):
+    """A planned motion (``draw()``, slowed to the pumps) pushed through the physics, drawn again
+    until its pressures stay within the relief pressure (``any_peak``: the first one, as the
+    calibration lifts). Returns (plan, time, (q, q̇, q̈), physics, peak pressure, attempts)."""
+    relief = arm.machine.hydraulics.relief_pressure
+    for attempt in range(1, MAX_ATTEMPTS + 1):
+        plan = mm.fit_to_hydraulics(arm, draw())
+        time = sample_times(plan.duration)
+        q, qd, qdd = plan.sample(time)
+        friction0 = motion_rng.uniform(-1, 1, 3)
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, plan.payload_at(time), friction0, valves)
+        peak = float(max(physics["head"].max(), physics["rod"].max()))
+        if peak <= relief or any_peak:
+            return plan, time, (q, qd, qdd), physics, peak, attempt
+    raise ValueError(f"no {what} within the relief pressure in {MAX_ATTEMPTS} draws")
+
+
 def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
                                offsets: dict, motion: str, with_truth: bool,
                                payload_override: float | None = None) -> tuple[pd.DataFrame, dict]:
@@ -302,23 +320,16 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
     ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
-    valves = closing_rng(seed, k)
     relief = machine.hydraulics.relief_pressure
-    for attempt in range(1, MAX_ATTEMPTS + 1):
+
+    def draw():
         drawn = _draw_motion(motion, k, motion_rng, arm)
         if payload_override is not None:  # before the fit: the mass shapes the pressures it checks
             drawn = dataclasses.replace(drawn, payload=float(payload_override))
-        plan = mm.fit_to_hydraulics(arm, drawn)
-        time = sample_times(plan.duration)
-        q, qd, qdd = plan.sample(time)
-        payload_t = plan.payload_at(time)
-        friction0 = motion_rng.uniform(-1, 1, 3)
-        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, valves)
-        peak = float(max(physics["head"].max(), physics["rod"].max()))
-        if peak <= relief or motion == "lifts":
-            break
-    else:
-        raise ValueError(f"no motion within the relief pressure in {MAX_ATTEMPTS} draws")
+        return drawn
+
+    plan, time, (q, qd, qdd), physics, peak, attempt = _within_relief(
+        arm, draw, motion_rng, closing_rng(seed, k), "motion", any_peak=motion == "lifts")
     frame = experiment_rows(k, time, q, qd, qdd, physics, plan.payload, noise, offsets, noise_rng,
                             with_truth)
     meta = {"experiment": int(k), "seed": int(seed), "payload": float(plan.payload),
@@ -346,22 +357,9 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
     over time is in the metadata's ``passes``: each pass's true fill (kg) and times (s),
     ``fill`` (the load enters, linearly) and ``release`` (it leaves, linearly).
     """
-    machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
-    valves = closing_rng(seed, k)
-    relief = machine.hydraulics.relief_pressure
-    for attempt in range(1, MAX_ATTEMPTS + 1):
-        plan = mm.fit_to_hydraulics(arm, mm.shift_motion(motion_rng, arm, truck_target))
-        time = sample_times(plan.duration)
-        q, qd, qdd = plan.sample(time)
-        payload_t = plan.payload_at(time)
-        friction0 = motion_rng.uniform(-1, 1, 3)
-        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, payload_t, friction0, valves)
-        peak = float(max(physics["head"].max(), physics["rod"].max()))
-        if peak <= relief:
-            break
-    else:
-        raise ValueError(f"no truck within the relief pressure in {MAX_ATTEMPTS} draws")
+    plan, time, (q, qd, qdd), physics, peak, attempt = _within_relief(
+        arm, lambda: mm.shift_motion(motion_rng, arm, truck_target), motion_rng, closing_rng(seed, k), "truck")
     frame = experiment_rows(k, time, q, qd, qdd, physics, plan.payload, noise, offsets, noise_rng,
                             with_truth)
     stretch = float(plan.info["time_stretch"])

@@ -1526,8 +1526,16 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
         pressure_std = get_machine_noise(name).pressure_noise
     prior = estimator.options["prior_std"]
     prior = 0.05 if prior == 0.1 else prior  # 0.1 is the thesis set's default
-    cal = calibrate(arm, dataset, prior, estimator.options["low_speed"], estimator.options["half_window"],
-                    pressure_std, estimator.options["balance"], estimator.options["imu_leak"])
+
+    def calibrate_on(subset: Dataset) -> MachineCalibration:
+        """The calibration of ``subset`` with the estimator's options, and the angles it covers
+        (all the motions, and each half of them for the cross-check)."""
+        fitted = calibrate(arm, subset, prior, estimator.options["low_speed"], estimator.options["half_window"],
+                           pressure_std, estimator.options["balance"], estimator.options["imu_leak"])
+        fitted.angle_coverage = angle_coverage(subset, fitted.offset_vector())
+        return fitted
+
+    cal = calibrate_on(dataset)
     from excavator_payload.estimators.classical.pressure_regression import difference_scale
 
     # a cylinder the calibration motions hardly moved keeps the file's numbers (e.g. lifts that
@@ -1545,18 +1553,11 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
             "learned of them is mostly the machine file's. Calibrate with motions that move the "
             "boom, dipper and bucket (and slew)")
 
-    cal.angle_coverage = angle_coverage(dataset, cal.offset_vector())
     estimator.noise_name = "estimated" if pressure_std is None else name
     estimator.calibration_experiments = [int(i) for i in ids]
     estimator.difference_scale = difference_scale(dataset)
     if estimator.options["model_std"] == "cross":
-        def calibrate_fold(subset):
-            fold = calibrate(arm, subset, prior, estimator.options["low_speed"], estimator.options["half_window"],
-                             pressure_std, estimator.options["balance"], estimator.options["imu_leak"])
-            fold.angle_coverage = angle_coverage(subset, fold.offset_vector())
-            return fold
-
-        cal.model_std = cross_validated_model_std(estimator, dataset, calibrate_fold)
+        cal.model_std = cross_validated_model_std(estimator, dataset, calibrate_on)
         rated = float(arm.machine.rated_payload)
         if len(ids) >= MIN_CROSS_EXPERIMENTS:
             estimator.fit_report.append(
