@@ -1314,8 +1314,8 @@ if (1) {
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
     step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
-     * differentiator's window (2 half_window + 1 samples) and the newest sample, not yet judged:
-     * the outlier test judges the sample before the newest between its neighbours; once the
+     * differentiator's window (2 half_window + 1 samples) and the two newest, not yet judged:
+     * the outlier test judges the sample two before the newest between its neighbours; once the
      * ring is full, the window's centre is regressed unless it was rejected. */
     ep_real x[EP_N_SIGNALS], qdd[4], out[{24 if momentum else 15}];
     ep_real d_num = EP_C(0.0), d_info = EP_C(0.0);
@@ -1325,14 +1325,16 @@ if (1) {
     s->ring_next = (newest + 1) % EP_RING;
     if (s->ring_filled < EP_RING) s->ring_filled += 1;
 #if EP_GATING
-    if (s->ring_filled >= 3) {{
-        int mid = (newest + EP_RING - 1) % EP_RING, before = (newest + EP_RING - 2) % EP_RING;
-        ep_real *m = s->ring + mid * EP_N_SIGNALS;
-        const ep_real *b = s->ring + before * EP_N_SIGNALS;
-        if (ep_spike(b, m, v)) {{
-            for (i = 0; i < EP_N_SIGNALS; ++i) m[i] = EP_C(0.5) * (b[i] + v[i]);
+    if (s->ring_filled >= 4) {{  /* the sample two before the newest, two neighbours each side */
+        ep_real *m = s->ring + ((newest + EP_RING - 2) % EP_RING) * EP_N_SIGNALS;
+        const ep_real *b = s->ring + ((newest + EP_RING - 3) % EP_RING) * EP_N_SIGNALS;
+        const ep_real *a = s->ring + ((newest + EP_RING - 1) % EP_RING) * EP_N_SIGNALS;
+        const ep_real *b2 = s->ring_filled >= 5 ? s->ring + ((newest + EP_RING - 4) % EP_RING) * EP_N_SIGNALS : 0;
+        int mid = (newest + EP_RING - 2) % EP_RING, judged = ep_spike(b2, b, m, a, v);
+        if (judged) {{  /* stands out: never regressed; reported only as a glitch */
+            for (i = 0; i < EP_N_SIGNALS; ++i) m[i] = EP_C(0.5) * (b[i] + a[i]);
             s->ring_used[mid] = 0;
-            rejected = 1;
+            rejected = judged == 2;
         }}
     }}
 #else
@@ -1344,7 +1346,7 @@ if (1) {
         return EP_STATUS_WARMING_UP;
     }}
     *estimate = s->num / s->info;
-    if (rejected) return EP_STATUS_REJECTED;  /* the sample before this one was an outlier */
+    if (rejected) return EP_STATUS_REJECTED;  /* the sample two before this one was an outlier */
     if (s->info < EP_WARM_INFO) return EP_STATUS_WARMING_UP;
     return {changing_status};"""
     on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
@@ -1374,7 +1376,7 @@ if (1) {
                   "\n    s->changing = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
-               "#define EP_RING (EP_WINDOW + 1)  /* the window and the newest, unjudged sample */"]
+               "#define EP_RING (EP_WINDOW + 2)  /* the window and the two newest, unjudged samples */"]
     if momentum:
         from excavator_payload.estimators.classical.calibrated_machine import BALANCE_HALF_WINDOW
 
@@ -1411,18 +1413,30 @@ def _c_one_frame_glitch(gating: bool, thresholds) -> list[str]:
         "#endif",
         c_array("EP_SPIKE_THRESHOLD", thresholds).rstrip(),
         "",
-        "/* pressure_regression.one_frame_glitch */",
-        "static int ep_spike(const ep_real *before, const ep_real *mid, const ep_real *after)",
+        "/* pressure_regression.judge_frame: 0 clean, 1 stands out (never regressed), 2 a glitch",
+        " * (reported); before2 / after2 may be NULL (not known) */",
+        "static int ep_spike(const ep_real *before2, const ep_real *before, const ep_real *mid,",
+        "                    const ep_real *after, const ep_real *after2)",
         "{",
-        "    int i;",
+        "    int i, out = 0;",
         "    for (i = 0; i < EP_N_SIGNALS; ++i) {",
-        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i];",
+        "        ep_real d1 = mid[i] - before[i], d2 = mid[i] - after[i], off;",
         "        ep_real smaller = EP_MATH(fabs)(d1) < EP_MATH(fabs)(d2) ? EP_MATH(fabs)(d1) : EP_MATH(fabs)(d2);",
-        "        if (d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]",
-        "            && smaller > EP_MATH(fabs)(after[i] - before[i])) return 1;  /* stands out more than",
-        "                                                                      * its neighbours differ */",
+        "        if (!(d1 * d2 > EP_C(0.0) && smaller > EP_SPIKE_THRESHOLD[i]",
+        "              && smaller > EP_MATH(fabs)(after[i] - before[i]))) continue;  /* stands out more",
+        "                                                                         * than its neighbours differ */",
+        "        out = 1;",
+        "        if (before2) {  /* off the line through the two samples before it, the same way */",
+        "            off = mid[i] - (EP_C(2.0) * before[i] - before2[i]);",
+        "            if (!(off * d1 > EP_C(0.0) && EP_MATH(fabs)(off) > EP_SPIKE_THRESHOLD[i])) continue;",
+        "        }",
+        "        if (after2) {  /* ... and off the line through the two after it */",
+        "            off = mid[i] - (EP_C(2.0) * after[i] - after2[i]);",
+        "            if (!(off * d1 > EP_C(0.0) && EP_MATH(fabs)(off) > EP_SPIKE_THRESHOLD[i])) continue;",
+        "        }",
+        "        return 2;",
         "    }",
-        "    return 0;",
+        "    return out;",
         "}",
     ]
 
@@ -1592,19 +1606,23 @@ def _machine_ekf_model(est) -> CModel:
     (void)time;
 #if EP_GATING
     /* _judge_previous: the sample before this one a glitch? back to the state before it */
-    if (s->n_recent == 2 && s->has_undo && ep_spike(s->recent, s->recent + EP_N_SIGNALS, v)) {{
+    int judged = s->n_recent >= 2 && s->has_undo
+        ? ep_spike(s->n_recent == 3 ? s->recent : 0, s->recent + (s->n_recent - 2) * EP_N_SIGNALS,
+                   s->recent + (s->n_recent - 1) * EP_N_SIGNALS, v, 0) : 0;
+    if (judged) {{  /* stands out: undone; reported only as a glitch */
         for (i = 0; i < {n}; ++i) s->x[i] = s->undo_x[i];
         for (i = 0; i < {np_}; ++i) s->P[i] = s->undo_P[i];
         s->n_filtered = s->undo_n_filtered;
         ep_predict(s);
         for (i = 0; i < EP_N_SIGNALS; ++i)
-            s->recent[EP_N_SIGNALS + i] = EP_C(0.5) * (s->recent[i] + v[i]);
-        undone = 1;
+            s->recent[(s->n_recent - 1) * EP_N_SIGNALS + i] =
+                EP_C(0.5) * (s->recent[(s->n_recent - 2) * EP_N_SIGNALS + i] + v[i]);
+        undone = judged == 2;
     }}
 #else
     (void)ep_spike;
 #endif
-    /* the state before this sample (to undo it), and the last two samples */
+    /* the state before this sample (to undo it), and the last three samples */
     s->has_undo = s->started;
     if (s->started) {{
         for (i = 0; i < {n}; ++i) s->undo_x[i] = s->x[i];
@@ -1619,8 +1637,8 @@ def _machine_ekf_model(est) -> CModel:
             if (EP_MATH(fabs)(v[i] - s->recent[(s->n_recent - 1) * EP_N_SIGNALS + i]) > EP_SPIKE_THRESHOLD[i])
                 hold = 1;
 #endif
-    if (s->n_recent == 2)
-        for (i = 0; i < EP_N_SIGNALS; ++i) s->recent[i] = s->recent[EP_N_SIGNALS + i];
+    if (s->n_recent == 3)
+        for (i = 0; i < 2 * EP_N_SIGNALS; ++i) s->recent[i] = s->recent[EP_N_SIGNALS + i];
     else
         s->n_recent += 1;
     for (i = 0; i < EP_N_SIGNALS; ++i) s->recent[(s->n_recent - 1) * EP_N_SIGNALS + i] = v[i];
@@ -1681,7 +1699,7 @@ def _machine_ekf_model(est) -> CModel:
                       f"ep_real undo_P[{np_}];",
                       "int undo_n_filtered;",
                       "int has_undo;",
-                      "ep_real recent[2 * EP_N_SIGNALS];  /* the last two samples used */",
+                      "ep_real recent[3 * EP_N_SIGNALS];  /* the last three samples used */",
                       "int n_recent;"],
         definitions=definitions,
         reset="    s->started = 0;\n    s->n_filtered = 0;\n    s->posterior_std = EP_NAN;\n"

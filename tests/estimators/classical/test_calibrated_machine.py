@@ -9,6 +9,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import create_estimator, load_estimator
 from excavator_payload.estimators.classical import calibrated_machine as cm
+from excavator_payload.estimators.classical.pressure_regression import LOOK_AHEAD
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.model.hydraulic import HydraulicArmModel
 from excavator_payload.model.machine import load_machine
@@ -208,7 +209,7 @@ def test_house_imu_sensitivity_is_held_to_what_its_mounting_allows(setup):
 @pytest.mark.parametrize("signal,size", [("boom_head_pressure", 3e6), ("boom_rate", 0.2),
                                          ("bucket_angle", 0.5)])
 def test_a_one_frame_glitch_is_rejected_and_changes_nothing(setup, signal, size):
-    """A glitched frame is judged one sample after it arrives (its neighbours on both sides):
+    """A glitched frame is judged two samples after it arrives (two neighbours on each side):
     reported ``rejected_outlier``, never regressed, the differentiator's slot repaired."""
     est, test = setup["zeroed"], setup["test"]
     clean = est.estimate(test)
@@ -217,7 +218,7 @@ def test_a_one_frame_glitch_is_rejected_and_changes_nothing(setup, signal, size)
     frame.loc[hit, signal] += size
     glitched = est.estimate(Dataset(frame, test.meta))
     status = glitched["status"].astype(str).to_numpy()
-    assert np.all(status[hit + 1] == "rejected_outlier")
+    assert np.all(status[hit + LOOK_AHEAD] == "rejected_outlier")
     assert np.sum(status == "rejected_outlier") == len(hit)  # nothing else (no false alarm)
     last = frame.groupby("experiment").tail(1).index
     change = np.abs(glitched["payload_estimate"].to_numpy()[last] - clean["payload_estimate"].to_numpy()[last])
@@ -479,7 +480,7 @@ def test_momentum_balance_rejects_a_glitch_and_keeps_its_interval(momentum, setu
     frame.loc[hit, "boom_head_pressure"] += 3e6
     glitched = momentum.estimate(Dataset(frame, test.meta))
     status = glitched["status"].astype(str).to_numpy()
-    assert np.all(status[hit + 1] == "rejected_outlier")
+    assert np.all(status[hit + LOOK_AHEAD] == "rejected_outlier")
     last = frame.groupby("experiment").tail(1).index
     change = np.abs(glitched["payload_estimate"].to_numpy()[last] - clean["payload_estimate"].to_numpy()[last])
     assert np.all(change < 1.0)

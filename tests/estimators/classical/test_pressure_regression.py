@@ -9,7 +9,7 @@ import pytest
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import create_estimator, load_estimator
-from excavator_payload.estimators.classical.pressure_regression import ground_tilt
+from excavator_payload.estimators.classical.pressure_regression import ground_tilt, judge_frame, one_frame_glitch
 from excavator_payload.model.hydraulic import HydraulicArmModel
 from excavator_payload.model.machine import load_machine
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
@@ -71,3 +71,30 @@ def test_cli_trains_estimates_and_evaluates_on_the_machine_set(tmp_path):
     assert main(["estimate", "--model", str(tmp_path / "m"), "--data", str(data),
                  "--out", str(tmp_path / "e.parquet")]) == 0
     assert main(["evaluate", "--model", str(tmp_path / "m"), "--data", str(data), "--discard", "100"]) == 0
+
+
+@pytest.mark.parametrize("shape", ["corner", "rounded tip", "step"])
+def test_a_sharp_turn_of_a_signal_is_not_a_glitch(shape):
+    """A pressure's corner (a rod stopping, a force turning) lies on the line through one
+    side's two samples; a rounded tip bends away from both lines the other way; a step moves
+    from one neighbour only: none is a one-frame glitch, however large."""
+    t = np.arange(-2, 3, dtype=float)
+    values = {"corner": 5.0 * np.abs(t), "rounded tip": -3.0 * t**2, "step": np.where(t > 0, 40.0, 0.0)}[shape]
+    x = values[:, None] * np.ones((1, 3))
+    assert not one_frame_glitch(x[1], x[2], x[3], np.ones(3), x[0], x[4])
+    # a corner or a tip still stands out from its neighbours: not regressed, not reported
+    assert judge_frame(x[1], x[2], x[3], np.ones(3), x[0], x[4]) == (shape != "step", False)
+
+
+@pytest.mark.parametrize("base", ["flat", "ramp", "corner"])
+def test_a_frame_off_both_sides_lines_is_a_glitch(base):
+    """One frame off a flat, sloped or cornered signal (its neighbours' lines agree with each
+    other) is a glitch, with or without the second neighbours known."""
+    t = np.arange(-2, 3, dtype=float)
+    values = {"flat": np.zeros(5), "ramp": 2.0 * t, "corner": 0.5 * np.abs(t)}[base]
+    x = values[:, None] * np.ones((1, 2))
+    x[2, 1] += 10.0  # the second signal glitches
+    assert one_frame_glitch(x[1], x[2], x[3], np.ones(2), x[0], x[4])
+    assert one_frame_glitch(x[1], x[2], x[3], np.ones(2))
+    assert one_frame_glitch(x[1], x[2], x[3], np.ones(2), x[0], None)
+    assert not one_frame_glitch(x[1], x[2], x[3], np.full(2, 20.0), x[0], x[4])  # below the threshold

@@ -160,7 +160,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.classical.pressure_regression import (
-    ANGLES, PITCH, PRESSURES, RATES, ROLL, PressureRegression)
+    ANGLES, LOOK_AHEAD, PITCH, PRESSURES, RATES, ROLL, PressureRegression)
 from excavator_payload.model.codegen import column_map, native
 from excavator_payload.model.hydraulic import (
     CYLINDERS, HYDRAULIC_PARAMETER_NAMES, HydraulicArmModel, compiled_function, hydraulic_symbolic)
@@ -1207,7 +1207,7 @@ class CalibratedKernel(PressureRegression):
         """Start again: the base class's reset, plus empty sample and balance-term rings and
         cleared ``--wait-for-boom`` / ``--new-load`` state."""
         super().reset()
-        length = getattr(self, "_width", 1) + 1
+        length = getattr(self, "_width", 1) + LOOK_AHEAD
         self._ring = np.zeros((2 * length, len(SIGNALS)))
         self._ring_used = np.zeros(2 * length, bool)
         self._count = 0
@@ -1258,24 +1258,28 @@ class CalibratedKernel(PressureRegression):
         return (angles >= self._raw_low) & (angles <= self._raw_high)
 
     def update(self, time: float, values: np.ndarray) -> bool:
-        # ring of the window (2·half_window + 1 samples) and the newest, not yet judged sample,
+        # ring of the window (2·half_window + 1 samples) and the newest, not yet judged samples,
         # stored twice so that the window is always one contiguous slice
         w = self._width
-        length = w + 1
+        length = w + LOOK_AHEAD
         pos = self._count % length
         self._ring[pos] = self._ring[pos + length] = values
         self._ring_used[pos] = self._ring_used[pos + length] = True
         self._count += 1
         self.rejected = False
-        if self.judge and self._count >= 3:  # the sample before this one, between its neighbours
-            mid, before = (pos - 1) % length, (pos - 2) % length
-            if self._spike(self._ring[before], self._ring[mid], values):
-                self._ring[mid] = self._ring[mid + length] = 0.5 * (self._ring[before] + values)
+        if self.judge and self._count >= 4:  # the sample two before this one, between its neighbours
+            slots = [(pos - back) % length for back in (4, 3, 2, 1)]
+            context = [self._ring[i] for i in slots] + [values]
+            if self._count < 5:
+                context[0] = None  # the first sample has no neighbour before it
+            stands_out, self.rejected = self._spike(context)
+            if stands_out:  # never regressed; reported only as a glitch
+                mid = slots[2]
+                self._ring[mid] = self._ring[mid + length] = 0.5 * (context[1] + context[3])
                 self._ring_used[mid] = self._ring_used[mid + length] = False
-                self.rejected = True
         if self._count < length:
             return False
-        # the window ends on the sample before this one: every sample in it has been judged
+        # the window ends two samples before this one: every sample in it has been judged
         centre_used = self._ring_used[pos + 1 + self.half_window]
         if not centre_used and self.balance != "momentum":
             return False  # a rejected sample's slot: part of the window, never regressed

@@ -56,7 +56,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
 from excavator_payload.estimators.classical import _kalman as kf
-from excavator_payload.estimators.classical.pressure_regression import one_frame_glitch
+from excavator_payload.estimators.classical.pressure_regression import judge_frame
 
 COMMON_OPTIONS = {
     "tuning": Option(str, "consistent", "covariances: 'thesis' (§6.1 Q, R, P0, x0) or 'consistent' "
@@ -172,7 +172,7 @@ class KalmanEstimatorBase(Estimator):
                 and math.isfinite(self._last_estimate)
                 and bool((np.abs(values - self._recent[-1]) > mk.tuning.spike_threshold).any()))
         self._recent.append(values.copy())
-        del self._recent[:-2]
+        del self._recent[:-3]
         held_std = self._posterior_std
         if not mk.step(values):
             return StepResult(self._last_estimate, Status.INVALID)
@@ -187,24 +187,27 @@ class KalmanEstimatorBase(Estimator):
 
 
     def _judge_previous(self, values: np.ndarray) -> bool:
-        """Undo the sample before ``values`` if it was a one-frame glitch (:meth:`_machine_step`);
-        whether it was. ``Estimator.gating = False`` turns the test off."""
+        """Undo the sample before ``values`` if it stood out between its neighbours (a sharp turn
+        or a glitch, :func:`~.pressure_regression.judge_frame`; :meth:`_machine_step`); whether it
+        was a glitch (reported). ``Estimator.gating = False`` turns the test off."""
         mk = self._machine_filter
         if not self.gating or len(self._recent) < 2 or self._undo is None:
             return False
-        before, mid = self._recent
-        if not one_frame_glitch(before, mid, values, mk.tuning.spike_threshold):
+        before2 = self._recent[-3] if len(self._recent) == 3 else None
+        before, mid = self._recent[-2:]
+        stands_out, glitch = judge_frame(before, mid, values, mk.tuning.spike_threshold, before2)
+        if not stands_out:
             return False
         mk.x, mk.P, posterior, self._n_filtered = self._undo
         if posterior is not None:
             mk.posterior = posterior
         mk.predict()
         self._recent[-1] = 0.5 * (before + values)  # the repaired slot, as the next neighbour
-        self.glitches += 1
-        return True
+        self.glitches += glitch
+        return glitch
 
     def _reset(self) -> None:
-        self._recent: list[np.ndarray] = []  # the last two samples the machine-set filter used
+        self._recent: list[np.ndarray] = []  # the last three samples the machine-set filter used
         self._undo = None
         self.glitches = 0  # one-frame glitches undone since the last reset (machine set)
         self._x = None

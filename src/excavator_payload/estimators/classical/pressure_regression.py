@@ -13,8 +13,8 @@ with the torques from the pressures, :math:`\tau_j = \text{count}_j\,\partial l_
 * **accelerations** (of boom, dipper, bucket and slew) by a *centred* smoothing differentiator
   of the measured rates: the least-squares slope over ``2·half_window + 1`` samples. Centred,
   it has no lag (a causal filtered derivative lags and biases the inertial torques); the price
-  is that the estimate refers to the sample ``half_window + 1`` samples back (40 ms by
-  default; the one more is the outlier test's look-ahead);
+  is that the estimate refers to the sample ``half_window + 2`` samples back (50 ms by
+  default; the two more are the outlier test's look-ahead);
 * **ground tilt** from the house IMU: at slew angle 0 the house's pitch and roll are those of
   the ground frame (:func:`ground_tilt`); the slew angle itself does not enter the dynamics
   (only its rate and acceleration do);
@@ -34,29 +34,37 @@ Outlier gate
 ------------
 A glitched frame (a bit error, a transmitter's spike) is one sample off the signal while its
 neighbours agree. The kernel regresses a sample only ``half_window`` samples after it
-arrives, so it can afford to look one sample ahead: sample :math:`k` is rejected when some
+arrives, so it can afford to look two samples ahead. Sample :math:`k` *stands out* when some
 signal :math:`i` jumps away from both neighbours in the same direction,
 
 .. math:: (x_k - x_{k-1})(x_k - x_{k+1}) > 0, \quad
-          \min(|x_k - x_{k-1}|, |x_k - x_{k+1}|) > z\,\sigma_{\Delta,i}
-          \quad\text{and}\quad
-          \min(|x_k - x_{k-1}|, |x_k - x_{k+1}|) > |x_{k+1} - x_{k-1}|,
+          \min(|x_k - x_{k-1}|, |x_k - x_{k+1}|) > z\,\sigma_{\Delta,i},
+          \quad
+          \min(|x_k - x_{k-1}|, |x_k - x_{k+1}|) > |x_{k+1} - x_{k-1}|;
+
+such a sample is never regressed (its slot is filled by the mean of its neighbours: the
+differentiator needs evenly spaced samples). It is a *glitch*, reported ``rejected_outlier``,
+when that signal also stands off, in the same direction and by more than
+:math:`z\,\sigma_{\Delta,i}`, the straight line through each side's two samples,
+
+.. math:: (x_k - \hat x_k^{\pm})(x_k - x_{k-1}) > 0, \quad |x_k - \hat x_k^{\pm}| >
+          z\,\sigma_{\Delta,i}, \qquad \hat x_k^- = 2x_{k-1} - x_{k-2}, \;
+          \hat x_k^+ = 2x_{k+1} - x_{k+2},
 
 with :math:`\sigma_{\Delta,i}` the robust spread of the signal's sample-to-sample changes on
 the fitting data (:func:`difference_scale`) and :math:`z` the two-sided normal quantile of the
 gate's probability (``GATE_PROBABILITY``). A step (a valve opening) moves away from one
-neighbour only and a ramp from both in opposite directions, so hydraulic transients pass; a
-model-based χ² test of the arriving sample did not work here: the rigid-body residual of a
-transient runs tens of noise deviations for a quarter of a second (measured on NMPC swings:
-NIS/dof 99th percentile ≈ 1000), which rejected good data and re-initialised the estimate.
-The rejected sample's slot is filled by the mean of its neighbours (the differentiator needs
-evenly spaced samples) and never regressed. The last condition asks the sample to stand out
-from both neighbours more than they differ from each other: without it a glitch in the *next*
-frame made a good sample in fast motion look like a spike (its change from the frame before
-above the threshold, the glitch beyond it in the same direction), and the "repair" averaged
-the glitch into the slot (a bucket-rate glitch at 0.2 s of an NMPC swing left inverse dynamics
-at −589 kg instead of 3785 kg; the conformance suite on the machine set found it). Not caught: two or more bad frames in a row that
-agree with each other (the plausibility limits still bound them).
+neighbour only and a ramp from both in opposite directions: neither stands out. The sharp
+corner of a pressure (a rod stopping, a chamber's force turning) stands out but lies on the
+line through one side's samples: it is not regressed — the rigid-body model explains such
+instants worst — and not reported either, for it is no fault of a sensor. A model-based χ²
+test of the arriving sample did not work here: the rigid-body residual of a transient runs
+tens of noise deviations for a quarter of a second, which rejected good data and
+re-initialised the estimate. The third condition asks the sample to stand out from both
+neighbours more than they differ from each other: without it a glitch in the *next* frame
+made a good sample in fast motion look like a spike, and the "repair" averaged the glitch
+into the slot. Not caught: two or more bad frames in a row that agree with each other (the
+plausibility limits still bound them).
 """
 
 from __future__ import annotations
@@ -74,6 +82,9 @@ ANGLES = [SIGNALS.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle
 RATES = [SIGNALS.index(s) for s in ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")]
 PITCH, ROLL = SIGNALS.index("house_pitch"), SIGNALS.index("house_roll")
 PRESSURES = [SIGNALS.index(s) for s in SIGNALS if s.endswith("_pressure")]
+
+#: Samples after the one the outlier test judges: two, so that it sees two neighbours each side.
+LOOK_AHEAD = 2
 
 
 def ground_tilt(house_pitch: float, house_roll: float) -> tuple[float, float]:
@@ -124,8 +135,8 @@ class PressureRegression:
 
     def reset(self) -> None:
         """Start again: empty the differentiator's window and zero the recursive sums."""
-        # the differentiator's window and the newest sample, not yet judged
-        self._buffer: deque = deque(maxlen=2 * self.half_window + 2)
+        # the differentiator's window and the newest samples, not yet judged
+        self._buffer: deque = deque(maxlen=2 * self.half_window + 1 + LOOK_AHEAD)
         self.num = 0.0
         self.info = 0.0
 
@@ -155,27 +166,30 @@ class PressureRegression:
         still = np.exp(-(speed / (3 * self._v_stribeck)) ** 2)
         return residual, phi, var + still * stiction**2 / 3
 
-    def _spike(self, before: np.ndarray, sample: np.ndarray, after: np.ndarray) -> bool:
-        """Whether ``sample`` is a one-frame outlier between its neighbours (module doc)."""
-        return one_frame_glitch(before, sample, after, self.spike_threshold)
+    def _spike(self, context) -> tuple[bool, bool]:
+        """Whether the middle of five consecutive samples stands out, and whether it is a
+        one-frame glitch (:func:`judge_frame`)."""
+        before2, before, sample, after, after2 = context
+        return judge_frame(before, sample, after, self.spike_threshold, before2, after2)
 
     def update(self, time: float, values: np.ndarray) -> bool:
         """Consume one sample; returns whether a sample (the centre of the window) was used.
-        :attr:`rejected` says whether the sample before this one was judged an outlier; the
+        :attr:`rejected` says whether the sample two before this one was judged a glitch; the
         window regressed ends on that sample (every sample in it has been judged)."""
         self._buffer.append((time, values, True))
         self.rejected = False
-        if self.judge and len(self._buffer) >= 3:
-            (_, before, _), (t_mid, mid, _), (_, after, _) = (self._buffer[i] for i in (-3, -2, -1))
-            if self._spike(before, mid, after):
-                self._buffer[-2] = (t_mid, 0.5 * (before + after), False)
-                self.rejected = True
+        if self.judge and len(self._buffer) >= 4:  # the first sample has no neighbour before it
+            context = [self._buffer[i][1] if len(self._buffer) >= -i else None for i in range(-5, 0)]
+            stands_out, self.rejected = self._spike(context)
+            if stands_out:
+                t_mid = self._buffer[-3][0]
+                self._buffer[-3] = (t_mid, 0.5 * (context[1] + context[3]), False)
         if len(self._buffer) < self._buffer.maxlen:
             return False
         _, centre, centre_used = self._buffer[self.half_window]
         if not centre_used:
             return False
-        window = list(self._buffer)[:-1]
+        window = list(self._buffer)[:-LOOK_AHEAD]
         qdd = self._slope([b[0] for b in window], [b[1][RATES] for b in window])
         residual, phi, var = self._evaluate(centre, qdd)
         w = 1.0 / var
@@ -188,17 +202,62 @@ class PressureRegression:
         return self.num / self.info if self.info > 0 else math.nan
 
 
-def one_frame_glitch(before: np.ndarray, sample: np.ndarray, after: np.ndarray, threshold: np.ndarray) -> bool:
-    """Whether ``sample`` is a one-frame outlier between its neighbours: some signal moves away
-    from both, in the same direction, by more than its ``threshold`` (:func:`spike_threshold`)
-    and more than the neighbours differ from each other (module doc). Shared by the pressure
-    kernels and the machine-set Kalman filters."""
+def judge_frame(before: np.ndarray, sample: np.ndarray, after: np.ndarray, threshold: np.ndarray,
+                before2: np.ndarray | None = None, after2: np.ndarray | None = None) -> tuple[bool, bool]:
+    """Whether ``sample`` stands out between its neighbours, and whether it is a one-frame glitch.
+
+    It *stands out* where some signal moves away from both neighbours, in the same direction,
+    by more than its ``threshold`` (:func:`spike_threshold`) and more than the neighbours differ
+    from each other: such a sample is never regressed. It is a *glitch* where that signal also
+    stands off, in that direction and by more than the threshold, the straight line through
+    each side's two samples (where the second neighbours are given): the corner of a
+    piecewise-linear signal lies on one of them, so a sharp turn of a pressure is not reported
+    (module doc). Shared by the pressure kernels and the machine-set Kalman filters.
+
+    Parameters
+    ----------
+    before, sample, after : numpy.ndarray
+        The sample judged and its neighbours, one value per signal.
+    threshold : numpy.ndarray
+        Per-signal threshold z·σ_Δ.
+    before2, after2 : numpy.ndarray or None
+        The samples before ``before`` and after ``after``; ``None`` where not (yet) known.
+
+    Returns
+    -------
+    tuple of bool
+        ``(stands_out, glitch)``; a glitch always stands out.
+    """
     d1 = sample - before
     if not (np.abs(d1) > threshold).any():  # the usual case, in three operations
-        return False
+        return False, False
     d2 = sample - after
     smaller = np.minimum(np.abs(d1), np.abs(d2))
-    return bool(np.any((d1 * d2 > 0) & (smaller > threshold) & (smaller > np.abs(after - before))))
+    out = (d1 * d2 > 0) & (smaller > threshold) & (smaller > np.abs(after - before))
+    if not out.any():
+        return False, False
+    glitch = out
+    for near, far in ((before, before2), (after, after2)):
+        if far is not None:
+            off_line = sample - (2 * near - far)
+            glitch = glitch & (off_line * d1 > 0) & (np.abs(off_line) > threshold)
+    return True, bool(glitch.any())
+
+
+def one_frame_glitch(before: np.ndarray, sample: np.ndarray, after: np.ndarray, threshold: np.ndarray,
+                     before2: np.ndarray | None = None, after2: np.ndarray | None = None) -> bool:
+    """Whether ``sample`` is a one-frame glitch (:func:`judge_frame`'s second answer).
+
+    Parameters
+    ----------
+    before, sample, after : numpy.ndarray
+        The sample judged and its neighbours, one value per signal.
+    threshold : numpy.ndarray
+        Per-signal threshold z·σ_Δ.
+    before2, after2 : numpy.ndarray or None
+        The samples before ``before`` and after ``after``; ``None`` where not known.
+    """
+    return judge_frame(before, sample, after, threshold, before2, after2)[1]
 
 
 def difference_scale(dataset) -> np.ndarray:
