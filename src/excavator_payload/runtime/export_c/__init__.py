@@ -23,6 +23,7 @@ The rooms of this package:
   helpers (the ground tilt, the float builds' scalar Kalman updates);
 * :mod:`.cmodel`: :class:`CModel`, what a builder hands to the template, and the borrowed gate;
 * :mod:`.template`: :func:`render`, the interface and ``Estimator.step_values``' status logic;
+* :mod:`.registry`: the builders, registered against the estimator and sensor set they export;
 * one builder per kernel: :mod:`.inverse_dynamics`, :mod:`.ekf`, :mod:`.networks` (thesis
   sensor set), :mod:`.pressure_regression`, :mod:`.machine_ekf` (machine sensor set).
 """
@@ -42,11 +43,15 @@ from excavator_payload.runtime.export_c.c_text import (
 )
 from excavator_payload.runtime.export_c.casadi_code import casadi_c_code, casadi_call
 from excavator_payload.runtime.export_c.cmodel import BorrowedGate, CModel
-from excavator_payload.runtime.export_c.ekf import _ekf_single_functions, ekf_model  # noqa: F401 (tests)
-from excavator_payload.runtime.export_c.inverse_dynamics import inverse_dynamics_model
-from excavator_payload.runtime.export_c.machine_ekf import machine_ekf_model
-from excavator_payload.runtime.export_c.networks import narx_model, time_delay_model
-from excavator_payload.runtime.export_c.pressure_regression import pressure_regression_model
+# the builders register themselves (registry.c_builder) when their modules are imported
+from excavator_payload.runtime.export_c import (  # noqa: F401
+    inverse_dynamics,
+    machine_ekf,
+    networks,
+    pressure_regression,
+)
+from excavator_payload.runtime.export_c.ekf import _ekf_single_functions  # noqa: F401 (tests)
+from excavator_payload.runtime.export_c.registry import builder_for
 from excavator_payload.runtime.export_c.template import render
 from excavator_payload.runtime.exportable import (
     C_EXPORTABLE,
@@ -56,23 +61,6 @@ from excavator_payload.runtime.exportable import (
 
 __all__ = ["BorrowedGate", "CModel", "MATH_FUNCTIONS", "c_array", "c_identifier", "c_number",
            "casadi_c_code", "casadi_call", "export_c", "render"]
-
-#: Builders for estimators fitted on machine-sensor-set data.
-_MACHINE_BUILDERS = {
-    "inverse-dynamics": pressure_regression_model,
-    "calibrated": pressure_regression_model,
-    "ekf": machine_ekf_model,
-}
-
-
-_BUILDERS = {
-    "inverse-dynamics": inverse_dynamics_model,
-    "calibrated": inverse_dynamics_model,
-    "ekf": ekf_model,
-    "net1": time_delay_model,
-    "ffnn": time_delay_model,
-    "net2": narx_model,
-}
 
 
 def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") -> list[Path]:
@@ -94,13 +82,10 @@ def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") 
     """
     if not estimator.fitted:
         raise EstimatorError(f"{estimator.name}: nothing to export, the estimator is not fitted")
-    if estimator.sensor_set.name == "machine":
-        builder = _MACHINE_BUILDERS.get(estimator.name)
-        if builder is None:
-            raise EstimatorError(f"{estimator.name} on the machine sensor set has no C export; "
-                                 f"exportable there: {', '.join(C_EXPORTABLE_MACHINE)}")
-    else:
-        builder = _BUILDERS.get(estimator.name)
+    builder = builder_for(estimator.name, estimator.sensor_set.name)
+    if builder is None and estimator.sensor_set.name == "machine":
+        raise EstimatorError(f"{estimator.name} on the machine sensor set has no C export; "
+                             f"exportable there: {', '.join(C_EXPORTABLE_MACHINE)}")
     if builder is None:
         raise EstimatorError(f"{estimator.name} has no C export; exportable: {', '.join(C_EXPORTABLE)}")
     if precision not in ("float64", "float32"):

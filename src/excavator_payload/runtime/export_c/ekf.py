@@ -17,6 +17,7 @@ import casadi as ca
 
 from excavator_payload.runtime.export_c.c_text import c_array, c_number
 from excavator_payload.runtime.export_c.casadi_code import casadi_c_code, casadi_call, scalar_updates
+from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel, borrowed_gate
 
 
@@ -76,6 +77,7 @@ def _ekf_single_functions(est, torque_channel: bool) -> tuple[ca.Function, ca.Fu
     return step, gate
 
 
+@c_builder("ekf", sensor_set="thesis")
 def ekf_model(est) -> CModel:
     """The C of ``ekf`` on the thesis sensor set (``ExtendedKalmanFilter``).
 

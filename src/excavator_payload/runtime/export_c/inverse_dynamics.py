@@ -14,9 +14,11 @@ import casadi as ca
 
 from excavator_payload.runtime.export_c.c_text import c_number
 from excavator_payload.runtime.export_c.casadi_code import casadi_c_code, casadi_call
+from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel, borrowed_gate
 
 
+@c_builder("inverse-dynamics", "calibrated", sensor_set="thesis")
 def inverse_dynamics_model(est) -> CModel:
     """The C of ``inverse-dynamics`` and ``calibrated`` on the thesis sensor set:
     ``InverseDynamicsEstimator._step`` (information-form recursive least squares) around CasADi's

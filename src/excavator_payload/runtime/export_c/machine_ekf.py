@@ -21,6 +21,7 @@ from excavator_payload.runtime.export_c.casadi_code import (
     ground_tilt_symbolic,
     scalar_updates,
 )
+from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel
 
 
@@ -90,6 +91,7 @@ def _machine_ekf_functions(est, single: bool) -> ca.Function:
     return ca.Function("ep_machine_ekf_step", [x, P, v], [out])
 
 
+@c_builder("ekf", sensor_set="machine")
 def machine_ekf_model(est) -> CModel:
     """``ekf`` fitted on the machine sensor set: ``_kalman_machine.MachineKalman`` with the
     status rules of ``KalmanEstimatorBase._machine_step`` (no statistical gate on this set; the

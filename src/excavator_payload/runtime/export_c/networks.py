@@ -22,6 +22,7 @@ from excavator_payload.runtime.export_c.c_text import (
     interpolate_rejected_c,
 )
 from excavator_payload.runtime.export_c.casadi_code import casadi_c_code
+from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel, borrowed_gate
 
 
@@ -47,6 +48,7 @@ def _network_sigma(est) -> str:
             f"    (void)s;\n    return {c_number(est.residual_std)};")
 
 
+@c_builder("net1", "ffnn", sensor_set="thesis")
 def time_delay_model(est) -> CModel:
     """The C of ``net1`` and ``ffnn``: the streaming time-delay network.
 
@@ -130,6 +132,7 @@ def time_delay_model(est) -> CModel:
         sigma=_network_sigma(est)))
 
 
+@c_builder("net2", sensor_set="thesis")
 def narx_model(est) -> CModel:
     """The C of ``net2``: the closed-loop NARX network (``RecurrentStepper``).
 

@@ -30,9 +30,11 @@ from excavator_payload.runtime.export_c.casadi_code import (
     casadi_call,
     ground_tilt_symbolic,
 )
+from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel
 
 
+@c_builder("inverse-dynamics", "calibrated", sensor_set="machine")
 def pressure_regression_model(est) -> CModel:
     """``inverse-dynamics`` and ``calibrated`` fitted on machine-sensor-set data: the kernel
     :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`
