@@ -25,36 +25,24 @@ from excavator_payload.estimators.base import (
     Status,
     StepResult,
     create_estimator,
-    estimator_names,
+    estimator_class,
     load_estimator,
 )
 from excavator_payload.simulation.lifts import simulate_lifts
 from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
 from excavator_payload.simulation.sensors import get_noise_preset
 
+from ._conformance import recipes
+
 TINY_NET = {"epochs": 3, "hidden": "4", "train_experiments": 8, "validation_experiments": 2,
             "progress": False}
-#: How each registered estimator is made for the suite (cheap settings).
-RECIPES = {
-    "ekf": {},
-    "ukf": {},
-    "inverse-dynamics": {},
-    "calibrated": {"experiments": 6},
-    "quasi-static": {},
-    "net1": TINY_NET,
-    "net2": TINY_NET,
-    "ffnn": TINY_NET,
-    "dtdnn": TINY_NET,
-    "lrn": TINY_NET,
-}
+#: How each estimator that runs on the thesis sensor set (its traits) is made for the suite
+#: (cheap settings).
+RECIPES = recipes("thesis", TINY_NET, {"calibrated": {"experiments": 6}})
 #: Samples an estimator may need after the stream is good again: a restart plus warming up
 #: (the longest warm-up of the suite's estimators is a filter's convergence, ~20 samples).
 RECOVERY_SAMPLES = 45
 N_SAMPLES = 101
-
-
-def test_every_registered_estimator_is_in_the_suite():
-    assert set(RECIPES) == set(estimator_names())
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +58,7 @@ def fitted(data):
     out = {}
     for name, options in RECIPES.items():
         train = data["lifts"] if name == "quasi-static" else data["train"]
-        out[name] = create_estimator(name, "cat345c" if name not in ("net1", "net2", "ffnn", "dtdnn", "lrn")
+        out[name] = create_estimator(name, "cat345c" if estimator_class(name).NEEDS_MACHINE
                                      else None, **options).fit(train)
     return out
 

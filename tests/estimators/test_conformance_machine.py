@@ -25,34 +25,26 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from excavator_payload.estimators.base import Status, StepResult, create_estimator, load_estimator
+from excavator_payload.estimators.base import (
+    Status,
+    StepResult,
+    create_estimator,
+    estimator_class,
+    load_estimator,
+)
 from excavator_payload.estimators.classical import calibrated_machine as cm
-from excavator_payload.evaluation.demo_machine import machine_estimators
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+from ._conformance import recipes
 
 TINY_NET = {"epochs": 2, "hidden": "3", "train_experiments": 3, "validation_experiments": 1,
             "progress": False, "decimation": 5}
-#: How each estimator that declares the machine set is made for the suite (cheap settings; the
-#: calibrated form is the default, momentum balance with every rule on).
-RECIPES = {
-    "ekf": {},
-    "ukf": {},
-    "inverse-dynamics": {},
-    "calibrated": {},
-    "quasi-static": {},
-    "net1": TINY_NET,
-    "net2": TINY_NET,
-    "ffnn": TINY_NET,
-    "dtdnn": TINY_NET,
-    "lrn": TINY_NET,
-}
+#: How each estimator that runs on the machine sensor set (its traits) is made for the suite
+#: (cheap settings; the calibrated form is the default, momentum balance with every rule on).
+RECIPES = recipes("machine", TINY_NET)
 #: Hostile events happen in the first 2 s of a 10 s NMPC swing: what follows is enough for any
 #: estimator to restart, wait for the boom and weigh again.
 FIRST, LAST = 20, 200
-
-
-def test_every_machine_estimator_is_in_the_suite():
-    assert set(RECIPES) == set(machine_estimators())
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +59,7 @@ def data():
 def fitted(data):
     out = {}
     for name, options in RECIPES.items():
-        machine = None if name in ("net1", "net2", "ffnn", "dtdnn", "lrn") else (
+        machine = None if not estimator_class(name).NEEDS_MACHINE else (
             "cat345c-hydraulic-3pct" if name == "calibrated" else "cat345c-hydraulic")
         est = create_estimator(name, machine, **options)
         est.fit(data["lifts"] if name == "quasi-static" else data["train"])

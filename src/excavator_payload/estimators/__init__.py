@@ -1,16 +1,19 @@
-"""Payload estimators behind one protocol (see :mod:`excavator_payload.estimators.base`)."""
+"""Payload estimators behind one protocol (see :mod:`excavator_payload.estimators.base`).
 
-from excavator_payload.estimators.base import (
-    Estimator,
-    Option,
-    Status,
-    StepResult,
-    create_estimator,
-    estimator_class,
-    estimator_names,
-    load_estimator,
-    register,
-)
+The names below are loaded on first use, so that :mod:`excavator_payload.estimators.traits`
+(every estimator's facts, read by the CLI's help and the export tables) imports without the
+protocol's dependencies.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 __all__ = ["Estimator", "Option", "Status", "StepResult", "create_estimator", "estimator_class",
            "estimator_names", "load_estimator", "register"]
+
+
+def __getattr__(name: str):
+    if name in __all__:
+        return getattr(importlib.import_module("excavator_payload.estimators.base"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -9,7 +9,7 @@ Every estimator (classical filters and neural networks alike) has
   equals resetting at each experiment and stepping through its samples;
 * ``save(dir)`` / ``load(dir)``: a readable ``estimator.json`` plus ``arrays.npz``.
 
-Each estimator declares the sensor sets it runs on (:attr:`Estimator.SENSOR_SETS`, see
+Each estimator runs on the sensor sets its traits declare (:attr:`Estimator.SENSOR_SETS`, see
 :mod:`excavator_payload.data.schema`); ``fit`` takes the set of its dataset, and from then on
 signal vectors are in that set's column order and a dataset of another set gets one clear line.
 
@@ -84,6 +84,7 @@ import pandas as pd
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import THESIS_SENSORS, SensorSet, get_sensor_set
 from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
+from excavator_payload.estimators.traits import ESTIMATOR_TRAITS, EstimatorTraits, traits_of
 from excavator_payload.model.machine import Machine, load_machine
 
 SAVE_FORMAT = "excavator-payload-estimator"
@@ -376,11 +377,22 @@ class Estimator(ABC):
     OPTIONS: ClassVar[dict[str, Option]] = {}
     #: Whether the estimator needs a machine model.
     NEEDS_MACHINE: ClassVar[bool] = True
-    #: Names of the sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`) it runs on.
+    #: Names of the sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`) it runs on
+    #: (from its traits).
     SENSOR_SETS: ClassVar[tuple[str, ...]] = ("thesis",)
+    #: Its facts, declared once in :mod:`~excavator_payload.estimators.traits` (set from
+    #: ``name`` when the class is defined; None for a class not in that table).
+    TRAITS: ClassVar[EstimatorTraits | None] = None
     #: Whether it borrows its statistical gate (it has no noise model of its own), see
     #: :meth:`_borrows_gate`.
     BORROWS_GATE: ClassVar[bool] = False
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        traits = traits_of(vars(cls).get("name", ""))
+        if traits is not None:  # the class's facts, from the one table
+            cls.TRAITS = traits
+            cls.SENSOR_SETS = traits.sensor_sets
 
     def __init__(self, machine: Machine | str | None = None, **options: Any) -> None:
         unknown = sorted(set(options) - set(self.OPTIONS))
@@ -995,19 +1007,9 @@ def _saved_limits(saved, est: Estimator) -> tuple[np.ndarray, np.ndarray]:
 
 
 # -- registry ------------------------------------------------------------------------------
-#: Command-line name -> module that defines it (imported on demand, so torch loads only for nets).
-ESTIMATOR_MODULES: dict[str, str] = {
-    "ekf": "excavator_payload.estimators.classical.ekf",
-    "ukf": "excavator_payload.estimators.classical.ukf",
-    "inverse-dynamics": "excavator_payload.estimators.classical.inverse_dynamics",
-    "calibrated": "excavator_payload.estimators.classical.calibrated",
-    "quasi-static": "excavator_payload.estimators.classical.quasi_static",
-    "net1": "excavator_payload.estimators.dvs.networks",
-    "net2": "excavator_payload.estimators.dvs.recurrent",
-    "ffnn": "excavator_payload.estimators.dvs.networks",
-    "dtdnn": "excavator_payload.estimators.dvs.networks",
-    "lrn": "excavator_payload.estimators.dvs.recurrent",
-}
+#: Command-line name -> module that defines it (imported on demand, so torch loads only for
+#: nets), from the traits.
+ESTIMATOR_MODULES: dict[str, str] = {name: t.module for name, t in ESTIMATOR_TRAITS.items()}
 
 _REGISTRY: dict[str, type[Estimator]] = {}
 

@@ -39,6 +39,7 @@ from excavator_payload import __version__
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import read_dataset, read_estimates, write_dataset, write_estimates
 from excavator_payload.errors import ExcavatorPayloadError
+from excavator_payload.estimators.traits import ESTIMATOR_TRAITS
 from excavator_payload.execution import Execution
 from excavator_payload.evaluation.metrics import (
     DEFAULT_DISCARD,
@@ -104,13 +105,18 @@ class Entry:
     machine: str | None = TRUE_MACHINE
     options: dict = field(default_factory=dict)
     fit_on: str = "train"
-    network: bool = False
+
+    @property
+    def network(self) -> bool:
+        """A network (its traits: it needs a training set): the scale's network options apply."""
+        traits = ESTIMATOR_TRAITS.get(self.estimator)
+        return traits is not None and traits.needs_training_set
 
 
 #: Every estimator the demo runs, labelled as in the thesis where it is the thesis' one.
 ROSTER: tuple[Entry, ...] = (
-    Entry("Net1", "net1", fit_on="train+validation", network=True),
-    Entry("Net2", "net2", fit_on="train+validation", network=True),
+    Entry("Net1", "net1", fit_on="train+validation"),
+    Entry("Net2", "net2", fit_on="train+validation"),
     Entry("EKF_ideal", "ekf", "cat345c", {"tuning": "thesis"}),
     Entry("EKF_1%", "ekf", "cat345c-1pct", {"tuning": "thesis"}),
     Entry("EKF_3%", "ekf", "cat345c-3pct", {"tuning": "thesis"}),

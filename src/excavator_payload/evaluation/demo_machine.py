@@ -12,7 +12,7 @@ As a service technician would set the weighing up:
 3. **session B** (other sensor offsets) — a short empty-bucket motion: ``zero``;
 4. **session B** — test motions (swings with slewing, operator-like work cycles, work cycles on
    a 5° slope); every estimator that runs on the machine sensor set
-   (``estimator_class(name).SENSOR_SETS``, read at run time) is fitted on the calibration data
+   (its traits, :mod:`excavator_payload.estimators.traits`) is fitted on the calibration data
    and judged against the same tests, beside the Cramér–Rao bound of
    :mod:`~excavator_payload.evaluation.crb_machine`.
 """
@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
+from excavator_payload.estimators.traits import ESTIMATOR_TRAITS
 
 SESSION_CALIBRATION, SESSION_WORK = 1, 2
 #: Samples not judged at the start of each test experiment: the first second at 100 Hz.
@@ -157,10 +158,10 @@ def before_release(dataset: Dataset) -> Dataset:
 
 
 def machine_estimators() -> list[str]:
-    """Registered estimators that declare the machine sensor set (read at run time)."""
-    from excavator_payload.estimators.base import estimator_class, estimator_names
+    """Estimators whose traits declare the machine sensor set, in registry order."""
+    from excavator_payload.estimators.traits import estimators_on
 
-    return [n for n in estimator_names() if "machine" in estimator_class(n).SENSOR_SETS]
+    return list(estimators_on("machine"))
 
 
 #: What each kind of estimator learns from, besides the calibration motions: the quasi-static map
@@ -168,7 +169,7 @@ def machine_estimators() -> list[str]:
 #: motions and long training at 100 Hz (benchmarks/bench_machine_filters.py), which this demo
 #: does not pay for: they are listed as not fitted, with that reason.
 LIFTS_FOR = ("quasi-static",)
-NEEDS_TRAINING_SET = ("net1", "net2", "ffnn", "dtdnn", "lrn")
+NEEDS_TRAINING_SET = tuple(n for n, t in ESTIMATOR_TRAITS.items() if t.needs_training_set)
 
 
 def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="cat345c-hydraulic-3pct",

@@ -40,6 +40,7 @@ import pandas as pd
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import ESTIMATE_COLUMNS, MACHINE_SENSORS, THESIS_SENSORS
 from excavator_payload.errors import DatasetError
+from excavator_payload.estimators.traits import ESTIMATOR_TRAITS
 
 #: Samples discarded at the start of every experiment of the thesis sensor set (thesis Table 7.1:
 #: "the first 81 steps", at 20 Hz).
@@ -74,22 +75,11 @@ _KG_SUMMARY = ("mean_max", "std_max", "mean_rms", "std_rms")
 
 
 # -- which Cramér–Rao bound applies ---------------------------------------------------------
-#: Window (samples) of the information a network uses, by registry name, when its options do
-#: not say: a focused time-delay net with delays 0…5 (thesis Net₁) sees the last 6 samples; a
-#: feed-forward net only the current one. ``None``: the whole history (filters, recursive
-#: least squares, NARX and layer-recurrent nets that carry state).
-BOUND_WINDOWS: dict[str, int | None] = {
-    "net1": 6,
-    "dtdnn": 6,
-    "ffnn": 1,
-    "net2": None,
-    "lrn": None,
-    "ekf": None,
-    "ukf": None,
-    "inverse-dynamics": None,
-    "calibrated": None,
-    "quasi-static": None,
-}
+#: Window (samples) of the information an estimator uses, by registry name, when its options
+#: do not say (its traits' ``bound_window``): a focused time-delay net with delays 0…5 (thesis
+#: Net₁) sees the last 6 samples; a feed-forward net only the current one. ``None``: the whole
+#: history (filters, recursive least squares, NARX and layer-recurrent nets that carry state).
+BOUND_WINDOWS: dict[str, int | None] = {name: t.bound_window for name, t in ESTIMATOR_TRAITS.items()}
 
 #: Option names under which time-delay networks may declare their input delays.
 _DELAY_OPTIONS = ("delays", "input_delays", "tapped_delays", "max_delay", "n_delays")
@@ -472,21 +462,18 @@ def display_label(estimator: str, options: Mapping[str, Any] | None = None,
                   machine_name: str | None = None) -> str:
     """A short name for tables: the thesis' names where an estimator is the thesis' one.
 
-    ``net1`` → ``Net1``, ``net2`` → ``Net2``, ``ekf`` with ``tuning=thesis`` on ``cat345c`` /
-    ``cat345c-1pct`` / ``cat345c-3pct`` → ``EKF_ideal`` / ``EKF_1%`` / ``EKF_3%``; others keep
-    their registry name, with the machine when it is not the ideal one.
+    The label of the estimator's traits (``net1`` → ``Net1``, ``net2`` → ``Net2``, ``ekf`` →
+    ``EKF_tuned``); ``ekf`` with ``tuning=thesis`` on ``cat345c`` / ``cat345c-1pct`` /
+    ``cat345c-3pct`` → ``EKF_ideal`` / ``EKF_1%`` / ``EKF_3%``; the machine is added when it is
+    not the ideal one, except to the thesis' own names.
     """
     options = dict(options or {})
-    if estimator == "net1":
-        return "Net1"
-    if estimator == "net2":
-        return "Net2"
     if estimator == "ekf" and options.get("tuning") == "thesis" and machine_name in _EKF_THESIS_LABELS:
         return _EKF_THESIS_LABELS[machine_name]
-    if estimator == "ekf":
-        label = "EKF_tuned"
-    else:
-        label = estimator
+    traits = ESTIMATOR_TRAITS.get(estimator)
+    label = traits.label if traits is not None else estimator
+    if traits is not None and traits.thesis_name:
+        return label
     if machine_name and machine_name != "cat345c":
         label += f" ({machine_name})"
     return label

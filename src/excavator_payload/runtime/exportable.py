@@ -1,15 +1,18 @@
-"""What ``export`` writes, for which estimators: the tables the exporters dispatch on, their
-refusals and ``export --help`` read (light to import: no torch, no CasADi, so the CLI's help
-can list them)."""
+"""What ``export`` writes, for which estimators: the tables derived from the estimators' traits
+(:mod:`excavator_payload.estimators.traits`) that the exporters' refusals and ``export --help``
+read (light to import: no torch, no CasADi, so the CLI's help can list them)."""
 
 from __future__ import annotations
 
-#: Estimators with a C export (:mod:`excavator_payload.runtime.export_c`) on the thesis sensor set.
-C_EXPORTABLE = ("inverse-dynamics", "calibrated", "ekf", "net1", "ffnn", "net2")
+from excavator_payload.estimators.traits import exportable
+
+#: Estimators with a C export (:mod:`excavator_payload.runtime.export_c`) on the thesis sensor
+#: set, from their traits (as every table here).
+C_EXPORTABLE = exportable("c", "thesis")
 #: Estimators with a C export on the machine sensor set.
-C_EXPORTABLE_MACHINE = ("inverse-dynamics", "calibrated", "ekf")
+C_EXPORTABLE_MACHINE = exportable("c", "machine")
 #: Estimators with an ONNX export (:mod:`excavator_payload.runtime.export_onnx`).
-ONNX_EXPORTABLE = ("net1", "ffnn", "net2")
+ONNX_EXPORTABLE = exportable("onnx")
 
 
 def per_sample_options(est) -> list[str]:

@@ -135,7 +135,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     name = "calibrated"
     #: On the machine sensor set the identification is
     #: :mod:`~excavator_payload.estimators.classical.calibrated_machine` (dispatch below).
-    SENSOR_SETS = ("thesis", "machine")
+    # SENSOR_SETS: from its traits (estimators/traits.py)
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
         "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),

@@ -84,7 +84,7 @@ class KalmanEstimatorBase(Estimator):
     NEEDS_MACHINE = True
     #: On the machine sensor set (a hydraulic machine) the kernel is
     #: :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman`.
-    SENSOR_SETS = ("thesis", "machine")
+    # SENSOR_SETS: from its traits (estimators/traits.py)
 
     def __init__(self, machine=None, **options):
         super().__init__(machine, **options)

@@ -419,7 +419,7 @@ class InverseDynamicsEstimator(Estimator):
     name = "inverse-dynamics"
     #: On the machine sensor set (a hydraulic machine) the kernel is
     #: :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`.
-    SENSOR_SETS = ("thesis", "machine")
+    # SENSOR_SETS: from its traits (estimators/traits.py)
     OPTIONS = {
         "forgetting": Option(float, 1.0, "forgetting factor λ in (0, 1]; 1 keeps the whole history"),
         "warmup_std": Option(float, 50.0, "status warming_up until the estimate's std (kg) is at most this"),

@@ -88,7 +88,7 @@ class QuasiStaticEstimator(Estimator):
 
     name = "quasi-static"
     #: On the machine sensor set the mapped load is the boom cylinder's piston force.
-    SENSOR_SETS = ("thesis", "machine")
+    # SENSOR_SETS: from its traits (estimators/traits.py)
     OPTIONS = {
         "grid_step": Option(float, 2.0, "boom-angle spacing of the maps, degrees"),
         "speed_tolerance": Option(float, 0.05, "a lift's constant-speed part starts and ends where "

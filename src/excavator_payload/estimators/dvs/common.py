@@ -483,7 +483,7 @@ class NeuralEstimator(Estimator):
     NEEDS_MACHINE = False
     OPTIONS = neural_options()
     #: The inputs are resolved against the sensor set of the data (:meth:`_use_sensor_set`).
-    SENSOR_SETS = ("thesis", "machine")
+    # SENSOR_SETS: from its traits (estimators/traits.py)
     #: A network has no noise model: it borrows the gate of its training data's physics.
     BORROWS_GATE = True
 

@@ -1,0 +1,442 @@
+"""C builder of ``inverse-dynamics`` and ``calibrated`` fitted on the machine sensor set.
+
+The kernel :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`
+(``calibrated``: ``calibrated_machine.CalibratedKernel``). One sample of the weighing regression
+is CasADi's code of ``HydraulicSymbolic.functions["pressure_regression"]`` with the fitted
+parameter vector as constants, behind the kernel's sensor correction (``calibrated``:
+``calibrated_machine._corrected_signals`` with the identified offsets and IMU dynamics as
+constants; ``inverse-dynamics``: the ground tilt from the house IMU). The ring buffer of
+``2·half_window + 1`` samples, the centred least-squares slope of the rates, the weights and
+``--low-speed`` rule, the recursive sums, status, sigma and gap rule (a short gap restarts the
+window) are ported here (``calibrated --balance momentum``: one sample's momentum-balance terms
+from ``HydraulicSymbolic.functions["momentum_regression"]``, and a second ring holding the
+balance's window), and so is the kernels' one-frame outlier test in place of the chi-square
+gate (the sample before the newest judged between its neighbours against per-signal
+thresholds from the fit data, its slot repaired and never regressed, ``rejected_outlier``;
+``-DEP_GATING=0`` turns it off).
+"""
+
+from __future__ import annotations
+
+import textwrap
+
+import casadi as ca
+import numpy as np
+
+from excavator_payload.errors import EstimatorError
+from excavator_payload.runtime.export_c.c_text import c_array, c_number, one_frame_glitch_c
+from excavator_payload.runtime.export_c.casadi_code import (
+    casadi_c_code,
+    casadi_call,
+    ground_tilt_symbolic,
+)
+from excavator_payload.runtime.export_c.registry import c_builder
+from excavator_payload.runtime.export_c.cmodel import CModel
+
+
+@c_builder("inverse-dynamics", "calibrated", sensor_set="machine")
+def pressure_regression_model(est) -> CModel:
+    """``inverse-dynamics`` and ``calibrated`` fitted on machine-sensor-set data: the kernel
+    :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`
+    (for ``calibrated`` its subclass ``calibrated_machine.CalibratedKernel``), ported to C.
+
+    The physics is CasADi's code of ``HydraulicSymbolic.functions["pressure_regression"]``
+    with the fitted parameter vector baked in as constants, behind the ground tilt each
+    kernel computes from the house IMU; the rest (ring buffer, centred slope, weights,
+    low-speed rule, recursive sums, status, sigma, gap rule) is written here, line by line
+    after the Python.
+
+    Parameters
+    ----------
+    est : Estimator
+        The fitted estimator.
+    """
+    from excavator_payload.estimators.classical.calibrated_machine import (
+        CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
+    from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
+    from excavator_payload.estimators.classical.pressure_regression import (
+        ANGLES, PITCH, PRESSURES, RATES, ROLL)
+    from excavator_payload.model.hydraulic import hydraulic_symbolic
+
+    kernel = est._pressure
+    model_var = float(getattr(kernel, "model_std", 0.0)) ** 2
+    if kernel is None:
+        raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
+    calibrated = isinstance(kernel, CalibratedKernel)
+    momentum = calibrated and kernel.balance == "momentum"
+    sensors = est.sensor_set
+    n = len(sensors.signals)
+    h = int(kernel.half_window)
+    width = 2 * h + 1
+    p = np.asarray(kernel._p, dtype=float)
+    # One sample of the kernel with the fitted machine as constants: corrected signals (15) and
+    # the differentiated rates (4) -> residual, phi, lever, rod speed, stiction (3 each).
+    x = ca.SX.sym("x", n)
+    qdd = ca.SX.sym("qdd", len(RATES))
+    q = ca.vertcat(*[x[i] for i in ANGLES], 0)  # the slew angle does not enter the dynamics
+    qd = ca.vertcat(*[x[i] for i in RATES])
+    if calibrated:  # calibrated_machine.kernel_function: the sensor correction of calibration
+        from excavator_payload.estimators.classical.calibrated_machine import _corrected_signals
+
+        q, qd, tilt, pressures = _corrected_signals(x, qdd, ca.DM(np.asarray(kernel._offset, float)),
+                                                    ca.DM(np.asarray(kernel._imu, float)))
+    else:  # pressure_regression.ground_tilt
+        tilt = ground_tilt_symbolic(x[PITCH], x[ROLL])
+        pressures = ca.vertcat(*[x[i] for i in PRESSURES])
+    if momentum:  # calibrated_machine.kernel_function("momentum"): the balance terms of one sample
+        from excavator_payload.estimators.classical.calibrated_machine import _momentum_terms
+
+        A, lever_s, speed_s, stiction_s, gain_s = _momentum_terms(
+            x, qdd, ca.DM(p), ca.DM(np.asarray(kernel._offset, float)), ca.DM(np.asarray(kernel._imu, float)))
+        outputs = [A, lever_s, speed_s, stiction_s, gain_s]
+    else:
+        outputs = hydraulic_symbolic().functions["pressure_regression"](q, qd, qdd, tilt, pressures, ca.DM(p))
+    kernel_fn = ca.Function("ep_pressure_regression", [x, qdd], [ca.vertcat(*outputs)], ["x", "qdd"], ["out"])
+    code = casadi_c_code({"ep_pressure_regression": kernel_fn})
+
+    head, rod = np.asarray(kernel._head, float), np.asarray(kernel._rod, float)
+    still_speed = 3 * np.asarray(kernel._v_stribeck, float)
+    rates_c = ", ".join(str(i) for i in RATES)
+    defs = [
+        "/* One sample of the machine's weighing regression, generated by CasADi from the symbolic",
+        " * model (HydraulicSymbolic.functions[\"pressure_regression\"]) with the fitted parameter",
+        " * vector as constants; input: the sample at the window's centre (as measured) and",
+        " * the centred slope of the rates; output: [residual tau_p - tau0 (3), phi (3), lever (3),",
+        " * rod speed (3), stiction torque (3)] for boom, dipper, bucket. */",
+        code,
+        "",
+        f"static const int EP_RATES[{len(RATES)}] = {{{rates_c}}};  /* boom, dipper, bucket, slew rate */",
+        f"#define EP_FORGETTING {c_number(kernel.forgetting)}",
+        f"#define EP_WARM_INFO {c_number(est._warm_info)}      /* 1 / warmup_std^2 */",
+        f"#define EP_MAX_BRIDGED_GAP {c_number(MAX_BRIDGED_GAP)}  /* s: a longer gap restarts */",
+        "/* pressure_regression's one-frame outlier test: the sample before the newest is rejected",
+        " * when some signal moves away from both neighbours, in the same direction, by more than",
+        " * z sigma_delta (z: GATE_PROBABILITY two-sided; sigma_delta: the fit data's sample-to-sample",
+        " * change); its slot gets the neighbours' mean and is never regressed. Off with",
+        " * -DEP_GATING=0 (Estimator.gating = False). */",
+        *one_frame_glitch_c(est.gating, kernel.spike_threshold),
+    ]
+    if not (calibrated and kernel.low_speed == "model"):
+        defs.append(c_array("EP_STILL_SPEED", still_speed).rstrip() + "  /* 3 Stribeck velocities, m/s */")
+    if calibrated:
+        k = np.arange(-h, h + 1) / sensors.sample_rate
+        defs += [
+            "/* CalibratedKernel: the least-squares slope over the window as fixed weights (uniform",
+            " * sampling), the per-joint pressure variance through the areas, (A_h^2 + A_r^2)",
+            " * (sigma_p^2 + 1 Pa^2). The identified sensor offsets and IMU dynamics (lag,",
+            " * acceleration leak) are constants inside ep_pressure_regression, as in calibration",
+            " * (calibrated_machine._corrected_signals):",
+            f" *   offsets {', '.join(f'{v:.6g}' for v in kernel._offset)}",
+            f" *   IMU {', '.join(f'{v:.6g}' for v in kernel._imu)} */",
+            c_array("EP_SLOPE", k / float(k @ k)).rstrip(),
+            c_array("EP_LEVER_VAR", kernel._lever_var).rstrip(),
+            "/* CalibratedKernel._inside (--outside-calibration "
+            f"{kernel.outside_calibration}): a joint is weighed only while its measured angle lies",
+            " * in the range the calibration motions covered (calibrated_machine.COVERAGE_JOINTS: the",
+            " * bucket), in raw units (1e30: no limit) */",
+            f"static const int EP_ANGLES[3] = {{{', '.join(str(i) for i in ANGLES)}}};",
+            c_array("EP_COVERAGE_LOW", kernel._raw_low).rstrip(),
+            c_array("EP_COVERAGE_HIGH", kernel._raw_high).rstrip(),
+            "/* CalibratedKernel.ready (--wait-for-boom): no estimate until the boom joint has been",
+            " * weighed once */",
+            f"#define EP_WAIT_FOR_BOOM {1 if kernel.wait_for_boom else 0}",
+            "/* CalibratedKernel._accumulate (--new-load): a short memory's estimate leaving the",
+            " * whole one by more than EP_NEW_LOAD_MIN kg and EP_NEW_LOAD_SIGMAS of the difference's",
+            " * sigma is a new load: the weighing restarts */",
+            f"#define EP_NEW_LOAD {1 if kernel.new_load else 0}",
+            f"#define EP_SHORT_FORGETTING {c_number(kernel._short_forgetting)}",
+            f"#define EP_NEW_LOAD_MIN {c_number(kernel._new_load_min)}",
+            f"#define EP_NEW_LOAD_SIGMAS {c_number(NEW_LOAD_SIGMAS)}",
+            f"#define EP_CHANGING_MIN {c_number(kernel._changing_min)}  /* ... load_changing before it */",
+            f"#define EP_CHANGING_SIGMAS {c_number(CHANGING_SIGMAS)}",
+        ]
+        derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
+    for (j = 0; j < 4; ++j) {
+        ep_real acc = EP_C(0.0);
+        for (k = 0; k < EP_WINDOW; ++k)
+            acc += EP_SLOPE[k] * s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]];
+        qdd[j] = acc;
+    }"""
+        low_speed = {
+            "downweight": """        {
+            ep_real z = out[9 + j] / EP_STILL_SPEED[j], stiction = out[12 + j];
+            var = var + EP_MATH(exp)(-(z * z)) * (stiction * stiction) / EP_C(3.0);
+        }
+        wt = EP_C(1.0) / var;""",
+            "skip": """        wt = EP_C(1.0) / var;
+        if (EP_MATH(fabs)(out[9 + j]) < EP_STILL_SPEED[j]) wt = EP_C(0.0);""",
+            "model": """        wt = EP_C(1.0) / var;""",
+        }[kernel.low_speed]
+        weights = f"""    /* CalibratedKernel.update: var = lever^2 (A_h^2 + A_r^2) sigma_p^2; --low-speed
+     * {kernel.low_speed} (downweight: + stiction^2/3 fading with the rod speed; skip: joints
+     * slower than 3 Stribeck velocities get no weight; model: nothing more); a joint outside
+     * its calibrated angle range gets no weight */
+    for (j = 0; j < 3; ++j) {{
+        ep_real lever = out[6 + j], var, wt;
+        var = lever * lever * EP_LEVER_VAR[j];
+{low_speed}
+        if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt = EP_C(0.0);
+        if (j == 0 && wt > EP_C(0.0)) s->boom_weighed = 1;
+        d_num += wt * (out[3 + j] * out[j]);
+        d_info += wt * (out[3 + j] * out[3 + j]);
+    }}"""
+        description = (f"calibrated on the machine sensor set: weighing regression from cylinder pressures "
+                       f"and IMUs with the identified machine (from {est.machine.name}), sensor offsets and "
+                       f"pressure noise {kernel.pressure_var ** 0.5:.4g} Pa, --low-speed {kernel.low_speed}, "
+                       f"half window {h}")
+    else:
+        defs += [
+            "/* PressureRegression weights: pressure noise (+1 Pa^2 floor) and pump ripple (RMS share)",
+            " * through the areas, stiction near standstill */",
+            c_array("EP_HEAD_AREA_SQ", head**2).rstrip(),
+            c_array("EP_ROD_AREA_SQ", rod**2).rstrip(),
+            f"#define EP_PRESSURE_VAR {c_number(kernel.pressure_var)}",
+            f"#define EP_RIPPLE_VAR_SHARE {c_number(kernel.ripple_var_share)}",
+            f"static const int EP_HEAD_PRESSURES[3] = {{{', '.join(str(i) for i in PRESSURES[0::2])}}};",
+            f"static const int EP_ROD_PRESSURES[3] = {{{', '.join(str(i) for i in PRESSURES[1::2])}}};",
+        ]
+        derivative = """    /* PressureRegression._derivative: least-squares slope of the rates against the window's
+     * times (t - mean t); times are taken relative to the centre sample first (the same
+     * slope; in single precision it keeps the 10 ms steps exact) */
+    {
+        ep_real t_rel[EP_WINDOW], t_centre, t_mean = EP_C(0.0), tt = EP_C(0.0);
+        t_centre = s->ring_time[(s->ring_next + EP_HALF_WINDOW) % EP_RING];
+        for (k = 0; k < EP_WINDOW; ++k) {
+            t_rel[k] = s->ring_time[(s->ring_next + k) % EP_RING] - t_centre;
+            t_mean += t_rel[k];
+        }
+        t_mean /= (ep_real)EP_WINDOW;
+        for (k = 0; k < EP_WINDOW; ++k) {
+            t_rel[k] -= t_mean;
+            tt += t_rel[k] * t_rel[k];
+        }
+        for (j = 0; j < 4; ++j) {
+            ep_real mean = EP_C(0.0), acc = EP_C(0.0);
+            for (k = 0; k < EP_WINDOW; ++k)
+                mean += s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]];
+            mean /= (ep_real)EP_WINDOW;
+            for (k = 0; k < EP_WINDOW; ++k)
+                acc += t_rel[k] * (s->ring[((s->ring_next + k) % EP_RING) * EP_N_SIGNALS + EP_RATES[j]] - mean);
+            qdd[j] = acc / tt;
+        }
+    }"""
+        weights = """    /* PressureRegression.update: per joint, var = lever^2 (A_h^2 var_h + A_r^2 var_r) with
+     * var_side = sigma_p^2 + share p_side^2, plus stiction^2/3 fading with the rod speed */
+    for (j = 0; j < 3; ++j) {
+        ep_real lever = out[6 + j], speed = out[9 + j], stiction = out[12 + j], var, z, w;
+        ep_real p_head = x[EP_HEAD_PRESSURES[j]], p_rod = x[EP_ROD_PRESSURES[j]];
+        var = lever * lever * (EP_HEAD_AREA_SQ[j] * (EP_PRESSURE_VAR + EP_RIPPLE_VAR_SHARE * (p_head * p_head))
+                               + EP_ROD_AREA_SQ[j] * (EP_PRESSURE_VAR + EP_RIPPLE_VAR_SHARE * (p_rod * p_rod)));
+        z = speed / EP_STILL_SPEED[j];
+        var = var + EP_MATH(exp)(-(z * z)) * (stiction * stiction) / EP_C(3.0);
+        w = EP_C(1.0) / var;
+        d_num += (w * out[3 + j]) * out[j];
+        d_info += (w * out[3 + j]) * out[3 + j];
+    }"""
+        description = (f"inverse-dynamics on the machine sensor set: weighing regression from cylinder "
+                       f"pressures and IMUs (machine {est.machine.name}, noise {est.noise_name}), "
+                       f"half window {h}")
+    new_load = ""
+    if calibrated:
+        new_load = """#if EP_NEW_LOAD
+if (1) {
+    ep_real change, spread, limit;
+    s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
+    s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
+    s->changing = 0;
+    if ((!EP_WAIT_FOR_BOOM || s->boom_weighed) && s->info_short > EP_C(0.0) && s->info_short < s->info) {
+        change = s->num_short / s->info_short - s->num / s->info;
+        spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
+        if (spread < EP_C(0.0)) spread = EP_C(0.0);
+        limit = EP_NEW_LOAD_SIGMAS * EP_MATH(sqrt)(spread);
+        if (limit < EP_NEW_LOAD_MIN) limit = EP_NEW_LOAD_MIN;
+        if (EP_MATH(fabs)(change) > limit) {  /* a new load: restart the weighing */
+            s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
+            s->boom_weighed = 0;
+        } else {  /* CalibratedKernel.changing: the load is changing (status load_changing) */
+            limit = EP_CHANGING_SIGMAS * EP_MATH(sqrt)(spread);
+            if (limit < EP_CHANGING_MIN) limit = EP_CHANGING_MIN;
+            s->changing = EP_MATH(fabs)(change) > limit;
+        }
+    }
+}
+#endif"""
+    call = casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code)
+    if not momentum:
+        regress = f"""    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
+        /* the window, oldest first, starts at ring_next and ends on the sample before the newest */
+        const ep_real *centre = s->ring + ((s->ring_next + EP_HALF_WINDOW) % EP_RING) * EP_N_SIGNALS;
+        for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
+{textwrap.indent(derivative, "    ")}
+{textwrap.indent(call, "    ")}
+{textwrap.indent(weights, "    ")}
+        s->num = EP_FORGETTING * s->num + d_num;
+        s->info = EP_FORGETTING * s->info + d_info;
+{textwrap.indent(new_load, "    ")}
+    }}"""
+    else:
+        from excavator_payload.estimators.classical.calibrated_machine import (
+            BALANCE_HALF_WINDOW, BALANCE_RAMP, balance_weights)
+
+        bw, bu = balance_weights(BALANCE_HALF_WINDOW, BALANCE_RAMP)
+        dt = 1.0 / sensors.sample_rate
+        defs += [
+            "/* CalibratedKernel, --balance momentum: the window's weights of the integrand (w dt) and",
+            " * of the momentum (u), calibrated_machine.balance_weights */",
+            c_array("EP_BALANCE_W", bw * dt).rstrip(),
+            c_array("EP_BALANCE_U", bu).rstrip(),
+            f"#define EP_BALANCE_SPAN {c_number(kernel._balance_span)}  /* sum w dt, s */",
+            f"#define EP_RATE_VAR_SPAN {c_number(kernel._rate_var_span)}  /* rate variance / span^2 */",
+        ]
+        weights_m = weights.replace("out[", "bal[").replace(
+            "wt = EP_C(1.0) / var;", "var = var + bal_rate[j];\n        wt = EP_C(1.0) / var;").replace(
+            "if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt",
+            "if (!bal_inside[j]) wt")
+        regress = f"""    if (s->ring_filled == EP_RING) {{
+        /* the differentiator window's centre: its balance terms (its qdd serves the IMU
+         * correction only) go into the balance's ring, a rejected slot too (its interval
+         * belongs to the integral), marked never to be a window's centre */
+        int centre_slot = (s->ring_next + EP_HALF_WINDOW) % EP_RING, slot;
+        const ep_real *centre = s->ring + centre_slot * EP_N_SIGNALS;
+        for (i = 0; i < EP_N_SIGNALS; ++i) x[i] = centre[i];
+{textwrap.indent(derivative, "    ")}
+{textwrap.indent(call, "    ")}
+        slot = s->terms_next;
+        for (i = 0; i < 24; ++i) s->terms[slot * 24 + i] = out[i];
+        s->terms_used[slot] = s->ring_used[centre_slot];
+        for (j = 0; j < 3; ++j)
+            s->terms_inside[slot * 3 + j] = (unsigned char)(x[EP_ANGLES[j]] >= EP_COVERAGE_LOW[j]
+                                                            && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]);
+        s->terms_next = (slot + 1) % EP_BALANCE;
+        if (s->terms_filled < EP_BALANCE) s->terms_filled += 1;
+        if (s->terms_filled == EP_BALANCE && s->terms_used[(s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE]) {{
+            /* the momentum balance over the window, oldest first from terms_next
+             * (calibrated_machine.window_residuals) */
+            ep_real integral[6], momentum[6], bal[15], bal_rate[3];
+            unsigned char bal_inside[3];  /* each joint inside its calibrated range all window long */
+            for (j = 0; j < 6; ++j) integral[j] = momentum[j] = EP_C(0.0);
+            for (j = 0; j < 3; ++j) {{
+                bal_rate[j] = EP_C(0.0);
+                bal_inside[j] = 1;
+                bal[9 + j] = EP_MATH(fabs)(s->terms[s->terms_next * 24 + 15 + j]);
+                bal[12 + j] = s->terms[s->terms_next * 24 + 18 + j];
+            }}
+            for (k = 0; k < EP_BALANCE; ++k) {{
+                const ep_real *t = s->terms + ((s->terms_next + k) % EP_BALANCE) * 24;
+                for (j = 0; j < 6; ++j) {{
+                    integral[j] += EP_BALANCE_W[k] * t[6 + j];
+                    momentum[j] += EP_BALANCE_U[k] * t[j];
+                }}
+                for (j = 0; j < 3; ++j) {{
+                    ep_real speed = EP_MATH(fabs)(t[15 + j]);
+                    bal_rate[j] += (EP_BALANCE_U[k] * EP_BALANCE_U[k]) * t[21 + j];
+                    if (speed < bal[9 + j]) bal[9 + j] = speed;  /* the slowest sample */
+                    if (t[18 + j] > bal[12 + j]) bal[12 + j] = t[18 + j];  /* the largest stiction */
+                    bal_inside[j] = (unsigned char)(bal_inside[j] && s->terms_inside[((s->terms_next + k) % EP_BALANCE) * 3 + j]);
+                }}
+            }}
+            for (j = 0; j < 3; ++j) {{
+                bal[j] = (integral[j] - momentum[j]) / EP_BALANCE_SPAN;
+                bal[3 + j] = (momentum[3 + j] - integral[3 + j]) / EP_BALANCE_SPAN;
+                bal[6 + j] = s->terms[((s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE) * 24 + 12 + j];
+                bal_rate[j] = bal_rate[j] * EP_RATE_VAR_SPAN;
+            }}
+{textwrap.indent(weights_m, "        ")}
+            s->num = EP_FORGETTING * s->num + d_num;
+            s->info = EP_FORGETTING * s->info + d_info;
+{textwrap.indent(new_load, "        ")}
+        }}
+    }}"""
+    not_ready = " || (EP_WAIT_FOR_BOOM && !s->boom_weighed)" if calibrated else ""
+    changing_status = "s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" if calibrated else "EP_STATUS_OK"
+    time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
+        "    s->ring_time[newest] = time;\n"
+    step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
+     * differentiator's window (2 half_window + 1 samples) and the two newest, not yet judged:
+     * the outlier test judges the sample two before the newest between its neighbours; once the
+     * ring is full, the window's centre is regressed unless it was rejected. */
+    ep_real x[EP_N_SIGNALS], qdd[4], out[{24 if momentum else 15}];
+    ep_real d_num = EP_C(0.0), d_info = EP_C(0.0);
+    int i, j, k, newest = s->ring_next, rejected = 0;
+    for (i = 0; i < EP_N_SIGNALS; ++i) s->ring[newest * EP_N_SIGNALS + i] = v[i];
+{time_push}    s->ring_used[newest] = 1;
+    s->ring_next = (newest + 1) % EP_RING;
+    if (s->ring_filled < EP_RING) s->ring_filled += 1;
+#if EP_GATING
+    if (s->ring_filled >= 4) {{  /* the sample two before the newest, two neighbours each side */
+        ep_real *m = s->ring + ((newest + EP_RING - 2) % EP_RING) * EP_N_SIGNALS;
+        const ep_real *b = s->ring + ((newest + EP_RING - 3) % EP_RING) * EP_N_SIGNALS;
+        const ep_real *a = s->ring + ((newest + EP_RING - 1) % EP_RING) * EP_N_SIGNALS;
+        const ep_real *b2 = s->ring_filled >= 5 ? s->ring + ((newest + EP_RING - 4) % EP_RING) * EP_N_SIGNALS : 0;
+        int mid = (newest + EP_RING - 2) % EP_RING, judged = ep_spike(b2, b, m, a, v);
+        if (judged) {{  /* stands out: never regressed; reported only as a glitch */
+            for (i = 0; i < EP_N_SIGNALS; ++i) m[i] = EP_C(0.5) * (b[i] + a[i]);
+            s->ring_used[mid] = 0;
+            rejected = judged == 2;
+        }}
+    }}
+#else
+    (void)ep_spike;
+#endif
+{regress}
+    if (s->info <= EP_C(0.0){not_ready}) {{
+        *estimate = EP_NAN;
+        return EP_STATUS_WARMING_UP;
+    }}
+    *estimate = s->num / s->info;
+    if (rejected) return EP_STATUS_REJECTED;  /* the sample two before this one was an outlier */
+    if (s->info < EP_WARM_INFO) return EP_STATUS_WARMING_UP;
+    return {changing_status};"""
+    on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
+     * (the differentiator needs evenly spaced samples), a long one (or time going back)
+     * restarts */
+    ep_real dt = time - s->last_time;
+    (void)v;
+    if (!s->has_last_time || !(EP_C(0.0) < dt && dt <= EP_MAX_BRIDGED_GAP)) ep_model_reset(s);
+    else s->ring_filled = 0;"""
+    if momentum:  # CalibratedKernel.restart_window: both rings restart
+        on_gap = on_gap[:-len("s->ring_filled = 0;")] + "{ s->ring_filled = 0; s->terms_filled = 0; s->terms_next = 0; }"
+    fields = ["ep_real num;   /* sum of w phi r */",
+              "ep_real info;  /* sum of w phi^2: information, 1/variance of the estimate */",
+              "ep_real ring[EP_RING * EP_N_SIGNALS];  /* the last samples, as measured (outliers repaired) */"]
+    if not calibrated:
+        fields.append("ep_real ring_time[EP_RING];  /* their times */")
+    fields += ["unsigned char ring_used[EP_RING];  /* 0: a rejected sample's slot */",
+               "int ring_next;    /* slot the next sample goes to (the oldest once full) */",
+               "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]
+    reset = "    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;"
+    if calibrated:
+        fields.append("unsigned char boom_weighed;  /* a window with weight on the boom seen */")
+        fields += ["ep_real num_short;   /* the new-load test's short memory: sum of w phi r */",
+                   "ep_real info_short;  /* ... and of w phi^2 */"]
+        fields.append("unsigned char changing;  /* the short memory has left the whole one */")
+        reset += ("\n    s->boom_weighed = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
+                  "\n    s->changing = 0;")
+    defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
+               f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
+               "#define EP_RING (EP_WINDOW + 2)  /* the window and the two newest, unjudged samples */"]
+    if momentum:
+        from excavator_payload.estimators.classical.calibrated_machine import BALANCE_HALF_WINDOW
+
+        fields += ["ep_real terms[EP_BALANCE * 24];  /* balance terms of the last samples: P0, Pm, I0, Fm, "
+                   "lever, speed, stiction, rate gain */",
+                   "unsigned char terms_used[EP_BALANCE];  /* 0: a rejected sample's repaired slot */",
+                   "unsigned char terms_inside[EP_BALANCE * 3];  /* joints inside their calibrated range */",
+                   "int terms_next;    /* slot the next terms go to (the oldest once full) */",
+                   "int terms_filled;  /* terms in the ring (saturates at EP_BALANCE) */"]
+        reset += "\n    s->terms_next = 0;\n    s->terms_filled = 0;"
+        defines += [f"#define EP_BALANCE {2 * BALANCE_HALF_WINDOW + 1}  /* samples of the momentum balance's window */",
+                    f"#define EP_BALANCE_CENTRE {BALANCE_HALF_WINDOW}"]
+        description += f", momentum balance over ±{BALANCE_HALF_WINDOW} samples"
+    return CModel(
+        description=description,
+        state_fields=fields,
+        definitions="\n".join(defs),
+        reset=reset,
+        step=step, on_gap=on_gap,
+        header_defines=defines,
+        sigma=("    /* _estimate_sigma: sqrt(1/I + s_model^2), the calibration's cross-checked model error */\n"
+               f"    return s->info > EP_C(0.0) ? EP_MATH(sqrt)(EP_C(1.0) / s->info + {c_number(model_var)}) : EP_NAN;"),
+        # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps
+        # the sum), so only I is watched
+        state_finite="    return isfinite(s->info);")
