@@ -9,6 +9,12 @@ Every estimator (classical filters and neural networks alike) has
   equals resetting at each experiment and stepping through its samples;
 * ``save(dir)`` / ``load(dir)``: a readable ``estimator.json`` plus ``arrays.npz``.
 
+The protocol's parts have rooms of their own, and this module re-exports their names:
+:mod:`.status` (:class:`Status`, :class:`StepResult`), :mod:`.options` (:class:`Option`),
+:mod:`.checks` (plausibility limits and the gate's tables), :mod:`.persistence` (the model
+folder, :func:`load_estimator`) and :mod:`.registry` (:func:`register`,
+:func:`create_estimator`).
+
 Each estimator declares the sensor sets it runs on (:attr:`Estimator.SENSOR_SETS`, see
 :mod:`excavator_payload.data.schema`); ``fit`` takes the set of its dataset, and from then on
 signal vectors are in that set's column order and a dataset of another set gets one clear line.

@@ -11,7 +11,6 @@ import json
 import math
 from enum import Enum
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,9 +19,6 @@ from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.estimators.checks import plausibility_limits
 from excavator_payload.estimators.registry import estimator_class
 from excavator_payload.model.machine import Machine
-
-if TYPE_CHECKING:
-    from excavator_payload.estimators.base import Estimator
 
 SAVE_FORMAT = "excavator-payload-estimator"
 SAVE_VERSION = 1
@@ -44,8 +40,9 @@ def _jsonable(obj):
     return obj
 
 
-def load_estimator(directory: str | Path, expected: type | None = None) -> Estimator:
-    """Load any saved estimator from ``directory``; clear errors for foreign or corrupt folders."""
+def load_estimator(directory: str | Path, expected: type | None = None):
+    """Load any saved estimator (an :class:`~excavator_payload.estimators.base.Estimator`) from
+    ``directory``; clear errors for foreign or corrupt folders."""
     directory = Path(directory)
     cfg_path = directory / CONFIG_FILE
     if directory.exists() and not directory.is_dir():
@@ -128,7 +125,7 @@ def _machine_from_dict(data: dict):
     return Machine.from_dict(data)
 
 
-def _saved_limits(saved, est: Estimator) -> tuple[np.ndarray, np.ndarray]:
+def _saved_limits(saved, est) -> tuple[np.ndarray, np.ndarray]:
     """Plausibility limits from ``estimator.json`` (older files: computed from the machine)."""
     n = len(est.sensor_set.signals)
     if saved is None:

@@ -4,13 +4,10 @@
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.model.machine import Machine
-
-if TYPE_CHECKING:
-    from excavator_payload.estimators.base import Estimator
 
 #: Command-line name -> module that defines it (imported on demand, so torch loads only for nets).
 ESTIMATOR_MODULES: dict[str, str] = {
@@ -26,10 +23,11 @@ ESTIMATOR_MODULES: dict[str, str] = {
     "lrn": "excavator_payload.estimators.dvs.recurrent",
 }
 
-_REGISTRY: dict[str, type[Estimator]] = {}
+#: name -> estimator class (a subclass of :class:`~excavator_payload.estimators.base.Estimator`).
+_REGISTRY: dict[str, type] = {}
 
 
-def register(klass: type[Estimator]) -> type[Estimator]:
+def register(klass: type) -> type:
     """Class decorator: make an estimator available by its ``name``."""
     if not klass.name:
         raise TypeError(f"{klass.__name__} has no name")
@@ -42,7 +40,7 @@ def estimator_names() -> list[str]:
     return list(ESTIMATOR_MODULES)
 
 
-def estimator_class(name: str) -> type[Estimator]:
+def estimator_class(name: str) -> type:
     """The class registered as ``name`` (importing its module on demand)."""
     if name not in _REGISTRY:
         module = ESTIMATOR_MODULES.get(name)
@@ -59,6 +57,7 @@ def estimator_class(name: str) -> type[Estimator]:
     return _REGISTRY[name]
 
 
-def create_estimator(name: str, machine: Machine | str | None = None, **options: Any) -> Estimator:
-    """A new, unfitted estimator called ``name`` with the given options."""
+def create_estimator(name: str, machine: Machine | str | None = None, **options: Any) :
+    """A new, unfitted estimator (an :class:`~excavator_payload.estimators.base.Estimator`) called
+    ``name`` with the given options."""
     return estimator_class(name)(machine=machine, **options)

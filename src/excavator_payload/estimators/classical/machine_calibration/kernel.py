@@ -19,7 +19,6 @@ against the whole one, :meth:`CalibratedKernel._accumulate`).
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,9 +30,6 @@ from excavator_payload.estimators.classical.machine_calibration.settings import 
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, RATES, PressureRegression
 
-if TYPE_CHECKING:
-    from excavator_payload.estimators.classical.machine_calibration.solver import MachineCalibration
-
 
 class CalibratedKernel(PressureRegression):
     """:class:`PressureRegression` with the identified parameters, offsets and noise.
@@ -43,15 +39,28 @@ class CalibratedKernel(PressureRegression):
     sampling: the base class resets on gaps), and one compiled CasADi call per sample.
 
     The weights are those of ``inverse-dynamics`` (pressure noise through the geometry, plus
-    stiction near standstill). Adding the differentiator's noise through ∂r/∂q̈ (for the boom
-    larger than the pressure noise) was measured *worse* (mean MAX 116 against 97 kg on 15
-    swings): it hands the weight to the bucket joint, whose linkage the calibration knows least.
-    Adding the slope error at a kink of the rates (half the difference of the two half-windows'
-    slopes, through ∂r/∂q̈) was mixed on 20 experiments each: NMPC swings mean MAX 31.7 → 28.2
-    kg but RMS 11.2 → 15.4 kg, work cycles 52.2 → 54.4 kg; not used.
+    stiction near standstill); adding the differentiator's noise or the slope error at a kink
+    through ∂r/∂q̈ was measured and not kept (findings: "The kernel's weights").
+
+    Parameters
+    ----------
+    cal : MachineCalibration
+        The calibration it weighs with (parameters, offsets, IMU dynamics, noise, covered angles).
+    half_window : int
+        Samples each side of the centred differentiator.
+    forgetting : float
+        Forgetting factor λ of the recursive sums.
+    low_speed : str
+        ``--low-speed``: ``model``, ``downweight`` or ``skip``.
+    outside_calibration : str
+        ``--outside-calibration``: ``auto``, ``skip`` or ``use``.
+    wait_for_boom : str
+        ``--wait-for-boom``: ``auto``, ``yes`` or ``no``.
+    new_load : str
+        ``--new-load``: ``auto``, ``detect`` or ``off``.
     """
 
-    def __init__(self, cal: MachineCalibration, half_window: int, forgetting: float, low_speed: str,
+    def __init__(self, cal, half_window: int, forgetting: float, low_speed: str,
                  outside_calibration: str = "auto", wait_for_boom: str = "auto", new_load: str = "auto"):
         super().__init__(cal.arm, pressure_std=cal.pressure_std, ripple_fraction=0.0,
                          half_window=half_window, forgetting=forgetting)
