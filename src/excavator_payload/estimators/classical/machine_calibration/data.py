@@ -225,9 +225,8 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
     run ends at a non-finite sample, an angle outside ``machine``'s range or a one-frame glitch,
     :func:`_glitches`: a rate glitch would step the integral for the rest of the run). Least
     squares over the three joints at once, the nuisances projected out per run. Needs no
-    known payload and no machine file; on ten calibration swings of the field preset it finds
-    0.0076-0.0088 / 0.0075-0.0077 / 0.0077-0.0078 s² where the simulator has 0.0076 (three
-    draws).
+    known payload and no machine file (what it finds on simulated swings:
+    docs/findings/machine-calibration.md).
 
     With the sensitivities' prior (:data:`IMU_PRIOR_STD`, mean 0): a joint the data hardly
     accelerate keeps about 0 and the prior's std.

@@ -240,8 +240,7 @@ class CalibratedKernel(PressureRegression):
         stiction = t[:, 18:21].max(axis=0)
         rate_var = (self._balance_u**2 @ t[:, 21:24]) * self._rate_var_span
         # while weighing, a window with a standstill is judged by its slowest sample (--low-speed;
-        # weighting by the still share, as calibration does, was worse: NMPC swings MAX 33 against
-        # 17 kg, work cycles 201 against 66 kg on 30 each)
+        # weighting by the still share, as calibration does, was measured worse)
         # a joint outside its calibrated range anywhere in the window is not weighed
         inside = self._terms_inside[start:start + b].all(axis=0)
         wt = np.where(self._used(slowest) & inside,

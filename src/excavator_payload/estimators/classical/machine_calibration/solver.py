@@ -189,20 +189,18 @@ class MachineCalibration:
         # the unknown friction of the window's still samples, integrated with the window's
         # weights: the still share of the window times the largest breakaway torque. Returned
         # as a zero "speed" (windows with a standstill) and that stiction, for the downweight
-        # rule of :meth:`weights` (skipping every window with a still sample kept 11 % of the
-        # dipper's and bucket's windows: NMPC swings MAX 23.6 kg, this 16.9 kg on 30 swings)
+        # rule of :meth:`weights` (skipping every window with a still sample kept too few of the
+        # dipper's and bucket's windows; findings: docs/findings/machine-calibration.md)
         stick = np.lib.stride_tricks.sliding_window_view(stiction, 2 * half + 1, axis=0).max(axis=-1)
         # (with the friction's sign held from the last sliding the still windows still carry
-        # their variance: without it they outweighed the moving ones, two calibration draws:
-        # hand-made trajectories 21.0 / 20.6 → 76.3 / 53.3 kg mean MAX, work cycles 70.5 / 30.5
-        # → 97.4 / 50.4 kg)
+        # their variance: without it they outweighed the moving ones)
         still = (np.abs(speed) < self._still_speed).astype(float)
         share = correlate1d(still, w, axis=0, mode="constant")[centres] / w.sum()
         speed_rule = np.where(share > 0, 0.0, np.inf)
         # the still samples' friction is one error shared by the window (and its neighbours):
         # τ times its window variance, as a per-sample-equivalent (the variance weights() adds
-        # is stiction²/3). Counted once per window, the still windows — 88 % of the dipper's
-        # and bucket's on ten calibration swings — outweighed the moving ones τ-fold.
+        # is stiction²/3). Counted once per window, the still windows (most of the dipper's
+        # and bucket's) outweighed the moving ones τ-fold.
         return r, J, lever[centres], speed_rule, math.sqrt(tau) * share * stick[centres - half], centres
 
     def measure_window_inflation(self, values, qdd, payload, runs) -> np.ndarray:
@@ -217,8 +215,7 @@ class MachineCalibration:
         variance (:math:`\tau = (\sum w_b)^2/\sum w_b^2` ≈ 45, :math:`w_b` the balance
         weights), the ends' momentum noise :math:`v_e` as its own. The ratio
         :math:`f_j = \sum w r_j^2 / \sum E[w r_j^2]` (≥ 1) is measured once the machine is
-        identified, as a variance component: 1.0-2.1 on five draws of ten calibration swings,
-        1.1-1.7 at the true machine.
+        identified, as a variance component (measured values: docs/findings/machine-calibration.md).
         """
         r, _, lever, speed, stiction, _ = self.evaluate_windows(values, qdd, payload, self.z, runs)
         w = self.weights(lever, speed, stiction, "downweight", self.pressure_std)
@@ -396,16 +393,11 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         # ripple): a window's residual averages the white noise but not the 3 % file's model
         # error, which the first pass's residuals would blame on the transmitters. Of the IMU
         # dynamics the fit takes the lag (and the links' leak with --imu-leak fit): with the
-        # four acceleration sensitivities free the parameters wander (house sensitivity
-        # 0.096 s² against the simulator's 0.005; NMPC swings MAX 218 kg against 24 kg with the
-        # lag alone, 30 swings); the links' leak read off their own signals and held (the
-        # default) took five draws × 40 from efficiency 2.44 to 2.23 on NMPC swings and 2.96 to
-        # 2.28 on work cycles (README). The house's read off the IMU's
-        # own signals (pitch against slew rate², 0.0051 s² where the simulator has 0.0051) and
-        # held was tried: five draws, hand-made trajectories 18.2 -> 24.7 kg mean MAX (100 ->
-        # 93.5 % within 1 %; the first estimate at the slew's start), planned swings 41.8 ->
-        # 39.0 kg; not kept. A window with a standstill
-        # carries its still share of unknown friction (:meth:`MachineCalibration.evaluate_windows`).
+        # four acceleration sensitivities free the parameters wander; the links' leak is read
+        # off their own signals and held by default, the house's is left out (what each cost:
+        # docs/findings/machine-calibration.md, "The IMUs' dynamic error"). A window with a
+        # standstill carries its still share of unknown friction
+        # (:meth:`MachineCalibration.evaluate_windows`).
         if pressure_std is None:
             cal.pressure_std = pressure_noise_from_data(dataset)
         free = free[(free < len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS) + 1) | np.isin(free, links)]

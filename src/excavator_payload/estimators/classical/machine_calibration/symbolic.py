@@ -143,11 +143,9 @@ def momentum_function() -> ca.Function:
     (12), ∂A/∂z (12×nz), lever, rod speed and stiction (3 each). Inputs as
     :func:`residual_function` but no payload (A is split by it) and with the seals' presliding
     state last (3, :func:`held_direction`): a stopped seal holds the friction of its last
-    sliding direction, which the smooth sign of the streaming kernel cannot know. On noise-free
-    calibration swings at the true machine this took the residual of windows centred on a
-    standstill from 17070 / 7102 / 1833 to 1233 / 163 / 77 N·m RMS (boom / dipper / bucket);
-    the windows keep their standstill variance (the state is not known to the millimetre of
-    presliding, nor before a cylinder's first sliding)."""
+    sliding direction, which the smooth sign of the streaming kernel cannot know. The windows
+    keep their standstill variance (the state is not known to the millimetre of presliding,
+    nor before a cylinder's first sliding)."""
     n_delta, n_off, n_imu = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS), len(IMU_PARAMETERS)
     x = ca.SX.sym("x", len(SIGNALS))
     qdd = ca.SX.sym("qdd", 4)
