@@ -127,15 +127,14 @@ class CalibratedEstimator(InverseDynamicsEstimator):
 
     On machine-sensor-set data (a hydraulic machine file, e.g. ``cat345c-hydraulic-3pct``) it
     identifies the physical parameters, seal friction, sensor offsets and pressure noise instead
-    (:mod:`~excavator_payload.estimators.classical.machine_calibration`) and holds them as a
-    :class:`~excavator_payload.estimators.classical.machine_calibration.weighing.MachineWeighing`
-    (:attr:`weighing`); ``excavator-payload zero`` (:meth:`zero`) re-estimates the offsets later.
-    One-sigma uncertainty of the current estimate: :attr:`uncertainty` (kg).
+    (:mod:`~excavator_payload.estimators.classical.calibrated_machine`); ``excavator-payload
+    zero`` re-estimates the offsets later. One-sigma uncertainty of the current estimate:
+    :attr:`uncertainty` (kg).
     """
 
     name = "calibrated"
     #: On the machine sensor set the identification is
-    #: :mod:`~excavator_payload.estimators.classical.machine_calibration` (dispatch below).
+    #: :mod:`~excavator_payload.estimators.classical.calibrated_machine` (dispatch below).
     SENSOR_SETS = ("thesis", "machine")
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
