@@ -53,6 +53,16 @@ UNITS: dict[str, str] = {
     "payload": "kg",
 }
 
+#: Resolution (one raw bit) of every SI unit the sensor sets use: the CAN codec's scale
+#: (:mod:`excavator_payload.runtime.dbc`) and the health monitor's quantisation step.
+RESOLUTION: dict[str, float] = {
+    "rad": 1e-5,        # 0.00057°; thesis angle noise 1.7e-4 rad
+    "rad/s": 1e-5,      # thesis rate noise 5.6e-5 rad/s
+    "rad/s^2": 1e-5,    # thesis acceleration noise 1.7e-4 rad/s²
+    "N*m": 1.0,         # thesis torque noise 1000 N·m
+    "Pa": 100.0,        # 1 mbar; pressure transducers are ±0.5 % of 400 bar = 2 bar
+}
+
 #: Required columns of every dataset, in order.
 COLUMNS: tuple[str, ...] = ("experiment", "time", *SIGNALS, "payload")
 

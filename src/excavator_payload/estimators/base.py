@@ -1,4 +1,4 @@
-"""The protocol every payload estimator follows, and the registry that names them.
+"""The protocol every payload estimator follows (:class:`Estimator`).
 
 Every estimator (classical filters and neural networks alike) has
 
@@ -8,6 +8,12 @@ Every estimator (classical filters and neural networks alike) has
 * ``reset()`` + ``step(sample)``: streaming, one sample at a time; the batch result
   equals resetting at each experiment and stepping through its samples;
 * ``save(dir)`` / ``load(dir)``: a readable ``estimator.json`` plus ``arrays.npz``.
+
+The protocol's parts have rooms of their own, and this module re-exports their names:
+:mod:`.status` (:class:`Status`, :class:`StepResult`), :mod:`.options` (:class:`Option`),
+:mod:`.checks` (plausibility limits and the gate's tables), :mod:`.persistence` (the model
+folder, :func:`load_estimator`) and :mod:`.registry` (:func:`register`,
+:func:`create_estimator`).
 
 Each estimator runs on the sensor sets its traits declare (:attr:`Estimator.SENSOR_SETS`, see
 :mod:`excavator_payload.data.schema`); ``fit`` takes the set of its dataset, and from then on
@@ -68,13 +74,10 @@ and is reported as ``gap``.
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import os
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
-from enum import Enum
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
 
@@ -82,248 +85,25 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import THESIS_SENSORS, SensorSet, get_sensor_set
+from excavator_payload.data.schema import THESIS_SENSORS, SensorSet
 from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
-from excavator_payload.estimators.traits import ESTIMATOR_TRAITS, EstimatorTraits, traits_of
+from excavator_payload.estimators.traits import EstimatorTraits, traits_of
+# The rooms the protocol is built from, re-exported so that ``estimators.base`` keeps every
+# public name it had: statuses, options, the checks' tables, saving/loading and the registry.
+from excavator_payload.estimators.checks import (  # noqa: F401
+    ANGLE_MARGIN_SIGMAS, GATE_PROBABILITY, GATE_SCALE_HEADROOM, GATE_SCALE_RATE, HYDRAULIC_RATES,
+    HYDRAULIC_RULES, MACHINE_RULES, MAX_CONSECUTIVE_REJECTIONS, MAX_REJECTED_DURATION,
+    PLAUSIBLE_PAYLOAD, PRESSURE_LIMIT_FACTOR, RATE_LIMIT_FACTOR, TORQUE_LIMIT_FACTOR, VACUUM,
+    angle_sensor_margins, gate_threshold, max_consecutive_rejections, plausibility_limits,
+    sensor_margin)
+from excavator_payload.estimators.options import Option  # noqa: F401
+from excavator_payload.estimators.persistence import (  # noqa: F401
+    ARRAYS_FILE, CONFIG_FILE, SAVE_FORMAT, SAVE_VERSION, _jsonable, _machine_from_dict, _saved_limits,
+    load_estimator)
+from excavator_payload.estimators.registry import (  # noqa: F401
+    _REGISTRY, ESTIMATOR_MODULES, create_estimator, estimator_class, estimator_names, register)
+from excavator_payload.estimators.status import Status, StepResult  # noqa: F401
 from excavator_payload.model.machine import Machine, load_machine
-
-SAVE_FORMAT = "excavator-payload-estimator"
-SAVE_VERSION = 1
-CONFIG_FILE = "estimator.json"
-ARRAYS_FILE = "arrays.npz"
-
-
-class Status(str, Enum):
-    """What the estimate beside it means."""
-
-    OK = "ok"                    #: a valid estimate
-    WARMING_UP = "warming_up"    #: not enough samples yet (delay lines filling, filter converging)
-    NO_DATA = "no_data"          #: no sample seen since the last reset
-    GAP = "gap"                  #: time jumped; the estimator restarted
-    INVALID = "invalid_input"    #: a signal was missing, NaN or infinite: sample ignored
-    OUT_OF_RANGE = "out_of_range"  #: a signal outside its plausibility limits: sample ignored
-    REJECTED = "rejected_outlier"  #: inconsistent with the noise model (gate): sample ignored
-    REINITIALISED = "reinitialised"  #: restarted after too many rejections in a row; sample used
-    STATE_RESET = "state_reset"  #: the estimator's state went non-finite: restarted
-    #: the CAN sensor's inputs are older than their period allows (only the runtime says it; here
-    #: so that its code, 9 on the bus since the first release, stays one list with the others)
-    STALE = "stale"
-    #: an estimate outside :data:`PLAUSIBLE_PAYLOAD` of the rated payload: not physical
-    IMPLAUSIBLE = "implausible"
-    LOAD_CHANGING = "load_changing"  #: the load is changing (a dump, a fill): estimate of the load before
-    #: a sensor is faulty (stuck, dropped out, disagreeing with its redundancy; named in
-    #: ``StepResult.fault``): sample not used, estimate kept (see :mod:`.health`)
-    SENSOR_FAULT = "sensor_fault"
-
-
-@dataclass(frozen=True)
-class StepResult:
-    """One streaming result.
-
-    Attributes
-    ----------
-    estimate : float
-        Payload, kg; NaN when there is no estimate yet.
-    status : Status
-        What the estimate means (see :class:`Status`).
-    sigma : float
-        One-sigma uncertainty of ``estimate``, kg; NaN where the estimator cannot tell. How each
-        estimator computes it is in its ``_estimate_sigma`` docstring (filters: square root of the payload
-        covariance; least squares: of its inverse information; networks: the spread of their
-        validation residuals).
-    """
-
-    estimate: float
-    status: Status
-    sigma: float = math.nan
-    #: the faulty signals and kinds while ``status`` is ``sensor_fault``, ``"signal:kind,..."``
-    fault: str = ""
-
-
-#: An estimate outside these fractions of the machine's rated payload is never ``ok``: a bucket
-#: holds no negative mass beyond the weighing's noise (a few % of rated), and 150 % of rated is
-#: past any bucket's heaped capacity and the arm's lifting limit. Wrong factors in a signal map gave
-#: -5 t with status ok and sigma 0.8 kg.
-PLAUSIBLE_PAYLOAD = (-0.10, 1.50)
-
-#: Probability, per sample, that a good sample is rejected by the statistical gate.
-GATE_PROBABILITY = 1e-6
-#: After rejections in a row for this long the estimator re-initialises instead of rejecting
-#: (a glitch is one frame, a hydraulic transient a few tens of milliseconds; a new payload stays).
-MAX_REJECTED_DURATION = 0.25
-#: That many samples of the thesis sensor set (20 Hz); see :func:`max_consecutive_rejections`.
-MAX_CONSECUTIVE_REJECTIONS = 5
-
-
-def max_consecutive_rejections(sensor_set) -> int:
-    """Rejections in a row after which an estimator on ``sensor_set`` re-initialises:
-    :data:`MAX_REJECTED_DURATION` of samples (5 at 20 Hz, 25 at 100 Hz)."""
-    return max(1, int(round(MAX_REJECTED_DURATION * sensor_set.sample_rate)))
-#: The gate widens (never narrows below 1) to ``GATE_SCALE_HEADROOM`` × the recent accepted
-#: innovations' share of the threshold, an exponential average with this weight per sample.
-GATE_SCALE_RATE = 0.05
-GATE_SCALE_HEADROOM = 4.0
-#: A torque beyond this multiple of the machine's torque limit is not physical.
-TORQUE_LIMIT_FACTOR = 1.5
-#: Machine-file rules that tighten ``SensorSet.plausible_abs``: signal -> (rule, machine field).
-#: ``range``: the field is a ``(low, high)`` pair; ``abs_limit``: ``|value| ≤ TORQUE_LIMIT_FACTOR
-#: × field``. A rule whose signal is not in the sensor set does not apply.
-MACHINE_RULES: dict[str, tuple[str, str]] = {
-    "boom_angle": ("range", "boom_angle_range"),
-    "dipper_angle": ("range", "dipper_angle_range"),
-    "boom_torque": ("abs_limit", "boom_torque_limit"),
-    "dipper_torque": ("abs_limit", "dipper_torque_limit"),
-}
-
-#: Hydraulic machine files: a measured link angle must lie inside the link's ``angle_range``
-#: (the mechanical stops) widened by the sensor margin of :func:`angle_sensor_margins`.
-HYDRAULIC_RULES: dict[str, tuple[str, str]] = {
-    "boom_angle": ("link_range", "boom"),
-    "dipper_angle": ("link_range", "dipper"),
-    "bucket_angle": ("link_range", "bucket"),
-}
-#: Standard deviations of a sensor's offset and white noise the angle margin allows (a 6-sigma
-#: Gaussian draw: about 2e-9 per sample).
-ANGLE_MARGIN_SIGMAS = 6.0
-#: Hydraulic machine files: a measured joint rate must lie within this factor times the fastest
-#: the machine's hydraulics can turn the joint
-#: (:meth:`~excavator_payload.model.hydraulic.HydraulicArmModel.largest_joint_rates`), plus the
-#: rate sensors' offset and noise margin. The factor leaves room for what the pump-flow limit does
-#: not bound (an overrunning load lowered faster than the pump fills the cylinder, a regenerating
-#: valve, a machine file's flow on the low side); without it a glitch of two agreeing rate
-#: frames (no one-frame test sees it) at 30 rad/s passed as plausible against the sensor set's
-#: ±50 rad/s.
-RATE_LIMIT_FACTOR = 2.0
-HYDRAULIC_RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
-#: Hydraulic machine files: a measured cylinder pressure (gauge) must lie between a full vacuum
-#: (−1 bar) and this factor times the machine's relief pressure, each widened by the pressure
-#: sensors' offset and noise margin (:func:`sensor_margin`). Pressure peaks above the
-#: relief setting (a valve's response time under a shock load, line reliefs set higher than the
-#: main relief) stay well inside twice it; the sensor set alone allowed ±1000 bar, so two
-#: agreeing frames of −300 bar passed as plausible.
-PRESSURE_LIMIT_FACTOR = 2.0
-VACUUM = 1.0e5  # Pa below atmospheric: no gauge pressure lies lower
-
-_CHI2: dict[int, float] = {}
-
-
-def angle_sensor_margins() -> dict[str, float]:
-    r"""How far (rad) a measured link angle of the machine sensor set can lie outside the true one's
-    range, the largest over the sensor model's presets
-    (:mod:`excavator_payload.simulation.machine_sensors`).
-
-    The measured angle is the IMU's first-order lag of the true angle, plus the accelerations'
-    leak through the inclination fusion, plus the session offset and white noise. The lag adds
-    nothing: its output is a convex combination of past true angles (weights :math:`(1-a)a^k`,
-    started at steady state), so it stays inside their range, whatever the rate (the bound
-    ``lag × max rate`` would only matter against a *moving* limit). The leak is
-    ``acceleration_leak`` × the difference of two IMUs' apparent tilts
-    :math:`rctan(d\,a/g)`, each below :math:`\pi/2` in magnitude (the boom's reference is
-    the house IMU, which no arm acceleration reaches: one term). Offset and noise are allowed
-    :data:`ANGLE_MARGIN_SIGMAS` standard deviations each.
-    """
-    from excavator_payload.simulation.machine_sensors import ANGLES, PRESETS
-
-    margins = dict.fromkeys(ANGLES, 0.0)
-    for noise in PRESETS.values():
-        for j, name in enumerate(ANGLES):
-            leak = noise.acceleration_leak * (math.pi / 2) * (1 if j == 0 else 2)
-            spread = ANGLE_MARGIN_SIGMAS * (noise.angle_offset + noise.angle_noise)
-            margins[name] = max(margins[name], leak + spread)
-    return margins
-
-
-def sensor_margin(kind: str) -> float:
-    """How far a measured ``kind`` (``rate``: rad/s, ``pressure``: Pa) of the machine sensor set
-    can lie outside the true one's range, the largest over the sensor model's presets: offset
-    and white noise, :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the IMU's lag is a
-    convex combination of past true rates, and the pump ripple a share of the pressure itself
-    that vanishes at 0: neither adds)."""
-    from excavator_payload.simulation.machine_sensors import PRESETS
-
-    return max(ANGLE_MARGIN_SIGMAS * (getattr(n, f"{kind}_offset") + getattr(n, f"{kind}_noise"))
-               for n in PRESETS.values())
-
-
-def gate_threshold(dof: int) -> float:
-    """Chi-square quantile of ``1 - GATE_PROBABILITY`` with ``dof`` degrees of freedom."""
-    if dof not in _CHI2:
-        from scipy.stats import chi2
-
-        _CHI2[dof] = float(chi2.isf(GATE_PROBABILITY, dof))
-    return _CHI2[dof]
-
-
-def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` per signal of ``sensor_set`` (its order) from the tables above."""
-    high = np.array([float(sensor_set.plausible_abs[s]) for s in sensor_set.signals])
-    low = -high
-    if machine is not None:
-        hydraulic = getattr(machine, "kind", None) == "hydraulic"
-        margins = angle_sensor_margins() if hydraulic else {}
-        for signal, (rule, field_name) in (HYDRAULIC_RULES if hydraulic else MACHINE_RULES).items():
-            if signal not in sensor_set.signals:
-                continue
-            i = sensor_set.index(signal)
-            value = getattr(machine, field_name, None)
-            if value is None:  # a kind of machine file without this field
-                continue
-            if rule == "link_range":
-                lo, hi = value.angle_range
-                low[i], high[i] = max(low[i], lo - margins[signal]), min(high[i], hi + margins[signal])
-            elif rule == "range":
-                low[i], high[i] = max(low[i], value[0]), min(high[i], value[1])
-            else:
-                limit = TORQUE_LIMIT_FACTOR * float(value)
-                low[i], high[i] = max(low[i], -limit), min(high[i], limit)
-        if hydraulic:
-            from excavator_payload.model.hydraulic import HydraulicArmModel
-
-            fastest = HydraulicArmModel(machine).largest_joint_rates()
-            margin = sensor_margin("rate")
-            for signal, rate in zip(HYDRAULIC_RATES, fastest):
-                if signal in sensor_set.signals:
-                    i = sensor_set.index(signal)
-                    limit = RATE_LIMIT_FACTOR * rate + margin
-                    low[i], high[i] = max(low[i], -limit), min(high[i], limit)
-            margin = sensor_margin("pressure")
-            top = PRESSURE_LIMIT_FACTOR * float(machine.hydraulics.relief_pressure) + margin
-            for i, signal in enumerate(sensor_set.signals):
-                if signal.endswith("_pressure"):
-                    low[i], high[i] = max(low[i], -(VACUUM + margin)), min(high[i], top)
-    return low, high
-
-
-@dataclass(frozen=True)
-class Option:
-    """A command-line option of an estimator (``--name value`` after ``train NAME``)."""
-
-    type: type
-    default: Any
-    help: str
-    choices: tuple | None = None
-
-    def parse(self, name: str, raw: Any) -> Any:
-        """Convert the raw value ``raw`` of option ``name`` to the option's type (booleans from
-        ``1/0/true/false/yes/no``, lists from comma-separated text) and check it is one of
-        ``choices``; :class:`EstimatorError` otherwise."""
-        try:
-            if self.type is bool and isinstance(raw, str):
-                if raw.lower() not in ("1", "0", "true", "false", "yes", "no"):
-                    raise ValueError
-                value = raw.lower() in ("1", "true", "yes")
-            elif self.type in (list, tuple) and isinstance(raw, str):
-                value = [int(v) if v.strip().lstrip("-").isdigit() else v.strip()
-                         for v in raw.replace("[", "").replace("]", "").split(",") if v.strip()]
-            else:
-                value = self.type(raw)
-        except (TypeError, ValueError):
-            raise EstimatorError(f"option --{name.replace('_', '-')}: {raw!r} is not a valid "
-                                 f"{self.type.__name__}") from None
-        if self.choices is not None and value not in self.choices:
-            raise EstimatorError(f"option --{name.replace('_', '-')}: {value!r} is not one of "
-                                 f"{', '.join(map(str, self.choices))}")
-        return value
 
 
 #: Statuses that give no trusted estimate; when more than :data:`UNUSABLE_SHARE` of a dataset's
@@ -583,9 +363,8 @@ class Estimator(ABC):
         self._sentinel = None
         if not self._sentinel_source:
             return
-        from excavator_payload.estimators.classical.inverse_dynamics import InverseDynamicsEstimator
-
-        sentinel = InverseDynamicsEstimator(Machine.from_dict(self._sentinel_source["machine"]))
+        # by name through the registry: the protocol does not import an estimator of its own
+        sentinel = estimator_class("inverse-dynamics")(Machine.from_dict(self._sentinel_source["machine"]))
         sentinel._set_noise(self._sentinel_source["noise"])
         sentinel.sensor_set = self.sensor_set
         sentinel.fitted = True
@@ -877,20 +656,6 @@ class Estimator(ABC):
         return f"{type(self).__name__}(machine={machine!r}, fitted={self.fitted}, options={self.options})"
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Enum):
-        return obj.value
-    return obj
-
-
 def _rated(machine) -> float | None:
     """A machine's rated payload, kg (None without a machine or a positive rating)."""
     rated = getattr(machine, "rated_payload", None)
@@ -907,143 +672,3 @@ def _dataset_machine(dataset: Dataset) -> Machine | None:
         return dataset.machine()
     except (ExcavatorPayloadError, TypeError, ValueError):
         return None
-
-
-def load_estimator(directory: str | Path, expected: type | None = None) -> Estimator:
-    """Load any saved estimator from ``directory``; clear errors for foreign or corrupt folders."""
-    directory = Path(directory)
-    cfg_path = directory / CONFIG_FILE
-    if directory.exists() and not directory.is_dir():
-        raise EstimatorError(f"'{directory}' is a file, not a saved model folder")
-    if not directory.is_dir():
-        raise EstimatorError(f"model folder '{directory}' does not exist")
-    if not cfg_path.is_file():
-        raise EstimatorError(f"'{directory}' is not a saved estimator (no {CONFIG_FILE})")
-    try:
-        config = json.loads(cfg_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise EstimatorError(f"'{cfg_path}' is corrupt: {exc}") from None
-    if not isinstance(config, dict) or config.get("format") != SAVE_FORMAT:
-        raise EstimatorError(f"'{directory}' was not saved by excavator-payload")
-    if config.get("version") != SAVE_VERSION:
-        raise EstimatorError(f"'{directory}' has save format version {config.get('version')}, "
-                             f"this software reads {SAVE_VERSION}")
-    name = config.get("estimator")
-    if not isinstance(name, str):
-        raise EstimatorError(f"'{cfg_path}' names no estimator")
-    klass = estimator_class(name)
-    if expected is not None and not issubclass(klass, expected):
-        raise EstimatorError(f"'{directory}' holds a {klass.name} estimator, not {expected.name}")
-    arrays_path = directory / ARRAYS_FILE
-    if not arrays_path.is_file():
-        raise EstimatorError(f"'{arrays_path}' is missing (incomplete model folder)")
-    try:
-        with np.load(arrays_path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-    except Exception as exc:  # zip, zlib, EOF, header and pickle errors all mean: corrupt file
-        raise EstimatorError(f"'{arrays_path}' is corrupt ({type(exc).__name__}); save the model "
-                             "again") from None
-    for key, value in arrays.items():
-        # Training logs may hold NaN (no validation set); everything the estimator computes
-        # with must be finite: NaN weights would estimate NaN forever.
-        if key.startswith("log_"):
-            continue
-        if value.dtype.kind not in "fiubUS" or (value.dtype.kind == "f" and not np.all(np.isfinite(value))):
-            raise EstimatorError(f"'{arrays_path}': array '{key}' is not finite numbers (corrupt or "
-                                 "tampered model folder)")
-    options, state = config.get("options", {}), config.get("state", {})
-    if not isinstance(options, dict) or not isinstance(state, dict):
-        raise EstimatorError(f"'{cfg_path}': 'options' and 'state' must be JSON objects")
-    try:
-        machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
-        est = klass(machine=machine, **options)
-        # Files saved before sensor sets existed hold the thesis set.
-        est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
-        est._restore(state, arrays)
-        est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
-        rated = config.get("rated_payload", est.rated_payload)  # older files: the machine's
-        if rated is not None and (isinstance(rated, bool) or not isinstance(rated, (int, float))
-                                  or not math.isfinite(rated) or rated <= 0):
-            raise EstimatorError(f"its rated_payload must be a positive number of kg, got {rated!r}")
-        est.rated_payload = None if rated is None else float(rated)
-        est.health = config.get("health", True) is not False  # fitted on noise-free data: off
-        source = config.get("gate_sentinel")
-        if source is not None:
-            if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)
-                    and isinstance(source.get("noise"), str)):
-                raise EstimatorError("its 'gate_sentinel' must hold a machine and a noise preset")
-            est._sentinel_source = source
-            est._build_sentinel()
-    except ExcavatorPayloadError as exc:
-        raise EstimatorError(f"'{directory}' is corrupt or incomplete: {exc}") from None
-    except Exception as exc:  # any other failure to rebuild it from the files: corrupt files
-        raise EstimatorError(f"'{directory}' is corrupt or incomplete: "
-                             f"{type(exc).__name__}: {exc}") from None
-    est.fitted = True
-    est.reset()
-    return est
-
-
-def _machine_from_dict(data: dict):
-    """A saved machine: the thesis' 2-link arm or a hydraulic machine (issue 11)."""
-    if data.get("kind") == "hydraulic":
-        from excavator_payload.model.hydraulic_machine import HydraulicMachine
-
-        return HydraulicMachine.from_dict(data)
-    return Machine.from_dict(data)
-
-
-def _saved_limits(saved, est: Estimator) -> tuple[np.ndarray, np.ndarray]:
-    """Plausibility limits from ``estimator.json`` (older files: computed from the machine)."""
-    n = len(est.sensor_set.signals)
-    if saved is None:
-        return plausibility_limits(est.sensor_set, est.machine)
-    low = np.asarray(saved["low"], dtype=float)
-    high = np.asarray(saved["high"], dtype=float)
-    if low.shape != (n,) or high.shape != (n,) or not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))
-                                                      and np.all(low < high)):
-        raise EstimatorError("its plausibility limits are not finite [low, high] pairs")
-    return low, high
-
-
-# -- registry ------------------------------------------------------------------------------
-#: Command-line name -> module that defines it (imported on demand, so torch loads only for
-#: nets), from the traits.
-ESTIMATOR_MODULES: dict[str, str] = {name: t.module for name, t in ESTIMATOR_TRAITS.items()}
-
-_REGISTRY: dict[str, type[Estimator]] = {}
-
-
-def register(klass: type[Estimator]) -> type[Estimator]:
-    """Class decorator: make an estimator available by its ``name``."""
-    if not klass.name:
-        raise TypeError(f"{klass.__name__} has no name")
-    _REGISTRY[klass.name] = klass
-    return klass
-
-
-def estimator_names() -> list[str]:
-    """Names of all estimators (``ekf``, ``ukf``, …, ``lrn``), whether imported yet or not."""
-    return list(ESTIMATOR_MODULES)
-
-
-def estimator_class(name: str) -> type[Estimator]:
-    """The class registered as ``name`` (importing its module on demand)."""
-    if name not in _REGISTRY:
-        module = ESTIMATOR_MODULES.get(name)
-        if module is None:
-            raise EstimatorError(f"unknown estimator '{name}': choose one of {', '.join(ESTIMATOR_MODULES)}")
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name and exc.name.startswith("excavator_payload"):
-                raise EstimatorError(f"estimator '{name}' is not available in this installation") from None
-            raise
-    if name not in _REGISTRY:
-        raise EstimatorError(f"estimator '{name}' is not available in this installation")
-    return _REGISTRY[name]
-
-
-def create_estimator(name: str, machine: Machine | str | None = None, **options: Any) -> Estimator:
-    """A new, unfitted estimator called ``name`` with the given options."""
-    return estimator_class(name)(machine=machine, **options)

@@ -177,7 +177,7 @@ def for_sensor_set(sensor_set) -> HealthMonitor | None:
     """A monitor for ``sensor_set`` (the machine set only; None for the others)."""
     if sensor_set.name != "machine":
         return None
-    from excavator_payload.runtime.dbc import RESOLUTION
+    from excavator_payload.data.schema import RESOLUTION
 
     resolution = {s: RESOLUTION[sensor_set.units[s]] for s in sensor_set.signals}
     return HealthMonitor(sensor_set.signals, sensor_set.sample_period, resolution)

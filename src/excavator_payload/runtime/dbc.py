@@ -47,7 +47,7 @@ from typing import Mapping, Sequence
 import cantools
 import numpy as np
 
-from excavator_payload.data.schema import SensorSet, get_sensor_set
+from excavator_payload.data.schema import RESOLUTION, SensorSet, get_sensor_set  # noqa: F401 (dbc.RESOLUTION)
 from excavator_payload.errors import ExcavatorPayloadError
 
 
@@ -55,14 +55,6 @@ class CanConfigError(ExcavatorPayloadError):
     """A DBC file or signal map is missing, malformed or does not fit the sensor set."""
 
 
-#: Resolution (one raw bit) of every SI unit the sensor sets use.
-RESOLUTION: dict[str, float] = {
-    "rad": 1e-5,        # 0.00057°; thesis angle noise 1.7e-4 rad
-    "rad/s": 1e-5,      # thesis rate noise 5.6e-5 rad/s
-    "rad/s^2": 1e-5,    # thesis acceleration noise 1.7e-4 rad/s²
-    "N*m": 1.0,         # thesis torque noise 1000 N·m
-    "Pa": 100.0,        # 1 mbar; pressure transducers are ±0.5 % of 400 bar = 2 bar
-}
 #: J1939 priority of the sensor and estimate messages (6: the default of broadcast data).
 PRIORITY = 6
 #: Source addresses (J1939 self-configurable address range 128–247).

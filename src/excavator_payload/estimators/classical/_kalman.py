@@ -528,3 +528,37 @@ def initial_state(tuning: Tuning, values: np.ndarray) -> tuple[np.ndarray, np.nd
 def payload_bounds(machine: Machine) -> tuple[float, float]:
     """Box the payload state is kept in: the bucket mass must stay positive for M⁻¹ to exist."""
     return -0.5 * machine.bucket_mass, 20.0 * max(machine.max_payload, machine.rated_payload)
+
+
+# -- sigma-point helpers (the UKF and the machine set's unscented update) -------------------
+
+def covariance_sqrt(P: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of P, repairing P first if rounding left it indefinite."""
+    try:
+        return np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        return np.linalg.cholesky(repair_covariance(P))
+
+
+def repair_covariance(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
+    """Nearest-ish positive definite P: clip the eigenvalues of its correlation matrix.
+
+    Working on the correlation matrix keeps states of very different scale (rad² vs kg²) from
+    being clipped by one absolute threshold.
+    """
+    P = symmetrise(P)
+    d = np.sqrt(np.maximum(np.diag(P), floor))
+    C = P / np.outer(d, d)
+    eigval, eigvec = np.linalg.eigh(C)
+    C = (eigvec * np.maximum(eigval, floor)) @ eigvec.T
+    return symmetrise(C * np.outer(d, d))
+
+
+def statistical_linearisation(P: np.ndarray, P_xy: np.ndarray) -> np.ndarray:
+    """H_s = P_xyᵀ P⁻¹, solved on the correlation matrix of P (states of very different scale)."""
+    d = np.sqrt(np.maximum(np.diag(P), 1e-300))
+    C = P / np.outer(d, d)
+    try:
+        return (np.linalg.solve(C, P_xy / d[:, None]) / d[:, None]).T
+    except np.linalg.LinAlgError:
+        return (np.linalg.lstsq(C, P_xy / d[:, None], rcond=None)[0] / d[:, None]).T

@@ -459,7 +459,7 @@ class MachineKalman:
         return True
 
     def _unscented_update(self, x, P, tilt, force, R):
-        from excavator_payload.estimators.classical.ukf import covariance_sqrt, statistical_linearisation
+        from excavator_payload.estimators.classical._kalman import covariance_sqrt, statistical_linearisation
 
         L = covariance_sqrt(self.spread * P)
         chi = np.hstack([x[:, None], x[:, None] + L, x[:, None] - L])

@@ -45,7 +45,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
-from excavator_payload.estimators.classical.calibrated_machine import (
+from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_CHOICES, IMU_LEAK_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
@@ -180,14 +180,19 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             raise EstimatorError(f"{self.name}: option --prior-std must be > 0")
         self.parameter_covariance = np.zeros((12, 12))
         self.calibration_experiments: list[int] = []
-        self.calibration = None  # machine sensor set: a calibrated_machine.MachineCalibration
+        self.weighing = None  # machine sensor set: a machine_calibration.weighing.MachineWeighing
+
+    @property
+    def calibration(self):
+        """The identified machine on the machine sensor set (a
+        :class:`~excavator_payload.estimators.classical.machine_calibration.solver.MachineCalibration`
+        held by :attr:`weighing`); None otherwise."""
+        return self.weighing.calibration if self.weighing is not None else None
 
     def _fit(self, dataset: Dataset) -> None:
-        self.calibration = None  # a refit starts afresh
+        self.weighing = None  # a refit starts afresh
         if dataset.sensor_set.name == "machine":
-            from excavator_payload.estimators.classical import calibrated_machine
-
-            calibrated_machine.fit_estimator(self, dataset)
+            self._fit_machine_calibration(dataset)
             return
         self._set_noise(self._noise_from(dataset))
         dataset, ids = calibration_subset(self, dataset)
@@ -199,12 +204,85 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         self.calibration_experiments = [int(i) for i in ids]
         self._prepare()
 
+    # -- the machine sensor set: a MachineWeighing held ------------------------------------
+    def _fit_machine_calibration(self, dataset: Dataset) -> None:
+        """Calibrate on machine-sensor-set data (:meth:`MachineWeighing.fit`) and weigh with it."""
+        from excavator_payload.estimators.classical.machine_calibration.weighing import (
+            MachineWeighing, machine_arm)
+
+        arm = machine_arm(self.name, self.machine)
+        dataset, ids = calibration_subset(self, dataset)
+        weighing, messages = MachineWeighing.fit(self.name, arm, dataset, ids, self.options,
+                                                 lambda half: self._weighing_twin(half, dataset.sensor_set))
+        self.fit_warnings += messages["warnings"]
+        self.fit_refusals += messages["refusals"]
+        self.fit_report += messages["report"]
+        self._hold(weighing)
+
+    def _hold(self, weighing) -> None:
+        """Hold ``weighing`` and weigh with it: its kernel built with the current options."""
+        self.weighing = weighing
+        self.noise_name = weighing.noise_name
+        self.calibration_experiments = list(weighing.calibration_experiments)
+        self.difference_scale = weighing.difference_scale
+        self._pressure = weighing.kernel(self.options)
+        self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
+
+    def _weighing_twin(self, weighing, sensor_set) -> "CalibratedEstimator":
+        """A fitted estimator of this machine and these options that weighs with ``weighing``
+        (the calibration cross-check's halves): no plausibility limits or borrowed gate of its own."""
+        twin = type(self)(self.machine, **self.options)
+        twin.gating, twin.health = self.gating, self.health
+        twin.sensor_set, twin.fitted = sensor_set, True
+        twin._hold(weighing)
+        twin.reset()
+        return twin
+
+    def use_calibration(self, calibration=None) -> None:
+        """Weigh with ``calibration`` (default: the one held) and the current options: the
+        streaming kernel is built again (after editing :attr:`options` or the calibration's ``z``).
+
+        Parameters
+        ----------
+        calibration : MachineCalibration, optional
+            The machine-set calibration to weigh with.
+        """
+        if self.weighing is None:
+            raise EstimatorError(f"{self.name}: no machine-sensor-set calibration to weigh with")
+        if calibration is not None:
+            self.weighing.calibration = calibration
+        self._hold(self.weighing)
+
+    def zero(self, dataset: Dataset) -> list[str]:
+        """The zero check: re-estimate the machine-set sensor offsets from an empty-bucket motion,
+        in place, and weigh with them (:meth:`MachineWeighing.zero`).
+
+        Parameters
+        ----------
+        dataset : Dataset
+            A short empty-bucket motion of the machine sensor set.
+
+        Returns
+        -------
+        list of str
+            Warnings (samples it could not use, cylinders that hardly moved, far offsets).
+        """
+        from excavator_payload.estimators.classical.machine_calibration.weighing import zero
+
+        if self.weighing is None or dataset.sensor_set.name != "machine":
+            return zero(self, dataset)  # its one clear line
+        warnings = self.weighing.zero(dataset, self.options)
+        self._hold(self.weighing)
+        self.reset()
+        return warnings
+
     def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         if self.calibration is not None and dataset.sensor_set.name == "machine":
-            from excavator_payload.estimators.classical import calibrated_machine
+            from excavator_payload.estimators.classical.machine_calibration.weighing import (
+                coverage_notes, waiting_notes)
 
-            return [*calibrated_machine.coverage_notes(self, dataset),
-                    *calibrated_machine.waiting_notes(self, estimates)]
+            return [*coverage_notes(self.name, self._pressure, self.calibration, dataset),
+                    *waiting_notes(self.name, self._pressure, estimates)]
         return []
 
     def identified_parameters(self) -> pd.DataFrame:
@@ -218,24 +296,22 @@ class CalibratedEstimator(InverseDynamicsEstimator):
 
 
     def _config(self) -> dict:
-        if self.calibration is not None:
-            from excavator_payload.estimators.classical import calibrated_machine
-
-            return calibrated_machine.config(self)
+        if self.weighing is not None:
+            return self.weighing.config(self.options["balance"])
         return {**super()._config(), "calibration_experiments": self.calibration_experiments}
 
     def _arrays(self) -> dict[str, np.ndarray]:
-        if self.calibration is not None:
-            from excavator_payload.estimators.classical import calibrated_machine
-
-            return calibrated_machine.arrays(self)
+        if self.weighing is not None:
+            return self.weighing.arrays()
         return {**super()._arrays(), "parameter_covariance": self.parameter_covariance}
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
         if config.get("kernel") == "calibrated_machine":
-            from excavator_payload.estimators.classical import calibrated_machine
+            from excavator_payload.estimators.classical.machine_calibration.weighing import (
+                MachineWeighing, machine_arm)
 
-            calibrated_machine.restore(self, config, arrays)
+            self._hold(MachineWeighing.restore(machine_arm(self.name, self.machine), config, arrays,
+                                               self.options["balance"]))
             return
         super()._restore(config, arrays)
         self.parameter_covariance = np.asarray(arrays["parameter_covariance"], float)

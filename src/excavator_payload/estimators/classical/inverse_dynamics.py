@@ -483,7 +483,7 @@ class InverseDynamicsEstimator(Estimator):
         if name == "auto":
             name = dataset.meta.get("noise")
         if name is None:  # issue 12: no preset named, the pressure noise is estimated from the data
-            from excavator_payload.estimators.classical.calibrated_machine import pressure_noise_from_data
+            from excavator_payload.estimators.classical.machine_calibration.data import pressure_noise_from_data
 
             self.noise_name = "estimated"
             self._pressure_noise = (pressure_noise_from_data(dataset), 0.0)

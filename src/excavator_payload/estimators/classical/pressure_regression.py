@@ -280,6 +280,6 @@ def spike_threshold(scale: np.ndarray) -> np.ndarray:
     """Per-signal threshold z·σ_Δ of the one-frame outlier test (module doc)."""
     from scipy.stats import norm
 
-    from excavator_payload.estimators.base import GATE_PROBABILITY
+    from excavator_payload.estimators.checks import GATE_PROBABILITY
 
     return norm.isf(GATE_PROBABILITY / 2) * np.asarray(scale, float)

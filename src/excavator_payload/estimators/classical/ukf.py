@@ -58,6 +58,8 @@ import numpy as np
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, Status, StepResult, register
 from excavator_payload.estimators.classical import _kalman as kf
+from excavator_payload.estimators.classical._kalman import (  # noqa: F401  (ukf.covariance_sqrt …)
+    covariance_sqrt, repair_covariance, statistical_linearisation)
 from excavator_payload.estimators.classical.ekf import COMMON_OPTIONS, KalmanEstimatorBase
 
 N = kf.N_STATE
@@ -71,28 +73,6 @@ def merwe_weights(n: int, alpha: float, beta: float, kappa: float):
     Wm[0] = lam / (n + lam)
     Wc[0] = lam / (n + lam) + 1 - alpha**2 + beta
     return Wm, Wc, n + lam
-
-
-def covariance_sqrt(P: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor of P, repairing P first if rounding left it indefinite."""
-    try:
-        return np.linalg.cholesky(P)
-    except np.linalg.LinAlgError:
-        return np.linalg.cholesky(repair_covariance(P))
-
-
-def repair_covariance(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
-    """Nearest-ish positive definite P: clip the eigenvalues of its correlation matrix.
-
-    Working on the correlation matrix keeps states of very different scale (rad² vs kg²) from
-    being clipped by one absolute threshold.
-    """
-    P = kf.symmetrise(P)
-    d = np.sqrt(np.maximum(np.diag(P), floor))
-    C = P / np.outer(d, d)
-    eigval, eigvec = np.linalg.eigh(C)
-    C = (eigvec * np.maximum(eigval, floor)) @ eigvec.T
-    return kf.symmetrise(C * np.outer(d, d))
 
 
 @register
@@ -219,13 +199,3 @@ def linear_update(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray):
     K = np.linalg.solve(S, H @ P).T
     I_KH = np.eye(N) - K @ H
     return x + K @ (y - x[:4]), kf.symmetrise(I_KH @ P @ I_KH.T + K @ R @ K.T)
-
-
-def statistical_linearisation(P: np.ndarray, P_xy: np.ndarray) -> np.ndarray:
-    """H_s = P_xyᵀ P⁻¹, solved on the correlation matrix of P (states of very different scale)."""
-    d = np.sqrt(np.maximum(np.diag(P), 1e-300))
-    C = P / np.outer(d, d)
-    try:
-        return (np.linalg.solve(C, P_xy / d[:, None]) / d[:, None]).T
-    except np.linalg.LinAlgError:
-        return (np.linalg.lstsq(C, P_xy / d[:, None], rcond=None)[0] / d[:, None]).T

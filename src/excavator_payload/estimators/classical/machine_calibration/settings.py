@@ -1,0 +1,156 @@
+"""Settings of the machine-set calibration: what it identifies, its priors, windows and choices.
+
+The unknowns are :math:`z = (\\delta, o, \\iota)`: relative deviations :math:`\\delta` of the
+machine file's :data:`CALIBRATED_PARAMETERS`, the sensor offsets :math:`o` of
+:data:`OFFSET_SIGNALS` and the IMU dynamics :math:`\\iota` (:data:`IMU_PARAMETERS`), with the
+priors :data:`OFFSET_PRIOR_STD` and :data:`IMU_PRIOR_STD`. The ``--option`` choices of the
+``calibrated`` estimator on the machine sensor set are here too. What each choice measured is in
+``docs/findings/machine-weighing.md`` ("Calibration settings").
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.model.hydraulic import CYLINDERS, HYDRAULIC_PARAMETER_NAMES
+
+SIGNALS = MACHINE_SENSORS.signals
+DEG = math.pi / 180.0
+
+#: Physical parameters calibration adjusts (relative deviation from the machine file).
+CALIBRATED_PARAMETERS: tuple[str, ...] = (
+    "boom_length", "dipper_length", "boom_foot_x", "boom_foot_z",
+    *(f"{link}_{k}" for link in ("boom", "dipper", "bucket")
+      for k in ("mass", "com_u", "com_w", "inertia_u", "inertia_y", "inertia_w")),
+    "payload_u", "payload_w",
+    "boom_cylinder_parent_x", "boom_cylinder_parent_z", "boom_cylinder_child_u", "boom_cylinder_child_w",
+    "dipper_cylinder_parent_u", "dipper_cylinder_parent_w", "dipper_cylinder_child_u",
+    "dipper_cylinder_child_w", "bucket_cylinder_parent_u", "bucket_cylinder_parent_w",
+    "rocker_pivot_u", "rocker_pivot_w", "rocker_length", "link_length", "bucket_point_u", "bucket_point_w",
+    *(f"{c}_{k}" for c in CYLINDERS for k in ("head_area", "rod_area", "coulomb", "load_coefficient",
+                                               "viscous")),
+)
+#: Friction parameters among them (nuisances of the Cramér–Rao bound).
+FRICTION_PARAMETERS = tuple(p for p in CALIBRATED_PARAMETERS
+                            if p.endswith(("coulomb", "load_coefficient", "viscous")))
+#: Parameters the momentum form's calibration holds at the machine file: where the arm stands
+#: relative to the slew axis. Moving the boom foot together with the boom cylinder's base is
+#: invisible in the arm's own balance (vertically not at all, horizontally only through the
+#: slewing's centrifugal terms), so a free fit moves both to absorb what it cannot model. Held
+#: at the file (a drawing dimension), the cylinder base, whose position relative to the foot
+#: sets the boom's moment arm, stays free (findings: "Held in the momentum form").
+HELD_IN_MOMENTUM = ("boom_foot_x", "boom_foot_z")
+#: Signals with an estimated offset (zero), in this order.
+OFFSET_SIGNALS: tuple[str, ...] = (
+    *(s for s in SIGNALS if s.endswith("_pressure")), "boom_angle", "dipper_angle", "bucket_angle",
+    "house_pitch", "house_roll")
+#: Prior std of each offset (the field preset's session offsets), SI units.
+OFFSET_PRIOR_STD = np.array([1.5e5] * 6 + [0.1 * DEG] * 3 + [0.1 * DEG] * 2)
+#: The IMUs' dynamic error, identified in calibration: output lag τ (s) and each inclination
+#: IMU's sensitivity to its link's tangential acceleration (s²: tilt error per rad/s² of the
+#: link's absolute angular acceleration; the house IMU's per (rad/s)² centripetal and rad/s²
+#: tangential slew acceleration).
+IMU_PARAMETERS: tuple[str, ...] = ("imu_lag", "boom_imu_acceleration_sensitivity",
+                                   "dipper_imu_acceleration_sensitivity",
+                                   "bucket_imu_acceleration_sensitivity",
+                                   "house_imu_acceleration_sensitivity")
+#: Their prior: mean 0, std 20 ms (MEMS IMU output filters: a few to tens of ms) and, for the
+#: sensitivities, a 5 % fusion leak at the IMU's distance d from its axis, 0.05 · d / g: a link
+#: IMU up to 4 m from its joint, 0.02 s²; the house IMU (pitch and roll) within 1 m of the slew
+#: axis, where inclination sensors go, 0.005 s² (with the links' 0.02 s² it absorbed the rates'
+#: noise instead: findings, "The house IMU's prior").
+IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.005])
+#: Moving samples per cylinder below which fit warns that calibration learned little of it
+#: (2 s at 100 Hz).
+MIN_MOVING_SAMPLES = 200
+#: The same for one cylinder in the zero check (1 s at 100 Hz).
+MIN_ZERO_MOVING_SAMPLES = 100
+#: ``zero`` warns of an offset beyond this many prior standard deviations (:data:`OFFSET_PRIOR_STD`):
+#: 2.5° of angle, 37.5 bar; clean zero checks stay well below, a stuck or mis-scaled signal
+#: goes far beyond (findings: "Zero offset warning").
+ZERO_OFFSET_WARNING = 25.0
+#: Choices of ``--low-speed``.
+LOW_SPEED_CHOICES = ("model", "downweight", "skip")
+#: Choices of ``--outside-calibration``: what becomes of a joint's window where the joint's angle
+#: lies outside the range the calibration motions covered. ``auto``: ``skip`` in the momentum
+#: form, ``use`` in the per-sample form (whose boom and dipper alone, through the
+#: differentiator, are worse than its extrapolated bucket).
+OUTSIDE_CALIBRATION_CHOICES = ("auto", "skip", "use")
+#: Choices of ``--wait-for-boom``: report no estimate until the boom joint has been weighed
+#: (a 0.5 s window of boom motion). ``auto``: ``yes`` in the momentum form, ``no`` in the
+#: per-sample form.
+WAIT_FOR_BOOM_CHOICES = ("auto", "yes", "no")
+#: Choices of ``--new-load``: restart the weighing when the load changes (a dump, a new bucket
+#: load on a machine that weighs one load after another). ``auto``: ``detect`` in the momentum
+#: form, ``off`` in the per-sample form.
+NEW_LOAD_CHOICES = ("auto", "detect", "off")
+#: Choices of ``--imu-leak``: where the three link IMUs' acceleration sensitivities come from.
+#: ``signals``: read off each IMU's own angle and rate (``imu_sensitivities``) and held in
+#: calibration, zero and weighing; ``fit``: identified in the calibration fit with the other
+#: parameters; ``none``: not modelled (0); ``auto`` (the default): ``signals`` in the momentum
+#: form, ``fit`` in the per-sample form. The house IMU's is fitted in the per-sample form and
+#: left out of the momentum form whatever the choice.
+IMU_LEAK_CHOICES = ("auto", "signals", "fit", "none")
+#: The new-load test compares the estimate of a short memory (exponential, this time constant,
+#: s) with the whole weighing's ...
+NEW_LOAD_MEMORY = 1.0
+#: ... and takes a difference of more than this share of the rated payload, and more than
+#: :data:`NEW_LOAD_SIGMAS` standard deviations of the difference, for a new load.
+NEW_LOAD_MIN_SHARE = 0.1
+NEW_LOAD_SIGMAS = 5.0
+#: Before a new load is certain, a short memory leaving the whole one by both
+#: :data:`CHANGING_SIGMAS` and :data:`CHANGING_MIN_SHARE` of the rated payload says the load is
+#: changing (status ``load_changing``): while the bucket dumps, the whole memory still holds the
+#: load before, and calling it ``ok`` reported the old load for the 1-3 s the restart test needs.
+CHANGING_MIN_SHARE = 0.05
+CHANGING_SIGMAS = 5.0
+#: The covered range of each arm angle: these percentiles of the calibration samples (robust to
+#: a glitch), widened by :data:`COVERAGE_MARGIN` each side (rad).
+COVERAGE_PERCENTILES = (0.5, 99.5)
+COVERAGE_MARGIN = 5.0 * DEG
+#: The joints the range limits while weighing: the bucket, whose four-bar linkage is the model's
+#: most nonlinear geometry. Boom and dipper levers extrapolate smoothly (limiting them too
+#: gained nothing: findings, "Outside the calibrated range").
+COVERAGE_JOINTS = (False, False, True)
+#: Stands for "no limit" in the coverage (a model saved before it existed, or ``use``); finite,
+#: so that the C export writes it as a number.
+NO_LIMIT = 1.0e30
+#: Default pressure noise before it is estimated (the field preset's), Pa.
+DEFAULT_PRESSURE_STD = 3.0e4
+_PARAM_INDEX = np.array([HYDRAULIC_PARAMETER_NAMES.index(n) for n in CALIBRATED_PARAMETERS])
+_OFFSET_COLUMNS = np.array([SIGNALS.index(s) for s in OFFSET_SIGNALS])
+
+#: Slow samples after the last sliding one that keep its friction direction (0.1 s): a reversal
+#: or a slow pass turns the friction over through the presliding state, but once a valve has
+#: closed the seal holds whatever balanced the trapped pressures, anywhere within ± breakaway.
+HELD_SAMPLES = 10
+
+#: Samples each side of the centred differentiator in calibration (0.3 s: the lifts are slow,
+#: and the rate noise through a shorter window dominates the boom's residual; findings,
+#: "Calibration settings").
+CALIBRATION_HALF_WINDOW = 15
+#: ``--balance``: how the estimator does without measured accelerations.
+BALANCE_CHOICES = ("differentiated", "momentum")
+#: The momentum balance's window: ±25 samples (0.5 s), its ends averaged over 10 samples
+#: (``balance_weights``). The rates' noise through the momentum falls as the window grows
+#: and nothing else grows with it (no differentiator bias; findings, "Calibration settings").
+BALANCE_HALF_WINDOW = 25
+BALANCE_RAMP = 10
+
+#: A sample whose angle or rate jumps more than this many robust noise stds (of the second
+#: difference) is a glitch to ``imu_sensitivities``: arm motion's own second differences stay
+#: below 1 % of it (a jerk of 340 rad/s³ would reach it).
+GLITCH_SIGMAS = 8.0
+
+#: Share of held-out calibration samples whose error the reported σ must cover twice
+#: (``cross_validated_model_std``): σ = √(1/I + s_model²) with 2σ ⊇ 95 % of them.
+SIGMA_COVERAGE = 0.95
+#: Fewest calibration experiments for the cross-check (two folds of at least two motions).
+MIN_CROSS_EXPERIMENTS = 4
+
+#: The largest magnitude a restored calibration ``z`` may hold (a pressure offset of 10,000
+#: bar; real calibrations stay below 3e5).
+MAX_CALIBRATION_VALUE = 1e9

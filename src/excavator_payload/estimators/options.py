@@ -1,0 +1,40 @@
+"""An estimator's command-line options (``--name value`` after ``train NAME``): :class:`Option`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from excavator_payload.errors import EstimatorError
+
+
+@dataclass(frozen=True)
+class Option:
+    """A command-line option of an estimator (``--name value`` after ``train NAME``)."""
+
+    type: type
+    default: Any
+    help: str
+    choices: tuple | None = None
+
+    def parse(self, name: str, raw: Any) -> Any:
+        """Convert the raw value ``raw`` of option ``name`` to the option's type (booleans from
+        ``1/0/true/false/yes/no``, lists from comma-separated text) and check it is one of
+        ``choices``; :class:`EstimatorError` otherwise."""
+        try:
+            if self.type is bool and isinstance(raw, str):
+                if raw.lower() not in ("1", "0", "true", "false", "yes", "no"):
+                    raise ValueError
+                value = raw.lower() in ("1", "true", "yes")
+            elif self.type in (list, tuple) and isinstance(raw, str):
+                value = [int(v) if v.strip().lstrip("-").isdigit() else v.strip()
+                         for v in raw.replace("[", "").replace("]", "").split(",") if v.strip()]
+            else:
+                value = self.type(raw)
+        except (TypeError, ValueError):
+            raise EstimatorError(f"option --{name.replace('_', '-')}: {raw!r} is not a valid "
+                                 f"{self.type.__name__}") from None
+        if self.choices is not None and value not in self.choices:
+            raise EstimatorError(f"option --{name.replace('_', '-')}: {value!r} is not one of "
+                                 f"{', '.join(map(str, self.choices))}")
+        return value

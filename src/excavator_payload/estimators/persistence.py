@@ -1,0 +1,138 @@
+"""Saving and loading estimators: the model folder's format (``estimator.json`` + ``arrays.npz``)
+and :func:`load_estimator`, which rebuilds any registered estimator from one.
+
+:meth:`~excavator_payload.estimators.base.Estimator.save` writes the folder; each estimator's
+own state goes through its ``_config`` / ``_arrays`` / ``_restore``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from enum import Enum
+from pathlib import Path
+
+import numpy as np
+
+from excavator_payload.data.schema import get_sensor_set
+from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
+from excavator_payload.estimators.checks import plausibility_limits
+from excavator_payload.estimators.registry import estimator_class
+from excavator_payload.model.machine import Machine
+
+SAVE_FORMAT = "excavator-payload-estimator"
+SAVE_VERSION = 1
+CONFIG_FILE = "estimator.json"
+ARRAYS_FILE = "arrays.npz"
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, Enum):
+        return obj.value
+    return obj
+
+
+def load_estimator(directory: str | Path, expected: type | None = None):
+    """Load any saved estimator (an :class:`~excavator_payload.estimators.base.Estimator`) from
+    ``directory``; clear errors for foreign or corrupt folders."""
+    directory = Path(directory)
+    cfg_path = directory / CONFIG_FILE
+    if directory.exists() and not directory.is_dir():
+        raise EstimatorError(f"'{directory}' is a file, not a saved model folder")
+    if not directory.is_dir():
+        raise EstimatorError(f"model folder '{directory}' does not exist")
+    if not cfg_path.is_file():
+        raise EstimatorError(f"'{directory}' is not a saved estimator (no {CONFIG_FILE})")
+    try:
+        config = json.loads(cfg_path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise EstimatorError(f"'{cfg_path}' is corrupt: {exc}") from None
+    if not isinstance(config, dict) or config.get("format") != SAVE_FORMAT:
+        raise EstimatorError(f"'{directory}' was not saved by excavator-payload")
+    if config.get("version") != SAVE_VERSION:
+        raise EstimatorError(f"'{directory}' has save format version {config.get('version')}, "
+                             f"this software reads {SAVE_VERSION}")
+    name = config.get("estimator")
+    if not isinstance(name, str):
+        raise EstimatorError(f"'{cfg_path}' names no estimator")
+    klass = estimator_class(name)
+    if expected is not None and not issubclass(klass, expected):
+        raise EstimatorError(f"'{directory}' holds a {klass.name} estimator, not {expected.name}")
+    arrays_path = directory / ARRAYS_FILE
+    if not arrays_path.is_file():
+        raise EstimatorError(f"'{arrays_path}' is missing (incomplete model folder)")
+    try:
+        with np.load(arrays_path, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+    except Exception as exc:  # zip, zlib, EOF, header and pickle errors all mean: corrupt file
+        raise EstimatorError(f"'{arrays_path}' is corrupt ({type(exc).__name__}); save the model "
+                             "again") from None
+    for key, value in arrays.items():
+        # Training logs may hold NaN (no validation set); everything the estimator computes
+        # with must be finite: NaN weights would estimate NaN forever.
+        if key.startswith("log_"):
+            continue
+        if value.dtype.kind not in "fiubUS" or (value.dtype.kind == "f" and not np.all(np.isfinite(value))):
+            raise EstimatorError(f"'{arrays_path}': array '{key}' is not finite numbers (corrupt or "
+                                 "tampered model folder)")
+    options, state = config.get("options", {}), config.get("state", {})
+    if not isinstance(options, dict) or not isinstance(state, dict):
+        raise EstimatorError(f"'{cfg_path}': 'options' and 'state' must be JSON objects")
+    try:
+        machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
+        est = klass(machine=machine, **options)
+        # Files saved before sensor sets existed hold the thesis set.
+        est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
+        est._restore(state, arrays)
+        est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
+        rated = config.get("rated_payload", est.rated_payload)  # older files: the machine's
+        if rated is not None and (isinstance(rated, bool) or not isinstance(rated, (int, float))
+                                  or not math.isfinite(rated) or rated <= 0):
+            raise EstimatorError(f"its rated_payload must be a positive number of kg, got {rated!r}")
+        est.rated_payload = None if rated is None else float(rated)
+        est.health = config.get("health", True) is not False  # fitted on noise-free data: off
+        source = config.get("gate_sentinel")
+        if source is not None:
+            if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)
+                    and isinstance(source.get("noise"), str)):
+                raise EstimatorError("its 'gate_sentinel' must hold a machine and a noise preset")
+            est._sentinel_source = source
+            est._build_sentinel()
+    except ExcavatorPayloadError as exc:
+        raise EstimatorError(f"'{directory}' is corrupt or incomplete: {exc}") from None
+    except Exception as exc:  # any other failure to rebuild it from the files: corrupt files
+        raise EstimatorError(f"'{directory}' is corrupt or incomplete: "
+                             f"{type(exc).__name__}: {exc}") from None
+    est.fitted = True
+    est.reset()
+    return est
+
+
+def _machine_from_dict(data: dict):
+    """A saved machine: the thesis' 2-link arm or a hydraulic machine (issue 11)."""
+    if data.get("kind") == "hydraulic":
+        from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+        return HydraulicMachine.from_dict(data)
+    return Machine.from_dict(data)
+
+
+def _saved_limits(saved, est) -> tuple[np.ndarray, np.ndarray]:
+    """Plausibility limits from ``estimator.json`` (older files: computed from the machine)."""
+    n = len(est.sensor_set.signals)
+    if saved is None:
+        return plausibility_limits(est.sensor_set, est.machine)
+    low = np.asarray(saved["low"], dtype=float)
+    high = np.asarray(saved["high"], dtype=float)
+    if low.shape != (n,) or high.shape != (n,) or not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))
+                                                      and np.all(low < high)):
+        raise EstimatorError("its plausibility limits are not finite [low, high] pairs")
+    return low, high
