@@ -1584,7 +1584,12 @@ def fit_estimator(estimator, dataset: Dataset) -> None:
 
 def zero(estimator, dataset: Dataset) -> list[str]:
     """Re-estimate a fitted machine-set ``calibrated`` estimator's sensor offsets, in place.
-    Returns warnings (samples it could not use), as fit's ``fit_warnings``."""
+    Returns warnings (samples it could not use), as fit's ``fit_warnings``; sets the estimator's
+    ``zero_report`` (the predicted weighing error, one line) and ``zero_refusals`` (why not to
+    weigh with it: ``excavator-payload zero`` refuses unless ``--force``), from
+    :func:`~excavator_payload.estimators.classical.zero_quality.zero_quality`."""
+    from excavator_payload.estimators.classical.zero_quality import zero_quality
+
     if getattr(estimator, "calibration", None) is None:
         raise EstimatorError(f"zero needs a 'calibrated' model fitted on machine-sensor-set data, "
                              f"not a '{estimator.name}' model")
@@ -1595,6 +1600,10 @@ def zero(estimator, dataset: Dataset) -> list[str]:
                                 estimator.options["half_window"])
     _install(estimator, estimator.calibration)
     estimator.reset()
+    quality = zero_quality(estimator.calibration, dataset, moving)
+    estimator.zero_quality = quality
+    estimator.zero_report = [quality.report()]
+    estimator.zero_refusals = [f"zero: {reason}" for reason in quality.refusals]
     n = len(dataset.frame)
     warnings = []
     if used < n:
