@@ -272,11 +272,13 @@ def zero_quality(cal: "cm.MachineCalibration", dataset, moving: np.ndarray,
     still = [JOINTS[j] for j in range(3)
              if moving[j] < cm.MIN_ZERO_MOVING_SAMPLES or determined[j] > DETERMINED_SHARE]
     if still:
+        seconds = ", ".join(f"{j} {moving[JOINTS.index(j)] / rate:.1f} s" for j in still)
         refusals.append(
-            f"the zero motion did not determine the pressure offsets of the {', '.join(still)} "
-            f"cylinder{'s' if len(still) > 1 else ''} (moving {', '.join(f'{moving[JOINTS.index(j)] / rate:.1f} s' for j in still)}): "
-            f"repeat it with the empty bucket, moving {' and '.join(still)} up and down through "
-            f"their range, {cm.MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more each, at a steady speed")
+            f"the zero motion did not determine the pressure offsets of the {' and '.join(still)} "
+            f"cylinder{'s' if len(still) > 1 else ''} (moving: {seconds}): repeat it with the empty "
+            f"bucket, moving the {' and '.join(still)} up and down through "
+            f"{'their' if len(still) > 1 else 'its'} range, {cm.MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or "
+            "more each, at a steady speed")
     rated = float(cal.arm.machine.rated_payload)
     if predicted > MAX_ERROR_SHARE * rated:
         refusals.append(
