@@ -8,7 +8,9 @@ one is never overwritten (``--out`` equal to ``--model`` is refused).
 The motion should move the boom, the dipper and the bucket: offsets are read from moving
 joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
 pressures only (measured on 15 session-B swings, mean MAX: 276 kg after a lift, 85 kg after an
-empty swing).
+empty swing). It prints the weighing error the zero predicts and refuses (exit 2, nothing saved;
+``--force`` saves it) a zero that leaves a cylinder's offsets undetermined or would weigh worse
+than 1 % of rated (:mod:`~excavator_payload.estimators.classical.zero_quality`).
 """
 
 from __future__ import annotations
