@@ -25,7 +25,10 @@ def test_train_zero_evaluate_from_the_cli(tmp_path, capsys):
     assert (tmp_path / "file").read_text() == "precious"
     assert main(["zero", "--model", str(model), "--data", str(cal), "--out", str(zeroed)]) == 2
     assert "empty bucket" in capsys.readouterr().err
-    assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(zeroed)]) == 0
+    # two calibration swings weigh worse than 1 % of rated after any zero: refused, saved with --force
+    assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(zeroed)]) == 2
+    assert "zero refused" in capsys.readouterr().err and not zeroed.exists()
+    assert main(["zero", "--model", str(model), "--data", str(zero), "--out", str(zeroed), "--force"]) == 0
     assert "boom_head_pressure" in capsys.readouterr().out
     before, after = load_estimator(model).calibration, load_estimator(zeroed).calibration
     assert (before.offsets != after.offsets).any()

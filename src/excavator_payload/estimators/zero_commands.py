@@ -8,7 +8,9 @@ one is never overwritten (``--out`` equal to ``--model`` is refused).
 The motion should move the boom, the dipper and the bucket: offsets are read from moving
 joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
 pressures only (measured on 15 session-B swings, mean MAX: 276 kg after a lift, 85 kg after an
-empty swing).
+empty swing). It prints the weighing error the zero predicts and refuses (exit 2, nothing saved;
+``--force`` saves it) a zero that leaves a cylinder's offsets undetermined or would weigh worse
+than 1 % of rated (:mod:`~excavator_payload.estimators.classical.zero_quality`).
 """
 
 from __future__ import annotations
@@ -20,11 +22,12 @@ import typer
 from excavator_payload.errors import EstimatorError
 
 
-def zero_model(model: str | Path, data: str | Path, out: str | Path):
+def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool = True):
     """Load ``model``, re-estimate its offsets from ``data`` (empty bucket), save to ``out``.
 
     Returns the zeroed estimator; its ``zero_warnings`` say how many samples the check could
-    not use.
+    not use, its ``zero_refusals`` why it would weigh worse than 1 % of rated. Without
+    ``force`` a zero with refusals is not saved (:class:`EstimatorError`).
     """
     from excavator_payload.data.io import read_dataset
     from excavator_payload.estimators.base import load_estimator
@@ -37,6 +40,10 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path):
     if "payload" not in dataset.frame.columns:
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
     estimator.zero_warnings = calibrated_machine.zero(estimator, dataset)
+    if estimator.zero_refusals and not force:
+        reasons = "; ".join(r[len("zero: "):] for r in estimator.zero_refusals)
+        raise EstimatorError(f"zero refused, not saved: {reasons} "
+                             "(--force saves it anyway)")
     estimator.save(out)
     return estimator
 
@@ -63,16 +70,21 @@ def register(app: typer.Typer) -> None:
         data: Path = typer.Option(..., "--data", help="Parquet of a short empty-bucket motion."),
         out: Path = typer.Option(..., "--out", help="New model folder for the zeroed model "
                                  "(not --model: the calibrated model is kept)."),
+        force: bool = typer.Option(False, "--force", help="Save the zeroed model even when the zero "
+                                   "would weigh worse than 1 % of rated or did not determine every "
+                                   "cylinder's offsets (the reasons become warnings)."),
     ) -> None:
         """Check zero: re-estimate the sensor offsets from an empty-bucket motion, keep the rest."""
         from excavator_payload.estimators.classical.calibrated_machine import OFFSET_SIGNALS
 
         check_zero_output(model, data, out)  # before anything is loaded
         before = load_offsets(model)
-        estimator = zero_model(model, data, out)
+        estimator = zero_model(model, data, out, force=force)
         after = estimator.calibration.offsets
-        for warning in estimator.zero_warnings:
+        for warning in estimator.zero_warnings + [f"{r} (saved: --force)" for r in estimator.zero_refusals]:
             typer.echo(f"warning: {warning}", err=True)
+        for line in estimator.zero_report:
+            typer.echo(line)
         for name, a, b in zip(OFFSET_SIGNALS, before, after):
             unit, scale = ("kPa", 1e-3) if name.endswith("pressure") else ("°", 57.29577951308232)
             typer.echo(f"{name:22s} {a * scale:+9.3f} → {b * scale:+9.3f} {unit}")

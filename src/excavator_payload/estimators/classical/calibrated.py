@@ -274,6 +274,12 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         warnings = self.weighing.zero(dataset, self.options)
         self._hold(self.weighing)
         self.reset()
+        # the predicted weighing error (one line) and why not to weigh with this zero
+        # (``excavator-payload zero`` refuses unless --force), zero_quality.zero_quality
+        quality = self.weighing.zero_quality
+        self.zero_quality = quality
+        self.zero_report = [quality.report()]
+        self.zero_refusals = [f"zero: {reason}" for reason in quality.refusals]
         return warnings
 
     def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:

@@ -283,7 +283,11 @@ class MachineWeighing:
             Warnings: samples it could not use, cylinders that hardly moved, offsets far beyond
             a working session's.
         """
+        from excavator_payload.estimators.classical.zero_quality import zero_quality
+
         used, moving = zero_offsets(self.calibration, dataset, options["low_speed"], options["half_window"])
+        #: the zero's predicted weighing error and its reasons not to weigh with it
+        self.zero_quality = zero_quality(self.calibration, dataset, moving)
         n = len(dataset.frame)
         warnings = []
         if used < n:
