@@ -119,3 +119,29 @@ def field_shift_log(dataset, out: Path, dbc_path: Path, map_path: Path, jitter: 
             m.channel = 1
             writer.on_message_received(m)
     return {"frames": len(merged), "sensor_frames": len(frames), "other_frames": len(extra)}
+
+
+#: the faulty pressure's dropout in truck 1 of :func:`make_shift` (after its last dump): s before
+#: the truck's end, from and to
+DROPOUT = (1.6, 1.0)
+
+
+def make_shift(folder: Path):
+    """A calibrated model (``folder/model``, 4 swings), a shift of two trucks of 2 passes
+    (``folder/shift.parquet``; bucket_rod_pressure drops out to 0 after truck 1's last dump, a
+    J1939 DM1 fault), and the field layout's DBC and map. Returns (folder, shift, dbc, map)."""
+    from excavator_payload.data.io import write_dataset
+    from excavator_payload.estimators.base import create_estimator
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    calibration = simulate_machine_dataset(4, seed=4, session=1)
+    create_estimator("calibrated", machine="cat345c-hydraulic-3pct").fit(calibration).save(folder / "model")
+    trucks = simulate_machine_dataset(2, seed=3, session=1, motion="shift", truck_target=8000.0)
+    frame = trucks.frame
+    first = frame["experiment"] == 0
+    end = frame.loc[first, "time"].max()
+    assert trucks.experiment_meta[0]["passes"][-1]["release"][1] < end - DROPOUT[0] - 1.0
+    frame.loc[first & frame["time"].between(end - DROPOUT[0], end - DROPOUT[1]), "bucket_rod_pressure"] = 0.0
+    write_dataset(trucks, folder / "shift.parquet")
+    dbc_path, map_path = write_field_files(folder)
+    return folder, trucks, dbc_path, map_path

@@ -176,13 +176,12 @@ class TruckTracker:
         signals = list(signals)
         self.angle_index, self.rate_index = signals.index("bucket_angle"), signals.index("bucket_rate")
         self.truck = Truck(truck, target=target)
-        self._cols = {k: [] for k in ("time", "angle", "rate", "estimate", "sigma", "status")}
+        # the truck's samples so far, in arrays grown by doubling (a list per sample made each
+        # look for passes copy the whole truck)
+        self._num = np.empty((5, 4096))  # time, angle, rate, estimate, sigma
+        self._status = np.empty(4096, dtype=object)
+        self.samples = 0
         self._held = (0.0, 0.0)  # the last finite bucket angle and rate (a stale sample holds them)
-
-    @property
-    def samples(self) -> int:
-        """Samples so far."""
-        return len(self._cols["time"])
 
     def add(self, output) -> list[Pass]:
         """One estimate with its sample's values; returns the passes locked by it (0 or 1, rarely 2)."""
@@ -193,13 +192,14 @@ class TruckTracker:
         angle = angle if math.isfinite(angle) else held_angle
         rate = rate if math.isfinite(rate) else held_rate
         self._held = (angle, rate)
-        c = self._cols
-        c["time"].append(float(output.time) - self.truck.start)
-        c["angle"].append(angle)
-        c["rate"].append(rate)
-        c["estimate"].append(float(output.estimate))
-        c["sigma"].append(float(output.sigma))
-        c["status"].append(output.status)
+        n = self.samples
+        if n == self._num.shape[1]:
+            self._num = np.concatenate([self._num, np.empty_like(self._num)], axis=1)
+            self._status = np.concatenate([self._status, np.empty_like(self._status)])
+        self._num[:, n] = (float(output.time) - self.truck.start, angle, rate, float(output.estimate),
+                           float(output.sigma))
+        self._status[n] = output.status
+        self.samples = n + 1
         if self.samples % EVALUATE_EVERY:
             return []
         return self._evaluate()
@@ -207,14 +207,12 @@ class TruckTracker:
     def _evaluate(self) -> list[Pass]:
         if self.samples < 3:
             return []
-        c = self._cols
-        time = np.asarray(c["time"])
-        found = find_passes(time, np.asarray(c["angle"]), np.asarray(c["rate"]))
+        time, angle, rate, estimate, sigma = self._num[:, :self.samples]
+        found = find_passes(time, angle, rate)
         new = []
         for dig, dump in found[len(self.truck.passes):]:
             # locked passes stay as sent; a new one is weighed on the estimates before its dump
-            t_lock, w, s, reason = lock_weight(time, np.asarray(c["estimate"]), np.asarray(c["sigma"]),
-                                               np.asarray(c["status"], dtype=object), dig, dump)
+            t_lock, w, s, reason = lock_weight(time, estimate, sigma, self._status[:self.samples], dig, dump)
             p = Pass(self.truck.truck, len(self.truck.passes) + 1, float(time[dig]), float(time[dump]),
                      t_lock, w, s, "ok" if w is not None else "not_weighed", reason)
             self.truck.passes.append(p)
