@@ -247,6 +247,8 @@ class BusLoadout:
         record then has each pass's true weight.
     on_pass, on_truck : callable, optional
         ``on_pass(truck, pass)`` after a pass is locked, ``on_truck(truck)`` after a truck left.
+    data_name, model_name : str
+        What the record's ``runs`` table says was weighed (the log, the bus) and by which model.
     """
 
     def __init__(self, sensor, record: ShiftRecord | None = None, source: str = "", target: float | None = None,
