@@ -151,3 +151,40 @@ def test_loadout_messages_in_the_dbc_keep_the_old_ids_and_flag_bad_values():
     assert math.isnan(impossible["PassWeight"]) and impossible["PassSigma"] == 5.0
     total = decode_loadout(pub.truck_frame(truck))
     assert math.isnan(total["TruckTarget"]) and total["TruckUnweighed"] == 1
+
+
+def test_the_live_command_runs_on_a_virtual_bus_and_stops(shift, tmp_path):
+    """`loadout --interface virtual --channel … --duration`: one truck's first seconds played on
+    the bus while it runs; it stops by itself, closes the truck and records the run."""
+    import sqlite3
+
+    from excavator_payload.cli import main
+
+    frames = _sensor_frames(shift, tmp_path, 0)[:4000]  # the first ~0.5 s of the truck
+    channel = f"loadout-cli-{id(frames)}"
+    feeder = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+
+    def play():
+        from can.interfaces.virtual import channels
+
+        deadline = time.monotonic() + 60
+        while len(channels.get(channel, ())) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)  # until the command has opened its bus (frames before are lost)
+        for f in frames:
+            feeder.send(f)
+
+    player = threading.Thread(target=play)
+    player.start()
+    try:
+        code = main(["loadout", "--model", str(shift[0] / "model"), "--interface", "virtual", "--channel", channel,
+                     "--duration", "6", "--db", str(tmp_path / "live.sqlite"), "--target", "8000"])
+    finally:
+        player.join()
+        feeder.shutdown()
+    assert code == 0
+    with sqlite3.connect(tmp_path / "live.sqlite") as con:
+        runs = con.execute("SELECT source, finished FROM runs").fetchall()
+        trucks = con.execute("SELECT truck, passes, target, start FROM trucks").fetchall()
+    assert len(runs) == 1 and runs[0][0].startswith(f"live virtual:{channel}") and runs[0][1] is not None
+    # no pass in half a second, but the truck that began is recorded, with its start on the bus's clock
+    assert trucks == [(1, 0, 8000.0, pytest.approx(frames[0].timestamp, abs=0.05))]

@@ -213,6 +213,8 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
 
             counters = run_live(bus, loadout, stop, on_tick=refresh)
             view.update(live_view(loadout))
+        if not console.is_terminal:
+            console.print()  # the last view has no line end where nothing is redrawn
     finally:
         if timer:
             timer.cancel()
