@@ -38,8 +38,8 @@ def main(data_db: str, log_db: str, rated: float | None = None) -> None:
         print(name, shift_summary(p, t, rated))
     print("| truck | pass | data kg | log kg | diff kg | true kg |")
     print("|---:|---:|---:|---:|---:|---:|")
-    for r in both.itertuples():
-        print(f"| {r.truck} | {getattr(r, 'pass')} | {r.weight_data:,.1f} | {r.weight_log:,.1f} | "
+    for r in both.rename(columns={"pass": "n"}).itertuples():
+        print(f"| {r.truck} | {r.n} | {r.weight_data:,.1f} | {r.weight_log:,.1f} | "
               f"{r.weight_log - r.weight_data:+.2f} | {r.true_weight_log:,.1f} |")
     print("| truck | data total kg | log total kg | diff kg | true kg |")
     print("|---:|---:|---:|---:|---:|")

@@ -344,8 +344,9 @@ class ShiftRecord:
 
 def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
-    payload the runs' models had, kg, if one; ``attrs["faults"]``: the ``faults`` table, empty
-    for a record made before it had one)."""
+    payload the runs' models had, kg, if one; ``attrs["faults"]``: the ``faults`` table's rows
+    as dicts, none for a record made before it had one — a list, not a frame: pandas compares
+    attrs when frames are merged, and a frame there made every merge raise)."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"--db '{path}' does not exist")
@@ -361,7 +362,7 @@ def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
         raise DatasetError(f"--db '{path}' is not a shift record (made by `loadout --db`): {exc}") from None
     passes.attrs["rated"] = rated
-    passes.attrs["faults"] = faults
+    passes.attrs["faults"] = faults.to_dict("records")
     return passes, trucks
 
 
@@ -503,14 +504,14 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
         status = r.status if not r.reason else f"{r.status}: {r.reason}"
         lines.append(f"| {r.source[:8]} | {r.truck} | {r.n} | {num(r.time_lock, '.2f')} | {num(r.weight)} | "
                      f"{num(r.sigma, '.1f')} | {status} | {num(r.true_weight)} |")
-    faults = passes.attrs.get("faults")
-    if faults is not None and len(faults):
+    faults = passes.attrs.get("faults") or []
+    if faults:
         lines += ["", "## Sensor faults (J1939 DM1)", "", "| source | truck | SPN | FMI | signal | fault | from s | to s |",
                   "|---|---:|---:|---:|---|---|---:|---:|"]
-        for r in faults.itertuples():
-            end = getattr(r, "end")
-            lines.append(f"| {r.source[:8]} | {r.truck} | {r.spn} | {r.fmi} | {r.signal} | {r.kind} | "
-                         f"{num(r.start, '.2f')} | {'active' if end is None or end != end else num(end, '.2f')} |")
+        for r in faults:
+            end = r["end"]
+            lines.append(f"| {r['source'][:8]} | {r['truck']} | {r['spn']} | {r['fmi']} | {r['signal']} | {r['kind']} | "
+                         f"{num(r['start'], '.2f')} | {'to the truck end' if end is None or end != end else num(end, '.2f')} |")
     md = out / "shift.md"
     tmp = out / ".shift.md.tmp"
     tmp.write_text("\n".join(lines) + "\n")
