@@ -506,12 +506,14 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
                      f"{num(r.sigma, '.1f')} | {status} | {num(r.true_weight)} |")
     faults = passes.attrs.get("faults") or []
     if faults:
-        lines += ["", "## Sensor faults (J1939 DM1)", "", "| source | truck | SPN | FMI | signal | fault | from s | to s |",
+        lines += ["", "## Sensor faults (J1939 DM1)", "",
+                  "| source | truck | SPN | FMI | signal | fault | from s | to s |",
                   "|---|---:|---:|---:|---|---|---:|---:|"]
         for r in faults:
             end = r["end"]
-            lines.append(f"| {r['source'][:8]} | {r['truck']} | {r['spn']} | {r['fmi']} | {r['signal']} | {r['kind']} | "
-                         f"{num(r['start'], '.2f')} | {'to the truck end' if end is None or end != end else num(end, '.2f')} |")
+            until = "the truck's end" if end is None or end != end else num(end, ".2f")
+            lines.append(f"| {r['source'][:8]} | {r['truck']} | {r['spn']} | {r['fmi']} | {r['signal']} | "
+                         f"{r['kind']} | {num(r['start'], '.2f')} | {until} |")
     md = out / "shift.md"
     tmp = out / ".shift.md.tmp"
     tmp.write_text("\n".join(lines) + "\n")
