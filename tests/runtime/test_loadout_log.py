@@ -79,12 +79,14 @@ def test_dm1_faults_are_listed_per_truck_from_data_and_log(runs, tmp_path):
     (["--data", "x.parquet", "--truth", "x.parquet"], "--truth goes with --log"),
     (["--interface", "no-such-interface", "--channel", "x"], "cannot open CAN interface"),
     (["--log", "x.blf", "--signal-map", "map.toml"], "go together"),
+    (["--log", "x.mf4"], "could not be read (MdfException)"),  # a text file named .mf4
 ])
 def test_bad_input_is_one_line(shift, tmp_path, capsys, args, words):
     folder = shift[0]
     (tmp_path / "x.blf").write_bytes(b"")
+    (tmp_path / "x.mf4").write_text("not an MDF file\n")
     (tmp_path / "map.toml").write_text("[truck_button]\nmessage = 'X'\n")
-    args = [a if not a.endswith((".blf", ".parquet", ".toml")) else str(tmp_path / a) for a in args]
+    args = [a if not a.endswith((".blf", ".mf4", ".parquet", ".toml")) else str(tmp_path / a) for a in args]
     code = main(["loadout", "--model", str(folder / "model"), "--db", str(tmp_path / "r.sqlite"), *args])
     err = capsys.readouterr().err.strip()
     assert code == 2 and words in err and len(err.splitlines()) == 1, err
