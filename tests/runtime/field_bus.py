@@ -68,3 +68,80 @@ def write_field_files(folder: Path, slow_ms: int = 100) -> tuple[Path, Path]:
     dbc_path.write_text(field_dbc_text(slow_ms))
     map_path.write_text(field_map_text())
     return dbc_path, map_path
+
+
+def foreign_frames(start: float, stop: float, seed: int = 0) -> list:
+    """Another ECU's traffic over ``start … stop`` (s): an engine controller's EEC1 (PGN 0xF004
+    from SA 0x00) at 100 Hz, and a proprietary PGN 0xFF01 — one of the arm's — from SA 0x21 at
+    20 Hz with its own content, as a foreign ECU on the same bus sends."""
+    import can
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for period, fid in ((0.01, dbc.frame_id(0xF004, 0x00, 3)), (0.05, dbc.frame_id(0xFF01, 0x21))):
+        for t in np.arange(start, stop, period):
+            out.append(can.Message(timestamp=float(t + rng.uniform(0, 0.002)), arbitration_id=fid,
+                                   is_extended_id=True, data=bytes(rng.integers(0, 256, 8).tolist())))
+    return out
+
+
+def field_shift_log(dataset, out: Path, dbc_path: Path, map_path: Path, jitter: float = 0.001,
+                    press: bool = True, foreign: bool = True, seed: int = 0) -> dict:
+    """``dataset`` (a shift) as the field layout's CAN log ``out`` (format by suffix): the arm at
+    100 Hz, the inclinometer at 10 Hz, ``jitter`` s of timestamp jitter; with ``foreign`` another
+    ECU's traffic all along (:func:`foreign_frames`), and with ``press`` the operator's new-truck
+    button pressed 2 s after each experiment's last frame (experiments are 5 s apart)."""
+    import can
+
+    from excavator_payload.runtime.dbc import SignalCodec
+    from excavator_payload.runtime.loadout_bus import TruckButton
+    from excavator_payload.runtime.logs import read_frames
+    from excavator_payload.runtime.record import record_dataset
+
+    codec = SignalCodec.from_files(dataset.sensor_set, dbc_path, map_path)
+    lock = out.with_name(out.stem + ".sensors.blf")
+    record_dataset(dataset, lock, codec, jitter=jitter, seed=seed)
+    frames = list(read_frames(lock))
+    lock.unlink()
+    extra = []
+    if press:
+        button = TruckButton.default()
+        stamps = [f.timestamp for f in frames]
+        for a, b in zip(stamps, stamps[1:]):
+            if b - a > 2.5:  # between two experiments
+                extra += [button.frame(True, a + 2.0), button.frame(False, a + 2.2)]
+    if foreign:
+        extra += foreign_frames(frames[0].timestamp - 1.0, frames[-1].timestamp + 1.0, seed)
+    merged = sorted(frames + extra, key=lambda m: m.timestamp)
+    with can.Logger(str(out)) as writer:
+        for m in merged:
+            m.channel = 1
+            writer.on_message_received(m)
+    return {"frames": len(merged), "sensor_frames": len(frames), "other_frames": len(extra)}
+
+
+#: the faulty pressure's dropout in truck 1 of :func:`make_shift` (after its last dump): s before
+#: the truck's end, from and to
+DROPOUT = (1.6, 1.0)
+
+
+def make_shift(folder: Path):
+    """A calibrated model (``folder/model``, 4 swings), a shift of two trucks of 2 passes
+    (``folder/shift.parquet``; bucket_rod_pressure drops out to 0 after truck 1's last dump, a
+    J1939 DM1 fault), and the field layout's DBC and map. Returns (folder, shift, dbc, map)."""
+    from excavator_payload.data.io import write_dataset
+    from excavator_payload.estimators.base import create_estimator
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    calibration = simulate_machine_dataset(4, seed=4, session=1)
+    create_estimator("calibrated", machine="cat345c-hydraulic-3pct").fit(calibration).save(folder / "model")
+    trucks = simulate_machine_dataset(2, seed=3, session=1, motion="shift", truck_target=8000.0)
+    frame = trucks.frame
+    first = frame["experiment"] == 0
+    end = frame.loc[first, "time"].max()
+    assert trucks.experiment_meta[0]["passes"][-1]["release"][1] < end - DROPOUT[0] - 1.0
+    frame.loc[first & frame["time"].between(end - DROPOUT[0], end - DROPOUT[1]), "bucket_rod_pressure"] = 0.0
+    write_dataset(trucks, folder / "shift.parquet")
+    dbc_path, map_path = write_field_files(folder)
+    return folder, trucks, dbc_path, map_path

@@ -36,7 +36,7 @@ import logging
 import math
 import threading
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import can
 import numpy as np
@@ -59,6 +59,9 @@ class SensorOutput:
     sigma: float         # kg, one-sigma uncertainty, NaN when unknown
     stale: tuple[str, ...] = ()  # the signals too old for this sample (status "stale")
     fault: str = ""  # "signal:kind,..." while the status is sensor_fault (estimators.health)
+    #: the sample's signals (sensor-set order) the estimate was made from; None for a 'stale'
+    #: output of a silent bus (loadout reads the bucket's moves from them)
+    values: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def estimate_sigma(estimator: Estimator, result) -> float:
@@ -258,7 +261,8 @@ class PayloadSensor:
         self.counters["samples"] += 1
         status = dbc.STALE if sample.stale else result.status.value
         output = SensorOutput(sample.time, float(result.estimate), status,
-                              estimate_sigma(self.estimator, result), sample.stale, result.fault)
+                              estimate_sigma(self.estimator, result), sample.stale, result.fault,
+                              sample.values)
         self.last_output = output
         return output
 

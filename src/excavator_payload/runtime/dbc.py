@@ -20,6 +20,12 @@ J1939 conventions (as cantools reads them)
   layout is SPN 928 axle location (8 bit), SPN 180 axle weight (0.5 kg/bit), SPN 181 trailer
   weight and SPN 182 cargo weight (2 kg/bit each). The payload is the *cargo* weight there
   (never negative: clamped at 0); axle and trailer weight are sent as "not available".
+* Loadout (``excavator-payload loadout`` on a live bus), event messages: ``LoadoutPass`` (PGN
+  :data:`LOADOUT_PASS_PGN`: truck and pass number, the weight locked before the dump and its σ,
+  0.5 kg/bit as the payload, status ok / not_weighed) and ``LoadoutTruck``
+  (:data:`LOADOUT_TRUCK_PGN`: truck number, passes, unweighed passes, running total and target,
+  2 kg/bit) from ``PayloadEcu``; ``LoadoutControl`` (:data:`LOADOUT_CONTROL_PGN`) from the cab's
+  ``OperatorPanel`` (:data:`OPERATOR_ADDRESS`): ``NewTruck`` 0 → 1 starts the next truck.
 * Raw values at the top of a J1939 signal's range are indicators, not data: for an ``n``-bit
   signal, raw values above ``0xFA·2^(n-8) + 2^(n-8) - 1`` (``0xFAFF`` for 16 bits) mean "error"
   (``0xFE..``) or "not available" (``0xFF..``). The codec decodes them, and any value outside
@@ -71,6 +77,19 @@ ESTIMATE_MESSAGE = "PayloadEstimate"
 #: Standard J1939 "Vehicle Weight" PGN.
 VEHICLE_WEIGHT_PGN = 65258
 VEHICLE_WEIGHT_MESSAGE = "VehicleWeight"
+#: Loadout (``excavator-payload loadout`` on a live bus): a pass's locked weight and a truck's
+#: running total from the payload ECU, and the operator's "new truck" button.
+LOADOUT_PASS_PGN = 0xFF81
+LOADOUT_PASS_MESSAGE = "LoadoutPass"
+LOADOUT_TRUCK_PGN = 0xFF82
+LOADOUT_TRUCK_MESSAGE = "LoadoutTruck"
+LOADOUT_CONTROL_PGN = 0xFF83
+LOADOUT_CONTROL_MESSAGE = "LoadoutControl"
+#: The operator panel (the cab's buttons) that sends LoadoutControl.
+OPERATOR_NODE = "OperatorPanel"
+OPERATOR_ADDRESS = 0xA2
+#: A truck's total and target, kg/bit (16 bits: up to 128.5 t).
+TRUCK_RESOLUTION = 2.0
 #: First manufacturer-specific SPN (J1939-71 reserves 520192–524287).
 FIRST_PROPRIETARY_SPN = 520192
 #: Payload estimate: resolution and the lowest value it can carry (estimates may be negative).
@@ -225,7 +244,7 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
         "",
         "BS_:",
         "",
-        f"BU_: {SENSOR_NODE} {ESTIMATOR_NODE}",
+        f"BU_: {SENSOR_NODE} {ESTIMATOR_NODE} {OPERATOR_NODE}",
         "",
     ]
     cycle_ms = int(round(1000.0 / sensors.sample_rate))
@@ -233,7 +252,8 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
                 f'{sensors.description}. Do not edit: regenerate.";',
                 f'CM_ BU_ {SENSOR_NODE} "The sensors of the {sensors.name} set, sampled at '
                 f'{_g(sensors.sample_rate)} Hz.";',
-                f'CM_ BU_ {ESTIMATOR_NODE} "The payload virtual sensor.";']
+                f'CM_ BU_ {ESTIMATOR_NODE} "The payload virtual sensor.";',
+                f'CM_ BU_ {OPERATOR_NODE} "The cab\'s loadout buttons.";']
     attributes = []
     spns = []
     for m in layout:
@@ -276,6 +296,56 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
     for msg_id in (est_id, vw_id):
         attributes.append(f'BA_ "VFrameFormat" BO_ {msg_id} 3;')
         attributes.append(f'BA_ "GenMsgCycleTime" BO_ {msg_id} {cycle_ms};')
+    # loadout: event messages (GenMsgCycleTime 0), sent when a pass is locked / a truck changes
+    pass_id = frame_id(LOADOUT_PASS_PGN, ESTIMATOR_ADDRESS) | 0x80000000
+    truck_id = frame_id(LOADOUT_TRUCK_PGN, ESTIMATOR_ADDRESS) | 0x80000000
+    control_id = frame_id(LOADOUT_CONTROL_PGN, OPERATOR_ADDRESS) | 0x80000000
+    truck_max = TRUCK_RESOLUTION * valid_raw_max(16)
+    lines += [f"BO_ {pass_id} {LOADOUT_PASS_MESSAGE}: 8 {ESTIMATOR_NODE}",
+              _sg(("PassTruck", 0, 16, 1, 0, 0, valid_raw_max(16), ""), OPERATOR_NODE),
+              _sg(("PassNumber", 16, 8, 1, 0, 0, valid_raw_max(8), ""), OPERATOR_NODE),
+              _sg(("PassWeight", 24, 16, PAYLOAD_RESOLUTION, PAYLOAD_OFFSET, PAYLOAD_OFFSET, payload_max,
+                   "kg"), OPERATOR_NODE),
+              _sg(("PassSigma", 40, 16, PAYLOAD_RESOLUTION, 0, 0, sigma_max, "kg"), OPERATOR_NODE),
+              _sg(("PassStatus", 56, 8, 1, 0, 0, 1, ""), OPERATOR_NODE),
+              "",
+              f"BO_ {truck_id} {LOADOUT_TRUCK_MESSAGE}: 8 {ESTIMATOR_NODE}",
+              _sg(("TruckNumber", 0, 16, 1, 0, 0, valid_raw_max(16), ""), OPERATOR_NODE),
+              _sg(("TruckPasses", 16, 8, 1, 0, 0, valid_raw_max(8), ""), OPERATOR_NODE),
+              _sg(("TruckUnweighed", 24, 8, 1, 0, 0, valid_raw_max(8), ""), OPERATOR_NODE),
+              _sg(("TruckTotal", 32, 16, TRUCK_RESOLUTION, 0, 0, truck_max, "kg"), OPERATOR_NODE),
+              _sg(("TruckTarget", 48, 16, TRUCK_RESOLUTION, 0, 0, truck_max, "kg"), OPERATOR_NODE),
+              "",
+              f"BO_ {control_id} {LOADOUT_CONTROL_MESSAGE}: 8 {OPERATOR_NODE}",
+              _sg(("NewTruck", 0, 2, 1, 0, 0, 3, ""), ESTIMATOR_NODE),
+              ""]
+    comments += [
+        f'CM_ BO_ {pass_id} "A bucket pass weighed before its dump (sent when it is locked).";',
+        f'CM_ SG_ {pass_id} PassTruck "The truck the pass went into (1, 2, ... in the shift; rolls over).";',
+        f'CM_ SG_ {pass_id} PassWeight "The pass weight locked before the dump; 0xFFFF = not weighed, '
+        f'0xFE00 = out of range.";',
+        f'CM_ BO_ {truck_id} "A truck\'s running total (sent with each pass and when the truck leaves); '
+        f'what the last pass should carry is TruckTarget - TruckTotal.";',
+        f'CM_ SG_ {truck_id} TruckUnweighed "Passes of the truck that could not be weighed (not in '
+        f'TruckTotal).";',
+        f'CM_ SG_ {truck_id} TruckTarget "The truck\'s target load; 0xFFFF = none given.";',
+        f'CM_ BO_ {control_id} "The operator\'s loadout buttons.";',
+        f'CM_ SG_ {control_id} NewTruck "Press (0 -> 1) to start the next truck; 2 error, 3 not '
+        f'available.";',
+    ]
+    for msg_id in (pass_id, truck_id, control_id):
+        attributes.append(f'BA_ "VFrameFormat" BO_ {msg_id} 3;')
+    spns += [f'BA_ "SPN" SG_ {pass_id} PassTruck {FIRST_PROPRIETARY_SPN + 4010};',
+             f'BA_ "SPN" SG_ {pass_id} PassNumber {FIRST_PROPRIETARY_SPN + 4011};',
+             f'BA_ "SPN" SG_ {pass_id} PassWeight {FIRST_PROPRIETARY_SPN + 4012};',
+             f'BA_ "SPN" SG_ {pass_id} PassSigma {FIRST_PROPRIETARY_SPN + 4013};',
+             f'BA_ "SPN" SG_ {pass_id} PassStatus {FIRST_PROPRIETARY_SPN + 4014};',
+             f'BA_ "SPN" SG_ {truck_id} TruckNumber {FIRST_PROPRIETARY_SPN + 4020};',
+             f'BA_ "SPN" SG_ {truck_id} TruckPasses {FIRST_PROPRIETARY_SPN + 4021};',
+             f'BA_ "SPN" SG_ {truck_id} TruckUnweighed {FIRST_PROPRIETARY_SPN + 4022};',
+             f'BA_ "SPN" SG_ {truck_id} TruckTotal {FIRST_PROPRIETARY_SPN + 4023};',
+             f'BA_ "SPN" SG_ {truck_id} TruckTarget {FIRST_PROPRIETARY_SPN + 4024};',
+             f'BA_ "SPN" SG_ {control_id} NewTruck {FIRST_PROPRIETARY_SPN + 4030};']
     spns += [f'BA_ "SPN" SG_ {est_id} Payload {FIRST_PROPRIETARY_SPN + 4000};',
              f'BA_ "SPN" SG_ {est_id} PayloadStatus {FIRST_PROPRIETARY_SPN + 4001};',
              f'BA_ "SPN" SG_ {est_id} PayloadSigma {FIRST_PROPRIETARY_SPN + 4002};',
@@ -298,9 +368,12 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
         'BA_ "ProtocolType" "J1939";',
         f'BA_ "NmStationAddress" BU_ {SENSOR_NODE} {SENSOR_ADDRESS};',
         f'BA_ "NmStationAddress" BU_ {ESTIMATOR_NODE} {ESTIMATOR_ADDRESS};',
+        f'BA_ "NmStationAddress" BU_ {OPERATOR_NODE} {OPERATOR_ADDRESS};',
         *attributes,
         *spns,
         f"VAL_ {est_id} PayloadStatus " + " ".join(f'{i} "{n}"' for i, n in enumerate(statuses)) + " ;",
+        f'VAL_ {pass_id} PassStatus 0 "ok" 1 "not_weighed" ;',
+        f'VAL_ {control_id} NewTruck 0 "released" 1 "pressed" 2 "error" 3 "not_available" ;',
         "",
     ]
     return "\n".join(lines)

@@ -95,6 +95,10 @@ class Truck:
     true_total: float | None = None
     true_passes: int | None = None  # passes the truth holds
     matched: int | None = None  # of them, found by one detected pass each
+    start: float | None = None  # the log's / bus's time of its first sample (pass times count from it)
+    #: sensor faults (J1939 DM1 episodes) that began in this truck: dicts of spn, fmi, signal,
+    #: kind, start, end (s, the truck's time; end NaN: active to the truck's end)
+    faults: list[dict] = field(default_factory=list)
 
     @property
     def total(self) -> float:
@@ -211,7 +215,9 @@ def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
     time = rows["time"].to_numpy(float)
     estimate, sigma = est["payload_estimate"].to_numpy(float), est["sigma"].to_numpy(float)
     status = est["status"].to_numpy(object)
-    out = Truck(truck, target=target)
+    out = Truck(truck, target=target, start=float(time[0]) if len(time) else None)
+    if "fault" in est:
+        out.faults = fault_episodes(estimator.sensor_set, time, est["fault"].to_numpy(object))
     for k, (dig, dump) in enumerate(find_passes(time, rows["bucket_angle"].to_numpy(float),
                                                 rows["bucket_rate"].to_numpy(float)), start=1):
         t_lock, w, s, reason = lock_weight(time, estimate, sigma, status, dig, dump)
@@ -222,6 +228,30 @@ def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
         out.true_passes = len(truth)
         out.true_total = float(sum(t["payload"] for t in truth))
     return out
+
+
+def fault_episodes(sensor_set, time: np.ndarray, faults: np.ndarray) -> list[dict]:
+    """The DM1 episodes (:class:`~excavator_payload.runtime.dm1.DM1Transmitter`) of one truck's
+    ``faults`` (the estimates' ``signal:kind,...`` column at ``time``), as dicts."""
+    from excavator_payload.runtime.dm1 import DM1Transmitter
+
+    dm1 = DM1Transmitter(sensor_set)
+    for t, f in zip(time, faults):
+        dm1.update(float(t), f or "")
+    return [episode_row(e) for e in dm1.episodes]
+
+
+def episode_row(episode) -> dict:
+    """One :class:`~excavator_payload.runtime.dm1.DtcEpisode` as a record row."""
+    return {"spn": episode.spn, "fmi": episode.fmi, "signal": episode.signal, "kind": episode.kind,
+            "start": float(episode.start), "end": float(episode.end)}
+
+
+def fault_line(fault: dict) -> str:
+    """``DM1 SPN 520195 FMI 7 (boom_angle stuck): 12.30-14.10 s`` (end: "to the truck's end")."""
+    end = f"-{fault['end']:.2f} s" if math.isfinite(fault["end"]) else " s to the truck's end"
+    return (f"DM1 SPN {fault['spn']} FMI {fault['fmi']} ({fault['signal']} {fault['kind']}): "
+            f"{fault['start']:.2f}{end}")
 
 
 def file_key(path: str | Path) -> str:
@@ -245,8 +275,11 @@ CREATE TABLE IF NOT EXISTS passes (
 CREATE TABLE IF NOT EXISTS trucks (
     source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, passes INTEGER NOT NULL,
     total REAL NOT NULL, target REAL, unweighed INTEGER NOT NULL, true_total REAL,
-    true_passes INTEGER, matched INTEGER,
+    true_passes INTEGER, matched INTEGER, start REAL,
     UNIQUE (source, truck));
+CREATE TABLE IF NOT EXISTS faults (
+    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, spn INTEGER NOT NULL,
+    fmi INTEGER NOT NULL, signal TEXT, kind TEXT, start REAL, "end" REAL);
 """
 
 
@@ -260,6 +293,10 @@ class ShiftRecord:
         try:
             self.db = sqlite3.connect(path)
             self.db.executescript(SCHEMA)
+            columns = {row[1] for row in self.db.execute("PRAGMA table_info(trucks)")}
+            if "start" not in columns:  # a record made before trucks had a start time
+                with self.db:
+                    self.db.execute("ALTER TABLE trucks ADD COLUMN start REAL")
         except sqlite3.DatabaseError as exc:
             raise DatasetError(f"--db '{path}' is not a usable SQLite database: {exc}") from None
 
@@ -276,9 +313,16 @@ class ShiftRecord:
             self.db.execute("UPDATE runs SET finished = ? WHERE run = ?", (_time.time(), run))
 
     def write_truck(self, source: str, run: int, truck: Truck) -> None:
-        """One truck and its passes in one transaction; an earlier run's rows of it replaced."""
+        """One truck, its passes and faults in one transaction; an earlier run's rows of it replaced
+        (a live truck is written again with each pass: the latest state of it, never twice)."""
         with self.db:
             self.db.execute("DELETE FROM passes WHERE source = ? AND truck = ?", (source, truck.truck))
+            self.db.execute("DELETE FROM faults WHERE source = ? AND truck = ?", (source, truck.truck))
+            self.db.executemany(
+                'INSERT INTO faults (source, run, truck, spn, fmi, signal, kind, start, "end") '
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(source, run, truck.truck, f["spn"], f["fmi"], f["signal"], f["kind"], f["start"],
+                  f["end"] if math.isfinite(f["end"]) else None) for f in truck.faults])
             self.db.executemany(
                 "INSERT INTO passes (source, run, truck, pass, time_dig, time_dump, time_lock, weight, "
                 "sigma, status, reason, true_weight) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
@@ -286,12 +330,12 @@ class ShiftRecord:
                   p.status, p.reason, p.true_weight) for p in truck.passes])
             self.db.execute(
                 "INSERT INTO trucks (source, run, truck, passes, total, target, unweighed, true_total, "
-                "true_passes, matched) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) "
+                "true_passes, matched, start) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) "
                 "DO UPDATE SET run = excluded.run, passes = excluded.passes, total = excluded.total, "
                 "target = excluded.target, unweighed = excluded.unweighed, true_total = excluded.true_total, "
-                "true_passes = excluded.true_passes, matched = excluded.matched",
+                "true_passes = excluded.true_passes, matched = excluded.matched, start = excluded.start",
                 (source, run, truck.truck, len(truck.passes), truck.total, truck.target, truck.unweighed,
-                 truck.true_total, truck.true_passes, truck.matched))
+                 truck.true_total, truck.true_passes, truck.matched, truck.start))
 
     def close(self) -> None:
         """Close the database."""
@@ -300,7 +344,9 @@ class ShiftRecord:
 
 def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
-    payload the runs' models had, kg, if one)."""
+    payload the runs' models had, kg, if one; ``attrs["faults"]``: the ``faults`` table's rows
+    as dicts, none for a record made before it had one — a list, not a frame: pandas compares
+    attrs when frames are merged, and a frame there made every merge raise)."""
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"--db '{path}' does not exist")
@@ -309,9 +355,14 @@ def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
             passes = pd.read_sql_query("SELECT * FROM passes ORDER BY source, truck, pass", db)
             trucks = pd.read_sql_query("SELECT * FROM trucks ORDER BY source, truck", db)
             rated = db.execute("SELECT MAX(rated) FROM runs").fetchone()[0]
+            has_faults = db.execute("SELECT 1 FROM sqlite_master WHERE name = 'faults'").fetchone()
+            faults = (pd.read_sql_query("SELECT * FROM faults ORDER BY source, truck, start", db)
+                      if has_faults else pd.DataFrame(columns=["source", "truck", "spn", "fmi", "signal",
+                                                               "kind", "start", "end"]))
     except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
         raise DatasetError(f"--db '{path}' is not a shift record (made by `loadout --db`): {exc}") from None
     passes.attrs["rated"] = rated
+    passes.attrs["faults"] = faults.to_dict("records")
     return passes, trucks
 
 
@@ -453,6 +504,16 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
         status = r.status if not r.reason else f"{r.status}: {r.reason}"
         lines.append(f"| {r.source[:8]} | {r.truck} | {r.n} | {num(r.time_lock, '.2f')} | {num(r.weight)} | "
                      f"{num(r.sigma, '.1f')} | {status} | {num(r.true_weight)} |")
+    faults = passes.attrs.get("faults") or []
+    if faults:
+        lines += ["", "## Sensor faults (J1939 DM1)", "",
+                  "| source | truck | SPN | FMI | signal | fault | from s | to s |",
+                  "|---|---:|---:|---:|---|---|---:|---:|"]
+        for r in faults:
+            end = r["end"]
+            until = "the truck's end" if end is None or end != end else num(end, ".2f")
+            lines.append(f"| {r['source'][:8]} | {r['truck']} | {r['spn']} | {r['fmi']} | {r['signal']} | "
+                         f"{r['kind']} | {num(r['start'], '.2f')} | {until} |")
     md = out / "shift.md"
     tmp = out / ".shift.md.tmp"
     tmp.write_text("\n".join(lines) + "\n")

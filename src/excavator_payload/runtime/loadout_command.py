@@ -1,5 +1,6 @@
 """``excavator-payload loadout``: a shift's passes and trucks weighed, shown and recorded
-(:mod:`excavator_payload.runtime.loadout`)."""
+(:mod:`excavator_payload.runtime.loadout`), from a dataset, a CAN log or a live bus
+(:mod:`excavator_payload.runtime.loadout_bus`)."""
 
 from __future__ import annotations
 
@@ -21,49 +22,72 @@ def register(app: typer.Typer) -> None:
     def loadout(
         model: Path = typer.Option(..., "--model", help="Saved estimator folder (calibrated and zeroed).",
                                    metavar="DIR"),
-        data: Path = typer.Option(..., "--data", help="Dataset of the shift (Parquet): each experiment one "
-                                  "truck, or a log split at gaps of 30 s or more."),
         db: Path = typer.Option(..., "--db", help="SQLite shift record to append to (created if missing); "
-                                "rerunning the same data replaces its rows, never doubles them."),
+                                "rerunning the same data or log replaces its rows, never doubles them."),
+        data: Path = typer.Option(None, "--data", help="Dataset of the shift (Parquet): each experiment one "
+                                  "truck, or a log split at gaps of 30 s or more."),
+        log: Path = typer.Option(None, "--log", help="CAN log of the shift (.mf4, .blf, .asc, .log / .txt "
+                                 "candump -l or screen format with timestamps, .csv, .trc)."),
+        interface: str = typer.Option(None, "--interface", help="Live bus: python-can interface (socketcan, "
+                                      "pcan, kvaser, vector, virtual, …); with --channel."),
+        channel: str = typer.Option(None, "--channel", help="Live bus: the interface's channel, e.g. can0."),
+        dbc_file: Path = typer.Option(None, "--dbc", help="The sensors' DBC (log or bus; default: the "
+                                      "generated J1939 DBC). Needs --signal-map."),
+        signal_map: Path = typer.Option(None, "--signal-map", help="TOML map from our signal names to "
+                                        "--dbc's signals (as can-replay); a [truck_button] table names the "
+                                        "operator's new-truck button."),
+        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", help="Log or bus: a signal older "
+                                              "than its message's period times this makes the sample 'stale'."),
+        truth: Path = typer.Option(None, "--truth", help="Log only: the dataset the log was recorded from; "
+                                   "its experiments' true passes go to the record (truck 1 = experiment 1, …)."),
+        bitrate: int = typer.Option(None, "--bitrate", help="Live bus: bit rate if the interface needs one."),
+        duration: float = typer.Option(None, "--duration", help="Live bus: stop after this many seconds "
+                                       "(default: until Ctrl-C / SIGTERM)."),
         target: float = typer.Option(None, "--target", metavar="KG",
                                      help="Each truck's target load (default: the data's, if it has one)."),
         out: Path = typer.Option(None, "--out", help="Also write every pass to this Parquet file."),
     ) -> None:
-        """Weigh every bucket pass before its dump, total each truck against its target, record the shift."""
-        from excavator_payload.data.io import check_output_path, read_dataset
+        """Weigh every bucket pass before its dump, total each truck against its target, record the shift
+        (from a dataset, a CAN log or a live bus; on a bus the passes and totals are sent in J1939)."""
+        from excavator_payload.data.io import check_output_path
         from excavator_payload.estimators.base import load_estimator
-        from excavator_payload.runtime.loadout import (
-            ShiftRecord, file_key, passes_frame, run_loadout, truck_table)
+        from excavator_payload.runtime.loadout import passes_frame
 
+        given = [name for name, v in (("--data", data), ("--log", log), ("--interface", interface)) if v is not None]
+        if len(given) != 1:
+            raise DatasetError("loadout weighs one of --data FILE, --log FILE or --interface/--channel "
+                               + (f"(got {' and '.join(given)})" if given else "(none given)"))
+        if (interface is None) != (channel is None):
+            raise DatasetError("--interface and --channel go together")
+        if data is not None and (dbc_file is not None or signal_map is not None):
+            raise DatasetError("--dbc and --signal-map are for a CAN log or bus (--log, --interface)")
+        if truth is not None and log is None:
+            raise DatasetError("--truth goes with --log (a dataset has its own truth)")
+        if interface is None and (bitrate is not None or duration is not None):
+            raise DatasetError("--bitrate and --duration are for a live bus (--interface/--channel)")
         if target is not None and not (math.isfinite(target) and target > 0):
             raise DatasetError(f"--target must be a mass above 0 kg, got {target:g}")
+        if not (math.isfinite(stale_tolerance) and stale_tolerance >= 1):
+            raise DatasetError("--stale-tolerance must be at least 1 (periods)")
+        if duration is not None and not (math.isfinite(duration) and duration > 0):
+            raise DatasetError("--duration must be a positive number of seconds")
+        inputs = [p for p in (data, log, truth, dbc_file, signal_map, db) if p is not None]
         if out is not None:
             if out.suffix.lower() != ".parquet":
                 raise DatasetError(f"--out must end in .parquet, got '{out.name}'")
-            check_output_path(out, inputs=[data, db])
-        if db.exists() and db.resolve() == Path(data).resolve():
-            raise DatasetError("--db would overwrite the dataset")
+            check_output_path(out, inputs=inputs)
+        for source in (data, log, truth, dbc_file, signal_map):
+            if source is not None and db.exists() and db.resolve() == Path(source).resolve():
+                raise DatasetError(f"--db would overwrite {source}")
         estimator = load_estimator(model)
-        dataset = read_dataset(data)
-        if dataset.sensor_set.name != "machine":
-            raise DatasetError(f"loadout weighs the machine sensor set's passes; {data} holds the "
-                               f"{dataset.sensor_set.name} set")
-        record = ShiftRecord(db)
-
-        def show(truck):
-            console.print(truck_table(truck))
-            line = f"truck {truck.truck}: {len(truck.passes)} passes, total {truck.total:,.0f} kg"
-            if truck.target is not None:
-                line += f" of {truck.target:,.0f} kg target ({truck.target - truck.total:,.0f} kg left)"
-            if truck.unweighed:
-                line += f"; {truck.unweighed} pass(es) not weighed"
-            console.print(line)
-
-        try:
-            trucks = run_loadout(estimator, dataset, record, file_key(data), target, on_truck=show,
-                                 data_name=str(data), model_name=str(model))
-        finally:
-            record.close()
+        if estimator.sensor_set.name != "machine":
+            raise DatasetError(f"loadout weighs the machine sensor set's passes; the model is for the "
+                               f"{estimator.sensor_set.name} set")
+        if data is not None:
+            trucks = _from_dataset(estimator, data, db, target, model)
+        else:
+            trucks = _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, signal_map,
+                               stale_tolerance, truth, bitrate, duration)
         n_pass = sum(len(t.passes) for t in trucks)
         n_bad = sum(t.unweighed for t in trucks)
         console.print(f"{len(trucks)} trucks, {n_pass} passes ({n_bad} not weighed), "
@@ -74,3 +98,131 @@ def register(app: typer.Typer) -> None:
             frame.to_parquet(tmp, index=False)
             tmp.replace(out)
             console.print(f"passes written to {out}")
+
+
+
+def show_truck(truck) -> None:
+    """A finished truck: its table, a line with its total against the target, its sensor faults."""
+    from excavator_payload.runtime.loadout import fault_line, truck_table
+
+    console.print(truck_table(truck))
+    line = f"truck {truck.truck}: {len(truck.passes)} passes, total {truck.total:,.0f} kg"
+    if truck.target is not None:
+        line += f" of {truck.target:,.0f} kg target ({truck.target - truck.total:,.0f} kg left)"
+    if truck.unweighed:
+        line += f"; {truck.unweighed} pass(es) not weighed"
+    console.print(line)
+    for fault in truck.faults:
+        console.print(f"truck {truck.truck}: " + fault_line(fault), markup=False, highlight=False)
+
+
+def _from_dataset(estimator, data, db, target, model):
+    from excavator_payload.data.io import read_dataset
+    from excavator_payload.runtime.loadout import ShiftRecord, file_key, run_loadout
+
+    dataset = read_dataset(data)
+    if dataset.sensor_set.name != "machine":
+        raise DatasetError(f"loadout weighs the machine sensor set's passes; {data} holds the "
+                           f"{dataset.sensor_set.name} set")
+    record = ShiftRecord(db)
+    try:
+        return run_loadout(estimator, dataset, record, file_key(data), target, on_truck=show_truck,
+                           data_name=str(data), model_name=str(model))
+    finally:
+        record.close()
+
+
+def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, signal_map, stale_tolerance,
+              truth, bitrate, duration):
+    from excavator_payload.runtime.can_sensor import PayloadSensor
+    from excavator_payload.runtime.dbc import SignalCodec
+    from excavator_payload.runtime.loadout import ShiftRecord, file_key
+    from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, replay_loadout
+
+    codec = SignalCodec.from_files(estimator.sensor_set, dbc_file, signal_map)
+    button = TruckButton.from_signal_map(signal_map, codec.database)
+    sensor = PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance)
+    truths = None
+    if truth is not None:
+        from excavator_payload.data.io import read_dataset
+
+        metas = read_dataset(truth).experiment_meta
+        truths = [metas[k].get("passes") or [] for k in sorted(metas)]
+        if not any(truths):
+            raise DatasetError(f"--truth {truth}: its experiments have no true passes (a --motion shift dataset has)")
+    if log is not None:
+        from excavator_payload.runtime.logs import read_frames
+
+        next(iter(read_frames(log)), None)  # a missing or unreadable log: one line before the record
+        record = ShiftRecord(db)
+        try:
+            bus = BusLoadout(sensor, record, file_key(log), target, button, truths=truths, on_truck=show_truck,
+                             data_name=str(log), model_name=str(model))
+            trucks = replay_loadout(log, bus, progress=True)
+        finally:
+            record.close()
+        c = sensor.counters
+        console.print(f"{c['samples']} samples from {c['frames']} frames ({c['ignored']} of other ids, "
+                      f"{c['other_senders']} of the sensor PGNs from other source addresses, {c['bad_frames']} bad); "
+                      f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more",
+                      markup=False, highlight=False)
+        return trucks
+    return _live(sensor, button, db, target, model, interface, channel, bitrate, duration)
+
+
+def _live(sensor, button, db, target, model, interface, channel, bitrate, duration):
+    import datetime
+    import signal
+    import threading
+
+    import can
+    from rich.live import Live
+
+    from excavator_payload.runtime.dbc import CanConfigError
+    from excavator_payload.runtime.loadout import ShiftRecord
+    from excavator_payload.runtime.loadout_bus import BusLoadout, live_view, run_live
+
+    kwargs = {"bitrate": bitrate} if bitrate else {}
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **kwargs)
+    except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
+        raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
+    record = ShiftRecord(db)
+    # a live session is its own source: a restart appends, never replaces the earlier trucks
+    source = f"live {interface}:{channel} {datetime.datetime.now(datetime.timezone.utc).isoformat()}"
+    stop = threading.Event()
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            handlers[sig] = signal.signal(sig, lambda *_: stop.set())
+    timer = threading.Timer(duration, stop.set) if duration else None
+    done = []
+    try:
+        loadout = BusLoadout(sensor, record, source, target, button, send=True, on_truck=done.append,
+                             data_name=f"{interface}:{channel}", model_name=str(model))
+        console.print(f"loadout on {interface}:{channel}; Ctrl-C stops")
+        if timer:
+            timer.start()
+        with Live(live_view(loadout), console=console, refresh_per_second=4, transient=False) as view:
+            ticks = [0]
+
+            def refresh():
+                ticks[0] += 1
+                if ticks[0] % 25 == 0:  # 4 times a second at 100 Hz
+                    view.update(live_view(loadout))
+
+            counters = run_live(bus, loadout, stop, on_tick=refresh)
+            view.update(live_view(loadout))
+        if not console.is_terminal:
+            console.print()  # the last view has no line end where nothing is redrawn
+    finally:
+        if timer:
+            timer.cancel()
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+        bus.shutdown()
+        record.close()
+    for truck in done:
+        show_truck(truck)
+    console.print(f"stopped: {counters['published']} frames sent, {counters['bus_errors']} bus errors")
+    return loadout.trucks

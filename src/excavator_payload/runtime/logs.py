@@ -41,6 +41,12 @@ PACKED_MDF = (".mfc", ".mfe", ".mfm")
 #: version NotImplementedError (all of them escaped as an internal error before).
 UNREADABLE_LOG = (ValueError, OSError, KeyError, IndexError, TypeError, EOFError, NotImplementedError,
                   AttributeError, struct.error, zlib.error, BLFParseError, can.CanError)
+try:  # a file named .mf4 that is no MDF ("magic header is b'garbage'") was an internal error
+    from asammdf.blocks.utils import MdfException
+
+    UNREADABLE_LOG += (MdfException,)
+except ImportError:  # asammdf is optional to python-can; without it .mf4 fails as an ImportError
+    pass
 
 _CANUTILS = re.compile(r"^\s*\(\s*-?[0-9.]+\s*\)\s+\S+\s+[0-9A-Fa-f]+#")
 _SCREEN = re.compile(

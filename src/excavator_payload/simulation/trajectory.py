@@ -4,7 +4,9 @@ A trajectory file is Parquet with one row per sample and the columns
 
 ``experiment``, ``time`` (s), ``boom_angle``, ``dipper_angle``, ``bucket_angle``,
 ``slew_angle`` (rad; boom from the house, dipper from the boom, bucket from the dipper),
-``payload`` (kg, constant within an experiment)
+``payload`` (kg: the true load in the bucket at each time; constant for one lift, or changing
+within an experiment to replay a shift — a bucket filled at the dig and emptied at the dump, see
+:func:`payload_passes`)
 
 and optionally ``ground_pitch`` and ``ground_roll`` (rad; level ground where absent). Any sample
 rate, even uneven, is accepted: each angle is interpolated by a cubic spline (continuous
@@ -134,8 +136,6 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
         if np.median(np.diff(t)) > MAX_MEDIAN_STEP:
             raise DatasetError(f"{source}: the samples of experiment {exp_id} are {np.median(np.diff(t)):.4g} s "
                                "apart (median); is 'time' in seconds?")
-        if rows["payload"].nunique() > 1:
-            raise DatasetError(f"{source}: 'payload' must be constant within experiment {exp_id}")
         experiments.append((int(exp_id), rows.reset_index(drop=True)))
     digest = hashlib.sha256(pd.util.hash_pandas_object(frame, index=False).values.tobytes()).hexdigest()[:16]
     return Trajectory(source, digest, experiments, ignored=tuple(unknown))
@@ -168,7 +168,7 @@ def smooth_trajectory(trajectory: Trajectory, seconds: float) -> Trajectory:
         for c in OPTIONAL:
             if c in rows.columns:
                 out[c] = np.interp(time, t, rows[c].to_numpy(dtype=float))
-        out["payload"] = np.full(n, float(rows["payload"].iloc[0]))
+        out["payload"] = np.interp(time, t, rows["payload"].to_numpy(dtype=float))  # a load changing in time
         experiments.append((exp_id, pd.DataFrame(out)))
     digest = hashlib.sha256(f"{trajectory.digest} smoothed {seconds!r}".encode()).hexdigest()[:16]
     return Trajectory(trajectory.source, digest, experiments, trajectory.ignored, float(seconds))
@@ -196,7 +196,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
     return trajectory_from_frame(frame, str(path))
 
 
-def _demand(arm, q, qd, qdd, tilt, payload: float) -> tuple[np.ndarray, np.ndarray]:
+def _demand(arm, q, qd, qdd, tilt, payload) -> tuple[np.ndarray, np.ndarray]:
     """Per sample: the share of each cylinder's speed limit and of the slew rate (n, 4), and of
     the force each cylinder gives at the relief pressure (n, 3), from the machine's model."""
     m = arm.machine
@@ -244,7 +244,7 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
                 raise DatasetError(f"{trajectory.source}: experiment {exp_id}: '{name}' reaches {worst:.3g} rad, "
                                    f"outside the machine's range [{low:.3g}, {high:.3g}] rad (between "
                                    "the samples too: a time gap makes the spline swing)")
-        payload = float(rows["payload"].iloc[0])
+        payload = np.interp(time, rows["time"].to_numpy(dtype=float), rows["payload"].to_numpy(dtype=float))
         speed, force = _demand(arm, q, qd, qdd, tilt, payload)
         too_fast, too_strong = speed.max() > OVERSPEED_TOLERANCE, force.max() > FORCE_LIMIT
         if not (too_fast or too_strong):
@@ -280,7 +280,7 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
             i, j = np.unravel_index(int(np.argmax(force)), force.shape)
             raise DatasetError(
                 f"{where}: experiment {exp_id} at t = {time[i]:.2f} s: the {names[j]} cylinder would need "
-                f"{force[i, j]:.3g} times the force it gives at the relief pressure (payload {payload:g} kg, "
+                f"{force[i, j]:.3g} times the force it gives at the relief pressure (payload {payload[i]:g} kg, "
                 f"{names[j]} acceleration {qdd[i, j]:.3g} rad/s²): a motion or payload this machine cannot "
                 "make; check the payload column and the machine file")
         i, j = np.unravel_index(int(np.argmax(speed)), speed.shape)
@@ -328,9 +328,13 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
     if np.any(arm.linkage_margin(q) <= 0):
         raise ValueError(f"trajectory experiment {exp_id}: the bucket angle leaves the range where "
                          "the bucket linkage closes")
-    payload = float(rows["payload"].iloc[0])
+    load = np.interp(time, rows["time"].to_numpy(dtype=float), rows["payload"].to_numpy(dtype=float))
+    passes = payload_passes(time, load) if np.ptp(load) > 0 else None
+    # a changing load: the dataset's payload column is constant within an experiment, so it holds
+    # the sum of its passes (a truck's load, as --motion shift); the load over time is in 'passes'
+    payload = float(sum(p["payload"] for p in passes)) if passes else float(load[0])
     motion_rng, noise_rng = machine_rngs(seed, exp_id)
-    physics = motion_physics(arm, time, q, qd, qdd, tilt, np.full(len(time), payload),
+    physics = motion_physics(arm, time, q, qd, qdd, tilt, load,
                              motion_rng.uniform(-1, 1, 3), closing_rng(seed, exp_id))
     frame = experiment_rows(exp_id, time, q, qd, qdd, physics, payload, noise, offsets, noise_rng,
                             with_truth)
@@ -344,4 +348,31 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
             "within_relief": bool(peak <= machine.hydraulics.relief_pressure),
             "speed_share": speed_share(arm, q, qd), "within_angle_ranges": inside,
             "tilt": [float(v) for v in tilt.mean(axis=0)], "status": "ok"}
+    if passes is not None:
+        meta["passes"] = passes
     return frame, meta
+
+
+#: A pass's load is "in" above this share of its largest value (the fill ends, the release begins).
+PLATEAU_SHARE = 0.98
+
+
+def payload_passes(time: np.ndarray, load: np.ndarray) -> list[dict]:
+    """The passes of a load that changes in time: each run where it is above 0 is one pass of
+    its largest value (kg); ``fill`` is from its rise to :data:`PLATEAU_SHARE` of that, ``release``
+    from the last time there to its return to 0 (s, the experiment's time), as ``--motion
+    shift``'s metadata has them (``loadout`` reports against them). A load that rises from 0
+    and never comes back is one pass without a release end: the experiment's end is used."""
+    above = np.r_[False, load > 0, False]
+    edges = np.flatnonzero(np.diff(above.astype(int)))
+    passes = []
+    for k, (a, b) in enumerate(zip(edges[::2], edges[1::2]), start=1):
+        run = load[a:b]
+        top = float(run.max())
+        full = np.flatnonzero(run >= PLATEAU_SHARE * top)
+        stop = min(b, len(time) - 1)
+        passes.append({"pass": k, "payload": top,
+                       "fill": [float(time[max(a - 1, 0)]), float(time[a + full[0]])],
+                       "release": [float(time[a + full[-1]]), float(time[stop])],
+                       "start": float(time[max(a - 1, 0)]), "end": float(time[stop])})
+    return passes
