@@ -78,9 +78,9 @@ def _register_commands() -> None:
     from excavator_payload.simulation import commands as simulation_commands
 
     simulation_commands.register(app)
-    from excavator_payload.simulation import machine_commands  # issue 11: hydraulic machine plot
+    from excavator_payload.evaluation import plot_commands  # issue 11: hydraulic machine plot
 
-    machine_commands.register(app)
+    plot_commands.register(app)
     estimator_commands.register(app)
     evaluation_commands.register(app)
     study_commands.register(app)

@@ -106,6 +106,12 @@ class SensorSet:
     truth_extra : tuple of str
         Noise-free columns written with ``--with-truth`` besides ``true_<signal>`` (for
         example the true joint torques and accelerations, which this set does not measure).
+    extra_units : mapping
+        SI unit of each :attr:`truth_extra` column.
+    rate_pairs : tuple of (signal, rate, unit, least change)
+        Each rate checked against the change of the signal it is the rate of (validation: a rate
+        in degrees beside an angle in radians): the signal, its rate, the rate's unit and the
+        least change of the signal over a window for the window to be judged (signal's unit).
     """
 
     name: str
@@ -116,6 +122,7 @@ class SensorSet:
     plausible_abs: Mapping[str, float]
     truth_extra: tuple[str, ...] = ()
     extra_units: Mapping[str, str] = field(default_factory=dict)
+    rate_pairs: tuple[tuple[str, str, str, float], ...] = ()
 
     @property
     def sample_period(self) -> float:
@@ -155,6 +162,8 @@ THESIS_SENSORS = SensorSet(
     units={s: UNITS[s] for s in SIGNALS},
     sample_rate=SAMPLE_RATE,
     plausible_abs=dict(PLAUSIBLE_ABS),
+    rate_pairs=(("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
+                ("boom_rate", "boom_accel", "rad/s^2", 0.05), ("dipper_rate", "dipper_accel", "rad/s^2", 0.05)),
 )
 
 #: Signals of a real machine (issue "The machine as it is"): IMU angles and rates of each link
@@ -206,6 +215,8 @@ MACHINE_SENSORS = SensorSet(
                  "true_boom_accel": "rad/s^2", "true_dipper_accel": "rad/s^2",
                  "true_bucket_accel": "rad/s^2", "true_slew_accel": "rad/s^2",
                  "true_slew_angle": "rad"},
+    rate_pairs=(("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
+                ("bucket_angle", "bucket_rate", "rad/s", 0.02)),
 )
 
 #: Every sensor set by name.

@@ -129,7 +129,7 @@ def register(app: typer.Typer) -> None:
         """Estimate the payload at every sample: writes experiment, time, payload_estimate, status
         and sigma (one-sigma uncertainty, kg). A big dataset (more than ~10 s of work) is split by
         experiment over worker processes (or --scheduler's cluster); a small one is estimated here."""
-        from excavator_payload.evaluation.commands import estimate_in_chunks, progress_bar
+        from excavator_payload.estimators.running import estimate_in_chunks, progress_bar
         from excavator_payload.execution import Execution
 
         if workers < 0:

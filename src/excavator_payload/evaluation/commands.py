@@ -5,22 +5,27 @@ from __future__ import annotations
 import json
 import math
 import os
-import time
 from pathlib import Path
 from typing import Sequence
 
 import pandas as pd
 import typer
-from rich import box
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
-from rich.markup import escape
+from rich.progress import Progress
 from rich.text import Text
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import check_output_path, read_dataset, read_estimates, read_metadata
 from excavator_payload.errors import DatasetError, EstimatorError
+
+# Estimating in chunks lives with the estimators, the summary table in tables.py; named here too.
+from excavator_payload.estimators.running import (  # noqa: F401
+    MAX_ESTIMATE_TASKS,
+    PARALLEL_MIN_SECONDS,
+    estimate_in_chunks,
+    estimate_task,
+    progress_bar,
+)
 from excavator_payload.evaluation.metrics import (
     DISCARD_DEFAULT_HELP,
     Evaluation,
@@ -31,77 +36,9 @@ from excavator_payload.evaluation.metrics import (
     default_discard,
     to_jsonable,
 )
+from excavator_payload.evaluation.tables import summary_table  # noqa: F401
 
 console = Console()
-
-
-def progress_bar(console_: Console | None = None) -> Progress:
-    """The progress bar used by this role's commands."""
-    return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
-                    MofNCompleteColumn(), TimeElapsedColumn(), console=console_ or console,
-                    transient=False)
-
-
-#: A dataset goes to the execution layer only if estimating the rest of it here would take
-#: longer than this (extrapolated from its first chunk, which is always estimated here): starting
-#: local workers costs 1–3 s and each worker then imports the estimators (torch: 1–2 s) and
-#: rebuilds the estimator's compiled functions, so two workers gain nothing on less. Measured on
-#: the demo's 200 test experiments (2 cores, loaded): UKF ~5 s, the EKFs ~1 s, the others less,
-#: so a demo-sized test set stays here and 1000+ experiments of the UKF go to the workers.
-PARALLEL_MIN_SECONDS = 10.0
-#: At most this many tasks per dataset on a cluster (bigger chunks for bigger datasets).
-MAX_ESTIMATE_TASKS = 200
-
-
-def estimate_task(estimator, dataset: Dataset) -> pd.DataFrame:
-    """One chunk of experiments estimated on a worker (the unit of work of the execution layer)."""
-    return estimator.estimate(dataset)
-
-
-def estimate_in_chunks(estimator, dataset: Dataset, progress: Progress | None = None,
-                       description: str = "estimating", chunk: int = 10, execution=None) -> pd.DataFrame:
-    """``estimator.estimate(dataset)`` a few experiments at a time, advancing a progress bar.
-
-    Estimators reset at every experiment, so chunking gives the same estimates. With an
-    ``execution`` (:class:`~excavator_payload.execution.Execution`), when the first chunk shows
-    that the rest would take more than :data:`PARALLEL_MIN_SECONDS` here, the rest is split by
-    experiment into chunks that run on its workers (the estimator is sent once); the estimates
-    are the same, in the same order.
-    """
-    ids = list(dataset.experiment_ids)
-    task = (progress.add_task(escape(description), total=len(ids))  # labels hold paths: not markup
-            if progress is not None else None)
-    parts = [ids[start:start + chunk] for start in range(0, len(ids), chunk)]
-    frames = []
-    for index, part in enumerate(parts):
-        start = time.perf_counter()
-        frames.append(estimator.estimate(dataset.subset(part) if len(ids) > chunk else dataset))
-        if progress is not None:
-            progress.advance(task, len(part))
-        rest = ids[sum(len(p) for p in parts[:index + 1]):]
-        if index == 0 and execution is not None and rest \
-                and (time.perf_counter() - start) * len(rest) / len(part) > PARALLEL_MIN_SECONDS:
-            frames.extend(_estimate_on_layer(estimator, dataset, rest, execution, progress, task, chunk))
-            break
-    return pd.concat(frames, ignore_index=True)
-
-
-def _estimate_on_layer(estimator, dataset: Dataset, ids: list, execution, progress: Progress | None, task,
-                       chunk: int) -> list[pd.DataFrame]:
-    """Experiments ``ids`` of ``dataset`` estimated in chunks through ``execution``, in order."""
-    from excavator_payload.execution import Shared
-
-    chunk = max(chunk, math.ceil(len(ids) / MAX_ESTIMATE_TASKS))
-    parts = [ids[start:start + chunk] for start in range(0, len(ids), chunk)]
-
-    def advance(index, _frame):
-        if progress is not None:
-            progress.advance(task, len(parts[index]))
-
-    # The caller's progress bar is advanced here: the layer's own bar stays off (one live display).
-    shared = Shared(estimator)
-    return execution.map(estimate_task, [(shared, dataset.subset(part)) for part in parts],
-                         on_done=advance, progress=False)
 
 
 def _model_options(model_dir: Path) -> tuple[str | None, dict, str | None]:
@@ -190,45 +127,6 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
                                               info={"estimator": name, "options": options,
                                                     "machine": machine, "estimates": str(path)}))
     return evaluations
-
-
-def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accuracy",
-                  width: int | None = None) -> Table:
-    """A rich table of the headline figures.
-
-    On a terminal narrower than 110 columns only the essential columns are shown (numbers are
-    never cut short); the full set is in ``--json`` and the report.
-    """
-    width = Console().width if width is None else width
-    compact = width < 110
-    columns = [("estimator", "estimator"), ("MAX", "mean_max"), ("±", "std_max"), ("RMS", "mean_rms"),
-               ("±", "std_rms"), ("MAX%", "mean_max_pct"), ("p95", "mean_p95"),
-               ("≤1%", "meets_requirement_share"), ("conv", "mean_convergence_time"),
-               ("eff", "efficiency"), ("est", "estimated_share")]
-    if compact:
-        columns = [c for c in columns if c[1] in ("estimator", "mean_max", "std_max", "mean_rms",
-                                                  "meets_requirement_share", "efficiency")]
-    legend = {"MAX": "MAX, RMS: mean over experiments (kg), ± their std",
-              "MAX%": "MAX%: of the rated payload", "p95": "p95: of |error| (kg)",
-              "≤1%": "≤1%: share of experiments with MAX ≤ 1 % of rated",
-              "conv": "conv: convergence time (s)", "eff": "eff: RMS of error/Cramér–Rao bound",
-              "est": "est: judged samples with an estimate"}
-    caption = "; ".join(legend[c] for c, _ in columns if c in legend)
-    table = Table(title=Text(title), box=box.SIMPLE_HEAD, pad_edge=False, caption=caption)
-    for col, _ in columns:
-        table.add_column(col, justify="left" if col == "estimator" else "right", no_wrap=True)
-
-    formats = {"mean_max_pct": "{:.2g}", "meets_requirement_share": "{:.0%}",
-               "mean_convergence_time": "{:.2f}", "estimated_share": "{:.0%}"}
-
-    def f(x, fmt="{:.3g}"):
-        return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
-
-    for ev in evaluations:
-        s = ev.summary
-        table.add_row(*[Text(ev.label) if key == "estimator" else f(s.get(key), formats.get(key, "{:.3g}"))
-                        for _, key in columns])
-    return table
 
 
 def write_json(path: Path, payload: dict) -> None:

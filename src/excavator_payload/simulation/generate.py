@@ -40,9 +40,8 @@ import dataclasses
 import importlib
 import json
 import logging
-import math
 import shutil
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
