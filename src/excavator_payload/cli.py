@@ -58,13 +58,14 @@ def machines(
 ) -> None:
     """List the machine presets, or print one as a machine file."""
     from excavator_payload.model.machine import list_presets, load_machine
+    from excavator_payload.platforms import platform_for
 
     if show is None:
         names = list_presets()
         width = max(len(n) for n in names)
         for name in names:
             m = load_machine(name)
-            kind = getattr(m, "kind", "2-link")  # thesis arm or hydraulic machine (issue 11)
+            kind = platform_for(m).kind  # thesis arm or hydraulic machine (issue 11)
             typer.echo(f"{name:{width}s}  {kind:9s}  {m.description}")
         return
     typer.echo(load_machine(show).to_toml(), nl=False)

@@ -188,7 +188,7 @@ def read_dataset(path: str | Path, *, validate: bool = True, machine=None) -> Da
         validate_frame(frame, source=str(path), sensor_set=sensors)
     meta = {**meta, "sensor_set": sensors.name}
     dataset = Dataset(frame.reset_index(drop=True), meta, source=path)
-    if validate and sensors.name == "machine":
+    if validate and sensors.cylinder_chambers:  # head and rod pressures: are they swapped?
         from excavator_payload.data.wiring import check_wiring
         from excavator_payload.model.machine import load_machine
 

@@ -139,6 +139,13 @@ class SensorSet:
         """Noise-free columns of ``--with-truth``: ``true_<signal>`` then :attr:`truth_extra`."""
         return tuple(f"true_{s}" for s in self.signals) + self.truth_extra
 
+    @property
+    def cylinder_chambers(self) -> tuple[str, ...]:
+        """Cylinders whose head and rod pressures this set measures (``()``: none, as the thesis'
+        joint-torque sensors), in signal order."""
+        heads = [s.removesuffix("_head_pressure") for s in self.signals if s.endswith("_head_pressure")]
+        return tuple(c for c in heads if f"{c}_rod_pressure" in self.signals)
+
     def index(self, signal: str) -> int:
         """Position of ``signal`` in :attr:`signals`."""
         return self.signals.index(signal)

@@ -17,6 +17,7 @@ from rich.text import Text
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import check_output_path, read_dataset, read_estimates, read_metadata
 from excavator_payload.errors import DatasetError, EstimatorError
+from excavator_payload.platforms import HYDRAULIC
 
 # Estimating in chunks lives with the estimators, the summary table in tables.py; named here too.
 from excavator_payload.estimators.running import (  # noqa: F401
@@ -83,7 +84,7 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
     taken: set = set()
 
     machine_bound = None
-    if dataset.sensor_set.name == "machine":  # issue 12: the bound from a calibrated model given
+    if HYDRAULIC.carries(dataset):  # issue 12: the bound from a calibrated model given
         from excavator_payload.evaluation.crb_machine import dataset_machine_bound
 
         for model in models:

@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
+from excavator_payload.platforms import HYDRAULIC
 
 SESSION_CALIBRATION, SESSION_WORK = 1, 2
 #: Samples not judged at the start of each test experiment: the first second at 100 Hz.
@@ -160,7 +161,7 @@ def machine_estimators() -> list[str]:
     """Registered estimators that declare the machine sensor set (read at run time)."""
     from excavator_payload.estimators.base import estimator_class, estimator_names
 
-    return [n for n in estimator_names() if "machine" in estimator_class(n).SENSOR_SETS]
+    return [n for n in estimator_names() if HYDRAULIC.sensors.name in estimator_class(n).SENSOR_SETS]
 
 
 #: What each kind of estimator learns from, besides the calibration motions: the quasi-static map
@@ -329,7 +330,7 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
 
     # the machine resolved once, here; everything below gets the object
     machine = load_machine(machine)
-    if getattr(machine, "kind", None) != "hydraulic":
+    if not HYDRAULIC.owns(machine):
         raise ExcavatorPayloadError(f"demo --machine needs a hydraulic machine, '{machine.name}' is not one")
     # the technician's roughly right file: this machine with every parameter 3 % off (for the
     # preset exactly cat345c-hydraulic-3pct)

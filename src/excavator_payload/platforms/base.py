@@ -110,10 +110,13 @@ class Platform:
         Its sensor-noise presets by name.
     default_noise : str
         The noise preset used unless told.
+    kind : str
+        The machine kind, as ``excavator-payload machines`` lists it.
     """
 
     name: str = ""
     label: str = ""
+    kind: str = ""
     sensors: SensorSet
     motions: dict[str, Motion] = {}
     noise_presets: dict[str, Any] = {}
@@ -128,6 +131,18 @@ class Platform:
     def default_discard(self) -> int:
         """Samples not judged at the start of every experiment unless told (evaluation)."""
         raise NotImplementedError
+
+    def carries(self, thing: Any) -> bool:
+        """Whether ``thing`` (a dataset, a sensor set, anything with a ``sensor_set``) holds this
+        platform's sensor set.
+
+        Parameters
+        ----------
+        thing : Dataset, SensorSet or object with a ``sensor_set``
+            What to ask about.
+        """
+        sensors = thing if isinstance(thing, SensorSet) else getattr(thing, "sensor_set", None)
+        return sensors is not None and sensors.name == self.sensors.name
 
     # -- noise -------------------------------------------------------------------------------
     def noise(self, preset: Any = None) -> Any:

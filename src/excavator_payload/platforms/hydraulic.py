@@ -125,6 +125,7 @@ class HydraulicPlatform(Platform):
 
     name = "hydraulic"
     label = "a hydraulic machine"
+    kind = "hydraulic"
     sensors = MACHINE_SENSORS
     noise_presets = PRESETS
     default_noise = "field"

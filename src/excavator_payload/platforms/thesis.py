@@ -101,6 +101,7 @@ class ThesisPlatform(Platform):
 
     name = "thesis"
     label = "this machine"
+    kind = "2-link"
     sensors = THESIS_SENSORS
     noise_presets = PRESETS
     default_noise = "thesis"
