@@ -41,6 +41,8 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import ESTIMATE_COLUMNS, MACHINE_SENSORS, THESIS_SENSORS
 from excavator_payload.errors import DatasetError
 from excavator_payload.platforms import THESIS, platform_for
+# What ``--discard`` defaults to, per sensor set (for ``--help``): the platforms'.
+from excavator_payload.platforms.registry import DISCARD_DEFAULT_HELP  # noqa: F401
 # Seconds not judged at the start of every machine-set experiment: the hydraulic platform's.
 from excavator_payload.platforms.hydraulic import DEFAULT_DISCARD_SECONDS  # noqa: F401
 
@@ -61,12 +63,6 @@ def default_discard(sensor_set) -> int:
     :data:`DEFAULT_DISCARD_SECONDS` on the machine set)."""
     return platform_for(sensor_set).default_discard()
 
-
-#: What ``--discard`` defaults to, per sensor set (for ``--help``).
-DISCARD_DEFAULT_HELP = (f"default: {default_discard(THESIS_SENSORS)} on the thesis sensor set, as in thesis "
-                        f"Table 7.1 at {THESIS_SENSORS.sample_rate:g} Hz; the first {DEFAULT_DISCARD_SECONDS:g} s, "
-                        f"{default_discard(MACHINE_SENSORS)} samples at {MACHINE_SENSORS.sample_rate:g} Hz, "
-                        "on the machine set")
 
 #: Summary figures that are reported in kg and in % of the rated payload.
 _KG_SUMMARY = ("mean_max", "std_max", "mean_rms", "std_rms")

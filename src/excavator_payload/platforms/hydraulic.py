@@ -7,10 +7,10 @@ The sensor model that applies these magnitudes to a motion is
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
+from numbers import Integral, Real
 from typing import Any
-
-import numpy as np
 
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import ExcavatorPayloadError
@@ -22,7 +22,8 @@ from excavator_payload.platforms.base import (
     nmpc_chunk_size,
 )
 
-DEG = np.pi / 180.0
+# math, not numpy: the platforms are read at every command's start (numpy is imported where used).
+DEG = math.pi / 180.0
 PRESSURES = tuple(s for s in MACHINE_SENSORS.signals if s.endswith("_pressure"))
 ANGLES = ("boom_angle", "dipper_angle", "bucket_angle")
 RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
@@ -104,6 +105,8 @@ def session_offsets(session: int, noise: MachineNoise) -> dict[str, float]:
     Drawn from the session number alone (not from the experiment seed): every experiment of
     a session shares them, and another session draws other ones.
     """
+    import numpy as np
+
     rng = np.random.default_rng(np.random.SeedSequence([int(session), 0x5E55_1011]))
     scale = {**{s: noise.angle_offset for s in ANGLES}, **{s: noise.rate_offset for s in RATES},
              **{s: noise.inclination_offset for s in INCLINATIONS},
@@ -215,7 +218,7 @@ class HydraulicPlatform(Platform):
         if frozen_noise_seed is not None:
             raise ExcavatorPayloadError("frozen noise is a thesis-setting study; the hydraulic machine's "
                                         "sensors always draw their own noise")
-        if isinstance(session, bool) or not isinstance(session, (int, np.integer)) or session < 0:
+        if isinstance(session, bool) or not isinstance(session, Integral) or session < 0:
             raise ExcavatorPayloadError(f"the session must be a whole number ≥ 0, got {session!r}")
         preset = self.noise(noise)
         options["session"] = int(session)
@@ -223,7 +226,7 @@ class HydraulicPlatform(Platform):
             if trajectory is not None:
                 raise ExcavatorPayloadError("--payload does not go with a trajectory file: its payload "
                                             "column sets the mass")
-            if (isinstance(payload, bool) or not isinstance(payload, (int, float, np.number))
+            if (isinstance(payload, bool) or not isinstance(payload, Real)
                     or not 0.0 <= float(payload) <= machine.max_payload):
                 raise ExcavatorPayloadError(f"--payload must be between 0 and the machine's maximum "
                                             f"payload, {machine.max_payload:g} kg; got {payload!r}")
@@ -238,7 +241,7 @@ class HydraulicPlatform(Platform):
                                             "its fill towards --truck-target")
             if truck_target is not None:
                 most = machine.max_payload * 6
-                if (isinstance(truck_target, bool) or not isinstance(truck_target, (int, float, np.number))
+                if (isinstance(truck_target, bool) or not isinstance(truck_target, Real)
                         or not 0.0 < float(truck_target) <= most):
                     raise ExcavatorPayloadError(f"--truck-target must be above 0 and at most 6 passes of the "
                                                 f"machine's maximum payload, {most:g} kg; got {truck_target!r}")

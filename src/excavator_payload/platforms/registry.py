@@ -13,6 +13,12 @@ from excavator_payload.platforms.thesis import THESIS
 #: Every platform by name.
 PLATFORMS: dict[str, Platform] = {p.name: p for p in (THESIS, HYDRAULIC)}
 
+#: What ``--discard`` defaults to, per platform (for ``--help``).
+DISCARD_DEFAULT_HELP = (f"default: {THESIS.default_discard()} on the thesis sensor set, as in thesis "
+                        f"Table 7.1 at {THESIS.sample_rate:g} Hz; the first "
+                        f"{HYDRAULIC.default_discard() / HYDRAULIC.sample_rate:g} s, "
+                        f"{HYDRAULIC.default_discard()} samples at {HYDRAULIC.sample_rate:g} Hz, on the machine set")
+
 
 def platform_for(thing: Any) -> Platform:
     """The platform of ``thing``, resolved once at the edge.

@@ -14,16 +14,16 @@ Noise presets (standard deviations, SI units)
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from excavator_payload.data.schema import SIGNALS, THESIS_SENSORS
 from excavator_payload.errors import ExcavatorPayloadError
 from excavator_payload.platforms.base import SIMULATION_FAILURES, Motion, Platform, cheap_chunk_size, nmpc_chunk_size
 
-DEG = np.pi / 180.0
+# math, not numpy: the platforms are read at every command's start (numpy is imported where used).
+DEG = math.pi / 180.0
 
 
 @dataclass(frozen=True)
@@ -34,13 +34,17 @@ class NoisePreset:
     std: dict[str, float]
     description: str = ""
 
-    def std_vector(self, columns=SIGNALS) -> np.ndarray:
+    def std_vector(self, columns=SIGNALS):
         """Standard deviations (SI units) of ``columns``, in that order (default :data:`SIGNALS`)."""
+        import numpy as np
+
         return np.array([self.std[c] for c in columns], dtype=float)
 
     @property
-    def torque_covariance(self) -> np.ndarray:
+    def torque_covariance(self):
         """Σ of the two torque channels (N²m²), used by the Cramér–Rao bound and the filters."""
+        import numpy as np
+
         return np.diag([self.std["boom_torque"] ** 2, self.std["dipper_torque"] ** 2])
 
 
@@ -68,11 +72,11 @@ FIELD_SOURCES = {
 }
 
 PRESETS: dict[str, NoisePreset] = {
-    "thesis": _preset("thesis", np.sqrt(1e-4) * DEG, np.sqrt(1e-5) * DEG, np.sqrt(1e-4) * DEG,
+    "thesis": _preset("thesis", math.sqrt(1e-4) * DEG, math.sqrt(1e-5) * DEG, math.sqrt(1e-4) * DEG,
                       1000.0, 1000.0,
                       "appendix A.2 variances in the thesis' units: 0.01°, 0.0032°/s, 0.01°/s², 1000 N·m"),
     "none": _preset("none", 0.0, 0.0, 0.0, 0.0, 0.0, "noise-free sensors"),
-    "field": _preset("field", 0.1 * DEG, 0.05 * DEG, np.sqrt(2) * 0.05 * DEG / 0.05,
+    "field": _preset("field", 0.1 * DEG, 0.05 * DEG, math.sqrt(2) * 0.05 * DEG / 0.05,
                      15_000.0, 8_000.0,
                      "realistic machine sensors: 0.1°, 0.05°/s, 1.4°/s², 15/8 kN·m"),
 }
