@@ -15,17 +15,17 @@ Dask cluster by default, an existing one with ``scheduler=``, or this process fo
 
 Adding a simulator (extension point)
 ------------------------------------
-The per-experiment simulator is chosen from ``spec.motion`` in :data:`MOTIONS`: a
-:class:`Motion` names a function ``f(spec, experiment) -> (rows, metadata)`` by its import path
-(``"package.module:function"``, imported lazily in the worker, so the entry must be in this
-table, not registered at run time in the client: remote workers would not see it), a chunk
-size rule and the exceptions that mean "this one experiment failed, skip it". A new machine
-type with its own simulator adds one table: the hydraulic machine's motions
-(:data:`MACHINE_MOTIONS`, simulated by :mod:`~excavator_payload.simulation.machine_sim`) go
-through the same chunks, checkpoints, clusters and studies; :func:`motions_for` picks the table
-by the machine's kind. Per-process state that is expensive to build
-(the NMPC's compiled solver: ~2 s) is cached at module level in the worker, keyed by machine,
-so it is built once per worker process, not once per chunk.
+The per-experiment simulator is chosen from ``spec.motion`` in the machine's platform's motion
+table (:attr:`excavator_payload.platforms.Platform.motions`; named here :data:`MOTIONS` for the
+thesis' arm and :data:`MACHINE_MOTIONS` for the hydraulic machine): a
+:class:`~excavator_payload.platforms.base.Motion` names a function
+``f(spec, experiment) -> (rows, metadata)`` by its import path (``"package.module:function"``,
+imported lazily in the worker, so the entry must be in a platform's table, not registered at run
+time in the client: remote workers would not see it), a chunk size rule and the exceptions that
+mean "this one experiment failed, skip it". A new motion is one entry of its platform's table; a
+new machine family is a new platform. Per-process state that is expensive to build (the NMPC's
+compiled solver: ~2 s) is cached at module level in the worker, keyed by machine, so it is built
+once per worker process, not once per chunk.
 
 Checkpoints
 -----------
