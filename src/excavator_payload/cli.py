@@ -58,13 +58,14 @@ def machines(
 ) -> None:
     """List the machine presets, or print one as a machine file."""
     from excavator_payload.model.machine import list_presets, load_machine
+    from excavator_payload.platforms import platform_for
 
     if show is None:
         names = list_presets()
         width = max(len(n) for n in names)
         for name in names:
             m = load_machine(name)
-            kind = getattr(m, "kind", "2-link")  # thesis arm or hydraulic machine (issue 11)
+            kind = platform_for(m).kind  # thesis arm or hydraulic machine (issue 11)
             typer.echo(f"{name:{width}s}  {kind:9s}  {m.description}")
         return
     typer.echo(load_machine(show).to_toml(), nl=False)
@@ -78,9 +79,9 @@ def _register_commands() -> None:
     from excavator_payload.simulation import commands as simulation_commands
 
     simulation_commands.register(app)
-    from excavator_payload.simulation import machine_commands  # issue 11: hydraulic machine plot
+    from excavator_payload.evaluation import plot_commands  # issue 11: hydraulic machine plot
 
-    machine_commands.register(app)
+    plot_commands.register(app)
     estimator_commands.register(app)
     evaluation_commands.register(app)
     study_commands.register(app)

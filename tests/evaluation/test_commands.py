@@ -138,7 +138,7 @@ def _fitted(name, machine, data, **options):
 
 
 def test_a_big_dataset_is_estimated_on_the_workers_with_the_same_estimates(mj_dataset, monkeypatch):
-    from excavator_payload.evaluation import commands
+    from excavator_payload.estimators import running as commands  # estimating in chunks lives there
     from excavator_payload.execution import Execution
 
     train = mj_dataset.subset(mj_dataset.experiment_ids[:4])
@@ -161,7 +161,7 @@ def test_a_big_dataset_is_estimated_on_the_workers_with_the_same_estimates(mj_da
 
 def test_estimate_command_on_workers(files, mj_dataset, monkeypatch, capsys):
     from excavator_payload.data.io import read_estimates
-    from excavator_payload.evaluation import commands
+    from excavator_payload.estimators import running as commands  # estimating in chunks lives there
 
     d, data, _, _ = files
     _fitted("inverse-dynamics", "cat345c", mj_dataset.subset(mj_dataset.experiment_ids[:2])).save(d / "idyn2")

@@ -3,11 +3,12 @@
 import numpy as np
 
 from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.model.machine import load_machine
 from excavator_payload.simulation.hydraulic_nmpc import _dynamics, _rk4, _rk4_jacobian
 
 
 def test_chain_rule_jacobian_equals_differentiating_the_unrolled_rk4():
-    arm = HydraulicArmModel("cat345c-hydraulic")
+    arm = HydraulicArmModel(load_machine("cat345c-hydraulic"))
     xdot = _dynamics(arm)
     model = _rk4(xdot, 0.25, 2, "interval")
     expected_fn, got_fn = model.jacobian(), _rk4_jacobian(xdot, 0.25, 2, "interval")
@@ -28,7 +29,7 @@ def test_chain_rule_jacobian_keeps_the_structural_zeros_of_the_force_lag():
     # sparse as this pattern.
     from excavator_payload.simulation.hydraulic_nmpc import _lagged_dynamics
 
-    jac = _rk4_jacobian(_lagged_dynamics(HydraulicArmModel("cat345c-hydraulic"), 0.06), 0.25, 2, "interval")
+    jac = _rk4_jacobian(_lagged_dynamics(HydraulicArmModel(load_machine("cat345c-hydraulic")), 0.06), 0.25, 2, "interval")
     by_state, by_input = np.array(jac.sparsity_out(0)), np.array(jac.sparsity_out(1))
     np.testing.assert_array_equal(by_state[8:], np.hstack([np.zeros((4, 8), bool), np.eye(4, dtype=bool)]))
     np.testing.assert_array_equal(by_input[8:], np.eye(4, dtype=bool))

@@ -153,7 +153,7 @@ def test_interrupted_file_run_resumes(tmp_path, monkeypatch):
     out = tmp_path / "m.parquet"
     from excavator_payload.simulation import generate
 
-    real = machine_sim.machine_experiment
+    real = machine_sim.lifts_experiment
     calls = []
 
     def interrupted(spec, k):
@@ -162,14 +162,14 @@ def test_interrupted_file_run_resumes(tmp_path, monkeypatch):
         calls.append(k)
         return real(spec, k)
 
-    monkeypatch.setattr(machine_sim, "machine_experiment", interrupted)
-    monkeypatch.setattr(generate, "_machine_chunk_size", lambda n: 1)
+    monkeypatch.setattr(machine_sim, "lifts_experiment", interrupted)
+    lifts = generate.MACHINE_MOTIONS["lifts"]  # the hydraulic platform's table entry, one per chunk
     monkeypatch.setitem(generate.MACHINE_MOTIONS, "lifts",
-                        generate.Motion(generate._MACHINE_EXPERIMENT, lambda n: 1, generate._MACHINE_SKIP))
+                        generate.Motion(lifts.experiment, lambda n: 1, lifts.skip_on))
     with pytest.raises(KeyboardInterrupt):
         simulate_machine_to_file(out, 2, seed=1, motion="lifts", workers=1, progress=False)
     assert not out.exists() and len(list(partial_folder(out).glob("chunk_*"))) == 1
-    monkeypatch.setattr(machine_sim, "machine_experiment", real)
+    monkeypatch.setattr(machine_sim, "lifts_experiment", real)
     resumed = simulate_machine_to_file(out, 2, seed=1, motion="lifts", workers=1, progress=False)
     fresh = simulate_machine_dataset(2, seed=1, motion="lifts")
     pd.testing.assert_frame_equal(read_dataset(out).frame, fresh.frame)

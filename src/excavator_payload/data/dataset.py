@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.schema import (
-    SENSOR_SETS,
     SIGNALS,
+    THESIS_SENSORS,
     SensorSet,
     detect_sensor_set,
     get_sensor_set,
@@ -44,7 +44,7 @@ class Dataset:
         if name is not None:
             sensors = get_sensor_set(name)
         else:
-            sensors = detect_sensor_set(self.frame.columns) or SENSOR_SETS["thesis"]
+            sensors = detect_sensor_set(self.frame.columns) or THESIS_SENSORS
         missing = [c for c in ("experiment", "time", *sensors.signals) if c not in self.frame.columns]
         if missing:
             raise DatasetError(f"dataset ({sensors.name} sensor set) is missing column(s): "
@@ -157,17 +157,12 @@ class Dataset:
 
     def machine(self):
         """The :class:`~excavator_payload.model.machine.Machine` that generated the data, if known."""
-        from excavator_payload.model.machine import Machine
-
         from excavator_payload.errors import MachineError
+        from excavator_payload.model.machine import machine_from_dict
 
         m = self.meta.get("machine")
         try:
-            if isinstance(m, dict) and m.get("kind") == "hydraulic":  # issue 11: hydraulic machines
-                from excavator_payload.model.hydraulic_machine import HydraulicMachine
-
-                return HydraulicMachine.from_dict(m)
-            return Machine.from_dict(m) if isinstance(m, dict) else None
+            return machine_from_dict(m) if isinstance(m, dict) else None
         except MachineError as exc:  # "machine: field ..." did not say which file
             where = f"{self.source}: " if self.source is not None else ""
             raise MachineError(f"{where}the machine in its metadata is not valid: {exc}") from None

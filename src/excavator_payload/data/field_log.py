@@ -9,12 +9,12 @@ column in seconds (or ``timestamp``) and the sensor set's signal columns in SI u
 * a table whose signals come at their own rates (rows where only some signals are filled, the
   others empty, as loggers write one message per row) or at another rate than the sensor set's
   is put on the model's clock by the CAN sensor's
-  :class:`~excavator_payload.runtime.assembly.SampleAssembler` (each column, or group of columns
+  :class:`~excavator_payload.data.assembly.SampleAssembler` (each column, or group of columns
   filled together, is a message: latest value held, too old -> NaN). A table already at the
   sensor set's rate with every signal in every row is taken as it is.
 
 A CSV *with* an ``experiment`` column is read as a dataset table. The result is validated as
-any dataset (units, rates, ranges) by :func:`~excavator_payload.data.io.validate_frame`.
+any dataset (units, rates, ranges) by :func:`~excavator_payload.data.validation.validate_frame`.
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def _read_table(path: Path) -> pd.DataFrame:
 
 def read_field_table(path: str | Path, *, validate: bool = True, segment_gap: float = SEGMENT_GAP) -> Dataset:
     """A field log table as a :class:`Dataset` (see the module docstring)."""
-    from excavator_payload.data.io import validate_frame
+    from excavator_payload.data.validation import validate_frame
 
     path = Path(path)
     frame = _read_table(path)
@@ -126,7 +126,7 @@ def read_field_table(path: str | Path, *, validate: bool = True, segment_gap: fl
 def _on_the_clock(times: np.ndarray, values: np.ndarray, period: float,
                   names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """One recording's rows on the model's clock: columns filled together are one message."""
-    from excavator_payload.runtime.assembly import SampleAssembler
+    from excavator_payload.data.assembly import SampleAssembler
 
     filled = np.isfinite(values)
     groups: dict[bytes, list[int]] = {}

@@ -116,6 +116,12 @@ class SensorSet:
     truth_extra : tuple of str
         Noise-free columns written with ``--with-truth`` besides ``true_<signal>`` (for
         example the true joint torques and accelerations, which this set does not measure).
+    extra_units : mapping
+        SI unit of each :attr:`truth_extra` column.
+    rate_pairs : tuple of (signal, rate, unit, least change)
+        Each rate checked against the change of the signal it is the rate of (validation: a rate
+        in degrees beside an angle in radians): the signal, its rate, the rate's unit and the
+        least change of the signal over a window for the window to be judged (signal's unit).
     """
 
     name: str
@@ -126,6 +132,7 @@ class SensorSet:
     plausible_abs: Mapping[str, float]
     truth_extra: tuple[str, ...] = ()
     extra_units: Mapping[str, str] = field(default_factory=dict)
+    rate_pairs: tuple[tuple[str, str, str, float], ...] = ()
 
     @property
     def sample_period(self) -> float:
@@ -141,6 +148,13 @@ class SensorSet:
     def truth_columns(self) -> tuple[str, ...]:
         """Noise-free columns of ``--with-truth``: ``true_<signal>`` then :attr:`truth_extra`."""
         return tuple(f"true_{s}" for s in self.signals) + self.truth_extra
+
+    @property
+    def cylinder_chambers(self) -> tuple[str, ...]:
+        """Cylinders whose head and rod pressures this set measures (``()``: none, as the thesis'
+        joint-torque sensors), in signal order."""
+        heads = [s.removesuffix("_head_pressure") for s in self.signals if s.endswith("_head_pressure")]
+        return tuple(c for c in heads if f"{c}_rod_pressure" in self.signals)
 
     def index(self, signal: str) -> int:
         """Position of ``signal`` in :attr:`signals`."""
@@ -165,6 +179,8 @@ THESIS_SENSORS = SensorSet(
     units={s: UNITS[s] for s in SIGNALS},
     sample_rate=SAMPLE_RATE,
     plausible_abs=dict(PLAUSIBLE_ABS),
+    rate_pairs=(("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
+                ("boom_rate", "boom_accel", "rad/s^2", 0.05), ("dipper_rate", "dipper_accel", "rad/s^2", 0.05)),
 )
 
 #: Signals of a real machine (issue "The machine as it is"): IMU angles and rates of each link
@@ -216,6 +232,8 @@ MACHINE_SENSORS = SensorSet(
                  "true_boom_accel": "rad/s^2", "true_dipper_accel": "rad/s^2",
                  "true_bucket_accel": "rad/s^2", "true_slew_accel": "rad/s^2",
                  "true_slew_angle": "rad"},
+    rate_pairs=(("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
+                ("bucket_angle", "bucket_rate", "rad/s", 0.02)),
 )
 
 #: Every sensor set by name.

@@ -15,8 +15,8 @@ signal in the other experiments:
   the other experiments' is in kN·m (the arm's own weight loads both joints in every pose, so the
   peaks of two experiments never differ that much).
 
-:class:`SampleWatch` applies the same checks (and the rate-unit check of
-:mod:`excavator_payload.data.io`) to samples decoded from a CAN log after the signal map: a user
+:class:`SampleWatch` applies the same checks (and the rate-unit check,
+:func:`check_signal_units`) to samples decoded from a CAN log after the signal map: a user
 DBC whose pressures are in bar with factor 1 is refused as a dataset in bar is.
 """
 
@@ -27,6 +27,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from excavator_payload.data.schema import SensorSet
 from excavator_payload.errors import DatasetError
 
 #: Below this peak (Pa, 1 bar) a pressure line is suspected of another unit.
@@ -122,6 +123,130 @@ def _check_scale(peaks: pd.DataFrame, si: str, units, source: str, ceiling: floa
                     f"'{column}' {_unit_hint(ratio, units, si)}?")
 
 
+#: Largest house pitch or roll of a working machine, rad: 35° (70 %, the gradeability of a tracked
+#: excavator, far beyond its working limits). Tighter than the sensor set's 1 rad (which also
+#: spans the DBC's range): a tilt in degrees reads as that many radians.
+HOUSE_TILT_LIMIT = math.radians(35.0)
+
+#: Length of the windows the rate check compares over, s.
+RATE_WINDOW = 0.5
+#: Moving windows an experiment needs to be judged by the rate check.
+RATE_MIN_WINDOWS = 2
+#: A rate whose integral is more than this times its signal's change (median over the moving
+#: windows) is in degrees: 180/π = 57.3 ≫ √57.3 ≈ 7.6 ≫ 1 (the geometric middle).
+RATE_RATIO_LIMIT = math.sqrt(180.0 / math.pi)
+
+
+def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rates: bool = True) -> None:
+    """The unit checks of :func:`validate_frame` on a sample table (``experiment``, ``time`` and
+    the signals): magnitudes, house tilt and boom angle in radians, every experiment's pressures
+    and torques against the others' (:func:`excavator_payload.data.units.check_experiment_units`),
+    pressures in Pa, and (``rates``) rates against their angles. Also run on the samples decoded
+    from a CAN log (:class:`SampleWatch`).
+    """
+    for c in sensors.signals:
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = np.where(np.isfinite(values), values, np.nan)
+        if np.any(values > sensors.plausible_abs[c]):
+            top = int(np.nanargmax(values))
+            unit = sensors.units[c]
+            # a pressure of 5e8 Pa was asked whether it was in degrees
+            hint = ("are the units degrees instead of SI?" if unit.startswith("rad")
+                    else f"a glitch, or not in {unit}?")
+            raise DatasetError(
+                f"{source}: column '{c}' reaches {values[top]:.4g} (experiment "
+                f"{frame['experiment'].iloc[top]:.0f}), implausible in {unit} ({hint}); "
+                f"the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
+            )
+    # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
+    for c in ("house_pitch", "house_roll"):
+        if c not in sensors.signals:
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() > HOUSE_TILT_LIMIT:
+            raise DatasetError(f"{source}: column '{c}' reaches {values.max():.4g}, implausible in rad "
+                               f"(more than 35° of tilt; are the units degrees instead of radians?)")
+    # One experiment (or one signal of it) in another unit among others in SI passes the file-wide
+    # checks (-8960 kg 'ok'): each experiment is judged against the others.
+    check_experiment_units(frame, sensors, source)
+    # Pressures in bar, kPa, MPa or psi pass the magnitude check above and were weighed as Pa
+    # without a word (-6200 kg 'ok' for a 1900 kg payload): the boom cylinder of a working arm
+    # holds the arm's weight, tens of bar, and no cylinder line stays below 1 bar for a whole file.
+    for c in sensors.signals:
+        if sensors.units[c] != "Pa":
+            continue
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]
+        if values.size and values.max() < MIN_PEAK_PRESSURE:
+            raise DatasetError(f"{source}: column '{c}' never exceeds {values.max():.4g} Pa (1 bar = "
+                               f"1e5 Pa); are the pressures in bar, kPa, MPa or psi instead of Pa?")
+    # Angles in degrees are the most likely unit mistake: a boom never swings ±3 rad.
+    for c in ("boom_angle",):
+        values = np.abs(frame[c].to_numpy(dtype=float))
+        values = values[np.isfinite(values)]  # a NaN or inf is a bad sample, not a unit
+        if values.size and values.max() > 2 * np.pi:
+            raise DatasetError(f"{source}: column '{c}' exceeds 2π; angles must be in radians")
+    if rates:
+        _check_rates(frame, sensors, source)
+
+
+def _rate_ratios(frame: pd.DataFrame, signal: str, rate: str, period: float,
+                 min_change: float) -> tuple[pd.Series, float]:
+    """How many times its signal's change each rate's integral is, per experiment.
+
+    Each experiment is cut into windows of :data:`RATE_WINDOW`; over a window where the signal
+    changes by more than ``min_change`` (a moving one) and which has no NaN and no time gap,
+    the ratio is (integral of the rate, trapezoidal) / (last - first value of the signal): 1 if
+    both are in the same unit, whatever the noise, offsets or an IMU lag (both lag alike).
+    Returns the median ratio of every experiment with :data:`RATE_MIN_WINDOWS` moving windows
+    or more, and the median of all moving windows of the file (NaN if fewer): a still
+    experiment cannot be judged and is not.
+    """
+    width = max(2, int(round(RATE_WINDOW / period)))
+    codes = pd.factorize(frame["experiment"].to_numpy())[0]
+    t = frame["time"].to_numpy(dtype=float)
+    x = frame[signal].to_numpy(dtype=float)
+    r = frame[rate].to_numpy(dtype=float)
+    window = pd.Series(codes).groupby(codes).cumcount().to_numpy() // width
+    first = np.ones(len(t), dtype=bool)
+    first[1:] = (codes[1:] != codes[:-1]) | (window[1:] != window[:-1])
+    step = np.zeros(len(t))
+    step[1:] = np.diff(t)
+    increment = np.zeros(len(t))
+    increment[1:] = 0.5 * (r[1:] + r[:-1]) * step[1:]
+    increment[first] = 0.0
+    bad = ~np.isfinite(x) | ~np.isfinite(r) | (~first & ((step > 2.5 * period) | ~np.isfinite(increment)))
+    windows = pd.DataFrame({"e": codes, "w": window, "i": np.where(bad, 0.0, increment), "x": x,
+                            "bad": bad}).groupby(["e", "w"], sort=False).agg(
+        integral=("i", "sum"), x0=("x", "first"), x1=("x", "last"), bad=("bad", "any"), n=("x", "size"))
+    change = windows["x1"] - windows["x0"]
+    moving = ~windows["bad"] & (windows["n"] >= 2) & (change.abs() > min_change)
+    ratio = (windows["integral"] / change)[moving]
+    by_experiment = ratio.groupby(level="e")
+    judged = by_experiment.median()[by_experiment.size() >= RATE_MIN_WINDOWS]
+    judged.index = pd.unique(frame["experiment"].to_numpy())[judged.index.to_numpy()]
+    pooled = float(ratio.median()) if ratio.size >= RATE_MIN_WINDOWS else math.nan
+    return judged, pooled
+
+
+def _check_rates(frame: pd.DataFrame, sensors: SensorSet, source: str) -> None:
+    """Refuse a rate in degrees (°/s, °/s²) whose signal is in radians.
+
+    Rates in °/s pass every magnitude check (an arm turns at < 3 rad/s, 170 °/s) and were
+    weighed as rad/s without a word (-3700 kg 'ok' for a 1890 kg payload).
+    """
+    for signal, rate, unit, min_change in sensors.rate_pairs:
+        judged, pooled = _rate_ratios(frame, signal, rate, sensors.sample_period, min_change)
+        worst = judged[judged.abs() > RATE_RATIO_LIMIT]
+        where = f" (experiment {worst.index[0]})" if len(worst) else ""
+        ratio = float(worst.iloc[0]) if len(worst) else pooled
+        if np.isfinite(ratio) and abs(ratio) > RATE_RATIO_LIMIT:
+            degrees = unit.replace("rad", "°")
+            raise DatasetError(f"{source}: column '{rate}' is {ratio:.3g} times the rate of change of "
+                               f"'{signal}'{where}; is it in {degrees} instead of {unit}?")
+
+
 #: Segments of a CAN log whose samples :class:`SampleWatch` keeps for the rate and balance checks
 #: (the peaks of every segment are kept).
 WATCH_SEGMENTS = 50
@@ -176,8 +301,6 @@ class SampleWatch:
 
     def check(self, source: str) -> None:
         """Judge what was seen; :class:`DatasetError` (one line) on a unit or wiring mistake."""
-        from excavator_payload.data.io import check_signal_units
-
         what = f"{source} (decoded through the signal map)"
         if self._peaks:
             peaks = pd.DataFrame.from_dict(self._peaks, orient="index", columns=self._peak_columns)

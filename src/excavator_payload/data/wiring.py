@@ -70,7 +70,9 @@ def check_wiring(frame: pd.DataFrame, sensors, machine, source: str) -> None:
     DatasetError
         One line naming the experiment, the cylinder and the two columns.
     """
-    if sensors.name != "machine" or getattr(machine, "kind", None) != "hydraulic":
+    from excavator_payload.model.hydraulic_machine import HydraulicMachine
+
+    if not sensors.cylinder_chambers or not isinstance(machine, HydraulicMachine):
         return
     table = balance_agreement(frame, sensors, machine)
     swapped = table[table["agreement"] < AGREEMENT_LIMIT]

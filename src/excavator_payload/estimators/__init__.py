@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import importlib
 
+# Names are imported when first used (PEP 562): a command module of this package must not pay
+# for the estimators' base (pandas) at every start.
 __all__ = ["Estimator", "Option", "Status", "StepResult", "create_estimator", "estimator_class",
            "estimator_names", "load_estimator", "register"]
 

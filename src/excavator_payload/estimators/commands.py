@@ -6,19 +6,28 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.table import Table
 from rich.text import Text
+from typer.core import TyperCommand
 
-from excavator_payload.data.io import check_output_path, read_dataset, write_estimates
 from excavator_payload.errors import EstimatorError
-from excavator_payload.estimators.base import (
-    ESTIMATOR_MODULES,
-    create_estimator,
-    estimator_class,
-    load_estimator,
-)
+
+# The estimators, pandas and the data layer are imported by the commands that use them, not
+# here: every command (and --help) would pay their seconds at start.
 
 console = Console()
+
+
+class _TrainCommand(TyperCommand):
+    """``train``: the estimator names in its help are read from the registry when the help is
+    shown, not when the command is registered."""
+
+    def format_help(self, ctx, formatter) -> None:
+        from excavator_payload.estimators.base import ESTIMATOR_MODULES
+
+        for param in self.params:
+            if param.name == "name":
+                param.help = f"Estimator: {', '.join(ESTIMATOR_MODULES)}."
+        super().format_help(ctx, formatter)
 
 
 def parse_extra_options(args: list[str], name: str) -> dict[str, str]:
@@ -70,10 +79,10 @@ def status_breakdown(status) -> str:
 def register(app: typer.Typer) -> None:
     """Add ``train``, ``estimate`` and ``estimators`` to ``app``."""
 
-    @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+    @app.command(cls=_TrainCommand, context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
     def train(
         ctx: typer.Context,
-        name: str = typer.Argument(..., help=f"Estimator: {', '.join(ESTIMATOR_MODULES)}."),
+        name: str = typer.Argument(..., help="Estimator (listed by `excavator-payload estimators`)."),
         data: Path = typer.Option(..., "--data", help="Training / calibration dataset (Parquet).",
                                   metavar="FILE"),
         out: Path = typer.Option(..., "--out", help="Folder to save the fitted estimator in.",
@@ -86,6 +95,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Fit or train an estimator and save it. Estimator options follow as --name value
         (see `excavator-payload estimators NAME`)."""
+        from excavator_payload.data.io import check_output_path, read_dataset
+        from excavator_payload.estimators.base import create_estimator, estimator_class
+
         klass = estimator_class(name)
         options = parse_extra_options(list(ctx.args), name)
         # Everything that can be wrong is checked before minutes of training.
@@ -129,7 +141,9 @@ def register(app: typer.Typer) -> None:
         """Estimate the payload at every sample: writes experiment, time, payload_estimate, status
         and sigma (one-sigma uncertainty, kg). A big dataset (more than ~10 s of work) is split by
         experiment over worker processes (or --scheduler's cluster); a small one is estimated here."""
-        from excavator_payload.evaluation.commands import estimate_in_chunks, progress_bar
+        from excavator_payload.data.io import check_output_path, read_dataset, write_estimates
+        from excavator_payload.estimators.base import load_estimator
+        from excavator_payload.estimators.running import estimate_in_chunks, progress_bar
         from excavator_payload.execution import Execution
 
         if workers < 0:
@@ -154,6 +168,10 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def estimators(name: str = typer.Argument(None, help="Show the options of this estimator.")) -> None:
         """List the estimators, or the options of one."""
+        from rich.table import Table
+
+        from excavator_payload.estimators.base import ESTIMATOR_MODULES, estimator_class
+
         if name is None:
             for n in ESTIMATOR_MODULES:
                 console.print(n)

@@ -2,242 +2,20 @@
 
 from __future__ import annotations
 
-import json
 import math
-import os
-import time
 from pathlib import Path
-from typing import Sequence
 
-import pandas as pd
 import typer
-from rich import box
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.table import Table
-from rich.markup import escape
 from rich.text import Text
 
-from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.io import check_output_path, read_dataset, read_estimates, read_metadata
 from excavator_payload.errors import DatasetError, EstimatorError
-from excavator_payload.evaluation.metrics import (
-    DISCARD_DEFAULT_HELP,
-    Evaluation,
-    bound_window,
-    dataset_bound,
-    display_label,
-    evaluate_estimates,
-    default_discard,
-    to_jsonable,
-)
+from excavator_payload.platforms.registry import DISCARD_DEFAULT_HELP
+
+# The work (pandas, the data layer, the estimators) is imported by each command when it runs:
+# every command, and --help, would pay its seconds at start otherwise.
 
 console = Console()
-
-
-def progress_bar(console_: Console | None = None) -> Progress:
-    """The progress bar used by this role's commands."""
-    return Progress(TextColumn("[progress.description]{task.description}"), BarColumn(),
-                    MofNCompleteColumn(), TimeElapsedColumn(), console=console_ or console,
-                    transient=False)
-
-
-#: A dataset goes to the execution layer only if estimating the rest of it here would take
-#: longer than this (extrapolated from its first chunk, which is always estimated here): starting
-#: local workers costs 1–3 s and each worker then imports the estimators (torch: 1–2 s) and
-#: rebuilds the estimator's compiled functions, so two workers gain nothing on less. Measured on
-#: the demo's 200 test experiments (2 cores, loaded): UKF ~5 s, the EKFs ~1 s, the others less,
-#: so a demo-sized test set stays here and 1000+ experiments of the UKF go to the workers.
-PARALLEL_MIN_SECONDS = 10.0
-#: At most this many tasks per dataset on a cluster (bigger chunks for bigger datasets).
-MAX_ESTIMATE_TASKS = 200
-
-
-def estimate_task(estimator, dataset: Dataset) -> pd.DataFrame:
-    """One chunk of experiments estimated on a worker (the unit of work of the execution layer)."""
-    return estimator.estimate(dataset)
-
-
-def estimate_in_chunks(estimator, dataset: Dataset, progress: Progress | None = None,
-                       description: str = "estimating", chunk: int = 10, execution=None) -> pd.DataFrame:
-    """``estimator.estimate(dataset)`` a few experiments at a time, advancing a progress bar.
-
-    Estimators reset at every experiment, so chunking gives the same estimates. With an
-    ``execution`` (:class:`~excavator_payload.execution.Execution`), when the first chunk shows
-    that the rest would take more than :data:`PARALLEL_MIN_SECONDS` here, the rest is split by
-    experiment into chunks that run on its workers (the estimator is sent once); the estimates
-    are the same, in the same order.
-    """
-    ids = list(dataset.experiment_ids)
-    task = (progress.add_task(escape(description), total=len(ids))  # labels hold paths: not markup
-            if progress is not None else None)
-    parts = [ids[start:start + chunk] for start in range(0, len(ids), chunk)]
-    frames = []
-    for index, part in enumerate(parts):
-        start = time.perf_counter()
-        frames.append(estimator.estimate(dataset.subset(part) if len(ids) > chunk else dataset))
-        if progress is not None:
-            progress.advance(task, len(part))
-        rest = ids[sum(len(p) for p in parts[:index + 1]):]
-        if index == 0 and execution is not None and rest \
-                and (time.perf_counter() - start) * len(rest) / len(part) > PARALLEL_MIN_SECONDS:
-            frames.extend(_estimate_on_layer(estimator, dataset, rest, execution, progress, task, chunk))
-            break
-    return pd.concat(frames, ignore_index=True)
-
-
-def _estimate_on_layer(estimator, dataset: Dataset, ids: list, execution, progress: Progress | None, task,
-                       chunk: int) -> list[pd.DataFrame]:
-    """Experiments ``ids`` of ``dataset`` estimated in chunks through ``execution``, in order."""
-    from excavator_payload.execution import Shared
-
-    chunk = max(chunk, math.ceil(len(ids) / MAX_ESTIMATE_TASKS))
-    parts = [ids[start:start + chunk] for start in range(0, len(ids), chunk)]
-
-    def advance(index, _frame):
-        if progress is not None:
-            progress.advance(task, len(parts[index]))
-
-    # The caller's progress bar is advanced here: the layer's own bar stays off (one live display).
-    shared = Shared(estimator)
-    return execution.map(estimate_task, [(shared, dataset.subset(part)) for part in parts],
-                         on_done=advance, progress=False)
-
-
-def _model_options(model_dir: Path) -> tuple[str | None, dict, str | None]:
-    """Estimator name, options and machine name from a saved model's ``estimator.json``."""
-    try:
-        cfg = json.loads((model_dir / "estimator.json").read_text())
-        return cfg.get("estimator"), dict(cfg.get("options") or {}), (cfg.get("machine") or {}).get("name")
-    except (OSError, ValueError, AttributeError):
-        return None, {}, None
-
-
-def _unique(label: str, taken: set) -> str:
-    out, k = label, 2
-    while out in taken:
-        out, k = f"{label} #{k}", k + 1
-    taken.add(out)
-    return out
-
-
-def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: Sequence[Path] = (),
-                     discard: int | None = None, progress: Progress | None = None,
-                     execution=None) -> list[Evaluation]:
-    """Evaluate saved models (run on ``dataset``, through ``execution`` if it is big: see
-    :func:`estimate_in_chunks`) and estimates files, in the order given; ``discard`` defaults to
-    :func:`~excavator_payload.evaluation.metrics.default_discard` of the dataset's sensor set."""
-    from excavator_payload.estimators.base import load_estimator
-
-    if not models and not estimates:
-        raise EstimatorError("nothing to evaluate: give --model DIR and/or --estimates FILE")
-    if not dataset.has_payload:
-        raise DatasetError("the dataset has no 'payload' column (a field log?): judging needs the "
-                           "true payloads")
-    if discard is None:
-        discard = default_discard(dataset.sensor_set)
-    longest = int(dataset.frame.groupby("experiment", sort=False).size().max())
-    if discard >= longest:
-        # the table said '0 %' within 1 % of experiments none of which was judged
-        raise DatasetError(f"--discard {discard} leaves no sample to judge: the longest experiment has "
-                           f"{longest} samples")
-    evaluations: list[Evaluation] = []
-    bounds: dict = {}
-    taken: set = set()
-
-    machine_bound = None
-    if dataset.sensor_set.name == "machine":  # issue 12: the bound from a calibrated model given
-        from excavator_payload.evaluation.crb_machine import dataset_machine_bound
-
-        for model in models:
-            machine_bound = dataset_machine_bound(dataset, load_estimator(model))
-            if machine_bound is not None:
-                break
-
-    def bound_for(window):
-        if machine_bound is not None:  # the machine set's bound is of the whole history
-            return machine_bound
-        if window not in bounds:
-            bounds[window] = dataset_bound(dataset, window)
-        return bounds[window]
-
-    for model in models:
-        est = load_estimator(model)
-        name, options, machine = est.name, est.options, est.machine.name if est.machine else None
-        label = _unique(display_label(name, options, machine), taken)
-        frame = estimate_in_chunks(est, dataset, progress, f"{label}: estimating", execution=execution)
-        window = bound_window(name, options)
-        evaluations.append(evaluate_estimates(dataset, frame, label=label, discard=discard, window=window,
-                                              bound=bound_for(window),
-                                              info={"estimator": name, "options": options,
-                                                    "machine": machine, "model": str(model)}))
-    fingerprint = dataset.fingerprint() if estimates else None
-    for path in estimates:
-        frame = read_estimates(path)
-        meta = read_metadata(path)
-        made_on = meta.get("data_fingerprint")
-        if made_on is not None and made_on != fingerprint:
-            raise DatasetError(f"'{path}' holds estimates made on another dataset "
-                               f"({meta.get('data', 'unknown file')}), not on this one")
-        name, options, machine = meta.get("estimator"), {}, None
-        if meta.get("model"):
-            n2, options, machine = _model_options(Path(meta["model"]))
-            name = name or n2
-        label = _unique(display_label(name, options, machine) if name else Path(path).stem, taken)
-        window = bound_window(name, options)
-        evaluations.append(evaluate_estimates(dataset, frame, label=label, discard=discard, window=window,
-                                              bound=bound_for(window),
-                                              info={"estimator": name, "options": options,
-                                                    "machine": machine, "estimates": str(path)}))
-    return evaluations
-
-
-def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accuracy",
-                  width: int | None = None) -> Table:
-    """A rich table of the headline figures.
-
-    On a terminal narrower than 110 columns only the essential columns are shown (numbers are
-    never cut short); the full set is in ``--json`` and the report.
-    """
-    width = Console().width if width is None else width
-    compact = width < 110
-    columns = [("estimator", "estimator"), ("MAX", "mean_max"), ("±", "std_max"), ("RMS", "mean_rms"),
-               ("±", "std_rms"), ("MAX%", "mean_max_pct"), ("p95", "mean_p95"),
-               ("≤1%", "meets_requirement_share"), ("conv", "mean_convergence_time"),
-               ("eff", "efficiency"), ("est", "estimated_share")]
-    if compact:
-        columns = [c for c in columns if c[1] in ("estimator", "mean_max", "std_max", "mean_rms",
-                                                  "meets_requirement_share", "efficiency")]
-    legend = {"MAX": "MAX, RMS: mean over experiments (kg), ± their std",
-              "MAX%": "MAX%: of the rated payload", "p95": "p95: of |error| (kg)",
-              "≤1%": "≤1%: share of experiments with MAX ≤ 1 % of rated",
-              "conv": "conv: convergence time (s)", "eff": "eff: RMS of error/Cramér–Rao bound",
-              "est": "est: judged samples with an estimate"}
-    caption = "; ".join(legend[c] for c, _ in columns if c in legend)
-    table = Table(title=Text(title), box=box.SIMPLE_HEAD, pad_edge=False, caption=caption)
-    for col, _ in columns:
-        table.add_column(col, justify="left" if col == "estimator" else "right", no_wrap=True)
-
-    formats = {"mean_max_pct": "{:.2g}", "meets_requirement_share": "{:.0%}",
-               "mean_convergence_time": "{:.2f}", "estimated_share": "{:.0%}"}
-
-    def f(x, fmt="{:.3g}"):
-        return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
-
-    for ev in evaluations:
-        s = ev.summary
-        table.add_row(*[Text(ev.label) if key == "estimator" else f(s.get(key), formats.get(key, "{:.3g}"))
-                        for _, key in columns])
-    return table
-
-
-def write_json(path: Path, payload: dict) -> None:
-    """Write ``payload`` as indented JSON (NaN as null) to ``path``, creating its folder; written
-    to a private temporary file and renamed, so a reader never sees half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
-    tmp.write_text(json.dumps(to_jsonable(payload), indent=2))
-    tmp.replace(path)
 
 
 def register(app: typer.Typer) -> None:
@@ -262,6 +40,11 @@ def register(app: typer.Typer) -> None:
                                            "$EXCAVATOR_PAYLOAD_SCHEDULER, else local worker processes)."),
     ) -> None:
         """Judge estimators on a dataset: MAX/RMS errors (thesis Tables 7.1, 7.2), percentiles, convergence time, share meeting the 1 % requirement, efficiency against the Cramér–Rao bound."""  # noqa: E501
+        from excavator_payload.data.io import check_output_path, read_dataset
+        from excavator_payload.estimators.running import progress_bar
+        from excavator_payload.evaluation.metrics import default_discard
+        from excavator_payload.evaluation.sources import evaluate_sources, write_json
+        from excavator_payload.evaluation.tables import summary_table
         from excavator_payload.execution import Execution
 
         if workers < 0:
@@ -318,7 +101,14 @@ def register(app: typer.Typer) -> None:
                                            "$EXCAVATOR_PAYLOAD_SCHEDULER, else local worker processes)."),
     ) -> None:
         """Write a self-contained HTML report (and Markdown) with tables and figures."""
+        import pandas as pd
+
+        from excavator_payload.data.io import check_output_path, read_dataset
+        from excavator_payload.estimators.running import progress_bar
+        from excavator_payload.evaluation.metrics import default_discard
         from excavator_payload.evaluation.report import build_report
+        from excavator_payload.evaluation.sources import evaluate_sources
+        from excavator_payload.evaluation.tables import summary_table
         from excavator_payload.execution import Execution
 
         if workers < 0:
@@ -396,6 +186,7 @@ def register(app: typer.Typer) -> None:
 
             run_machine_demo(out, machine=machine, scale=scale, seed=seed, console=console)
             return
+        from excavator_payload.data.io import check_output_path
         from excavator_payload.evaluation.demo import run_demo
 
         check_output_path(out, kind="folder")

@@ -19,7 +19,7 @@ import numpy as np
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.model.machine import Machine, load_machine
-from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
+from excavator_payload.platforms.thesis import THESIS, NoisePreset, get_noise_preset
 
 
 def sample_information(dataset: Dataset, machine: Machine | str | None = None,
@@ -32,7 +32,7 @@ def sample_information(dataset: Dataset, machine: Machine | str | None = None,
     machine = load_machine(machine) if machine is not None else dataset.machine()
     if machine is None:
         raise ValueError("the dataset names no machine; pass one")
-    noise = get_noise_preset(noise if noise is not None else dataset.meta.get("noise", "thesis"))
+    noise = get_noise_preset(noise if noise is not None else dataset.meta.get("noise", THESIS.default_noise))
     prefix = "true_" if dataset.has_truth else ""
     f = dataset.frame
     q = f[[prefix + "boom_angle", prefix + "dipper_angle"]].to_numpy(float)

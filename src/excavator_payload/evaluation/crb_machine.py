@@ -42,6 +42,7 @@ import numpy as np
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.classical import calibrated_machine as cm
+from excavator_payload.platforms import HYDRAULIC
 
 
 def nuisance_indices() -> np.ndarray:
@@ -77,7 +78,7 @@ def machine_bound(dataset: Dataset, calibration: "cm.MachineCalibration",
         variance (breakaway)²/3 on every slow sample, which counts a long standstill as many
         independent measurements and so overstates what standing still tells.
     """
-    if dataset.sensor_set.name != "machine":
+    if not HYDRAULIC.carries(dataset):
         raise EstimatorError("the machine bound needs machine-sensor-set data")
     terms = _sample_terms(dataset, calibration, pressure_std, half_window, stiction_episodes)
     out = np.full(len(dataset.frame), np.nan)
@@ -142,7 +143,7 @@ def procedure_bound(dataset: Dataset, calibration: "cm.MachineCalibration", cali
         without true ones.
     """
     for name, d in (("test", dataset), ("calibration", calibration_data), ("zero", zero_data)):
-        if d is not None and d.sensor_set.name != "machine":
+        if d is not None and not HYDRAULIC.carries(d):
             raise EstimatorError(f"the procedure bound needs machine-sensor-set {name} data")
     n_delta, n_off, n_imu = len(cm.CALIBRATED_PARAMETERS), len(cm.OFFSET_SIGNALS), len(cm.IMU_PARAMETERS)
     n_theta = n_delta + n_imu
@@ -195,11 +196,9 @@ def _sample_terms(dataset: Dataset, calibration: "cm.MachineCalibration", pressu
     :func:`_episode_information` when ``stiction_episodes``), the standstill mask, the breakaway
     torques and the experiment numbers of the rows.
     """
-    from excavator_payload.simulation.machine_sensors import get_machine_noise
-
     if pressure_std is None:
         name = dataset.meta.get("noise")
-        pressure_std = get_machine_noise(name).pressure_noise if name else calibration.pressure_std
+        pressure_std = HYDRAULIC.noise(name).pressure_noise if name else calibration.pressure_std
     f = dataset.frame
     signals = list(cm.SIGNALS)
     if dataset.has_truth and all("true_" + s in f for s in signals):
@@ -288,6 +287,6 @@ def dataset_machine_bound(dataset: Dataset, estimator) -> np.ndarray | None:
     """The bound for ``dataset`` given a fitted model; ``None`` when the model has no machine
     calibration (only ``calibrated`` fitted on the machine sensor set carries one)."""
     cal = getattr(estimator, "calibration", None)
-    if cal is None or dataset.sensor_set.name != "machine" or "payload" not in dataset.frame:
+    if cal is None or not HYDRAULIC.carries(dataset) or "payload" not in dataset.frame:
         return None
     return machine_bound(dataset, cal, half_window=estimator.options.get("half_window", 5))

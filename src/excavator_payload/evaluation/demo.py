@@ -281,7 +281,7 @@ class Demo:
 
     def estimate(self, entry: Entry, est, folder: Path, test: Dataset, test_key: str) -> pd.DataFrame:
         """Estimates on the test set (cached next to the model's key)."""
-        from excavator_payload.evaluation.commands import estimate_in_chunks, progress_bar
+        from excavator_payload.estimators.running import estimate_in_chunks, progress_bar
 
         path = self.out / "estimates" / f"{folder.name}-{test_key}.parquet"
         if path.is_file():
@@ -361,7 +361,7 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
              motion: str = "nmpc", seed: int = 2024, only: Sequence[str] | None = None,
              console: Console | None = None) -> dict:
     """Run the demo; returns ``{"report": Path, "evaluations": [...], "failures": {...}}``."""
-    from excavator_payload.evaluation.commands import summary_table
+    from excavator_payload.evaluation.tables import summary_table
     from excavator_payload.evaluation.report import build_report, choose_experiments
 
     console = console or Console()

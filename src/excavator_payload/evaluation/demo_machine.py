@@ -27,6 +27,7 @@ import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.estimators.traits import ESTIMATOR_TRAITS
+from excavator_payload.platforms import HYDRAULIC
 
 SESSION_CALIBRATION, SESSION_WORK = 1, 2
 #: Samples not judged at the start of each test experiment: the first second at 100 Hz.
@@ -161,7 +162,7 @@ def machine_estimators() -> list[str]:
     """Estimators whose traits declare the machine sensor set, in registry order."""
     from excavator_payload.estimators.traits import estimators_on
 
-    return list(estimators_on("machine"))
+    return list(estimators_on(HYDRAULIC.sensors.name))
 
 
 #: What each kind of estimator learns from, besides the calibration motions: the quasi-static map
@@ -330,7 +331,7 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
 
     # the machine resolved once, here; everything below gets the object
     machine = load_machine(machine)
-    if getattr(machine, "kind", None) != "hydraulic":
+    if not HYDRAULIC.owns(machine):
         raise ExcavatorPayloadError(f"demo --machine needs a hydraulic machine, '{machine.name}' is not one")
     # the technician's roughly right file: this machine with every parameter 3 % off (for the
     # preset exactly cat345c-hydraulic-3pct)

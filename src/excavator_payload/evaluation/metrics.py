@@ -41,34 +41,29 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import ESTIMATE_COLUMNS, MACHINE_SENSORS, THESIS_SENSORS
 from excavator_payload.errors import DatasetError
 from excavator_payload.estimators.traits import ESTIMATOR_TRAITS
+from excavator_payload.platforms import THESIS, platform_for
+# What ``--discard`` defaults to, per sensor set (for ``--help``): the platforms'.
+from excavator_payload.platforms.registry import DISCARD_DEFAULT_HELP  # noqa: F401
+# Seconds not judged at the start of every machine-set experiment: the hydraulic platform's.
+from excavator_payload.platforms.hydraulic import DEFAULT_DISCARD_SECONDS  # noqa: F401
 
 #: Samples discarded at the start of every experiment of the thesis sensor set (thesis Table 7.1:
-#: "the first 81 steps", at 20 Hz).
-DEFAULT_DISCARD = 81
+#: "the first 81 steps", at 20 Hz): the thesis platform's default discard.
+DEFAULT_DISCARD = THESIS.default_discard()
 #: Rated payload of the thesis machine (kg), used when the dataset names no machine.
 DEFAULT_RATED_PAYLOAD = 5000.0
 #: Industry requirement: the error must stay within 1 % of the rated payload.
 INDUSTRY_TOLERANCE = 0.01
 #: Percentiles of |error| reported per experiment (appendix A.3 ``CI``).
 PERCENTILES = (90, 95, 99)
-#: Seconds not judged at the start of every experiment of any other sensor set (the machine set:
-#: its first second, 100 samples at 100 Hz, as :mod:`excavator_payload.evaluation.demo_machine`).
-DEFAULT_DISCARD_SECONDS = 1.0
 
 
 def default_discard(sensor_set) -> int:
-    """Samples not judged at the start of every experiment unless told: :data:`DEFAULT_DISCARD` on
-    the thesis sensor set, the first :data:`DEFAULT_DISCARD_SECONDS` on any other."""
-    if sensor_set.name == THESIS_SENSORS.name:
-        return DEFAULT_DISCARD
-    return int(round(DEFAULT_DISCARD_SECONDS * sensor_set.sample_rate))
+    """Samples not judged at the start of every experiment unless told: its platform's default
+    discard (:data:`DEFAULT_DISCARD` on the thesis sensor set, the first
+    :data:`DEFAULT_DISCARD_SECONDS` on the machine set)."""
+    return platform_for(sensor_set).default_discard()
 
-
-#: What ``--discard`` defaults to, per sensor set (for ``--help``).
-DISCARD_DEFAULT_HELP = (f"default: {default_discard(THESIS_SENSORS)} on the thesis sensor set, as in thesis "
-                        f"Table 7.1 at {THESIS_SENSORS.sample_rate:g} Hz; the first {DEFAULT_DISCARD_SECONDS:g} s, "
-                        f"{default_discard(MACHINE_SENSORS)} samples at {MACHINE_SENSORS.sample_rate:g} Hz, "
-                        "on the machine set")
 
 #: Summary figures that are reported in kg and in % of the rated payload.
 _KG_SUMMARY = ("mean_max", "std_max", "mean_rms", "std_rms")
@@ -412,7 +407,7 @@ def dataset_bound(dataset: Dataset, window: int | None = None) -> np.ndarray | N
     """Cramér–Rao bound of every row, or ``None`` when the dataset lacks machine or noise info."""
     from excavator_payload.evaluation.crb import cramer_rao_bound
 
-    if dataset.machine() is None or dataset.sensor_set.name != "thesis":
+    if dataset.machine() is None or not THESIS.carries(dataset):
         return None  # the machine sensor set's bound is issue 12's
     try:
         return cramer_rao_bound(dataset, window=window)

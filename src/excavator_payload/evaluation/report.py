@@ -33,6 +33,7 @@ import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.evaluation import figures
+from excavator_payload.platforms import HYDRAULIC
 from excavator_payload.evaluation.metrics import (
     INDUSTRY_TOLERANCE,
     THESIS_TABLE,
@@ -246,7 +247,7 @@ def build_report(out_dir: str | Path, dataset: Dataset, evaluations: Sequence[Ev
                                  "nets, the delay window for time-delay nets).",
                                  images=[(crb_img, "error against Cramér–Rao bound")]))
     for k, exp in enumerate(experiments, start=1):
-        if dataset.sensor_set.name == "machine":  # pressures and IMUs, not joint torques
+        if HYDRAULIC.carries(dataset):  # pressures and IMUs, not joint torques
             imgs = [(fig(figures.machine_measurements(dataset, exp), f"fig_exp{exp}_signals.png"),
                      "angles, slew, cylinder pressures and house inclination")]
         else:

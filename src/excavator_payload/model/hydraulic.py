@@ -62,7 +62,10 @@ from functools import lru_cache
 import casadi as ca
 import numpy as np
 
-from excavator_payload.model.hydraulic_machine import HydraulicMachine
+from excavator_payload.errors import MachineError
+
+# HydraulicMachine (model/hydraulic_machine.py) is named in annotations only: that module checks a
+# machine file's geometry with this model, so this one does not import it back.
 
 LINKS = ("boom", "dipper", "bucket")
 CYLINDERS = ("boom_cylinder", "dipper_cylinder", "bucket_cylinder")
@@ -424,21 +427,16 @@ class HydraulicArmModel:
     Parameters
     ----------
     machine : HydraulicMachine
-        The machine (a preset name or TOML file is loaded and must be a hydraulic machine).
+        The machine, loaded (:func:`excavator_payload.model.machine.load_machine`: names are
+        resolved at the edge, not here).
     compiled : bool
         Use the C-compiled ``motion_signals`` and ``cylinder_pressures`` functions (see
         :func:`compiled_function`) instead of CasADi's interpreted ones.
     """
 
     def __init__(self, machine: HydraulicMachine, compiled: bool = True):
-        if not isinstance(machine, HydraulicMachine):
-            from excavator_payload.model.machine import load_machine
-
-            machine = load_machine(machine)
-            if not isinstance(machine, HydraulicMachine):
-                from excavator_payload.errors import MachineError
-
-                raise MachineError(f"machine '{machine.name}' is not a hydraulic machine")
+        if not hasattr(machine, "cylinders"):  # a 2-link arm, or a name not loaded
+            raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
         self.machine = machine
         self.p = parameter_vector(machine)
         self._compiled = compiled

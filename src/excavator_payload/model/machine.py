@@ -170,7 +170,9 @@ def load_machine(name_or_path: str | Path | Machine) -> Machine:
     MachineError
         With a message that names the missing or bad field.
     """
-    if isinstance(name_or_path, Machine) or getattr(name_or_path, "kind", None) == "hydraulic":
+    from excavator_payload.model import hydraulic_machine  # issue 11: a second machine kind
+
+    if isinstance(name_or_path, (Machine, hydraulic_machine.HydraulicMachine)):
         return name_or_path
     text_name = str(name_or_path)
     path = Path(text_name)
@@ -191,11 +193,30 @@ def load_machine(name_or_path: str | Path | Machine) -> Machine:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise MachineError(f"{source} is not valid TOML: {exc}") from None
-    from excavator_payload.model import hydraulic_machine  # issue 11: a second machine kind
-
     if hydraulic_machine.is_hydraulic_data(data):
         return hydraulic_machine.parse_hydraulic(data, source, default_name=path.stem)
     return _machine_from_toml(data, source, default_name=path.stem)
+
+
+def machine_from_dict(data: dict):
+    """The machine of the nested dictionaries of a machine's ``to_dict`` (a dataset's or a saved
+    model's metadata): a :class:`Machine` or, by its tables, a hydraulic machine.
+
+    Parameters
+    ----------
+    data : dict
+        What ``to_dict`` of either kind of machine gave.
+
+    Raises
+    ------
+    MachineError
+        Naming the bad field.
+    """
+    from excavator_payload.model import hydraulic_machine
+
+    if hydraulic_machine.is_hydraulic_data(data):
+        return hydraulic_machine.HydraulicMachine.from_dict(data)
+    return Machine.from_dict(data)
 
 
 def _machine_from_toml(data: dict, source: str, default_name: str) -> Machine:

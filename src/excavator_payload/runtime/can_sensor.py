@@ -3,7 +3,7 @@
 :class:`PayloadSensor` wraps any fitted :class:`~excavator_payload.estimators.base.Estimator`.
 Its sensor set says which signals it needs; a :class:`~excavator_payload.runtime.dbc.SignalCodec`
 says in which frames they arrive. The messages may come at their own rates (pressures at 100 Hz,
-an inclinometer at 10 Hz) with jitter: a :class:`~excavator_payload.runtime.assembly.SampleAssembler`
+an inclinometer at 10 Hz) with jitter: a :class:`~excavator_payload.data.assembly.SampleAssembler`
 holds each signal with its timestamp and makes one sample per model period from the latest
 values, on the model's clock (why the latest and not interpolated: see that module). A signal
 older than its message's period × ``stale_tolerance`` goes to the estimator as NaN and the
@@ -43,7 +43,7 @@ import numpy as np
 
 from excavator_payload.estimators.base import Estimator
 from excavator_payload.runtime import dbc
-from excavator_payload.runtime.assembly import STALE_TOLERANCE, Sample, SampleAssembler
+from excavator_payload.data.assembly import STALE_TOLERANCE, Sample, SampleAssembler
 from excavator_payload.runtime.dbc import SignalCodec
 
 log = logging.getLogger(__name__)
@@ -153,7 +153,7 @@ class PayloadSensor:
         Seconds without a sample after which the status is ``stale`` (default 3 sample periods).
     stale_tolerance : float, optional
         A signal older than its message's period times this is stale (default
-        :data:`~excavator_payload.runtime.assembly.STALE_TOLERANCE`).
+        :data:`~excavator_payload.data.assembly.STALE_TOLERANCE`).
     """
 
     def __init__(self, estimator: Estimator, codec: SignalCodec | None = None,

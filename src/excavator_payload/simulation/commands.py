@@ -70,14 +70,13 @@ def register(app: typer.Typer) -> None:
         An interrupted run keeps its finished experiments in OUT.partial/; run the same command again to resume.
         """
         from excavator_payload.execution import Execution, interrupted_message
-        from excavator_payload.model.machine import load_machine
-        from excavator_payload.simulation.generate import make_spec, simulate_to_file, summary
+        from excavator_payload.simulation.generate import make_spec, simulate_spec_to_file, summary
 
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
         # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
-        # a run description; objects travel inside.
-        spec = make_spec(experiments, seed, load_machine(machine), noise, with_truth, motion,
+        # a run description; objects travel inside, down to the workers.
+        spec = make_spec(experiments, seed, machine, noise, with_truth, motion,
                          session=session, trajectory=trajectory, payload=payload, smooth=smooth,
                          allow_overspeed=allow_overspeed, truck_target=truck_target)
         motion, noise = spec.motion, spec.noise.name
@@ -92,11 +91,7 @@ def register(app: typer.Typer) -> None:
         start = time.perf_counter()
         try:
             with Execution(scheduler, workers or None) as execution:
-                dataset = simulate_to_file(out, experiments, seed=seed, machine=spec.machine,
-                                           noise=spec.noise, with_truth=with_truth, motion=motion,
-                                           progress=not quiet, execution=execution, session=session,
-                                           trajectory=spec.option("trajectory"), payload=payload,
-                                           allow_overspeed=allow_overspeed, truck_target=truck_target)
+                dataset = simulate_spec_to_file(out, spec, progress=not quiet, execution=execution)
         except KeyboardInterrupt:
             # Click would turn Ctrl-C into a bare "Aborted!": say what is kept instead.
             console.print(interrupted_message(f"finished chunks are kept in {out}.partial/; "

@@ -15,17 +15,17 @@ Dask cluster by default, an existing one with ``scheduler=``, or this process fo
 
 Adding a simulator (extension point)
 ------------------------------------
-The per-experiment simulator is chosen from ``spec.motion`` in :data:`MOTIONS`: a
-:class:`Motion` names a function ``f(spec, experiment) -> (rows, metadata)`` by its import path
-(``"package.module:function"``, imported lazily in the worker, so the entry must be in this
-table, not registered at run time in the client: remote workers would not see it), a chunk
-size rule and the exceptions that mean "this one experiment failed, skip it". A new machine
-type with its own simulator adds one table: the hydraulic machine's motions
-(:data:`MACHINE_MOTIONS`, simulated by :mod:`~excavator_payload.simulation.machine_sim`) go
-through the same chunks, checkpoints, clusters and studies; :func:`motions_for` picks the table
-by the machine's kind. Per-process state that is expensive to build
-(the NMPC's compiled solver: ~2 s) is cached at module level in the worker, keyed by machine,
-so it is built once per worker process, not once per chunk.
+The per-experiment simulator is chosen from ``spec.motion`` in the machine's platform's motion
+table (:attr:`excavator_payload.platforms.Platform.motions`; named here :data:`MOTIONS` for the
+thesis' arm and :data:`MACHINE_MOTIONS` for the hydraulic machine): a
+:class:`~excavator_payload.platforms.base.Motion` names a function
+``f(spec, experiment) -> (rows, metadata)`` by its import path (``"package.module:function"``,
+imported lazily in the worker, so the entry must be in a platform's table, not registered at run
+time in the client: remote workers would not see it), a chunk size rule and the exceptions that
+mean "this one experiment failed, skip it". A new motion is one entry of its platform's table; a
+new machine family is a new platform. Per-process state that is expensive to build (the NMPC's
+compiled solver: ~2 s) is cached at module level in the worker, keyed by machine, so it is built
+once per worker process, not once per chunk.
 
 Checkpoints
 -----------
@@ -40,9 +40,8 @@ import dataclasses
 import importlib
 import json
 import logging
-import math
 import shutil
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 from typing import Callable
 
@@ -53,117 +52,35 @@ import pyarrow.parquet as pq
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import atomic_write_table, write_dataset
-from excavator_payload.data.schema import (
-    DURATION,
-    MACHINE_SENSORS,
-    METADATA_KEY,
-    SAMPLE_PERIOD,
-    THESIS_SENSORS,
-)
+from excavator_payload.data.schema import DURATION, METADATA_KEY, SAMPLE_PERIOD
 from excavator_payload.errors import DatasetError, ExcavatorPayloadError
 from excavator_payload.execution import Execution
 from excavator_payload.model.machine import Machine, load_machine
+from excavator_payload.platforms import HYDRAULIC, THESIS, platform_for
+from excavator_payload.platforms.base import Motion, cheap_chunk_size, nmpc_chunk_size  # noqa: F401
 from excavator_payload.simulation.experiment import RunSpec, experiment_frame, noise_rng
 from excavator_payload.simulation.scenario import experiment_rngs, sample_scenario
-from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
+from excavator_payload.simulation.sensors import NoisePreset
 
 log = logging.getLogger(__name__)
 
 PARTIAL_SUFFIX = ".partial"
 
 
-# -- the motion families ----------------------------------------------------------------------
-def nmpc_chunk_size(n_experiments: int) -> int:
-    """Experiments per checkpointed chunk: small enough for a smooth progress bar and little
-    lost work on interruption, large enough to keep the per-chunk overhead small."""
-    return int(min(25, max(1, math.ceil(n_experiments / 40))))
-
-
-def cheap_chunk_size(n_experiments: int) -> int:
-    """Motions with computed torques take ~1 ms per experiment: big chunks (small jobs: one)."""
-    return int(min(5000, max(1, n_experiments)))
-
-
-@dataclass(frozen=True)
-class Motion:
-    """A motion family: how one experiment is simulated and how a run is cut into chunks.
-
-    Attributes
-    ----------
-    experiment : str
-        ``"module:function"`` of ``f(spec, experiment) -> (rows DataFrame, metadata dict)``.
-    chunk_size : callable
-        Experiments per chunk for a run of ``n`` experiments.
-    skip_on : tuple of str
-        ``"module:ExceptionClass"`` names: such an error skips the experiment (recorded with its
-        reason) instead of stopping the run.
-    needs_first_zero : bool
-        The run's experiments depend on each other's numbering from 0 (the lifts).
-    description : str
-        For ``--help``.
-    """
-
-    experiment: str
-    chunk_size: Callable[[int], int]
-    skip_on: tuple[str, ...] = ()
-    needs_first_zero: bool = False
-    description: str = ""
-
-
-#: The motion families, by name (see "Adding a simulator" above).
-MOTIONS: dict[str, Motion] = {
-    "nmpc": Motion("excavator_payload.simulation.generate:nmpc_experiment", nmpc_chunk_size,
-                   skip_on=("builtins:RuntimeError", "builtins:ValueError", "builtins:FloatingPointError"),
-                   description="the thesis' NMPC-driven swings"),
-    "minimum-jerk": Motion("excavator_payload.simulation.minimum_jerk:minimum_jerk_experiment",
-                           cheap_chunk_size, description="minimum-jerk swings with computed torques"),
-    "lifts": Motion("excavator_payload.simulation.lifts:lift_experiment", cheap_chunk_size,
-                    needs_first_zero=True, description="slow constant-speed calibration lifts"),
-}
-
-
-def _machine_chunk_size(n_experiments: int) -> int:
-    """Hydraulic motions take ~0.05 s each: ≈ 40 chunks of 1–50 experiments."""
-    return int(min(50, max(1, math.ceil(n_experiments / 40))))
-
-
-_MACHINE_EXPERIMENT = "excavator_payload.simulation.machine_sim:machine_experiment"
-_MACHINE_SKIP = ("builtins:RuntimeError", "builtins:ValueError", "builtins:FloatingPointError")
-
-#: The hydraulic machine's motion families (issue "The machine as it is").
-MACHINE_MOTIONS: dict[str, Motion] = {
-    "swing": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                    description="swings with slewing, within pump flow and relief pressure"),
-    "nmpc": Motion(_MACHINE_EXPERIMENT, nmpc_chunk_size, _MACHINE_SKIP,
-                   description="NMPC swings with slewing, bounded by relief valves, pump flow and strokes"),
-    "work-cycle": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                         description="operator-like cycles: dig, lift while slewing, pause, dump, return"),
-    "slopes": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                     description="work cycles of a machine standing on a slope"),
-    "lifts": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                    description="slow calibration lifts"),
-    "operator": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                       description="operator-like lift and slew: a pause, an overshoot, trims all along"),
-    "trajectory": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                         description="prescribed motions replayed from a trajectory file"),
-    "shift": Motion(_MACHINE_EXPERIMENT, _machine_chunk_size, _MACHINE_SKIP,
-                    description="a day of loading: one truck of 2-6 work cycles per experiment"),
-}
-
-
-def is_hydraulic(machine) -> bool:
-    """Whether ``machine`` (an object) is a hydraulic machine."""
-    return getattr(machine, "kind", None) == "hydraulic"
+# -- the motion families: each platform's one table --------------------------------------------
+# Named here too (the tables themselves are the platforms').
+MOTIONS: dict[str, Motion] = THESIS.motions
+MACHINE_MOTIONS: dict[str, Motion] = HYDRAULIC.motions
 
 
 def motions_for(machine) -> dict[str, Motion]:
-    """The motion families a machine can be simulated with."""
-    return MACHINE_MOTIONS if is_hydraulic(machine) else MOTIONS
+    """The motion families a machine can be simulated with (its platform's table)."""
+    return platform_for(machine).motions
 
 
 def sensor_set_of(machine):
-    """The sensor set a simulated machine carries."""
-    return MACHINE_SENSORS if is_hydraulic(machine) else THESIS_SENSORS
+    """The sensor set a simulated machine carries (its platform's)."""
+    return platform_for(machine).sensors
 
 
 def _import(path: str):
@@ -172,8 +89,10 @@ def _import(path: str):
 
 
 def chunk_size_for(n_experiments: int, motion: str = "nmpc", machine=None) -> int:
-    """Experiments per chunk of a run of ``n_experiments`` ``motion`` experiments."""
-    return motions_for(machine)[motion].chunk_size(n_experiments)
+    """Experiments per chunk of a run of ``n_experiments`` ``motion`` experiments (of the thesis'
+    arm unless ``machine`` is given)."""
+    platform = THESIS if machine is None else platform_for(machine)
+    return platform.motions[motion].chunk_size(n_experiments)
 
 
 # -- NMPC experiments (run in a worker process) -------------------------------------------------
@@ -204,7 +123,7 @@ def simulate_nmpc_experiment(experiment: int, seed: int, machine: Machine, noise
     sim = _simulator(machine)
     scenario = sample_scenario(seed, experiment, machine.max_payload)
     _, independent = experiment_rngs(seed, experiment)
-    preset = get_noise_preset(noise)
+    preset = THESIS.noise(noise)
     rng = independent if frozen_noise_seed is None else np.random.default_rng(int(frozen_noise_seed))
     result = sim.run(scenario.start_pose, scenario.target_pose, scenario.payload)
     frame = experiment_frame(experiment, result.time, result.q, result.qd, result.qdd, result.tau,
@@ -222,7 +141,8 @@ def nmpc_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]
 def simulate_chunk(spec: RunSpec, first: int, count: int) -> tuple[pd.DataFrame, list[dict], list[dict]]:
     """Experiments ``first … first+count-1`` of the run ``spec``: (rows, metadata of the written
     experiments, skipped experiments with their reason)."""
-    motion = motions_for(spec.machine)[spec.motion]
+    platform = platform_for(spec.machine)
+    motion = platform.motions[spec.motion]
     simulate = _import(motion.experiment)
     skip_on = tuple(_import(name) for name in motion.skip_on)
     frames, metas, skipped = [], [], []
@@ -239,7 +159,7 @@ def simulate_chunk(spec: RunSpec, first: int, count: int) -> tuple[pd.DataFrame,
             continue
         frames.append(frame)
         metas.append(meta)
-    sensors = sensor_set_of(spec.machine)
+    sensors = platform.sensors
     columns = list(sensors.columns) + (list(sensors.truth_columns) if spec.with_truth else [])
     frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=columns)
     return frame, metas, skipped
@@ -254,10 +174,9 @@ def _check_arguments(n_experiments, seed, workers, motion, first_experiment=0, m
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, (int, np.integer))
                                 or workers < 1):
         raise ExcavatorPayloadError(f"workers must be a whole number ≥ 1, got {workers!r}")
-    motions = motions_for(machine)
+    motions = THESIS.motions if machine is None else platform_for(machine).motions
     if motion not in motions:
-        kind = "a hydraulic machine" if is_hydraulic(machine) else "this machine"
-        raise ExcavatorPayloadError(f"unknown motion '{motion}' for {kind}: choose one of {', '.join(motions)}")
+        (THESIS if machine is None else platform_for(machine)).motion(motion)  # one line naming them
     if not isinstance(first_experiment, (int, np.integer)) or first_experiment < 0:
         raise ExcavatorPayloadError(f"first_experiment must be a whole number ≥ 0, got {first_experiment!r}")
     if first_experiment and motions[motion].needs_first_zero:
@@ -290,72 +209,31 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     ``truck_target`` (kg) is the load each truck of ``motion="shift"`` aims at.
     """
     machine = load_machine(machine)
-    options = dict(options or {})
-    if is_hydraulic(machine):
-        from excavator_payload.simulation.machine_sensors import get_machine_noise
+    platform = platform_for(machine)
+    motion, preset, platform_options = platform.simulation_settings(
+        machine, motion, noise, session=session, trajectory=trajectory, payload=payload, smooth=smooth,
+        allow_overspeed=allow_overspeed, truck_target=truck_target, frozen_noise_seed=frozen_noise_seed)
+    options = {**dict(options or {}), **platform_options}
+    if trajectory is not None:  # the platform took it: read and check it here, once
         from excavator_payload.simulation.trajectory import (
             check_trajectory_motion,
             read_trajectory,
             smooth_trajectory,
         )
 
-        if motion is None:
-            motion = "trajectory" if trajectory is not None else "swing"
-        if (motion == "trajectory") != (trajectory is not None):
-            raise ExcavatorPayloadError("a trajectory file goes with --motion trajectory (and only with it)")
-        if frozen_noise_seed is not None:
-            raise ExcavatorPayloadError("frozen noise is a thesis-setting study; the hydraulic machine's "
-                                        "sensors always draw their own noise")
-        if isinstance(session, bool) or not isinstance(session, (int, np.integer)) or session < 0:
-            raise ExcavatorPayloadError(f"the session must be a whole number ≥ 0, got {session!r}")
-        preset = get_machine_noise("field" if noise is None else noise)
-        options["session"] = int(session)
-        if payload is not None:
-            if trajectory is not None:
-                raise ExcavatorPayloadError("--payload does not go with a trajectory file: its payload "
-                                            "column sets the mass")
-            if (isinstance(payload, bool) or not isinstance(payload, (int, float, np.number))
-                    or not 0.0 <= float(payload) <= machine.max_payload):
-                raise ExcavatorPayloadError(f"--payload must be between 0 and the machine's maximum "
-                                            f"payload, {machine.max_payload:g} kg; got {payload!r}")
-            options["payload"] = float(payload)
-        if trajectory is None and (smooth is not None or allow_overspeed):
-            raise ExcavatorPayloadError("--smooth and --allow-overspeed go with a trajectory file (--trajectory)")
-        if truck_target is not None or motion == "shift":
-            if motion != "shift":
-                raise ExcavatorPayloadError("--truck-target goes with --motion shift (and only with it)")
-            if payload is not None:
-                raise ExcavatorPayloadError("--payload does not go with --motion shift: each pass draws "
-                                            "its fill towards --truck-target")
-            if truck_target is not None:
-                most = machine.max_payload * 6
-                if (isinstance(truck_target, bool) or not isinstance(truck_target, (int, float, np.number))
-                        or not 0.0 < float(truck_target) <= most):
-                    raise ExcavatorPayloadError(f"--truck-target must be above 0 and at most 6 passes of the "
-                                                f"machine's maximum payload, {most:g} kg; got {truck_target!r}")
-                options["truck_target"] = float(truck_target)
-        if trajectory is not None:
-            if not hasattr(trajectory, "experiments"):
-                trajectory = read_trajectory(trajectory)
-            if smooth is not None:
-                trajectory = smooth_trajectory(trajectory, smooth)
-            warned = check_trajectory_motion(trajectory, machine, allow_overspeed=allow_overspeed)
-            if warned:
-                trajectory = dataclasses.replace(trajectory, warnings=tuple(warned))
-            available = len(trajectory.experiments) - int(first_experiment)
-            if available < 1:
-                raise ExcavatorPayloadError(f"the trajectory file holds {len(trajectory.experiments)} experiment(s)")
-            n_experiments = min(int(n_experiments), available) if not isinstance(n_experiments, bool) \
-                and isinstance(n_experiments, (int, np.integer)) else n_experiments
-            options["trajectory"] = trajectory
-    else:
-        if smooth is not None or allow_overspeed:
-            raise ExcavatorPayloadError("--smooth and --allow-overspeed go with a trajectory file (--trajectory)")
-        if session or trajectory is not None or payload is not None or truck_target is not None:
-            raise ExcavatorPayloadError("--session, --trajectory, --payload and --truck-target apply to a "
-                                        "hydraulic machine only")
-        motion = "nmpc" if motion is None else motion
-        preset = get_noise_preset("thesis" if noise is None else noise)
+        if not hasattr(trajectory, "experiments"):
+            trajectory = read_trajectory(trajectory)
+        if smooth is not None:
+            trajectory = smooth_trajectory(trajectory, smooth)
+        warned = check_trajectory_motion(trajectory, machine, allow_overspeed=allow_overspeed)
+        if warned:
+            trajectory = dataclasses.replace(trajectory, warnings=tuple(warned))
+        available = len(trajectory.experiments) - int(first_experiment)
+        if available < 1:
+            raise ExcavatorPayloadError(f"the trajectory file holds {len(trajectory.experiments)} experiment(s)")
+        n_experiments = min(int(n_experiments), available) if not isinstance(n_experiments, bool) \
+            and isinstance(n_experiments, (int, np.integer)) else n_experiments
+        options["trajectory"] = trajectory
     _check_arguments(n_experiments, seed, None, motion, first_experiment, machine)
     if frozen_noise_seed is not None and (isinstance(frozen_noise_seed, bool) or frozen_noise_seed < 0):
         raise ExcavatorPayloadError(f"frozen_noise_seed must be a whole number ≥ 0, got {frozen_noise_seed!r}")
@@ -391,14 +269,12 @@ def assemble(parts: dict[int, tuple], spec: RunSpec) -> Dataset:
         raise ExcavatorPayloadError(f"every experiment failed, nothing to write ({reasons})")
     frame = pd.concat(frames, ignore_index=True)
     frame["experiment"] = frame["experiment"].astype("int64")
-    sensors = sensor_set_of(spec.machine)
+    platform = platform_for(spec.machine)
+    sensors = platform.sensors
     meta = {"sensor_set": sensors.name, "machine": spec.machine.to_dict(), "noise": spec.noise.name,
             "motion": spec.motion, "base_seed": int(spec.seed), "sample_rate": sensors.sample_rate,
             "experiments": metas, "skipped": skipped}
-    if is_hydraulic(spec.machine):
-        from excavator_payload.simulation.machine_sim import dataset_meta
-
-        meta.update(dataset_meta(spec))
+    meta.update(platform.run_meta(spec))
     if spec.frozen_noise_seed is not None:
         meta["frozen_noise_seed"] = int(spec.frozen_noise_seed)
     if spec.motion == "nmpc":
@@ -557,17 +433,53 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
         Bad arguments, an unwritable output, or a checkpoint folder from a run with other
         settings.
     """
-    out = Path(out)
-    if out.is_dir():
+    if Path(out).is_dir():
         raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
     spec = make_spec(n_experiments, seed, machine, noise, with_truth, motion, 0, frozen_noise_seed,
                      session=session, trajectory=trajectory, payload=payload,
                      allow_overspeed=allow_overspeed, truck_target=truck_target)
     _check_arguments(n_experiments, seed, workers, spec.motion, 0, spec.machine)
+    return simulate_spec_to_file(out, spec, workers=workers, progress=progress, scheduler=scheduler,
+                                 execution=execution)
+
+
+def simulate_spec_to_file(out: str | Path, spec: RunSpec, workers: int | None = None, progress: bool = True,
+                          scheduler: str | None = None, execution: Execution | None = None) -> Dataset:
+    """Simulate the run ``spec`` (from :func:`make_spec`, built once at the edge) and write it to
+    ``out`` (Parquet, atomic); resume an interrupted run.
+
+    Parameters
+    ----------
+    out : str or Path
+        The dataset file; finished chunks are kept in ``<out>.partial/`` until it is written.
+    spec : RunSpec
+        The whole run (machine, noise, motion, options), already checked.
+    workers : int, optional
+        Local worker processes (default: all cores). The data do not depend on it.
+    progress : bool
+        Show a progress bar.
+    scheduler : str, optional
+        Address of a Dask scheduler to run on.
+    execution : Execution, optional
+        An open execution layer to use instead of ``workers`` / ``scheduler`` (kept open).
+
+    Returns
+    -------
+    Dataset
+        The written dataset.
+
+    Raises
+    ------
+    ExcavatorPayloadError
+        An unwritable output, or a checkpoint folder from a run with other settings.
+    """
+    out = Path(out)
+    if out.is_dir():
+        raise DatasetError(f"output '{out}' is a folder; give a file name such as data.parquet")
     source = dict(spec.options).get("trajectory")
     if source is not None and Path(source.source).resolve() == out.resolve():
         raise DatasetError("the output would overwrite the trajectory file")
-    n_experiments = spec.n_experiments  # a trajectory may hold fewer than asked for
+    n_experiments = spec.n_experiments  # a trajectory may hold fewer than asked for (first is 0)
     folder = partial_folder(out)
     settings = {**spec.to_dict(), "chunk_size": chunk_size_for(n_experiments, spec.motion, spec.machine)}
     run_file = folder / "run.json"

@@ -41,7 +41,6 @@ import numpy as np
 from excavator_payload.model.hydraulic import HydraulicArmModel
 
 DEG = np.pi / 180.0
-MACHINE_MOTIONS = ("swing", "work-cycle", "slopes", "lifts", "operator", "shift")
 SAMPLE_RATE = 100.0
 
 

@@ -22,101 +22,23 @@ Presets: ``field`` (values below, with sources) and ``none`` (perfect sensors, n
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-
 import numpy as np
 
 from excavator_payload.data.schema import MACHINE_SENSORS
-from excavator_payload.errors import ExcavatorPayloadError
 
-DEG = np.pi / 180.0
-PRESSURES = tuple(s for s in MACHINE_SENSORS.signals if s.endswith("_pressure"))
-ANGLES = ("boom_angle", "dipper_angle", "bucket_angle")
-RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
-INCLINATIONS = ("house_pitch", "house_roll")
-
-
-@dataclass(frozen=True)
-class MachineNoise:
-    """Magnitudes (1σ, SI units) of the machine sensor set's errors."""
-
-    name: str
-    angle_noise: float = 0.0
-    angle_offset: float = 0.0
-    rate_noise: float = 0.0
-    rate_offset: float = 0.0
-    inclination_noise: float = 0.0
-    inclination_offset: float = 0.0
-    pressure_noise: float = 0.0
-    pressure_offset: float = 0.0
-    ripple_fraction: float = 0.0  # ripple amplitude at the pump / pressure
-    pump_shaft_frequency: float = 30.0  # Hz
-    pump_pistons: int = 9
-    ripple_harmonics: int = 3
-    antialias_cutoff: float = 40.0  # Hz, first-order
-    imu_lag: float = 0.0  # s, first-order time constant of the IMU output filter
-    acceleration_leak: float = 0.0  # share of the apparent tilt from acceleration left after fusion
-    link_imu_distance: float = 1.5  # m, IMU from its link's joint
-    house_imu_radius: float = 1.0  # m, house IMU from the slew axis
-    description: str = ""
-
-    def to_dict(self) -> dict:
-        """All magnitudes as a dict of field name -> value."""
-        return asdict(self)
-
-
-#: Sources of the ``field`` magnitudes.
-FIELD_SOURCES = {
-    "angle": "0.05° noise, 0.1° session offset: fused MEMS inclination sensors for mobile machines "
-             "(e.g. ifm JN2301, Sick TMM88D: ±0.1° static accuracy; mounting repeatability ~0.1°)",
-    "rate": "0.1°/s noise: MEMS gyro noise density ~0.014 °/s/√Hz (Bosch BMI088) over 50 Hz; "
-            "0.1°/s turn-on bias between sessions (datasheet bias stability ±0.5°/s uncompensated, "
-            "~0.1°/s after the sensor's own temperature compensation)",
-    "inclination": "0.02° noise, 0.1° offset: house IMU as the link IMUs, static (less vibration)",
-    "pressure": "30 kPa noise (0.05 % of 600 bar full scale) and 150 kPa offset (0.25 % FS, the "
-                "lower end of 0.25-0.5 % FS total error of mobile-hydraulics transmitters, e.g. "
-                "WIKA MH-3, Danfoss MBS 1200)",
-    "ripple": "2 % of the pressure at the pump's piston frequency 9 × 30 Hz (axial piston pump, "
-              "engine 1800 rpm) and 2 harmonics, through a 40 Hz first-order anti-alias filter",
-    "imu_dynamic": "10 ms output lag (IMU internal low-pass), 5 % of the acceleration's apparent "
-                   "tilt leaking through the gyro/accelerometer fusion",
-}
-
-PRESETS: dict[str, MachineNoise] = {
-    "field": MachineNoise(
-        "field", angle_noise=0.05 * DEG, angle_offset=0.1 * DEG, rate_noise=0.1 * DEG,
-        rate_offset=0.1 * DEG, inclination_noise=0.02 * DEG, inclination_offset=0.1 * DEG,
-        pressure_noise=3.0e4, pressure_offset=1.5e5, ripple_fraction=0.02, imu_lag=0.01,
-        acceleration_leak=0.05,
-        description="machine sensors with noise, session offsets, pump ripple and IMU dynamics"),
-    "none": MachineNoise("none", description="perfect sensors: no noise, offsets, ripple or lag"),
-}
-
-
-def get_machine_noise(name: "str | MachineNoise") -> MachineNoise:
-    """The machine-sensor noise preset ``name`` (``field`` or ``none``)."""
-    if isinstance(name, MachineNoise):
-        return name
-    try:
-        return PRESETS[str(name)]
-    except KeyError:
-        raise ExcavatorPayloadError(
-            f"unknown noise preset '{name}' for the machine sensor set: choose one of "
-            f"{', '.join(PRESETS)}") from None
-
-
-def session_offsets(session: int, noise: MachineNoise) -> dict[str, float]:
-    """The offset of every sensor during working session ``session`` (SI units).
-
-    Drawn from the session number alone (not from the experiment seed): every experiment of
-    a session shares them, and another session draws other ones.
-    """
-    rng = np.random.default_rng(np.random.SeedSequence([int(session), 0x5E55_1011]))
-    scale = {**{s: noise.angle_offset for s in ANGLES}, **{s: noise.rate_offset for s in RATES},
-             **{s: noise.inclination_offset for s in INCLINATIONS},
-             **{s: noise.pressure_offset for s in PRESSURES}}
-    draws = rng.standard_normal(len(MACHINE_SENSORS.signals))
-    return {s: float(d * scale[s]) for s, d in zip(MACHINE_SENSORS.signals, draws)}
+# The presets and session offsets are the hydraulic platform's; named here too.
+from excavator_payload.platforms.hydraulic import (  # noqa: F401
+    ANGLES,
+    DEG,
+    FIELD_SOURCES,
+    INCLINATIONS,
+    PRESETS,
+    PRESSURES,
+    RATES,
+    MachineNoise,
+    get_machine_noise,
+    session_offsets,
+)
 
 
 def _lag(x: np.ndarray, dt: float, tau: float) -> np.ndarray:

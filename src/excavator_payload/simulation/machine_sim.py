@@ -32,206 +32,44 @@ layer like every other simulation (parallel, resumable, atomic);
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import json
 import logging
-import math
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import MACHINE_SENSORS
-from excavator_payload.errors import DatasetError, ExcavatorPayloadError, MachineError
+from excavator_payload.errors import MachineError
 from excavator_payload.model.hydraulic import HydraulicArmModel
 from excavator_payload.model.hydraulic_machine import HydraulicMachine
+from excavator_payload.platforms import HYDRAULIC
 from excavator_payload.simulation import machine_motions as mm
-from excavator_payload.simulation.machine_sensors import (
-    MachineNoise,
-    get_machine_noise,
-    measure,
-    session_offsets,
+
+# The physics of one motion, named here too (tests and benchmarks use these names).
+from excavator_payload.simulation.machine_physics import (  # noqa: F401
+    REST_MIN_SAMPLES,
+    REST_SPEED_SHARE,
+    SAMPLE_RATE,
+    arm_model,
+    closing_rng,
+    experiment_rows,
+    friction_states,
+    machine_rngs,
+    motion_physics,
+    rest_friction,
+    sample_times,
 )
+from excavator_payload.simulation.machine_sensors import MachineNoise, session_offsets
 
 log = logging.getLogger(__name__)
 
-SAMPLE_RATE = MACHINE_SENSORS.sample_rate
-MOTIONS = ("nmpc", *mm.MACHINE_MOTIONS, "trajectory")
+_arm = arm_model
 #: Length of an NMPC swing, s.
 NMPC_DURATION = 10.0
 #: Largest share of the pumps' speed an NMPC swing may use (between its nodes).
 NMPC_SPEED_TOLERANCE = 1.05
 MAX_ATTEMPTS = 30
-
-
-def machine_rngs(seed: int, experiment: int) -> tuple[np.random.Generator, np.random.Generator]:
-    """Independent (motion, noise) generators of experiment ``experiment`` of run ``seed``."""
-    ss = np.random.SeedSequence([int(seed), int(experiment), 11])
-    a, b = ss.spawn(2)
-    return np.random.default_rng(a), np.random.default_rng(b)
-
-
-def closing_rng(seed: int, experiment: int) -> np.random.Generator:
-    """A third independent stream of the experiment: how its valves close (:func:`rest_friction`).
-    Its own stream, so that the motions and the noise drawn stay those of the same seed before
-    friction at rest was drawn (SeedSequence children do not depend on how many are spawned)."""
-    return np.random.default_rng(np.random.SeedSequence([int(seed), int(experiment), 11]).spawn(3)[2])
-
-
-_ARMS: dict[str, HydraulicArmModel] = {}
-
-
-def _arm(machine: HydraulicMachine) -> HydraulicArmModel:
-    key = json.dumps(machine.to_dict(), sort_keys=True)
-    if key not in _ARMS:
-        _ARMS[key] = HydraulicArmModel(machine)
-    return _ARMS[key]
-
-
-# -- physics of one motion ------------------------------------------------------------------
-def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.ndarray,
-                    forced: np.ndarray | None = None) -> np.ndarray:
-    """Presliding (Dahl) state s ∈ [-1, 1] of each cylinder along its length history.
-
-    ds/dx = (1 − s·sign(dx)) / x_p, integrated exactly between samples: s follows the sign of
-    the motion over the presliding displacement x_p and keeps its value while the cylinder
-    stands still. ``forced`` (n, 3, NaN elsewhere) sets s where a standstill holds the friction
-    its valve left (:func:`rest_friction`), so that the motion after it starts from there.
-    """
-    dx = np.diff(lengths, axis=0)
-    decay = np.exp(-np.abs(dx) / presliding)
-    direction = np.sign(dx)
-    out = np.empty_like(lengths)
-    s = np.asarray(initial, dtype=float).copy()
-    if forced is not None:
-        s = np.where(np.isnan(forced[0]), s, forced[0])
-    out[0] = s
-    for i in range(len(dx)):
-        s = direction[i] + (s - direction[i]) * decay[i]
-        if forced is not None:
-            s = np.where(np.isnan(forced[i + 1]), s, forced[i + 1])
-        out[i + 1] = s
-    return out
-
-
-#: A rod slower than this share of its Stribeck velocity stands still (its valve is closed).
-REST_SPEED_SHARE = 0.1
-#: ... for at least this many samples (0.1 s): a reversal passes zero speed in a sample or two
-#: and its friction turns over through the presliding state, no valve closing in between.
-REST_MIN_SAMPLES = 10
-
-
-def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarray,
-                  friction: np.ndarray, closing: np.ndarray) -> np.ndarray:
-    r"""Seal friction (N) where a rod stands still: held at what it was when the valve closed.
-
-    For each cylinder ``j`` and each standstill (``|speed| <`` ``rest_speed``) starting at
-    sample ``a`` and lasting ``REST_MIN_SAMPLES`` or more, the friction is :math:`F_f = u\,F_b(a)` with :math:`u` the standstill's
-    ``closing`` draw in [−1, 1] (how the valve closed), kept while the rod stands: the oil's
-    stiffness (βA²/V ≈ 3·10⁷ N/m on a boom cylinder) is several times the seal's presliding
-    stiffness (F_C/x_p ≈ 5·10⁶ N/m), so a change of the load goes to the pressures. Where the
-    breakaway :math:`F_b(t)` shrinks below it the seal gives at the band's edge. Moving samples
-    keep ``friction``. ``breakaway`` (n, 3), N; ``closing`` (k, 3), used in order per cylinder.
-    """
-    out = friction.copy()
-    for j in range(speed.shape[1]):
-        still = np.abs(speed[:, j]) < rest_speed[j]
-        edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
-        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= REST_MIN_SAMPLES]
-        for k, (a, b) in enumerate(runs):
-            held = closing[k % len(closing), j] * breakaway[a, j]
-            out[a:b, j] = np.clip(held, -breakaway[a:b, j], breakaway[a:b, j])
-    return out
-
-
-def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: np.ndarray,
-                   qdd: np.ndarray, tilt: np.ndarray, payload: np.ndarray,
-                   friction_initial: np.ndarray, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
-    """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination.
-
-    ``rng`` draws how each valve closed where a rod stops (:func:`rest_friction`); without it the
-    draws come from ``friction_initial`` (reproducible, for callers without a generator).
-    """
-    tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
-    sig = arm.motion_signals(q, qd, qdd, tilt, payload)
-    cylinders = arm.machine.cylinders
-    presliding = np.array([c.presliding for c in cylinders])
-    # breakaway of the load force (Stribeck peak at rest), per sample and cylinder
-    coulomb = np.array([c.coulomb for c in cylinders])
-    load_coefficient = np.array([c.load_coefficient for c in cylinders])
-    static_ratio = np.array([c.static_ratio for c in cylinders])
-    band = (coulomb + load_coefficient * np.abs(sig["load"])) * static_ratio
-    rest_speed = REST_SPEED_SHARE * np.array([c.stribeck_velocity for c in cylinders])
-    if rng is None:
-        rng = np.random.default_rng(np.frombuffer(np.asarray(friction_initial, float).tobytes(), np.uint32))
-    closing = rng.uniform(-1.0, 1.0, (64, 3))
-    closing[0] = friction_initial  # a motion that starts at rest: the state it was drawn with
-    held = rest_friction(sig["speed"], band, rest_speed, np.full_like(band, np.nan), closing)
-    # the presliding state through a standstill is the held friction's share of the band, so
-    # the motion after it turns the friction over from there (not from the last sliding one:
-    # that left a one-sample pressure dip where a rod started again)
-    share = np.divide(held, band, out=np.full_like(band, np.nan), where=band > 0)
-    states = friction_states(sig["length"], presliding, friction_initial, share)
-    friction, _, _ = arm.cylinder_pressures(sig["speed"], states, sig["load"])
-    friction = np.where(np.isnan(held), friction, held)
-    head, rod = arm.pressures(sig["load"] + friction)
-    return {"tau": sig["tau"], "load": sig["load"], "friction": friction, "head": head, "rod": rod,
-            "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"]}
-
-
-def _truth_columns(q, qd, qdd, physics) -> dict[str, np.ndarray]:
-    truth = {"boom_angle": q[:, 0], "dipper_angle": q[:, 1], "bucket_angle": q[:, 2],
-             "boom_rate": qd[:, 0], "dipper_rate": qd[:, 1], "bucket_rate": qd[:, 2],
-             "slew_rate": qd[:, 3], "house_pitch": physics["inclination"][:, 0],
-             "house_roll": physics["inclination"][:, 1]}
-    for j, name in enumerate(("boom", "dipper", "bucket")):
-        truth[f"{name}_head_pressure"] = physics["head"][:, j]
-        truth[f"{name}_rod_pressure"] = physics["rod"][:, j]
-    return truth
-
-
-def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payload: float,
-                    noise: MachineNoise, offsets: dict, rng: np.random.Generator,
-                    with_truth: bool) -> pd.DataFrame:
-    """Rows of one experiment in the machine sensor set's columns (+ truth columns)."""
-    truth = _truth_columns(q, qd, qdd, physics)
-    measured = measure(truth, time, qdd, noise, offsets, rng)
-    data = {"experiment": np.full(len(time), int(experiment), dtype=np.int64), "time": time}
-    for name in MACHINE_SENSORS.signals:
-        data[name] = measured[name]
-    data["payload"] = np.full(len(time), float(payload))
-    if with_truth:
-        for name in MACHINE_SENSORS.signals:
-            data[f"true_{name}"] = truth[name]
-        for j, name in enumerate(("boom", "dipper", "bucket")):
-            data[f"true_{name}_torque"] = physics["tau"][:, j]
-        for j, name in enumerate(("boom", "dipper", "bucket", "slew")):
-            data[f"true_{name}_accel"] = qdd[:, j]
-        data["true_slew_angle"] = q[:, 3]
-    frame = pd.DataFrame(data)
-    return frame[list(MACHINE_SENSORS.columns) + (list(MACHINE_SENSORS.truth_columns) if with_truth else [])]
-
-
-def sample_times(duration: float) -> np.ndarray:
-    """Sample times (s) from 0 to ``duration`` s inclusive at the machine sensor set's
-    :data:`SAMPLE_RATE` (Hz)."""
-    n = int(math.floor(duration * SAMPLE_RATE + 1e-9)) + 1
-    return np.arange(n) / SAMPLE_RATE
-
-
-def _draw_motion(motion: str, k: int, rng, arm: HydraulicArmModel) -> mm.Motion:
-    if motion == "swing":
-        return mm.swing_motion(rng, arm)
-    if motion == "work-cycle":
-        return mm.work_cycle_motion(rng, arm)
-    if motion == "slopes":
-        return mm.work_cycle_motion(rng, arm, tilt=mm.slope_tilt(rng))
-    if motion == "lifts":
-        return mm.lift_motion(k, arm.machine)
-    if motion == "operator":
-        return mm.operator_motion(rng, arm)
-    raise ExcavatorPayloadError(f"unknown motion '{motion}' for a hydraulic machine: choose one of "
-                                f"{', '.join(MOTIONS)}")
 
 
 _NMPC: dict[str, object] = {}
@@ -315,21 +153,24 @@ def _within_relief(arm: HydraulicArmModel, draw, motion_rng: np.random.Generator
 
 def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: MachineNoise,
                                offsets: dict, motion: str, with_truth: bool,
-                               payload_override: float | None = None) -> tuple[pd.DataFrame, dict]:
+                               payload_override: float | None = None, *, draw_motion,
+                               any_peak: bool = False) -> tuple[pd.DataFrame, dict]:
     """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure).
-    ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
+    ``draw_motion(k, rng, arm)`` plans the motion called ``motion``; ``any_peak``: keep the first
+    draw whatever its peak (the calibration lifts). ``payload_override`` (kg): this mass instead
+    of the drawn one (``simulate --payload``)."""
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
     relief = machine.hydraulics.relief_pressure
 
     def draw():
-        drawn = _draw_motion(motion, k, motion_rng, arm)
+        drawn = draw_motion(k, motion_rng, arm)
         if payload_override is not None:  # before the fit: the mass shapes the pressures it checks
             drawn = dataclasses.replace(drawn, payload=float(payload_override))
         return drawn
 
     plan, time, (q, qd, qdd), physics, peak, attempt = _within_relief(
-        arm, draw, motion_rng, closing_rng(seed, k), "motion", any_peak=motion == "lifts")
+        arm, draw, motion_rng, closing_rng(seed, k), "motion", any_peak=any_peak)
     frame = experiment_rows(k, time, q, qd, qdd, physics, plan.payload, noise, offsets, noise_rng,
                             with_truth)
     meta = {"experiment": int(k), "seed": int(seed), "payload": float(plan.payload),
@@ -374,40 +215,66 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
     return frame, meta
 
 
-def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Experiment ``experiment`` of the run ``spec`` (the entry of
-    :data:`excavator_payload.simulation.generate.MACHINE_MOTIONS`): a generated motion, or the
-    trajectory file's experiment at that position."""
-    arm = _arm(spec.machine)
-    offsets = session_offsets(spec.option("session", 0), spec.noise)
-    if spec.motion == "trajectory":
-        from excavator_payload.simulation.trajectory import simulate_trajectory_experiment
+# -- the entries of the hydraulic platform's motion table (excavator_payload.platforms.hydraulic) --
+def _generated(spec, k: int, draw_motion, any_peak: bool = False) -> tuple[pd.DataFrame, dict]:
+    return simulate_motion_experiment(k, spec.seed, arm_model(spec.machine), spec.noise,
+                                      session_offsets(spec.option("session", 0), spec.noise), spec.motion,
+                                      spec.with_truth, spec.option("payload"), draw_motion=draw_motion,
+                                      any_peak=any_peak)
 
-        return simulate_trajectory_experiment(experiment, spec.seed, arm, spec.noise, offsets,
-                                              spec.option("trajectory"), spec.with_truth)
-    if spec.motion == "shift":
-        target = spec.option("truck_target")
-        return simulate_shift_experiment(experiment, spec.seed, arm, spec.noise, offsets,
-                                         default_truck_target(spec.machine) if target is None else target,
-                                         spec.with_truth)
-    payload = spec.option("payload")
-    if spec.motion == "nmpc":
-        return simulate_nmpc_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.with_truth,
-                                        payload)
-    return simulate_motion_experiment(experiment, spec.seed, arm, spec.noise, offsets, spec.motion,
-                                      spec.with_truth, payload)
+
+def swing_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Swing ``experiment`` of the run ``spec`` (:func:`~.machine_motions.swing_motion`)."""
+    return _generated(spec, experiment, lambda k, rng, arm: mm.swing_motion(rng, arm))
+
+
+def work_cycle_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Work cycle ``experiment`` of the run ``spec`` (:func:`~.machine_motions.work_cycle_motion`)."""
+    return _generated(spec, experiment, lambda k, rng, arm: mm.work_cycle_motion(rng, arm))
+
+
+def slopes_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Work cycle ``experiment`` of the run ``spec`` on a drawn slope."""
+    return _generated(spec, experiment,
+                      lambda k, rng, arm: mm.work_cycle_motion(rng, arm, tilt=mm.slope_tilt(rng)))
+
+
+def lifts_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Calibration lift ``experiment`` of the run ``spec`` (:func:`~.machine_motions.lift_motion`)."""
+    return _generated(spec, experiment, lambda k, rng, arm: mm.lift_motion(k, arm.machine), any_peak=True)
+
+
+def operator_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Operator-like lift and slew ``experiment`` of the run ``spec``."""
+    return _generated(spec, experiment, lambda k, rng, arm: mm.operator_motion(rng, arm))
+
+
+def nmpc_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """NMPC swing ``experiment`` of the run ``spec`` (:func:`simulate_nmpc_experiment`)."""
+    return simulate_nmpc_experiment(experiment, spec.seed, arm_model(spec.machine), spec.noise,
+                                    session_offsets(spec.option("session", 0), spec.noise), spec.with_truth,
+                                    spec.option("payload"))
+
+
+def shift_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Truck ``experiment`` of the run ``spec`` (:func:`simulate_shift_experiment`)."""
+    target = spec.option("truck_target")
+    return simulate_shift_experiment(experiment, spec.seed, arm_model(spec.machine), spec.noise,
+                                     session_offsets(spec.option("session", 0), spec.noise),
+                                     default_truck_target(spec.machine) if target is None else target,
+                                     spec.with_truth)
+
+
+def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Experiment ``experiment`` of the run ``spec``, by the hydraulic platform's motion table."""
+    module, _, name = HYDRAULIC.motion(spec.motion).experiment.partition(":")
+    return getattr(importlib.import_module(module), name)(spec, experiment)
 
 
 def dataset_meta(spec) -> dict:
-    """File metadata a hydraulic run adds (session, its true offsets, the trajectory's source)."""
-    session = int(spec.option("session", 0))
-    meta = {"session": session,
-            # The true offsets of this session: for checking offset estimation, not for estimators.
-            "true_sensor_offsets": session_offsets(session, spec.noise)}
-    trajectory = spec.option("trajectory")
-    if trajectory is not None:
-        meta["trajectory"] = trajectory.source
-    return meta
+    """File metadata a hydraulic run adds (:meth:`HydraulicPlatform.run_meta
+    <excavator_payload.platforms.hydraulic.HydraulicPlatform.run_meta>`)."""
+    return HYDRAULIC.run_meta(spec)
 
 
 # -- whole datasets: the one simulation pipeline (simulation/generate.py) -----------------------

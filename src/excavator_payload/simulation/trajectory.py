@@ -37,6 +37,14 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.errors import DatasetError
+from excavator_payload.simulation.machine_physics import (
+    SAMPLE_RATE,
+    arm_model,
+    closing_rng,
+    experiment_rows,
+    machine_rngs,
+    motion_physics,
+)
 
 REQUIRED = ("experiment", "time", "boom_angle", "dipper_angle", "bucket_angle", "slew_angle", "payload")
 OPTIONAL = ("ground_pitch", "ground_roll")
@@ -152,8 +160,6 @@ def smooth_trajectory(trajectory: Trajectory, seconds: float) -> Trajectory:
     """
     from scipy.ndimage import gaussian_filter1d
 
-    from excavator_payload.simulation.machine_sim import SAMPLE_RATE
-
     if not (isinstance(seconds, (int, float)) and math.isfinite(seconds) and 0 < seconds <= 10):
         raise DatasetError(f"--smooth must be a time in seconds between 0 and 10, got {seconds!r}")
     experiments = []
@@ -229,9 +235,8 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
     The replay would push such a motion through the model and give absurd pressures (and a
     message about pressures in the wrong unit); checked once, before any experiment is simulated.
     """
-    from excavator_payload.simulation.machine_sim import SAMPLE_RATE, _arm
 
-    arm = _arm(machine)
+    arm = arm_model(machine)
     ranges = machine.angle_ranges
     names = ("boom", "dipper", "bucket", "slew")
     warnings = []
@@ -315,13 +320,6 @@ def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets
                                    with_truth: bool):
     """Rows and metadata of the trajectory's experiment at ``position`` (numbered as in the file)."""
     from excavator_payload.simulation.machine_motions import speed_share
-    from excavator_payload.simulation.machine_sim import (
-        SAMPLE_RATE,
-        experiment_rows,
-        closing_rng,
-        machine_rngs,
-        motion_physics,
-    )
 
     exp_id, rows = trajectory.experiments[position]
     time, q, qd, qdd, tilt = interpolate(rows, SAMPLE_RATE)
@@ -376,3 +374,21 @@ def payload_passes(time: np.ndarray, load: np.ndarray) -> list[dict]:
                        "release": [float(time[a + full[-1]]), float(time[stop])],
                        "start": float(time[max(a - 1, 0)]), "end": float(time[stop])})
     return passes
+
+
+def trajectory_experiment(spec, experiment: int):
+    """The replayed experiment at position ``experiment`` of the run ``spec`` (the hydraulic
+    platform's ``trajectory`` motion).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run; its ``trajectory`` option holds the :class:`Trajectory`.
+    experiment : int
+        Position in the trajectory's experiments.
+    """
+    from excavator_payload.simulation.machine_sensors import session_offsets
+
+    return simulate_trajectory_experiment(experiment, spec.seed, arm_model(spec.machine), spec.noise,
+                                          session_offsets(spec.option("session", 0), spec.noise),
+                                          spec.option("trajectory"), spec.with_truth)

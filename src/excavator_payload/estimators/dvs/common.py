@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import SENSOR_SETS, THESIS_SENSORS, SensorSet
+from excavator_payload.data.schema import MACHINE_SENSORS, SENSOR_SETS, THESIS_SENSORS, SensorSet
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult
 from excavator_payload.estimators.dvs.trainbr import LOG_COLUMNS, TrainingLog, train_adam, train_br
@@ -38,8 +38,8 @@ THESIS_INPUTS: tuple[str, ...] = ("boom_angle", "boom_rate", "dipper_angle", "di
                                   "boom_torque", "dipper_torque")
 #: Default inputs per sensor set: the thesis' six signals; on a machine every signal it has
 #: (angles, rates, slew rate, inclinations and all six pressures).
-DEFAULT_INPUTS: dict[str, tuple[str, ...]] = {"thesis": THESIS_INPUTS,
-                                               "machine": SENSOR_SETS["machine"].signals}
+DEFAULT_INPUTS: dict[str, tuple[str, ...]] = {THESIS_SENSORS.name: THESIS_INPUTS,
+                                               MACHINE_SENSORS.name: MACHINE_SENSORS.signals}
 SCALINGS = ("mapminmax", "mapstd")
 TRAINERS = ("trainbr", "adam")
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from excavator_payload.errors import DatasetError
+from excavator_payload.platforms import HYDRAULIC, platform_for
 
 
 def plot_experiment(dataset, experiment: int, out: str | Path) -> Path:
@@ -14,7 +15,7 @@ def plot_experiment(dataset, experiment: int, out: str | Path) -> Path:
     :func:`excavator_payload.evaluation.figures.machine_measurements`."""
     from excavator_payload.evaluation.figures import machine_measurements
 
-    if dataset.sensor_set.name != "machine":
+    if platform_for(dataset) is not HYDRAULIC:  # the figure draws cylinders and a slewing house
         raise DatasetError(f"plot shows machine-sensor-set data; this dataset holds the "
                            f"{dataset.sensor_set.name} set")
     ids = [int(i) for i in dataset.experiment_ids]
