@@ -439,6 +439,8 @@ class Estimator(ABC):
         self.health = True
         self._health = None
         self._health_for = None
+        #: The fitting data's noise per signal for the monitor (see :func:`.health.noise_reference`).
+        self.health_reference: dict[str, float] | None = None
 
     @property
     def _hydraulic(self) -> bool:
@@ -538,6 +540,12 @@ class Estimator(ABC):
         # noise-free simulated data hold exact constants (a rod chamber at the back pressure, no
         # slew) that look like stuck sensors; the health monitor judges signals with noise
         self.health = str(dataset.meta.get("noise")) != "none"
+        # the fitting data's sample-to-sample spread: the family the health monitor's noise
+        # check compares with (machine set; see .health)
+        if self.sensor_set.name == "machine":
+            from excavator_payload.estimators.health import noise_reference
+
+            self.health_reference = noise_reference(dataset.frame, self.sensor_set.signals)
         # a work cycle's payload column is the load carried: after its dump the bucket is empty
         self._fit(dataset.until_dump())
         self._sentinel_source = None
@@ -647,7 +655,8 @@ class Estimator(ABC):
             if self._health_for is not self.sensor_set:
                 from excavator_payload.estimators.health import for_sensor_set
 
-                self._health, self._health_for = for_sensor_set(self.sensor_set), self.sensor_set
+                self._health = for_sensor_set(self.sensor_set, self.health_reference)
+                self._health_for = self.sensor_set
             fault = self._health.step(time, values) if self._health is not None else ""
             if fault:
                 # not used: the next healthy sample sees a hole in time and bridges it as a gap
@@ -840,6 +849,7 @@ class Estimator(ABC):
             "gate_sentinel": self._sentinel_source,
             "rated_payload": self.rated_payload,
             "health": bool(self.health),
+            "health_reference": self.health_reference,
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
@@ -955,6 +965,13 @@ def load_estimator(directory: str | Path, expected: type | None = None) -> Estim
             raise EstimatorError(f"its rated_payload must be a positive number of kg, got {rated!r}")
         est.rated_payload = None if rated is None else float(rated)
         est.health = config.get("health", True) is not False  # fitted on noise-free data: off
+        reference = config.get("health_reference")  # older files: none (no noise check)
+        if reference is not None:
+            if not (isinstance(reference, dict) and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in reference.values())):
+                raise EstimatorError("its 'health_reference' must map signals to finite numbers")
+            est.health_reference = {str(k): float(v) for k, v in reference.items()}
         source = config.get("gate_sentinel")
         if source is not None:
             if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)

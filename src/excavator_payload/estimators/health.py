@@ -77,10 +77,13 @@ DISAGREE_SAMPLES = 2
 NOISE_WINDOW = 0.5
 NOISE_QUANTILE = 0.99
 NOISE_FACTOR = 3.0
-NOISE_SHARE = 0.2
+NOISE_SHARE = 0.4
+#: A pressure's second difference is judged relative to 1 + |p| / this (Pa): the pump's ripple
+#: grows with the pressure, the transmitter's noise does not.
+NOISE_PRESSURE_SCALE = 1.0e6
 #: Offset: angle − integrated rate smoothed over this, s; its track's time constant, s (and
 #: while flagged); the deviation that counts, rad, and for how many samples in a row.
-OFFSET_SMOOTH = 0.3
+OFFSET_SMOOTH = 0.5
 OFFSET_TAU = 4.0
 OFFSET_TAU_FLAGGED = 30.0
 OFFSET_LIMIT = 0.035
@@ -150,6 +153,7 @@ class HealthMonitor:
         self.noise_limit = [NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
                             else math.inf for s in self.signals]
         self.noise_count_limit = NOISE_SHARE * self.n_noise
+        self.relative = [1.0 / NOISE_PRESSURE_SCALE if s.endswith("_pressure") else 0.0 for s in self.signals]
         # alpha-beta track of angle − integrated rate, critically damped (time constant tau)
         w, wf = self.period / OFFSET_TAU, self.period / OFFSET_TAU_FLAGGED
         self.track_gains = ((2 * w, w * w / self.period), (2 * wf, wf * wf / self.period))
@@ -254,7 +258,7 @@ class HealthMonitor:
             p1, p2, limit = prev[0], prev2[0], self.noise_limit
             mask = 0
             for i in range(n):
-                if abs(v[i] - 2.0 * p1[i] + p2[i]) > limit[i]:
+                if abs(v[i] - 2.0 * p1[i] + p2[i]) > limit[i] * (1.0 + abs(v[i]) * self.relative[i]):
                     mask |= 1 << i
             old = self.noisy_ring[(c - self.n_noise) % size] if c > self.n_noise else 0
             self.noisy_ring[c % size] = mask
@@ -375,6 +379,8 @@ class HealthMonitor:
             g, n_g = self.g_sums[j], self.n_gain
             var = g[2] / n_g - (g[0] / n_g) ** 2
             gain = (g[3] / n_g - g[0] * g[1] / n_g / n_g) / var if var >= GAIN_MIN_STD ** 2 else math.nan
+            if self.count < self.n_gain or self.count < self.broken_until[j]:
+                gain = math.nan
             if self.track is None or self.count < self.n_smooth:
                 out.append((math.nan, gain))
             else:
@@ -396,7 +402,8 @@ def noise_reference(frame, signals, experiment: str = "experiment") -> dict[str,
         The column that separates experiments (second differences never span two).
     """
     values = frame[list(signals)].to_numpy(dtype=float)
-    d2 = np.abs(values[2:] - 2 * values[1:-1] + values[:-2])
+    relative = np.array([1.0 / NOISE_PRESSURE_SCALE if s.endswith("_pressure") else 0.0 for s in signals])
+    d2 = np.abs(values[2:] - 2 * values[1:-1] + values[:-2]) / (1.0 + np.abs(values[2:]) * relative)
     if experiment in frame.columns:
         e = frame[experiment].to_numpy()
         d2 = d2[(e[2:] == e[1:-1]) & (e[1:-1] == e[:-2])]
