@@ -20,13 +20,26 @@ import typer
 from excavator_payload.errors import EstimatorError
 
 
-def zero_model(model: str | Path, data: str | Path, out: str | Path):
+def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool = False):
     """Load ``model``, re-estimate its offsets from ``data`` (empty bucket), save to ``out``.
 
     Returns the zeroed estimator; its ``zero_warnings`` say how many samples the check could
-    not use.
+    not use (and, with ``force``, which signals the health monitor flagged).
+
+    Parameters
+    ----------
+    model : str or Path
+        Folder of the calibrated model.
+    data : str or Path
+        Parquet of the empty-bucket motion.
+    out : str or Path
+        New folder for the zeroed model.
+    force : bool
+        Zero even when the sensor health monitor flags a signal of ``data`` (refused otherwise:
+        an offset built on a faulty signal carries the fault into every later weighing).
     """
     from excavator_payload.data.io import read_dataset
+    from excavator_payload.estimators import health
     from excavator_payload.estimators.base import load_estimator
     from excavator_payload.estimators.classical import calibrated_machine
 
@@ -36,7 +49,16 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path):
     dataset = read_dataset(data, machine=estimator.machine)
     if "payload" not in dataset.frame.columns:
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
-    estimator.zero_warnings = calibrated_machine.zero(estimator, dataset)
+    notes = []
+    if force:
+        flagged = health.flagged_signals(estimator, dataset)
+        if flagged:
+            notes.append("zero: --force: built on signals the health monitor flags: "
+                         + ", ".join(f"{s} ({w})" for s, w in flagged.items()))
+    else:
+        # every signal feeds the offsets (the rates and angles say which cylinder moved)
+        health.refuse_flagged(estimator, dataset, dataset.sensor_set.signals, "zero")
+    estimator.zero_warnings = calibrated_machine.zero(estimator, dataset) + notes
     estimator.save(out)
     return estimator
 
@@ -63,13 +85,15 @@ def register(app: typer.Typer) -> None:
         data: Path = typer.Option(..., "--data", help="Parquet of a short empty-bucket motion."),
         out: Path = typer.Option(..., "--out", help="New model folder for the zeroed model "
                                  "(not --model: the calibrated model is kept)."),
+        force: bool = typer.Option(False, "--force", help="Zero even when the sensor health "
+                                   "monitor flags a signal of --data (refused otherwise)."),
     ) -> None:
         """Check zero: re-estimate the sensor offsets from an empty-bucket motion, keep the rest."""
         from excavator_payload.estimators.classical.calibrated_machine import OFFSET_SIGNALS
 
         check_zero_output(model, data, out)  # before anything is loaded
         before = load_offsets(model)
-        estimator = zero_model(model, data, out)
+        estimator = zero_model(model, data, out, force)
         after = estimator.calibration.offsets
         for warning in estimator.zero_warnings:
             typer.echo(f"warning: {warning}", err=True)
