@@ -46,6 +46,7 @@ a fixed handful of array operations per sample, whatever the window lengths.
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -95,6 +96,10 @@ GAIN_MIN_STD = 0.15
 GAIN_LIMIT = 0.08
 GAIN_SAMPLES = 10
 
+#: Stuck, noise, offset and gain are judged every this many samples (staggered; their windows
+#: are 0.3 s and more, and :data:`HOLD` bridges the samples in between).
+EVERY = 5
+
 #: The kinds in the order of the monitor's arrays.
 KINDS = ("stuck", "dropout", "disagree", "noise", "offset", "gain")
 #: J1939-73 failure mode identifier of each kind.
@@ -126,17 +131,17 @@ class HealthMonitor:
     def __init__(self, signals, period: float, resolution, reference=None) -> None:
         self.signals = tuple(signals)
         self.period = float(period)
+        n = len(self.signals)
         idx = {s: i for i, s in enumerate(self.signals)}
-        # a stuck value stays within ± this of the first value of its run (2 steps: a frozen
-        # value that flickers by one bit still counts)
-        self.quantum = [STUCK_QUANTA * resolution[s] for s in self.signals]
+        self.quantum = np.array([STUCK_QUANTA * resolution[s] for s in self.signals])
         samples = lambda seconds: max(2, int(round(seconds / self.period)) + 1)  # noqa: E731
         self.n_stuck = samples(STUCK_WINDOW)
         self.n_dis = samples(DISAGREE_WINDOW)
-        self.n_noise = samples(NOISE_WINDOW)
         self.n_smooth = samples(OFFSET_SMOOTH)
         self.n_gain = samples(GAIN_WINDOW)
-        self.size = max(self.n_stuck, self.n_dis, self.n_noise, self.n_smooth, self.n_gain) + 1
+        self.every = EVERY
+        self.n_blocks = max(1, int(round(NOISE_WINDOW / self.period / self.every)))
+        self.size = max(self.n_stuck, self.n_dis, self.n_smooth, self.n_gain, self.every + 2) + 1
         self.hold = int(round(HOLD / self.period))
         self.duration = (self.n_stuck - 1) * self.period
         links = [k for k in LINKS if f"{k}_angle" in idx and f"{k}_rate" in idx]
@@ -150,13 +155,21 @@ class HealthMonitor:
                               if s.endswith("_pressure") and s.split("_")[0] + "_rate" in idx]
         self.lone = [idx[s] for s in ("slew_rate", "house_pitch", "house_roll") if s in idx]
         ref = reference or {}
-        self.noise_limit = [NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
-                            else math.inf for s in self.signals]
-        self.noise_count_limit = NOISE_SHARE * self.n_noise
-        self.relative = [1.0 / NOISE_PRESSURE_SCALE if s.endswith("_pressure") else 0.0 for s in self.signals]
-        # alpha-beta track of angle − integrated rate, critically damped (time constant tau)
-        w, wf = self.period / OFFSET_TAU, self.period / OFFSET_TAU_FLAGGED
-        self.track_gains = ((2 * w, w * w / self.period), (2 * wf, wf * wf / self.period))
+        self.noise_limit = np.array([NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
+                                     else np.inf for s in self.signals])
+        # the limit grows with |value| for pressures (× 1 + |p| / NOISE_PRESSURE_SCALE)
+        self.noise_relative = np.array([lim / NOISE_PRESSURE_SCALE if s.endswith("_pressure")
+                                        and np.isfinite(lim) else 0.0
+                                        for s, lim in zip(self.signals, self.noise_limit)])
+        self.noise_count_limit = NOISE_SHARE * self.n_blocks * self.every
+        self.noise_checked = np.isfinite(self.noise_limit).any()
+        # alpha-beta track of angle − integrated rate, critically damped (time constant tau),
+        # updated every `every` samples
+        step = self.every * self.period
+        self.track_gains = tuple((2 * step / tau, (step / tau) ** 2 / step)
+                                 for tau in (OFFSET_TAU, OFFSET_TAU_FLAGGED))
+        self.offset_evaluations = max(1, -(-OFFSET_SAMPLES // self.every))
+        self.gain_evaluations = max(1, -(-GAIN_SAMPLES // self.every))
         self.reset()
 
     def reset(self) -> None:
@@ -169,24 +182,25 @@ class HealthMonitor:
         """Start the windows again (after a hole in time); active faults keep their hold."""
         n, L = len(self.signals), len(self.link_angle)
         self.count = 0
-        # ring of the last `size` samples: (values, each link's angle − integrated rate)
+        # the last `size` samples, written twice (at k and k + size) so that any window is one
+        # ordered slice; and per sample each link's (angle − integrated rate, cumulative sums)
+        self.buffer = np.zeros((2 * self.size, n))
         self.ring: list = [None] * self.size
-        self.noisy_ring = [0] * self.size  # bit mask of the signals noisy at each sample
-        self.noise_count = [0] * n
+        self.prev: list | None = None
+        self.noise_blocks: deque = deque()
+        self.noise_count = np.zeros(n, np.int64)
         self.zeros = [0] * n
         self.any_zeros = False
-        self.anchor = [math.nan] * n  # first value of each signal's still run, and its length
-        self.run = [0] * n
         self.since_moving = {r: 1 << 30 for r in self.rates}
+        self.rate_window = [deque(maxlen=self.n_dis) for _ in range(L)]  # each link's last rates
         self.disagreeing = [0] * L
         self.integral = [0.0] * L
-        self.r_sum = [0.0] * L
-        self.g_sums = [[0.0] * 4 for _ in range(L)]  # x, y, xx, xy over the gain window
-        self.origin = [0.0] * L  # x origin: keeps the gain sums of squares small
+        self.origin: list | None = None  # angle origin: keeps the gain sums of squares small
+        self.cum = [(0.0, 0.0, 0.0, 0.0)] * L  # running totals of y, x, x², x·y per link
         self.track = None  # [level, slope] of each link's angle − integrated rate
         self.off_run = [0] * L
         self.gain_run = [0] * L
-        self.broken_until = [0] * L  # a link's track restarts while its signals are broken
+        self.broken_until = [0] * L  # a link's gain is not judged until its windows are clean
 
     def step(self, time: float, values) -> str:
         """Judge one finite, plausible sample; the active faults as ``"signal:kind,..."``
@@ -202,7 +216,7 @@ class HealthMonitor:
         if self.last_time is not None and not 0 < time - self.last_time <= 1.5 * self.period:
             self._restart()
         self.last_time = time
-        found = self._faults(values.tolist() if hasattr(values, "tolist") else list(values))
+        found = self._faults(np.asarray(values, dtype=float))
         active = self.active
         if active:
             for key in list(active):
@@ -218,64 +232,49 @@ class HealthMonitor:
     def _is_active(self, signal: int, kinds) -> bool:
         return any((signal, k) in self.active for k in kinds)
 
-    def _faults(self, v: list) -> list[tuple[int, str]]:
+    def _faults(self, values: np.ndarray) -> list[tuple[int, str]]:
         """The (signal, kind) conditions seen at this sample (before the hold)."""
         found: list[tuple[int, str]] = []
-        size, dt, n = self.size, self.period, len(v)
+        size, dt = self.size, self.period
+        v = values.tolist()
         c = self.count
-        prev = self.ring[(c - 1) % size] if c else None
-        prev2 = self.ring[(c - 2) % size] if c >= 2 else None
-        # -- per-link angle − integrated rate ---------------------------------------------
-        integral = self.integral
-        resid = []
-        for j, (a, r) in enumerate(zip(self.link_angle, self.link_rate)):
+        k = c % size
+        self.buffer[k] = self.buffer[k + size] = values
+        # -- per link: angle − integrated rate, and running totals for offset and gain ------
+        prev, integral = self.prev, self.integral
+        if self.origin is None:
+            self.origin = [v[a] for a in self.link_angle]
+        half = 0.5 * dt
+        resid, cum = [], []
+        for j, a, r, o, (sy, sx, sxx, sxy) in zip(range(3), self.link_angle, self.link_rate, self.origin,
+                                                  self.cum):
             if prev is not None:
-                integral[j] += 0.5 * dt * (prev[0][r] + v[r])
-            resid.append(v[a] - integral[j])
-        self.ring[c % size] = (v, resid)
+                integral[j] += half * (prev[r] + v[r])
+            y = v[a] - integral[j]
+            x = v[a] - o
+            resid.append(y)
+            cum.append((sy + y, sx + x, sxx + x * x, sxy + x * y))
+        self.cum = cum
+        self.ring[k] = (resid, cum)
+        self.prev = v
         self.count = c = c + 1
-        # -- per signal: still runs, zeros, noise -----------------------------------------
-        quantum, anchor, run = self.quantum, self.anchor, self.run
-        still = []
-        for i in range(n):
-            x = v[i]
-            if abs(x - anchor[i]) <= quantum[i]:
-                run[i] += 1
-                if run[i] >= self.n_stuck - 1:
-                    still.append(i)
-            else:
-                anchor[i] = x
-                run[i] = 0
+        end = k + size + 1  # one past the newest sample in the buffer
+        # -- every sample: moving joints, dropouts, angle against rate -----------------------
+        since = self.since_moving
         for r in self.rates:
-            self.since_moving[r] = 0 if abs(v[r]) > MOVING_RATE else self.since_moving[r] + 1
+            since[r] = 0 if not -MOVING_RATE <= v[r] <= MOVING_RATE else since[r] + 1
         if self.any_zeros or 0.0 in v:
             zeros = self.zeros = [z + 1 if x == 0.0 else 0 for z, x in zip(self.zeros, v)]
             self.any_zeros = 0.0 in v
             for group in (self.angles, self.pressures):
                 if any(v[i] != 0.0 for i in group):
                     found += [(i, "dropout") for i in group if zeros[i] >= DROPOUT_SAMPLES]
-        if prev2 is not None:
-            p1, p2, limit = prev[0], prev2[0], self.noise_limit
-            mask = 0
-            for i in range(n):
-                if abs(v[i] - 2.0 * p1[i] + p2[i]) > limit[i] * (1.0 + abs(v[i]) * self.relative[i]):
-                    mask |= 1 << i
-            old = self.noisy_ring[(c - self.n_noise) % size] if c > self.n_noise else 0
-            self.noisy_ring[c % size] = mask
-            if mask or old:
-                counts = self.noise_count
-                for i in range(n):
-                    counts[i] += ((mask >> i) & 1) - ((old >> i) & 1)
-                if c >= self.n_noise + 2:
-                    found += [(i, "noise") for i in range(n) if counts[i] >= self.noise_count_limit]
-        # -- disagree: angle change against the rate's integral over a short window ---------
+        for window, r in zip(self.rate_window, self.link_rate):
+            window.append(v[r])
         if c >= self.n_dis:
-            first = c - self.n_dis  # ring index of the window's first sample
-            window = [self.ring[(first + m) % size] for m in range(self.n_dis)]
-            old_resid = window[0][1]
-            for j, (a, r) in enumerate(zip(self.link_angle, self.link_rate)):
-                rates = [s[0][r] for s in window]
-                limit = DISAGREE_LIMIT + DISAGREE_PER_RATE_CHANGE * (max(rates) - min(rates))
+            old_resid = self.ring[(c - self.n_dis) % size][0]
+            for j, a, r, window in zip(range(3), self.link_angle, self.link_rate, self.rate_window):
+                limit = DISAGREE_LIMIT + DISAGREE_PER_RATE_CHANGE * (max(window) - min(window))
                 if abs(resid[j] - old_resid[j]) > limit:
                     # a one-frame spike is the outlier gate's (rejected, the estimate untouched);
                     # a disagreement that lasts two samples is the sensor's
@@ -284,107 +283,113 @@ class HealthMonitor:
                         found += [(a, "disagree"), (r, "disagree")]
                 else:
                     self.disagreeing[j] = 0
-        self._offset_and_gain(found, resid, v)
-        if c < self.n_stuck or not still:
-            return found
-        # -- stuck ------------------------------------------------------------------------
-        dropped = {i for i, kind in found if kind == "dropout"}
-        w0 = self.ring[(c - self.n_stuck) % size][0]
-        turning = {r: m < self.n_stuck for r, m in self.since_moving.items()}
-        stillset = set(still)
-        for a, r in zip(self.link_angle, self.link_rate):
-            if a in stillset and turning[r] and a not in dropped:
-                found.append((a, "stuck"))
-            if r in stillset and abs(v[a] - w0[a]) > MOVING_RATE * self.duration:
-                found.append((r, "stuck"))
-        for p, r in self.pressure_rate:
-            if p in stillset and turning[r] and p not in dropped:
-                found.append((p, "stuck"))
-        if any(turning[r] for r in self.link_rate):
-            found += [(i, "stuck") for i in self.lone if i in stillset]
+        # -- every `every` samples, staggered: stuck, noise, offset and gain ----------------
+        phase = c % self.every
+        if phase == 0 and c >= self.n_stuck:
+            self._stuck(found, v, end)
+        elif phase == 1 and self.noise_checked and c > self.every + 2:
+            self._noise(found, end)
+        elif phase == 2 and c >= self.n_smooth:
+            self._offset_and_gain(found, c)
         return found
 
-    def _offset_and_gain(self, found: list, resid: list, v: list) -> None:
+    def _stuck(self, found: list, v: list, end: int) -> None:
+        w = self.buffer[end - self.n_stuck:end]
+        still = (w.max(axis=0) - w.min(axis=0)) <= self.quantum
+        if not still.any():
+            return
+        still = set(np.flatnonzero(still).tolist())
+        first = w[0]
+        turning = {r: m < self.n_stuck for r, m in self.since_moving.items()}
+        dropped = {i for i, kind in found if kind == "dropout"}
+        zeros = self.zeros
+        for a, r in zip(self.link_angle, self.link_rate):
+            if a in still and turning[r] and a not in dropped:
+                found.append((a, "stuck"))
+            if abs(v[a] - first[a]) > MOVING_RATE * self.duration:
+                if r in still:
+                    found.append((r, "stuck"))
+                elif zeros[r] >= DROPOUT_SAMPLES:
+                    found.append((r, "dropout"))
+        for p, r in self.pressure_rate:
+            if p in still and turning[r] and p not in dropped:
+                found.append((p, "stuck"))
+        if any(turning[r] for r in self.link_rate):
+            found += [(i, "stuck") for i in self.lone if i in still]
+
+    def _noise(self, found: list, end: int) -> None:
+        # the last `every` second differences; a share of the window's beyond the limit
+        w = self.buffer[end - self.every - 2:end]
+        d2 = np.abs(w[2:] - 2.0 * w[1:-1] + w[:-2])
+        block = (d2 > self.noise_limit + np.abs(w[2:]) * self.noise_relative).sum(axis=0)
+        self.noise_blocks.append(block)
+        self.noise_count += block
+        if len(self.noise_blocks) > self.n_blocks:
+            self.noise_count -= self.noise_blocks.popleft()
+        if len(self.noise_blocks) == self.n_blocks:
+            noisy = self.noise_count >= self.noise_count_limit
+            if noisy.any():
+                found += [(i, "noise") for i in np.flatnonzero(noisy).tolist()]
+
+    def _window_sums(self, j: int, m: int, c: int) -> tuple:
+        """Sums of y, x, x², x·y of link j over its last m samples."""
+        now = self.ring[(c - 1) % self.size][1][j]
+        if c <= m:
+            return now
+        then = self.ring[(c - 1 - m) % self.size][1][j]
+        return tuple(p - q for p, q in zip(now, then))
+
+    def _offset_and_gain(self, found: list, c: int) -> None:
         """The slow checks of each link's angle − integrated rate (``offset`` and ``gain``)."""
-        c, size = self.count, self.size
         n_s, n_g = self.n_smooth, self.n_gain
-        out_s = self.ring[(c - 1 - n_s) % size] if c > n_s else None
-        out_g = self.ring[(c - 1 - n_g) % size] if c > n_g else None
-        exact = c % size == 0  # running sums of floats drift over a long stream: redo them
-        if c == 1:
-            self.origin = [v[a] for a in self.link_angle]
-        if c >= n_s and self.track is None:
-            self.track = [[0.0, 0.0] for _ in resid]
+        if self.track is None:
+            self.track = [None] * len(self.link_angle)
         for j, (a, r) in enumerate(zip(self.link_angle, self.link_rate)):
-            x, y = v[a] - self.origin[j], resid[j]
-            g = self.g_sums[j]
-            if exact:
-                self.r_sum[j] = sum(self.ring[(c - 1 - m) % size][1][j] for m in range(min(c, n_s)))
-                g[:] = [0.0] * 4
-                for m in range(min(c, n_g)):
-                    s = self.ring[(c - 1 - m) % size]
-                    xs, ys = s[0][a] - self.origin[j], s[1][j]
-                    g[0] += xs
-                    g[1] += ys
-                    g[2] += xs * xs
-                    g[3] += xs * ys
-            else:
-                self.r_sum[j] += y
-                g[0] += x
-                g[1] += y
-                g[2] += x * x
-                g[3] += x * y
-                if out_s is not None:
-                    self.r_sum[j] -= out_s[1][j]
-                if out_g is not None:
-                    ox, oy = out_g[0][a] - self.origin[j], out_g[1][j]
-                    g[0] -= ox
-                    g[1] -= oy
-                    g[2] -= ox * ox
-                    g[3] -= ox * oy
-            if c < n_s:
-                continue
-            smooth = self.r_sum[j] / n_s
+            smooth = self._window_sums(j, n_s, c)[0] / min(c, n_s)
+            track = self.track[j]
             # a link whose angle or rate was stuck, dropped out or noisy has a meaningless
             # integral: its track starts again once that has cleared
-            track = self.track[j]
-            if c == n_s or (self.active and (self._is_active(a, _RESTART_KINDS)
-                                             or self._is_active(r, _RESTART_KINDS))) \
-                    or (found and any(i in (a, r) and k in _RESTART_KINDS for i, k in found)):
-                track[0], track[1] = smooth, 0.0
+            if track is None or (self.active and (self._is_active(a, _RESTART_KINDS)
+                                                  or self._is_active(r, _RESTART_KINDS))) \
+                    or (found and any(i in (a, r) and kind in _RESTART_KINDS for i, kind in found)):
+                self.track[j] = [smooth, 0.0]
                 self.off_run[j] = self.gain_run[j] = 0
                 self.broken_until[j] = c + n_g
                 continue
-            predicted = track[0] + track[1] * self.period
+            predicted = track[0] + track[1] * self.every * self.period
             error = smooth - predicted
             alpha, beta = self.track_gains[1 if self.active and self._is_active(a, _TRACK_FLAGGED) else 0]
             track[0] = predicted + alpha * error
             track[1] += beta * error
             self.off_run[j] = self.off_run[j] + 1 if abs(error) > OFFSET_LIMIT else 0
-            if self.off_run[j] >= OFFSET_SAMPLES:
+            if self.off_run[j] >= self.offset_evaluations:
                 found += [(a, "offset"), (r, "offset")]
-            if c < n_g or c < self.broken_until[j]:
-                continue
-            var = g[2] / n_g - (g[0] / n_g) ** 2
-            gain = (g[3] / n_g - g[0] * g[1] / n_g / n_g) / var if var >= GAIN_MIN_STD ** 2 else 0.0
+            gain = self._gain(j, c)
             self.gain_run[j] = self.gain_run[j] + 1 if abs(gain) > GAIN_LIMIT else 0
-            if self.gain_run[j] >= GAIN_SAMPLES:
+            if self.gain_run[j] >= self.gain_evaluations:
                 found += [(a, "gain"), (r, "gain")]
 
+    def _gain(self, j: int, c: int) -> float:
+        """Least-squares slope of link j's angle − integrated rate against its angle over the
+        gain window (0 while the window is short or the angle hardly moved)."""
+        if c < self.n_gain or c < self.broken_until[j]:
+            return 0.0
+        m = self.n_gain
+        sy, sx, sxx, sxy = self._window_sums(j, m, c)
+        var = sxx / m - (sx / m) ** 2
+        return (sxy / m - sx * sy / m / m) / var if var >= GAIN_MIN_STD ** 2 else 0.0
+
     def link_state(self) -> list[tuple[float, float]]:
-        """Per link: (offset error of its track, gain-window slope; NaN when not judged), for
-        measuring the margins on clean data."""
-        out = []
+        """Per link: (offset error of its track, gain-window slope), for measuring the margins
+        on clean data (NaN where not judged)."""
+        c, out = self.count, []
         for j in range(len(self.link_angle)):
-            g, n_g = self.g_sums[j], self.n_gain
-            var = g[2] / n_g - (g[0] / n_g) ** 2
-            gain = (g[3] / n_g - g[0] * g[1] / n_g / n_g) / var if var >= GAIN_MIN_STD ** 2 else math.nan
-            if self.count < self.n_gain or self.count < self.broken_until[j]:
-                gain = math.nan
-            if self.track is None or self.count < self.n_smooth:
-                out.append((math.nan, gain))
-            else:
-                out.append((self.r_sum[j] / self.n_smooth - self.track[j][0], gain))
+            if self.track is None or self.track[j] is None or c < self.n_smooth:
+                out.append((math.nan, math.nan))
+                continue
+            smooth = self._window_sums(j, self.n_smooth, c)[0] / self.n_smooth
+            gain = self._gain(j, c) if c >= self.n_gain and c >= self.broken_until[j] else math.nan
+            out.append((smooth - self.track[j][0], gain))
         return out
 
 
