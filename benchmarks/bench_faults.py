@@ -178,7 +178,7 @@ def table(rows: pd.DataFrame) -> str:
         flagged = g["flag_s"].notna()
         ts = g.loc[flagged, "flag_s"]
         tt = f"{ts.median():.2f}, {ts.max():.2f}" if len(ts) else "–"
-        names = ", ".join(sorted({k for s in g["named_as"] for k in s.split("/") if k}))
+        names = ", ".join(sorted({k for s in g["named_as"].fillna("") for k in str(s).split("/") if k}))
         fmt = lambda x: "–" if not np.isfinite(x) else f"{x:.0f}"  # noqa: E731
         lines.append(f"| {kind} | {group} | {len(g)} | {flagged.sum()} | {tt} | {names or '–'} | "
                      f"{g['fault_samples_ok'].mean():.0%} | "

@@ -30,7 +30,8 @@ its joint's motion, the fitting data's noise):
   time constant :data:`OFFSET_TAU`: the gyro's bias ramps it) by more than :data:`OFFSET_LIMIT`
   for :data:`OFFSET_SAMPLES` samples. A lasting offset or a drift faster than about
   OFFSET_LIMIT / OFFSET_TAU; while flagged the track follows only with :data:`OFFSET_TAU_FLAGGED`,
-  so a lasting offset is named for tens of seconds, not for ever. Both signals named.
+  so a lasting offset is named for tens of seconds, not for ever. Both signals named. The
+  house's pitch and roll (no rate to integrate) against their own track the same way.
 * ``gain`` (FMI 13): over :data:`GAIN_WINDOW` with the angle spread at least :data:`GAIN_MIN_STD`,
   the least-squares slope of (angle − integrated rate) against the angle exceeds
   :data:`GAIN_LIMIT` (a scale error of either signal; both named).
@@ -156,6 +157,7 @@ class HealthMonitor:
         self.pressure_rate = [(idx[s], idx[s.split("_")[0] + "_rate"]) for s in self.signals
                               if s.endswith("_pressure") and s.split("_")[0] + "_rate" in idx]
         self.lone = [idx[s] for s in ("slew_rate", "house_pitch", "house_roll") if s in idx]
+        self.tilts = [idx[s] for s in ("house_pitch", "house_roll") if s in idx]
         ref = reference or {}
         self.noise_limit = np.array([NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
                                      else np.inf for s in self.signals])
@@ -199,6 +201,9 @@ class HealthMonitor:
         self.integral = [0.0] * L
         self.origin: list | None = None  # angle origin: keeps the gain sums of squares small
         self.cum = [(0.0, 0.0, 0.0, 0.0)] * L  # running totals of y, x, x², x·y per link
+        self.tilt_cum = [0.0] * len(self.tilts)  # running totals of the house's pitch and roll
+        self.tilt_track: list = [None] * len(self.tilts)
+        self.tilt_run = [0] * len(self.tilts)
         self.track = None  # [level, slope] of each link's angle − integrated rate
         self.off_run = [0] * L
         self.gain_run = [0] * L
@@ -257,7 +262,8 @@ class HealthMonitor:
             resid.append(y)
             cum.append((sy + y, sx + x, sxx + x * x, sxy + x * y))
         self.cum = cum
-        self.ring[k] = (resid, cum)
+        self.tilt_cum = tilt_cum = [t + v[i] for t, i in zip(self.tilt_cum, self.tilts)]
+        self.ring[k] = (resid, cum, tilt_cum)
         self.prev = v
         self.count = c = c + 1
         end = k + size + 1  # one past the newest sample in the buffer
@@ -293,6 +299,8 @@ class HealthMonitor:
             self._noise(found, end)
         elif phase == 2 and c >= self.n_smooth:
             self._offset_and_gain(found, c)
+        elif phase == 3 and c >= self.n_smooth and self.tilts:
+            self._tilt_offset(found, c)
         return found
 
     def _stuck(self, found: list, v: list, end: int) -> None:
@@ -318,6 +326,10 @@ class HealthMonitor:
                 found.append((p, "stuck"))
         if any(turning[r] for r in self.link_rate):
             found += [(i, "stuck") for i in self.lone if i in still]
+        # a frozen value stays named while it stays frozen, moving or not: at rest it would
+        # otherwise be weighed with again (a stuck dipper angle: 482 kg 'ok' once the arm stopped)
+        if self.active:
+            found += [(i, "stuck") for i in still if (i, "stuck") in self.active]
 
     def _noise(self, found: list, end: int) -> None:
         # the last `every` second differences; a share of the window's beyond the limit
@@ -370,6 +382,29 @@ class HealthMonitor:
             self.gain_run[j] = self.gain_run[j] + 1 if abs(gain) > GAIN_LIMIT else 0
             if self.gain_run[j] >= self.gain_evaluations:
                 found += [(a, "gain"), (r, "gain")]
+
+    def _tilt_offset(self, found: list, c: int) -> None:
+        """The house's pitch and roll against their own slow track (no rate to compare with:
+        the house tilts only when the machine travels, and slowly)."""
+        n_s = self.n_smooth
+        now = self.ring[(c - 1) % self.size][2]
+        then = self.ring[(c - 1 - n_s) % self.size][2] if c > n_s else [0.0] * len(now)
+        for j, i in enumerate(self.tilts):
+            smooth = (now[j] - then[j]) / min(c, n_s)
+            track = self.tilt_track[j]
+            if track is None or (self.active and self._is_active(i, _RESTART_KINDS)) \
+                    or (found and any(f == i and kind in _RESTART_KINDS for f, kind in found)):
+                self.tilt_track[j] = [smooth, 0.0]
+                self.tilt_run[j] = 0
+                continue
+            predicted = track[0] + track[1] * self.every * self.period
+            error = smooth - predicted
+            alpha, beta = self.track_gains[1 if self.active and (i, "offset") in self.active else 0]
+            track[0] = predicted + alpha * error
+            track[1] += beta * error
+            self.tilt_run[j] = self.tilt_run[j] + 1 if abs(error) > OFFSET_LIMIT else 0
+            if self.tilt_run[j] >= self.offset_evaluations:
+                found.append((i, "offset"))
 
     def _gain(self, j: int, c: int) -> float:
         """Least-squares slope of link j's angle − integrated rate against its angle over the
