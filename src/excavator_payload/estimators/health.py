@@ -31,7 +31,8 @@ its joint's motion, the fitting data's noise):
   for :data:`OFFSET_SAMPLES` samples. A lasting offset or a drift faster than about
   OFFSET_LIMIT / OFFSET_TAU; while flagged the track follows only with :data:`OFFSET_TAU_FLAGGED`,
   so a lasting offset is named for tens of seconds, not for ever. Both signals named. The
-  house's pitch and roll (no rate to integrate) against their own track the same way.
+  size of the house's tilt (hypot of pitch and roll: on a slope they turn into each other as
+  the house slews, the size does not) against its own track the same way, both named.
 * ``gain`` (FMI 13): over :data:`GAIN_WINDOW` with the angle spread at least :data:`GAIN_MIN_STD`,
   the least-squares slope of (angle − integrated rate) against the angle exceeds
   :data:`GAIN_LIMIT` (a scale error of either signal; both named).
@@ -157,7 +158,10 @@ class HealthMonitor:
         self.pressure_rate = [(idx[s], idx[s.split("_")[0] + "_rate"]) for s in self.signals
                               if s.endswith("_pressure") and s.split("_")[0] + "_rate" in idx]
         self.lone = [idx[s] for s in ("slew_rate", "house_pitch", "house_roll") if s in idx]
-        self.tilts = [idx[s] for s in ("house_pitch", "house_roll") if s in idx]
+        # the house's tilt: pitch and roll turn into each other as the house slews on a slope,
+        # the size of the tilt does not
+        self.tilts = [idx[s] for s in ("house_pitch", "house_roll")] \
+            if "house_pitch" in idx and "house_roll" in idx else []
         ref = reference or {}
         self.noise_limit = np.array([NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
                                      else np.inf for s in self.signals])
@@ -201,9 +205,9 @@ class HealthMonitor:
         self.integral = [0.0] * L
         self.origin: list | None = None  # angle origin: keeps the gain sums of squares small
         self.cum = [(0.0, 0.0, 0.0, 0.0)] * L  # running totals of y, x, x², x·y per link
-        self.tilt_cum = [0.0] * len(self.tilts)  # running totals of the house's pitch and roll
-        self.tilt_track: list = [None] * len(self.tilts)
-        self.tilt_run = [0] * len(self.tilts)
+        self.tilt_cum = [0.0]  # running total of the house's tilt (hypot of pitch and roll)
+        self.tilt_track: list = [None]
+        self.tilt_run = [0]
         self.track = None  # [level, slope] of each link's angle − integrated rate
         self.off_run = [0] * L
         self.gain_run = [0] * L
@@ -262,7 +266,10 @@ class HealthMonitor:
             resid.append(y)
             cum.append((sy + y, sx + x, sxx + x * x, sxy + x * y))
         self.cum = cum
-        self.tilt_cum = tilt_cum = [t + v[i] for t, i in zip(self.tilt_cum, self.tilts)]
+        if self.tilts:
+            self.tilt_cum = tilt_cum = [self.tilt_cum[0] + math.hypot(v[self.tilts[0]], v[self.tilts[1]])]
+        else:
+            tilt_cum = self.tilt_cum
         self.ring[k] = (resid, cum, tilt_cum)
         self.prev = v
         self.count = c = c + 1
@@ -384,27 +391,28 @@ class HealthMonitor:
                 found += [(a, "gain"), (r, "gain")]
 
     def _tilt_offset(self, found: list, c: int) -> None:
-        """The house's pitch and roll against their own slow track (no rate to compare with:
-        the house tilts only when the machine travels, and slowly)."""
-        n_s = self.n_smooth
-        now = self.ring[(c - 1) % self.size][2]
-        then = self.ring[(c - 1 - n_s) % self.size][2] if c > n_s else [0.0] * len(now)
-        for j, i in enumerate(self.tilts):
-            smooth = (now[j] - then[j]) / min(c, n_s)
-            track = self.tilt_track[j]
-            if track is None or (self.active and self._is_active(i, _RESTART_KINDS)) \
-                    or (found and any(f == i and kind in _RESTART_KINDS for f, kind in found)):
-                self.tilt_track[j] = [smooth, 0.0]
-                self.tilt_run[j] = 0
-                continue
-            predicted = track[0] + track[1] * self.every * self.period
-            error = smooth - predicted
-            alpha, beta = self.track_gains[1 if self.active and (i, "offset") in self.active else 0]
-            track[0] = predicted + alpha * error
-            track[1] += beta * error
-            self.tilt_run[j] = self.tilt_run[j] + 1 if abs(error) > OFFSET_LIMIT else 0
-            if self.tilt_run[j] >= self.offset_evaluations:
-                found.append((i, "offset"))
+        """The size of the house's tilt (hypot of pitch and roll) against its own slow track:
+        no rate to compare with; the machine tilts only when it travels, and slowly. Both
+        named (the data cannot tell which)."""
+        n_s, pitch, roll = self.n_smooth, self.tilts[0], self.tilts[1]
+        now = self.ring[(c - 1) % self.size][2][0]
+        then = self.ring[(c - 1 - n_s) % self.size][2][0] if c > n_s else 0.0
+        smooth = (now - then) / min(c, n_s)
+        track = self.tilt_track[0]
+        if track is None or (self.active and (self._is_active(pitch, _RESTART_KINDS)
+                                              or self._is_active(roll, _RESTART_KINDS))) \
+                or (found and any(f in self.tilts and kind in _RESTART_KINDS for f, kind in found)):
+            self.tilt_track[0] = [smooth, 0.0]
+            self.tilt_run[0] = 0
+            return
+        predicted = track[0] + track[1] * self.every * self.period
+        error = smooth - predicted
+        alpha, beta = self.track_gains[1 if self.active and (pitch, "offset") in self.active else 0]
+        track[0] = predicted + alpha * error
+        track[1] += beta * error
+        self.tilt_run[0] = self.tilt_run[0] + 1 if abs(error) > OFFSET_LIMIT else 0
+        if self.tilt_run[0] >= self.offset_evaluations:
+            found += [(pitch, "offset"), (roll, "offset")]
 
     def _gain(self, j: int, c: int) -> float:
         """Least-squares slope of link j's angle − integrated rate against its angle over the
