@@ -3,7 +3,9 @@
 A short empty-bucket motion re-estimates the sensor offsets that drifted since calibration
 (:func:`excavator_payload.estimators.classical.calibrated_machine.zero_offsets`); everything
 else the calibration identified stays. The result goes to a new model folder: the calibrated
-one is never overwritten (``--out`` equal to ``--model`` is refused).
+one is never overwritten (``--out`` equal to ``--model`` is refused), and an offset built on a
+signal the sensor health monitor flags in the motion is refused too (``--force`` zeroes anyway
+and says which; :func:`excavator_payload.estimators.health.refuse_flagged`).
 
 The motion should move the boom, the dipper and the bucket: offsets are read from moving
 joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
