@@ -231,6 +231,8 @@ class Estimator(ABC):
         self.health = True
         self._health = None
         self._health_for = None
+        #: The fitting data's noise per signal for the monitor (see :func:`.health.noise_reference`).
+        self.health_reference: dict[str, float] | None = None
 
     @property
     def _hydraulic(self) -> bool:
@@ -330,6 +332,12 @@ class Estimator(ABC):
         # noise-free simulated data hold exact constants (a rod chamber at the back pressure, no
         # slew) that look like stuck sensors; the health monitor judges signals with noise
         self.health = str(dataset.meta.get("noise")) != "none"
+        # the fitting data's sample-to-sample spread: the family the health monitor's noise
+        # check compares with (machine set; see .health)
+        if self.sensor_set.name == "machine":
+            from excavator_payload.estimators.health import noise_reference
+
+            self.health_reference = noise_reference(dataset.frame, self.sensor_set.signals)
         # a work cycle's payload column is the load carried: after its dump the bucket is empty
         self._fit(dataset.until_dump())
         self._sentinel_source = None
@@ -438,7 +446,8 @@ class Estimator(ABC):
             if self._health_for is not self.sensor_set:
                 from excavator_payload.estimators.health import for_sensor_set
 
-                self._health, self._health_for = for_sensor_set(self.sensor_set), self.sensor_set
+                self._health = for_sensor_set(self.sensor_set, self.health_reference)
+                self._health_for = self.sensor_set
             fault = self._health.step(time, values) if self._health is not None else ""
             if fault:
                 # not used: the next healthy sample sees a hole in time and bridges it as a gap
@@ -631,6 +640,7 @@ class Estimator(ABC):
             "gate_sentinel": self._sentinel_source,
             "rated_payload": self.rated_payload,
             "health": bool(self.health),
+            "health_reference": self.health_reference,
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()

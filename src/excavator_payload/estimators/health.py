@@ -4,9 +4,9 @@ Every sample an estimator of the machine set uses passes :meth:`HealthMonitor.st
 (:meth:`~excavator_payload.estimators.base.Estimator.step_values`); while it reports a fault
 the sample is not used and the result is ``sensor_fault`` with the estimate kept (never
 ``ok``), naming the faulty signal(s) and kind(s) in ``StepResult.fault``, e.g.
-``"boom_head_pressure:stuck"`` (several comma-separated). Three kinds, each from the data and
+``"boom_head_pressure:stuck"`` (several comma-separated). Each kind comes from the data and
 the model's redundancy (a link's angle against its own rate, a cylinder's pressures against
-its joint's motion):
+its joint's motion, the fitting data's noise):
 
 * ``stuck`` (J1939 FMI 7): the signal changes by no more than :data:`STUCK_QUANTA` of its bus
   resolution over :data:`STUCK_WINDOW` while the arm moves: an angle whose rate says it turns,
@@ -17,16 +17,40 @@ its joint's motion):
   or pressure at exactly 0 for :data:`DROPOUT_SAMPLES` samples in a row while another of its
   group is not; a rate at exactly 0 that long while its angle turns.
 * ``disagree`` (FMI 2, data erratic): a link's angle change over :data:`DISAGREE_WINDOW` against
-  the integral of its rate differs by more than :data:`DISAGREE_LIMIT` (widened while the joint accelerates); both are named (the
-  data cannot tell which one lies). Catches a jumping or offset angle and runs of agreeing bad
-  frames, which no single-frame test sees.
+  the integral of its rate differs by more than :data:`DISAGREE_LIMIT` (widened while the joint
+  accelerates); both are named (the data cannot tell which one lies). Catches a jumping angle
+  and runs of agreeing bad frames, which no single-frame test sees.
+* ``noise`` (FMI 2): over :data:`NOISE_WINDOW`, at least :data:`NOISE_SHARE` of the samples'
+  second differences exceed :data:`NOISE_FACTOR` × what the fitting data showed for that signal
+  (:func:`noise_reference`; its 99th percentile). A share, not a sum of squares: one glitch
+  frame (the outlier gate's) never makes a noisy window. Off for a model saved without a
+  reference.
+* ``offset`` (FMI 13, out of calibration): a link's angle minus its integrated rate, smoothed
+  over :data:`OFFSET_SMOOTH`, leaves its own slow track (a level and a slope following it with
+  time constant :data:`OFFSET_TAU`: the gyro's bias ramps it) by more than :data:`OFFSET_LIMIT`
+  for :data:`OFFSET_SAMPLES` samples. A lasting offset or a drift faster than about
+  OFFSET_LIMIT / OFFSET_TAU; while flagged the track follows only with :data:`OFFSET_TAU_FLAGGED`,
+  so a lasting offset is named for tens of seconds, not for ever. Both signals named. The
+  size of the house's tilt (hypot of pitch and roll: on a slope they turn into each other as
+  the house slews, the size does not) against its own track the same way, both named.
+* ``gain`` (FMI 13): over :data:`GAIN_WINDOW` with the angle spread at least :data:`GAIN_MIN_STD`,
+  the least-squares slope of (angle − integrated rate) against the angle exceeds
+  :data:`GAIN_LIMIT` (a scale error of either signal; both named).
 
 A fault stays active until its condition has been clear for :data:`HOLD` (a spike of three
-frames is not half-trusted in between). The thresholds were measured on clean simulated data
-of every motion family (docs/sensor-health.md).
+frames is not half-trusted in between). Thresholds were set on clean simulated data of the
+simulator's own motion families and judged on held-out ones (docs/sensor-health.md).
+
+Cost: per sample, the dropout and disagree rules (a few operations per link in plain Python:
+numpy's call overhead dominates on 15 values); stuck, noise, offset and gain every
+:data:`EVERY` samples on the ring buffer's windows, staggered (running totals: the 2 s gain
+window is never summed again).
 """
 
 from __future__ import annotations
+
+import math
+from collections import deque
 
 import numpy as np
 
@@ -53,11 +77,43 @@ DISAGREE_PER_RATE_CHANGE = 0.5
 HOLD = 0.2
 #: Samples in a row an angle and its rate must disagree: one is a glitch for the outlier gate.
 DISAGREE_SAMPLES = 2
+#: Noise: window, s; a sample is noisy when its second difference exceeds this factor times the
+#: fitting data's 99th percentile for the signal; noisy when this share of the window is.
+NOISE_WINDOW = 0.5
+NOISE_QUANTILE = 0.99
+NOISE_FACTOR = 3.0
+NOISE_SHARE = 0.4
+#: A pressure's second difference is judged relative to 1 + |p| / this (Pa): the pump's ripple
+#: grows with the pressure, the transmitter's noise does not.
+NOISE_PRESSURE_SCALE = 1.0e6
+#: Offset: angle − integrated rate smoothed over this, s; its track's time constant, s (and
+#: while flagged); the deviation that counts, rad, and for how many samples in a row.
+OFFSET_SMOOTH = 0.5
+OFFSET_TAU = 4.0
+OFFSET_TAU_FLAGGED = 30.0
+OFFSET_LIMIT = 0.035
+OFFSET_SAMPLES = 10
+#: Gain: window, s; the angle's least spread over it, rad; the largest slope of (angle −
+#: integrated rate) against the angle (a 10 % scale error is 0.1); samples in a row.
+GAIN_WINDOW = 2.0
+GAIN_MIN_STD = 0.15
+GAIN_LIMIT = 0.08
+GAIN_SAMPLES = 10
 
+#: Stuck, noise, offset and gain are judged every this many samples (staggered; their windows
+#: are 0.3 s and more, and :data:`HOLD` bridges the samples in between).
+EVERY = 5
+
+#: The kinds in the order of the monitor's arrays.
+KINDS = ("stuck", "dropout", "disagree", "noise", "offset", "gain")
 #: J1939-73 failure mode identifier of each kind.
-FMI = {"stuck": 7, "dropout": 5, "disagree": 2}
+FMI = {"stuck": 7, "dropout": 5, "disagree": 2, "noise": 2, "offset": 13, "gain": 13}
 
 LINKS = ("boom", "dipper", "bucket")
+# kinds after which a link's angle − integrated rate is meaningless: its track starts again
+_RESTART_KINDS = ("stuck", "dropout", "noise")
+# kinds under which a link's track follows only slowly (a lasting offset stays named)
+_TRACK_FLAGGED = ("offset", "gain", "disagree")
 
 
 class HealthMonitor:
@@ -71,113 +127,421 @@ class HealthMonitor:
         Sample period, s.
     resolution : mapping
         Bus resolution per signal (the generated DBC's scale), SI units per bit.
+    reference : mapping or None
+        The fitting data's 99th percentile of each signal's |second difference|
+        (:func:`noise_reference`); None or a missing signal: no noise check on it.
     """
 
-    def __init__(self, signals, period: float, resolution) -> None:
+    def __init__(self, signals, period: float, resolution, reference=None) -> None:
         self.signals = tuple(signals)
         self.period = float(period)
+        n = len(self.signals)
         idx = {s: i for i, s in enumerate(self.signals)}
         self.quantum = np.array([STUCK_QUANTA * resolution[s] for s in self.signals])
-        self.n_stuck = max(2, int(round(STUCK_WINDOW / self.period)) + 1)
-        self.n_dis = max(2, int(round(DISAGREE_WINDOW / self.period)) + 1)
+        samples = lambda seconds: max(2, int(round(seconds / self.period)) + 1)  # noqa: E731
+        self.n_stuck = samples(STUCK_WINDOW)
+        self.n_dis = samples(DISAGREE_WINDOW)
+        self.n_smooth = samples(OFFSET_SMOOTH)
+        self.n_gain = samples(GAIN_WINDOW)
+        self.every = EVERY
+        self.n_blocks = max(1, int(round(NOISE_WINDOW / self.period / self.every)))
+        self.size = max(self.n_stuck, self.n_dis, self.n_smooth, self.n_gain, self.every + 2) + 1
         self.hold = int(round(HOLD / self.period))
-        self.links = [(idx[f"{k}_angle"], idx[f"{k}_rate"]) for k in LINKS
-                      if f"{k}_angle" in idx and f"{k}_rate" in idx]
+        self.duration = (self.n_stuck - 1) * self.period
+        links = [k for k in LINKS if f"{k}_angle" in idx and f"{k}_rate" in idx]
+        self.link_angle = [idx[f"{k}_angle"] for k in links]
+        self.link_rate = [idx[f"{k}_rate"] for k in links]
         self.angles = [idx[s] for s in self.signals if s.endswith("_angle")]
         self.pressures = [idx[s] for s in self.signals if s.endswith("_pressure")]
+        self.rates = [idx[s] for s in self.signals if s.endswith("_rate")]
         # each pressure's joint rate; the unpartnered signals watch every arm joint
-        self.pressure_rate = {idx[s]: idx[s.split("_")[0] + "_rate"] for s in self.signals
-                              if s.endswith("_pressure") and s.split("_")[0] + "_rate" in idx}
+        self.pressure_rate = [(idx[s], idx[s.split("_")[0] + "_rate"]) for s in self.signals
+                              if s.endswith("_pressure") and s.split("_")[0] + "_rate" in idx]
         self.lone = [idx[s] for s in ("slew_rate", "house_pitch", "house_roll") if s in idx]
-        self.arm_rates = [r for _, r in self.links]
+        # the house's tilt: pitch and roll turn into each other as the house slews on a slope,
+        # the size of the tilt does not
+        self.tilts = [idx[s] for s in ("house_pitch", "house_roll")] \
+            if "house_pitch" in idx and "house_roll" in idx else []
+        ref = reference or {}
+        self.noise_limit = np.array([NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
+                                     else np.inf for s in self.signals])
+        # the limit grows with |value| for pressures (× 1 + |p| / NOISE_PRESSURE_SCALE)
+        self.noise_relative = np.array([lim / NOISE_PRESSURE_SCALE if s.endswith("_pressure")
+                                        and np.isfinite(lim) else 0.0
+                                        for s, lim in zip(self.signals, self.noise_limit)])
+        self.noise_count_limit = NOISE_SHARE * self.n_blocks * self.every
+        self.noise_checked = np.isfinite(self.noise_limit).any()
+        # alpha-beta track of angle − integrated rate, critically damped (time constant tau),
+        # updated every `every` samples
+        step = self.every * self.period
+        self.track_gains = tuple((2 * step / tau, (step / tau) ** 2 / step)
+                                 for tau in (OFFSET_TAU, OFFSET_TAU_FLAGGED))
+        self.offset_evaluations = max(1, -(-OFFSET_SAMPLES // self.every))
+        self.gain_evaluations = max(1, -(-GAIN_SAMPLES // self.every))
         self.reset()
 
     def reset(self) -> None:
         """Forget the history (a new experiment, or a hole in time)."""
-        # ring buffer written twice (at k and k + n) so the last n samples are one ordered slice
-        self.size = max(self.n_stuck, self.n_dis)
-        self.buffer = np.zeros((2 * self.size, len(self.signals)))
-        self.pos = 0
-        self.count = 0
-        self.zeros = np.zeros(len(self.signals), int)
         self.active: dict[tuple[int, str], int] = {}  # (signal, kind) -> samples since last seen
-        self.disagreeing: dict[int, int] = {}  # angle -> samples in a row its rate disagrees
         self.last_time: float | None = None
+        self._restart()
 
-    def step(self, time: float, values: np.ndarray) -> str:
+    def _restart(self) -> None:
+        """Start the windows again (after a hole in time); active faults keep their hold."""
+        n, L = len(self.signals), len(self.link_angle)
+        self.count = 0
+        # the last `size` samples, written twice (at k and k + size) so that any window is one
+        # ordered slice; and per sample each link's (angle − integrated rate, cumulative sums)
+        self.buffer = np.zeros((2 * self.size, n))
+        self.ring: list = [None] * self.size
+        self.prev: list | None = None
+        self.noise_blocks: deque = deque()
+        self.noise_count = np.zeros(n, np.int64)
+        self.zeros = [0] * n
+        self.any_zeros = False
+        self.since_moving = {r: 1 << 30 for r in self.rates}
+        self.rate_window = [deque(maxlen=self.n_dis) for _ in range(L)]  # each link's last rates
+        self.disagreeing = [0] * L
+        self.integral = [0.0] * L
+        self.origin: list | None = None  # angle origin: keeps the gain sums of squares small
+        self.cum = [(0.0, 0.0, 0.0, 0.0)] * L  # running totals of y, x, x², x·y per link
+        self.tilt_cum = [0.0]  # running total of the house's tilt (hypot of pitch and roll)
+        self.tilt_track: list = [None]
+        self.tilt_run = [0]
+        self.track = None  # [level, slope] of each link's angle − integrated rate
+        self.off_run = [0] * L
+        self.gain_run = [0] * L
+        self.broken_until = [0] * L  # a link's gain is not judged until its windows are clean
+
+    def step(self, time: float, values) -> str:
         """Judge one finite, plausible sample; the active faults as ``"signal:kind,..."``
-        (empty when healthy)."""
+        (empty when healthy).
+
+        Parameters
+        ----------
+        time : float
+            Sample time, s.
+        values : array-like
+            The signals in :attr:`signals` order, SI units.
+        """
         if self.last_time is not None and not 0 < time - self.last_time <= 1.5 * self.period:
-            self.count = 0
-            self.zeros[:] = 0
+            self._restart()
         self.last_time = time
-        k = self.pos = (self.pos + 1) % self.size
-        self.buffer[k] = self.buffer[k + self.size] = values
-        self.count += 1
-        found = self._faults(values)
-        for key in list(self.active):
-            self.active[key] += 1
-            if self.active[key] > self.hold:
-                del self.active[key]
+        found = self._faults(np.asarray(values, dtype=float))
+        active = self.active
+        if active:
+            for key in list(active):
+                active[key] += 1
+                if active[key] > self.hold:
+                    del active[key]
         for key in found:
-            self.active[key] = 0
-        if not self.active:
+            active[key] = 0
+        if not active:
             return ""
-        return ",".join(f"{self.signals[i]}:{kind}" for i, kind in sorted(self.active))
+        return ",".join(f"{self.signals[i]}:{kind}" for i, kind in sorted(active))
+
+    def _is_active(self, signal: int, kinds) -> bool:
+        return any((signal, k) in self.active for k in kinds)
 
     def _faults(self, values: np.ndarray) -> list[tuple[int, str]]:
+        """The (signal, kind) conditions seen at this sample (before the hold)."""
         found: list[tuple[int, str]] = []
-        zero = values == 0.0
-        self.zeros = np.where(zero, self.zeros + 1, 0)
-        if self.zeros.max() >= DROPOUT_SAMPLES:
+        size, dt = self.size, self.period
+        v = values.tolist()
+        c = self.count
+        k = c % size
+        self.buffer[k] = self.buffer[k + size] = values
+        # -- per link: angle − integrated rate, and running totals for offset and gain ------
+        prev, integral = self.prev, self.integral
+        if self.origin is None:
+            self.origin = [v[a] for a in self.link_angle]
+        half = 0.5 * dt
+        resid, cum = [], []
+        for j, a, r, o, (sy, sx, sxx, sxy) in zip(range(3), self.link_angle, self.link_rate, self.origin,
+                                                  self.cum):
+            if prev is not None:
+                integral[j] += half * (prev[r] + v[r])
+            y = v[a] - integral[j]
+            x = v[a] - o
+            resid.append(y)
+            cum.append((sy + y, sx + x, sxx + x * x, sxy + x * y))
+        self.cum = cum
+        if self.tilts:
+            self.tilt_cum = tilt_cum = [self.tilt_cum[0] + math.hypot(v[self.tilts[0]], v[self.tilts[1]])]
+        else:
+            tilt_cum = self.tilt_cum
+        self.ring[k] = (resid, cum, tilt_cum)
+        self.prev = v
+        self.count = c = c + 1
+        end = k + size + 1  # one past the newest sample in the buffer
+        # -- every sample: moving joints, dropouts, angle against rate -----------------------
+        since = self.since_moving
+        for r in self.rates:
+            since[r] = 0 if not -MOVING_RATE <= v[r] <= MOVING_RATE else since[r] + 1
+        if self.any_zeros or 0.0 in v:
+            zeros = self.zeros = [z + 1 if x == 0.0 else 0 for z, x in zip(self.zeros, v)]
+            self.any_zeros = 0.0 in v
             for group in (self.angles, self.pressures):
-                for i in group:
-                    if self.zeros[i] >= DROPOUT_SAMPLES and not all(zero[j] for j in group):
-                        found.append((i, "dropout"))
-        end = self.pos + self.size + 1  # one past the newest sample
-        if self.count >= self.n_dis:
-            recent = self.buffer[end - self.n_dis:end]
-            for a, r in self.links:
-                moved = recent[-1, a] - recent[0, a]
-                integral = 0.5 * self.period * (recent[1:, r] + recent[:-1, r]).sum()
-                span = recent[:, r].max() - recent[:, r].min()
-                if abs(moved - integral) > DISAGREE_LIMIT + DISAGREE_PER_RATE_CHANGE * span:
+                if any(v[i] != 0.0 for i in group):
+                    found += [(i, "dropout") for i in group if zeros[i] >= DROPOUT_SAMPLES]
+        for window, r in zip(self.rate_window, self.link_rate):
+            window.append(v[r])
+        if c >= self.n_dis:
+            old_resid = self.ring[(c - self.n_dis) % size][0]
+            for j, a, r, window in zip(range(3), self.link_angle, self.link_rate, self.rate_window):
+                limit = DISAGREE_LIMIT + DISAGREE_PER_RATE_CHANGE * (max(window) - min(window))
+                if abs(resid[j] - old_resid[j]) > limit:
                     # a one-frame spike is the outlier gate's (rejected, the estimate untouched);
                     # a disagreement that lasts two samples is the sensor's
-                    self.disagreeing[a] = self.disagreeing.get(a, 0) + 1
-                    if self.disagreeing[a] >= DISAGREE_SAMPLES:
+                    self.disagreeing[j] += 1
+                    if self.disagreeing[j] >= DISAGREE_SAMPLES:
                         found += [(a, "disagree"), (r, "disagree")]
                 else:
-                    self.disagreeing[a] = 0
-        if self.count < self.n_stuck:
-            return found
-        w = self.buffer[end - self.n_stuck:end]
-        still = (w.max(axis=0) - w.min(axis=0)) <= self.quantum
-        turning = np.abs(w).max(axis=0) > MOVING_RATE  # rates only
-        duration = (len(w) - 1) * self.period
-        dropped = {i for i, kind in found if kind == "dropout"}
-        for a, r in self.links:
-            if still[a] and turning[r] and a not in dropped:
-                found.append((a, "stuck"))
-            angle_rate = abs(w[-1, a] - w[0, a]) / duration
-            if angle_rate > MOVING_RATE:
-                if still[r]:
-                    found.append((r, "stuck"))
-                elif self.zeros[r] >= DROPOUT_SAMPLES:
-                    found.append((r, "dropout"))
-        for p, r in self.pressure_rate.items():
-            if still[p] and turning[r] and p not in dropped:
-                found.append((p, "stuck"))
-        if any(turning[r] for r in self.arm_rates):
-            found += [(i, "stuck") for i in self.lone if still[i]]
+                    self.disagreeing[j] = 0
+        # -- every `every` samples, staggered: stuck, noise, offset and gain ----------------
+        phase = c % self.every
+        if phase == 0 and c >= self.n_stuck:
+            self._stuck(found, v, end)
+        elif phase == 1 and self.noise_checked and c > self.every + 2:
+            self._noise(found, end)
+        elif phase == 2 and c >= self.n_smooth:
+            self._offset_and_gain(found, c)
+        elif phase == 3 and c >= self.n_smooth and self.tilts:
+            self._tilt_offset(found, c)
         return found
 
+    def _stuck(self, found: list, v: list, end: int) -> None:
+        w = self.buffer[end - self.n_stuck:end]
+        still = (w.max(axis=0) - w.min(axis=0)) <= self.quantum
+        if not still.any():
+            return
+        still = set(np.flatnonzero(still).tolist())
+        first = w[0]
+        turning = {r: m < self.n_stuck for r, m in self.since_moving.items()}
+        dropped = {i for i, kind in found if kind == "dropout"}
+        zeros = self.zeros
+        for a, r in zip(self.link_angle, self.link_rate):
+            if a in still and turning[r] and a not in dropped:
+                found.append((a, "stuck"))
+            if abs(v[a] - first[a]) > MOVING_RATE * self.duration:
+                if r in still:
+                    found.append((r, "stuck"))
+                elif zeros[r] >= DROPOUT_SAMPLES:
+                    found.append((r, "dropout"))
+        for p, r in self.pressure_rate:
+            if p in still and turning[r] and p not in dropped:
+                found.append((p, "stuck"))
+        if any(turning[r] for r in self.link_rate):
+            found += [(i, "stuck") for i in self.lone if i in still]
+        # a frozen value stays named while it stays frozen, moving or not: at rest it would
+        # otherwise be weighed with again (a stuck dipper angle: 482 kg 'ok' once the arm stopped)
+        if self.active:
+            found += [(i, "stuck") for i in still if (i, "stuck") in self.active]
 
-def for_sensor_set(sensor_set) -> HealthMonitor | None:
-    """A monitor for ``sensor_set`` (the machine set only; None for the others)."""
+    def _noise(self, found: list, end: int) -> None:
+        # the last `every` second differences; a share of the window's beyond the limit
+        w = self.buffer[end - self.every - 2:end]
+        d2 = np.abs(w[2:] - 2.0 * w[1:-1] + w[:-2])
+        block = (d2 > self.noise_limit + np.abs(w[2:]) * self.noise_relative).sum(axis=0)
+        self.noise_blocks.append(block)
+        self.noise_count += block
+        if len(self.noise_blocks) > self.n_blocks:
+            self.noise_count -= self.noise_blocks.popleft()
+        if len(self.noise_blocks) == self.n_blocks:
+            noisy = self.noise_count >= self.noise_count_limit
+            if noisy.any():
+                found += [(i, "noise") for i in np.flatnonzero(noisy).tolist()]
+
+    def _window_sums(self, j: int, m: int, c: int) -> tuple:
+        """Sums of y, x, x², x·y of link j over its last m samples."""
+        now = self.ring[(c - 1) % self.size][1][j]
+        if c <= m:
+            return now
+        then = self.ring[(c - 1 - m) % self.size][1][j]
+        return tuple(p - q for p, q in zip(now, then))
+
+    def _offset_and_gain(self, found: list, c: int) -> None:
+        """The slow checks of each link's angle − integrated rate (``offset`` and ``gain``)."""
+        n_s, n_g = self.n_smooth, self.n_gain
+        if self.track is None:
+            self.track = [None] * len(self.link_angle)
+        for j, (a, r) in enumerate(zip(self.link_angle, self.link_rate)):
+            smooth = self._window_sums(j, n_s, c)[0] / min(c, n_s)
+            track = self.track[j]
+            # a link whose angle or rate was stuck, dropped out or noisy has a meaningless
+            # integral: its track starts again once that has cleared
+            if track is None or (self.active and (self._is_active(a, _RESTART_KINDS)
+                                                  or self._is_active(r, _RESTART_KINDS))) \
+                    or (found and any(i in (a, r) and kind in _RESTART_KINDS for i, kind in found)):
+                self.track[j] = [smooth, 0.0]
+                self.off_run[j] = self.gain_run[j] = 0
+                self.broken_until[j] = c + n_g
+                continue
+            predicted = track[0] + track[1] * self.every * self.period
+            error = smooth - predicted
+            alpha, beta = self.track_gains[1 if self.active and self._is_active(a, _TRACK_FLAGGED) else 0]
+            track[0] = predicted + alpha * error
+            track[1] += beta * error
+            self.off_run[j] = self.off_run[j] + 1 if abs(error) > OFFSET_LIMIT else 0
+            if self.off_run[j] >= self.offset_evaluations:
+                found += [(a, "offset"), (r, "offset")]
+            gain = self._gain(j, c)
+            self.gain_run[j] = self.gain_run[j] + 1 if abs(gain) > GAIN_LIMIT else 0
+            if self.gain_run[j] >= self.gain_evaluations:
+                found += [(a, "gain"), (r, "gain")]
+
+    def _tilt_offset(self, found: list, c: int) -> None:
+        """The size of the house's tilt (hypot of pitch and roll) against its own slow track:
+        no rate to compare with; the machine tilts only when it travels, and slowly. Both
+        named (the data cannot tell which)."""
+        n_s, pitch, roll = self.n_smooth, self.tilts[0], self.tilts[1]
+        now = self.ring[(c - 1) % self.size][2][0]
+        then = self.ring[(c - 1 - n_s) % self.size][2][0] if c > n_s else 0.0
+        smooth = (now - then) / min(c, n_s)
+        track = self.tilt_track[0]
+        if track is None or (self.active and (self._is_active(pitch, _RESTART_KINDS)
+                                              or self._is_active(roll, _RESTART_KINDS))) \
+                or (found and any(f in self.tilts and kind in _RESTART_KINDS for f, kind in found)):
+            self.tilt_track[0] = [smooth, 0.0]
+            self.tilt_run[0] = 0
+            return
+        predicted = track[0] + track[1] * self.every * self.period
+        error = smooth - predicted
+        alpha, beta = self.track_gains[1 if self.active and (pitch, "offset") in self.active else 0]
+        track[0] = predicted + alpha * error
+        track[1] += beta * error
+        self.tilt_run[0] = self.tilt_run[0] + 1 if abs(error) > OFFSET_LIMIT else 0
+        if self.tilt_run[0] >= self.offset_evaluations:
+            found += [(pitch, "offset"), (roll, "offset")]
+
+    def _gain(self, j: int, c: int) -> float:
+        """Least-squares slope of link j's angle − integrated rate against its angle over the
+        gain window (0 while the window is short or the angle hardly moved)."""
+        if c < self.n_gain or c < self.broken_until[j]:
+            return 0.0
+        m = self.n_gain
+        sy, sx, sxx, sxy = self._window_sums(j, m, c)
+        var = sxx / m - (sx / m) ** 2
+        return (sxy / m - sx * sy / m / m) / var if var >= GAIN_MIN_STD ** 2 else 0.0
+
+    def link_state(self) -> list[tuple[float, float]]:
+        """Per link: (offset error of its track, gain-window slope), for measuring the margins
+        on clean data (NaN where not judged)."""
+        c, out = self.count, []
+        for j in range(len(self.link_angle)):
+            if self.track is None or self.track[j] is None or c < self.n_smooth:
+                out.append((math.nan, math.nan))
+                continue
+            smooth = self._window_sums(j, self.n_smooth, c)[0] / self.n_smooth
+            gain = self._gain(j, c) if c >= self.n_gain and c >= self.broken_until[j] else math.nan
+            out.append((smooth - self.track[j][0], gain))
+        return out
+
+
+def noise_reference(frame, signals, experiment: str = "experiment") -> dict[str, float]:
+    """Each signal's 99th percentile of |second difference| sample to sample in ``frame`` (the
+    fitting data), within experiments; the family the ``noise`` check compares with.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Samples in time order per experiment, with ``signals`` and an ``experiment`` column.
+    signals : sequence of str
+        The signals to measure.
+    experiment : str
+        The column that separates experiments (second differences never span two).
+    """
+    values = frame[list(signals)].to_numpy(dtype=float)
+    relative = np.array([1.0 / NOISE_PRESSURE_SCALE if s.endswith("_pressure") else 0.0 for s in signals])
+    d2 = np.abs(values[2:] - 2 * values[1:-1] + values[:-2]) / (1.0 + np.abs(values[2:]) * relative)
+    if experiment in frame.columns:
+        e = frame[experiment].to_numpy()
+        d2 = d2[(e[2:] == e[1:-1]) & (e[1:-1] == e[:-2])]
+    out = {}
+    for j, s in enumerate(signals):
+        col = d2[:, j]
+        col = col[np.isfinite(col)]
+        if len(col) >= 100:
+            out[s] = float(np.quantile(col, NOISE_QUANTILE))
+    return out
+
+
+def for_sensor_set(sensor_set, reference=None) -> HealthMonitor | None:
+    """A monitor for ``sensor_set`` (the machine set only; None for the others).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The estimator's sensor set.
+    reference : mapping or None
+        :func:`noise_reference` of the fitting data (None: no noise check).
+    """
     if sensor_set.name != "machine":
         return None
     from excavator_payload.data.schema import RESOLUTION
 
     resolution = {s: RESOLUTION[sensor_set.units[s]] for s in sensor_set.signals}
-    return HealthMonitor(sensor_set.signals, sensor_set.sample_period, resolution)
+    return HealthMonitor(sensor_set.signals, sensor_set.sample_period, resolution, reference)
+
+
+def flagged_signals(estimator, dataset) -> dict[str, str]:
+    """The signals a fresh monitor flags anywhere in ``dataset`` (per experiment), each with its
+    kinds and the first time, e.g. ``{"boom_head_pressure": "stuck at 3.20 s"}``; for commands
+    that must not build on a faulty signal (``zero``).
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted estimator of the machine sensor set (its noise reference is used).
+    dataset : Dataset
+        The data to judge (machine sensor set).
+    """
+    monitor = for_sensor_set(dataset.sensor_set, getattr(estimator, "health_reference", None))
+    if monitor is None:
+        return {}
+    frame = dataset.frame
+    signals = list(dataset.sensor_set.signals)
+    values = frame[signals].to_numpy(dtype=float)
+    times = frame["time"].to_numpy(dtype=float)
+    exps = frame["experiment"].to_numpy() if "experiment" in frame.columns else np.zeros(len(frame))
+    low, high = getattr(estimator, "plausible_low", None), getattr(estimator, "plausible_high", None)
+    seen: dict[str, tuple[set, float]] = {}
+    last = None
+    for t, x, e in zip(times, values, exps):
+        if e != last:
+            monitor.reset()
+            last = e
+        if not np.all(np.isfinite(x)) or (low is not None and not (np.all(x >= low) and np.all(x <= high))):
+            continue  # the estimator skips these samples itself
+        fault = monitor.step(float(t), x)
+        for item in filter(None, fault.split(",")):
+            signal, _, kind = item.partition(":")
+            kinds, when = seen.setdefault(signal, (set(), float(t)))
+            kinds.add(kind)
+    return {s: f"{'/'.join(sorted(k))} at {t:.2f} s" for s, (k, t) in seen.items()}
+
+
+def refuse_flagged(estimator, dataset, used_signals, command: str = "zero") -> None:
+    """Raise :class:`~excavator_payload.errors.EstimatorError` (one line) when the monitor flags
+    any of ``used_signals`` in ``dataset``: a result built on it would carry the fault.
+
+    Parameters
+    ----------
+    estimator : Estimator
+        The fitted estimator whose noise reference the monitor uses.
+    dataset : Dataset
+        The data the command would build on.
+    used_signals : sequence of str
+        The signals the command's result depends on.
+    command : str
+        The command's name, for the message.
+    """
+    from excavator_payload.errors import EstimatorError
+
+    flagged = flagged_signals(estimator, dataset)
+    bad = [f"{s} ({flagged[s]})" for s in used_signals if s in flagged]
+    if bad:
+        raise EstimatorError(f"{command}: the sensor health monitor flags {', '.join(bad)}; an offset "
+                             f"built on it would carry the fault (fix the sensor and record again, "
+                             f"or --force)")
+

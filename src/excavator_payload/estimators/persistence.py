@@ -99,6 +99,13 @@ def load_estimator(directory: str | Path, expected: type | None = None):
             raise EstimatorError(f"its rated_payload must be a positive number of kg, got {rated!r}")
         est.rated_payload = None if rated is None else float(rated)
         est.health = config.get("health", True) is not False  # fitted on noise-free data: off
+        reference = config.get("health_reference")  # older files: none (no noise check)
+        if reference is not None:
+            if not (isinstance(reference, dict) and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                    for v in reference.values())):
+                raise EstimatorError("its 'health_reference' must map signals to finite numbers")
+            est.health_reference = {str(k): float(v) for k, v in reference.items()}
         source = config.get("gate_sentinel")
         if source is not None:
             if not (isinstance(source, dict) and isinstance(source.get("machine"), dict)

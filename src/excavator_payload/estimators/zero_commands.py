@@ -3,7 +3,9 @@
 A short empty-bucket motion re-estimates the sensor offsets that drifted since calibration
 (:func:`excavator_payload.estimators.classical.calibrated_machine.zero_offsets`); everything
 else the calibration identified stays. The result goes to a new model folder: the calibrated
-one is never overwritten (``--out`` equal to ``--model`` is refused).
+one is never overwritten (``--out`` equal to ``--model`` is refused), and an offset built on a
+signal the sensor health monitor flags in the motion is refused too (``--force`` zeroes anyway
+and says which; :func:`excavator_payload.estimators.health.refuse_flagged`).
 
 The motion should move the boom, the dipper and the bucket: offsets are read from moving
 joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
@@ -22,14 +24,28 @@ import typer
 from excavator_payload.errors import EstimatorError
 
 
-def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool = True):
+def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool = False):
     """Load ``model``, re-estimate its offsets from ``data`` (empty bucket), save to ``out``.
 
     Returns the zeroed estimator; its ``zero_warnings`` say how many samples the check could
-    not use, its ``zero_refusals`` why it would weigh worse than 1 % of rated. Without
-    ``force`` a zero with refusals is not saved (:class:`EstimatorError`).
+    not use (and, with ``force``, which signals the health monitor flagged), its
+    ``zero_refusals`` why it would weigh worse than 1 % of rated.
+
+    Parameters
+    ----------
+    model : str or Path
+        Folder of the calibrated model.
+    data : str or Path
+        Parquet of the empty-bucket motion.
+    out : str or Path
+        New folder for the zeroed model.
+    force : bool
+        Zero and save even when the sensor health monitor flags a signal of ``data`` (an offset
+        built on a faulty signal carries the fault into every later weighing) or when the zero
+        would weigh worse than 1 % of rated (:class:`EstimatorError` otherwise, nothing saved).
     """
     from excavator_payload.data.io import read_dataset
+    from excavator_payload.estimators import health
     from excavator_payload.estimators.base import load_estimator
     from excavator_payload.estimators.classical import calibrated_machine
 
@@ -39,7 +55,16 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
     dataset = read_dataset(data, machine=estimator.machine)
     if "payload" not in dataset.frame.columns:
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
-    estimator.zero_warnings = calibrated_machine.zero(estimator, dataset)
+    notes = []
+    if force:
+        flagged = health.flagged_signals(estimator, dataset)
+        if flagged:
+            notes.append("zero: --force: built on signals the health monitor flags: "
+                         + ", ".join(f"{s} ({w})" for s, w in flagged.items()))
+    else:
+        # every signal feeds the offsets (the rates and angles say which cylinder moved)
+        health.refuse_flagged(estimator, dataset, dataset.sensor_set.signals, "zero")
+    estimator.zero_warnings = calibrated_machine.zero(estimator, dataset) + notes
     if estimator.zero_refusals and not force:
         reasons = "; ".join(r[len("zero: "):] for r in estimator.zero_refusals)
         raise EstimatorError(f"zero refused, not saved: {reasons} "
@@ -70,8 +95,9 @@ def register(app: typer.Typer) -> None:
         data: Path = typer.Option(..., "--data", help="Parquet of a short empty-bucket motion."),
         out: Path = typer.Option(..., "--out", help="New model folder for the zeroed model "
                                  "(not --model: the calibrated model is kept)."),
-        force: bool = typer.Option(False, "--force", help="Save the zeroed model even when the zero "
-                                   "would weigh worse than 1 % of rated or did not determine every "
+        force: bool = typer.Option(False, "--force", help="Zero and save even when the sensor "
+                                   "health monitor flags a signal of --data, or when the zero would "
+                                   "weigh worse than 1 % of rated or did not determine every "
                                    "cylinder's offsets (the reasons become warnings)."),
     ) -> None:
         """Check zero: re-estimate the sensor offsets from an empty-bucket motion, keep the rest."""

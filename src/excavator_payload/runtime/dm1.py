@@ -18,7 +18,8 @@ transport protocol (a TP.CM BAM frame, PGN 0xECFF, then TP.DT frames, PGN 0xEBFF
 SPN: the generated DBC's (:func:`~excavator_payload.runtime.dbc.sensor_layout`: 520192 + the
 signal's column index, the manufacturer-specific range). FMI: :data:`~excavator_payload.
 estimators.health.FMI` (7 stuck: mechanical system not responding; 5 dropout: current below
-normal or open circuit; 2 disagree: data erratic).
+normal or open circuit; 2 disagree and noise: data erratic; 13 offset and gain: out of
+calibration).
 """
 
 from __future__ import annotations
