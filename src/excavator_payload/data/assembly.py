@@ -55,7 +55,17 @@ LEARN_INTERVALS = 16
 
 @dataclass(frozen=True)
 class Sample:
-    """One sample on the model's clock."""
+    """One sample on the model's clock.
+
+    Parameters
+    ----------
+    time : float
+        The tick's time on the model's clock, s.
+    values : numpy.ndarray
+        The signals in sensor-set order; NaN where stale, never heard or bad.
+    stale : tuple of str
+        Names of the signals that are stale in this sample.
+    """
 
     time: float                  # s, the tick
     values: np.ndarray           # signals in sensor-set order; NaN: stale, never heard or bad
@@ -102,7 +112,18 @@ class SampleAssembler:
 
     # -- periods ---------------------------------------------------------------------------
     def message_period(self, name: str) -> float:
-        """Message ``name``'s period, s: nominal, else learnt, else the model's."""
+        """Message ``name``'s period, s: nominal, else learnt, else the model's.
+
+        Parameters
+        ----------
+        name : str
+            The message's name (a key of ``messages``).
+
+        Returns
+        -------
+        float
+            The period, s.
+        """
         nominal = self.nominal.get(name)
         if nominal:
             return float(nominal)
@@ -112,7 +133,18 @@ class SampleAssembler:
         return self.period
 
     def tick_time(self, tick: int) -> float:
-        """The time of ``tick`` on the (phase-locked) clock."""
+        """The time of ``tick`` on the (phase-locked) clock.
+
+        Parameters
+        ----------
+        tick : int
+            Tick number, 0 at the first frame's tick.
+
+        Returns
+        -------
+        float
+            The tick's time, s.
+        """
         return self._origin + tick * self.period
 
     def _index(self, stamp: float) -> int:
@@ -120,7 +152,22 @@ class SampleAssembler:
 
     # -- frames in -----------------------------------------------------------------------------
     def add(self, message: str, stamp: float, decoded: Sequence[tuple[int, float]]) -> list[Sample]:
-        """One decoded frame of ``message`` at ``stamp``; returns the samples it completed."""
+        """One decoded frame of ``message`` at ``stamp``; returns the samples it completed.
+
+        Parameters
+        ----------
+        message : str
+            The frame's message name (a key of ``messages``).
+        stamp : float
+            The frame's timestamp, s.
+        decoded : sequence of (int, float)
+            ``(signal index, value)`` pairs decoded from the frame, values in SI units.
+
+        Returns
+        -------
+        list of Sample
+            The samples this frame completed (often none or one).
+        """
         out: list[Sample] = []
         if self._origin is not None and stamp < self.tick_time(self._tick) - RESTART_BACK:
             # the sender's clock went back (an ECU restarted): a new clock, not a late frame

@@ -22,7 +22,7 @@ from excavator_payload.errors import DatasetError
 class Dataset:
     """Samples of many experiments, one row per sample of its sensor set.
 
-    Attributes
+    Parameters
     ----------
     frame : pandas.DataFrame
         ``experiment``, ``time``, the signals of :attr:`sensor_set`, ``payload`` (kg; absent in
@@ -32,6 +32,8 @@ class Dataset:
         File-level metadata: ``sensor_set`` (name), ``machine`` (dict), ``noise`` (preset name), ``motion``,
         ``base_seed``, ``sample_rate``, and ``experiments``: a list of per-experiment dicts
         (``experiment``, ``seed``, ``payload``, ``start_pose``, ``target_pose``, ``status``, …).
+    source : object, optional
+        The file it was read from (None if made in memory); outputs must never overwrite it.
     """
 
     frame: pd.DataFrame
@@ -87,7 +89,18 @@ class Dataset:
             yield int(exp_id), rows
 
     def subset(self, experiment_ids) -> "Dataset":
-        """A dataset with only the given experiments (metadata filtered too)."""
+        """A dataset with only the given experiments (metadata filtered too).
+
+        Parameters
+        ----------
+        experiment_ids : iterable of int
+            Experiment numbers to keep; each must be in the dataset.
+
+        Returns
+        -------
+        Dataset
+            The rows and metadata of those experiments.
+        """
         ids = [int(i) for i in experiment_ids]
         known = set(int(i) for i in self.experiment_ids)
         unknown = [i for i in ids if i not in known]
@@ -124,12 +137,24 @@ class Dataset:
         return out
 
     def signals(self, columns=None) -> np.ndarray:
-        """All rows of the given columns (default: the sensor set's signals) as floats (n_rows, n_columns)."""
+        """All rows of the given columns (default: the sensor set's signals) as floats (n_rows, n_columns).
+
+        Parameters
+        ----------
+        columns : sequence of str, optional
+            Column names; None: the sensor set's signals.
+        """
         columns = self.sensor_set.signals if columns is None else columns
         return self.frame[list(columns)].to_numpy(dtype=float)
 
     def stacked(self, columns=None) -> np.ndarray:
-        """Array (n_experiments, n_samples, n_columns); needs equal-length experiments."""
+        """Array (n_experiments, n_samples, n_columns); needs equal-length experiments.
+
+        Parameters
+        ----------
+        columns : sequence of str, optional
+            Column names; None: the sensor set's signals.
+        """
         columns = self.sensor_set.signals if columns is None else columns
         sizes = self.frame.groupby("experiment", sort=False).size().to_numpy()
         if len(set(sizes)) != 1:

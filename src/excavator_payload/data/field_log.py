@@ -36,7 +36,13 @@ TABLE_SUFFIXES = (".csv", ".parquet", ".pq")
 
 def is_field_table(path: str | Path) -> bool:
     """Whether ``path`` is a field log table: a CSV, or a Parquet file with a time column and no
-    ``experiment`` column (a dataset written by this package always has one)."""
+    ``experiment`` column (a dataset written by this package always has one).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The file to look at.
+    """
     path = Path(path)
     if not path.is_file():
         return False
@@ -64,7 +70,22 @@ def _read_table(path: Path) -> pd.DataFrame:
 
 
 def read_field_table(path: str | Path, *, validate: bool = True, segment_gap: float = SEGMENT_GAP) -> Dataset:
-    """A field log table as a :class:`Dataset` (see the module docstring)."""
+    """A field log table as a :class:`Dataset` (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The CSV or Parquet log: a time column (s) and the signals of a sensor set.
+    validate : bool, default True
+        Validate the resulting frame against the sensor set's schema.
+    segment_gap : float, default 2.0
+        Silence, s, that separates two recordings (each becomes one experiment).
+
+    Returns
+    -------
+    Dataset
+        One experiment per recording, on the sensor set's sample clock.
+    """
     from excavator_payload.data.validation import validate_frame
 
     path = Path(path)

@@ -102,7 +102,15 @@ def new_file_mode() -> int:
 
 
 def atomic_write_table(table: pa.Table, path: str | Path) -> None:
-    """Write a Parquet table atomically (temporary file + rename): never a half-written file."""
+    """Write a Parquet table atomically (temporary file + rename): never a half-written file.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+        The table to write (zstd-compressed).
+    path : str or pathlib.Path
+        Destination file; its folder is created if missing.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -118,7 +126,15 @@ def atomic_write_table(table: pa.Table, path: str | Path) -> None:
 
 
 def write_dataset(dataset: Dataset, path: str | Path) -> None:
-    """Validate and write ``dataset`` to ``path`` (Parquet, atomic)."""
+    """Validate and write ``dataset`` to ``path`` (Parquet, atomic).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The dataset to write; its metadata and units go into the file's schema metadata.
+    path : str or pathlib.Path
+        Destination Parquet file.
+    """
     sensors = dataset.sensor_set
     validate_frame(dataset.frame, source="dataset to write", sensor_set=sensors)
     cols = [c for c in sensors.columns if c in dataset.frame.columns]
@@ -136,7 +152,13 @@ def write_dataset(dataset: Dataset, path: str | Path) -> None:
 
 
 def read_metadata(path: str | Path) -> dict:
-    """The excavator_payload metadata of a Parquet file (empty dict if it has none)."""
+    """The excavator_payload metadata of a Parquet file (empty dict if it has none).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The Parquet file.
+    """
     schema = _read_schema(Path(path))
     raw = (schema.metadata or {}).get(METADATA_KEY)
     if raw is None:
@@ -165,6 +187,20 @@ def read_dataset(path: str | Path, *, validate: bool = True, machine=None) -> Da
     head and rod pressures (:func:`excavator_payload.data.wiring.check_wiring`) with ``machine``
     (the machine the reading model believes in: a machine, preset name or file) or else the
     machine in the file's metadata.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The Parquet dataset, or a field log table (CSV / Parquet without experiments).
+    validate : bool, default True
+        Check the schema (and, for the machine sensor set, the pressure wiring).
+    machine : Machine, str or pathlib.Path, optional
+        The machine the reading model believes in, for the wiring check; None: the file's.
+
+    Returns
+    -------
+    Dataset
+        The dataset, with ``source`` set to ``path``.
 
     Raises
     ------
@@ -225,7 +261,13 @@ def _check_metadata(meta: dict, source: str) -> None:
 
 
 def read_estimates(path: str | Path) -> pd.DataFrame:
-    """Read an estimates file (``experiment``, ``time``, ``payload_estimate``, optional ``status``)."""
+    """Read an estimates file (``experiment``, ``time``, ``payload_estimate``, optional ``status``).
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The Parquet estimates file.
+    """
     path = Path(path)
     _read_schema(path)
     try:
@@ -239,7 +281,17 @@ def read_estimates(path: str | Path) -> pd.DataFrame:
 
 
 def write_estimates(frame: pd.DataFrame, path: str | Path, meta: dict | None = None) -> None:
-    """Write an estimates table atomically as Parquet."""
+    """Write an estimates table atomically as Parquet.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The estimates: ``experiment``, ``time``, ``payload_estimate`` (kg), optional ``status``.
+    path : str or pathlib.Path
+        Destination Parquet file.
+    meta : dict, optional
+        Metadata stored as JSON in the file's schema metadata.
+    """
     missing = [c for c in ESTIMATE_COLUMNS if c not in frame.columns]
     if missing:
         raise DatasetError(f"estimates are missing column(s) {', '.join(missing)}")

@@ -46,7 +46,13 @@ def _cell_row(strings) -> np.ndarray:
 
 
 def dataset_to_cells(dataset: Dataset) -> np.ndarray:
-    """The 1×N object array of per-experiment structs (dicts) that ``savemat`` writes."""
+    """The 1×N object array of per-experiment structs (dicts) that ``savemat`` writes.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        A dataset of the thesis sensor set; signals are converted to the thesis' units.
+    """
     experiment_meta = dataset.experiment_meta
     noise = dataset.meta.get("noise", "unknown")
     machine = (dataset.meta.get("machine") or {}).get("name", "unknown")
@@ -73,6 +79,13 @@ def dataset_to_cells(dataset: Dataset) -> np.ndarray:
 
 def export_mat(dataset: Dataset, path: str | Path) -> None:
     """Write ``dataset`` to the MATLAB file ``path`` (variable ``dataset``), atomically.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        A dataset of the thesis sensor set, at least one experiment.
+    path : str or pathlib.Path
+        Destination ``.mat`` file; must not be the dataset's own source file.
 
     Raises
     ------

@@ -98,7 +98,7 @@ FORMAT_VERSION = 1
 class SensorSet:
     """The signals of one kind of installation.
 
-    Attributes
+    Parameters
     ----------
     name : str
         Registry name (``thesis``, ``machine``), stored in dataset metadata.
@@ -157,15 +157,38 @@ class SensorSet:
         return tuple(c for c in heads if f"{c}_rod_pressure" in self.signals)
 
     def index(self, signal: str) -> int:
-        """Position of ``signal`` in :attr:`signals`."""
+        """Position of ``signal`` in :attr:`signals`.
+
+        Parameters
+        ----------
+        signal : str
+            A signal name of this set.
+        """
         return self.signals.index(signal)
 
     def indices(self, signals: Iterable[str]) -> list[int]:
-        """Positions of several signals."""
+        """Positions of several signals.
+
+        Parameters
+        ----------
+        signals : iterable of str
+            Signal names of this set.
+
+        Returns
+        -------
+        list of int
+            Their positions in :attr:`signals`, in the given order.
+        """
         return [self.signals.index(s) for s in signals]
 
     def unit(self, column: str) -> str:
-        """SI unit of any column of this set (signals, truth columns, ``time``, ``payload``)."""
+        """SI unit of any column of this set (signals, truth columns, ``time``, ``payload``).
+
+        Parameters
+        ----------
+        column : str
+            A column name; unknown columns have the unit ``""``.
+        """
         base = column.removeprefix("true_")
         return {"experiment": "", "time": "s", "payload": "kg", **self.extra_units,
                 **self.units}.get(base, self.extra_units.get(column, ""))
@@ -241,7 +264,13 @@ SENSOR_SETS: dict[str, SensorSet] = {s.name: s for s in (THESIS_SENSORS, MACHINE
 
 
 def get_sensor_set(sensor_set: "str | SensorSet") -> SensorSet:
-    """The :class:`SensorSet` called ``sensor_set`` (an object is returned as it is)."""
+    """The :class:`SensorSet` called ``sensor_set`` (an object is returned as it is).
+
+    Parameters
+    ----------
+    sensor_set : str or SensorSet
+        A registry name (``thesis``, ``machine``) or a sensor set.
+    """
     if isinstance(sensor_set, SensorSet):
         return sensor_set
     try:
@@ -254,7 +283,13 @@ def get_sensor_set(sensor_set: "str | SensorSet") -> SensorSet:
 
 
 def detect_sensor_set(columns: Iterable[str]) -> SensorSet | None:
-    """The sensor set whose signals are all among ``columns`` (the largest such), or None."""
+    """The sensor set whose signals are all among ``columns`` (the largest such), or None.
+
+    Parameters
+    ----------
+    columns : iterable of str
+        Column names of a table.
+    """
     cols = set(columns)
     matches = [s for s in SENSOR_SETS.values() if set(s.signals) <= cols]
     return max(matches, key=lambda s: len(s.signals)) if matches else None

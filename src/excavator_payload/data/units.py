@@ -55,7 +55,20 @@ def _unit_hint(ratio: float, units: tuple[tuple[str, float], ...], si: str) -> s
 
 def experiment_peaks(frame: pd.DataFrame, columns) -> pd.DataFrame:
     """Largest finite ``|value|`` of each column in each experiment (experiments in file order;
-    NaN where an experiment has no finite value)."""
+    NaN where an experiment has no finite value).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        A sample table with an ``experiment`` column.
+    columns : iterable of str
+        The columns to take the peaks of.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per experiment, one column per given column.
+    """
     values = frame[list(columns)].abs()
     values = values.where(np.isfinite(values))
     experiments = frame["experiment"].to_numpy()
@@ -67,6 +80,15 @@ def experiment_peaks(frame: pd.DataFrame, columns) -> pd.DataFrame:
 def check_experiment_units(frame: pd.DataFrame, sensors, source: str) -> None:
     """Refuse an experiment (or one signal of it) in another unit than the rest (see the module
     docstring). ``frame`` has ``experiment`` and the sensor set's signals.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The sample table.
+    sensors : SensorSet
+        Its sensor set; its pressure (Pa) and torque (N*m) signals are checked.
+    source : str
+        Where the data came from (a file name), the start of every error message.
 
     Raises
     ------
@@ -80,7 +102,17 @@ def check_experiment_units(frame: pd.DataFrame, sensors, source: str) -> None:
 
 def check_peaks(peaks: pd.DataFrame, sensors, source: str) -> None:
     """:func:`check_experiment_units` on the per-experiment peaks (:func:`experiment_peaks`) of
-    the pressure and torque columns."""
+    the pressure and torque columns.
+
+    Parameters
+    ----------
+    peaks : pandas.DataFrame
+        Per-experiment peak ``|value|`` of the columns, from :func:`experiment_peaks`.
+    sensors : SensorSet
+        The sensor set whose units name the pressure (Pa) and torque (N*m) columns.
+    source : str
+        Where the data came from (a file name), the start of every error message.
+    """
     pressures = [c for c in peaks.columns if sensors.units.get(c) == "Pa"]
     torques = [c for c in peaks.columns if sensors.units.get(c) == "N*m"]
     if pressures:
@@ -143,6 +175,17 @@ def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rat
     and torques against the others' (:func:`excavator_payload.data.units.check_experiment_units`),
     pressures in Pa, and (``rates``) rates against their angles. Also run on the samples decoded
     from a CAN log (:class:`SampleWatch`).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The sample table.
+    sensors : SensorSet
+        Its sensor set (units, plausible magnitudes, rate pairs).
+    source : str
+        Where the data came from (a file name), the start of every error message.
+    rates : bool, default True
+        Also check each rate against the change of its angle (degrees for radians).
     """
     for c in sensors.signals:
         values = np.abs(frame[c].to_numpy(dtype=float))
@@ -260,6 +303,13 @@ class SampleWatch:
     every segment), rate units and, with a hydraulic machine, the arm's balance
     (:func:`excavator_payload.data.wiring.check_wiring`) on the first :data:`WATCH_SAMPLES`
     samples of the first :data:`WATCH_SEGMENTS` segments. Memory stays bounded on any log.
+
+    Parameters
+    ----------
+    sensors : SensorSet
+        The sensor set the samples are in.
+    machine : Machine, optional
+        The machine for the balance (wiring) check; None: no wiring check.
     """
 
     def __init__(self, sensors, machine=None) -> None:
@@ -272,7 +322,17 @@ class SampleWatch:
         self._counts: dict[int, int] = {}
 
     def add(self, experiment: int, time: float, values) -> None:
-        """One assembled sample (the signal vector in the sensor set's order) of ``experiment``."""
+        """One assembled sample (the signal vector in the sensor set's order) of ``experiment``.
+
+        Parameters
+        ----------
+        experiment : int
+            The log segment the sample belongs to.
+        time : float
+            The sample's time, s.
+        values : array_like
+            The signal vector in the sensor set's order (SI units; NaN where missing).
+        """
         values = np.asarray(values, dtype=float)
         if self._peak_index.size:
             magnitude = np.abs(values[self._peak_index])
@@ -300,7 +360,13 @@ class SampleWatch:
         return frame[["experiment", "time", *self.sensors.signals]]
 
     def check(self, source: str) -> None:
-        """Judge what was seen; :class:`DatasetError` (one line) on a unit or wiring mistake."""
+        """Judge what was seen; :class:`DatasetError` (one line) on a unit or wiring mistake.
+
+        Parameters
+        ----------
+        source : str
+            The log's name, the start of the error message.
+        """
         what = f"{source} (decoded through the signal map)"
         if self._peaks:
             peaks = pd.DataFrame.from_dict(self._peaks, orient="index", columns=self._peak_columns)

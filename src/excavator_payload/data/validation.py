@@ -36,6 +36,20 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
 
     ``payload`` may be absent (a field log); where present it must be a finite, non-negative
     mass, constant within each experiment.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The sample table (``experiment``, ``time``, signals, optional ``payload`` and truth columns).
+    source : str, default "dataset"
+        Where the table came from (a file name), the start of every error message.
+    sensor_set : SensorSet or str, optional
+        Its sensor set or the set's name; None: detected from the columns.
+
+    Raises
+    ------
+    DatasetError
+        One line saying what is wrong.
     """
     sensors = (get_sensor_set(sensor_set) if sensor_set is not None
                else _sensor_set_of(frame, {}, source))

@@ -65,6 +65,17 @@ def check_wiring(frame: pd.DataFrame, sensors, machine, source: str) -> None:
     ``frame``: ``experiment``, ``time`` and the machine sensor set's signals. Does nothing for
     another sensor set or a machine that is not hydraulic (the thesis' 2-link arm has no chambers).
 
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The sample table.
+    sensors : SensorSet
+        Its sensor set.
+    machine : HydraulicMachine or Machine or None
+        The machine the balance is computed for.
+    source : str
+        Where the data came from (a file name), the start of the error message.
+
     Raises
     ------
     DatasetError
@@ -94,7 +105,22 @@ def balance_agreement(frame: pd.DataFrame, sensors, machine) -> pd.DataFrame:
     """Per experiment and cylinder: ``judged`` samples (where the balance fixes the sign of the
     cylinder's force), the share of them whose measured net force has that sign (``agreement``)
     and whether the model needs a push there (``pushes``). Cylinders with fewer than
-    :data:`MIN_JUDGED` judged samples are left out."""
+    :data:`MIN_JUDGED` judged samples are left out.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The sample table (``experiment``, ``time``, the machine sensor set's signals).
+    sensors : SensorSet
+        Its sensor set (with head and rod pressures).
+    machine : HydraulicMachine
+        The hydraulic machine whose arm balance is computed.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``experiment``, ``cylinder``, ``judged``, ``agreement``, ``pushes``.
+    """
     out = pd.DataFrame(columns=["experiment", "cylinder", "judged", "agreement", "pushes"])
     experiments = pd.unique(frame["experiment"].to_numpy())
     per = max(10, min(SAMPLES_PER_EXPERIMENT, MAX_SAMPLES // max(1, len(experiments))))
