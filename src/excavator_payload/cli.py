@@ -56,7 +56,14 @@ def machines(
     show: str = typer.Argument(None, help="Print this machine (preset name or TOML file) as a TOML "
                                "machine file, a template for your own."),
 ) -> None:
-    """List the machine presets, or print one as a machine file."""
+    """List the machine presets, or print one as a machine file.
+
+    \f
+    Parameters
+    ----------
+    show : str, optional
+        A machine preset name or TOML file to print as a machine file; None: list the presets.
+    """
     from excavator_payload.model.machine import list_presets, load_machine
     from excavator_payload.platforms import platform_for
 
@@ -95,13 +102,30 @@ _register_commands()
 
 
 def error_line(message: str) -> None:
-    """Print one ``error:`` line on stderr; the message is text, never rich markup."""
+    """Print one ``error:`` line on stderr; the message is text, never rich markup.
+
+    Parameters
+    ----------
+    message : str
+        The message; its whitespace is collapsed to single spaces.
+    """
     err_console.print(Text.assemble(("error:", "bold red"), " ", " ".join(str(message).split())),
                       soft_wrap=True)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point: run the CLI; user errors print one line and exit with status 2."""
+    """Entry point: run the CLI; user errors print one line and exit with status 2.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The command-line arguments (without the program name); None: ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The exit status: 0 success, 2 user error, 1 internal error, 130 interrupted.
+    """
     try:
         code = app(args=argv, standalone_mode=False)
         if code == 130:  # typer turns Ctrl-C into a silent exit status 130

@@ -120,6 +120,11 @@ def worker_timeout(seconds: float | None = None) -> float:
     """Seconds to wait for a first worker: ``seconds``, else ``$EXCAVATOR_PAYLOAD_WORKER_TIMEOUT``,
     else :data:`DEFAULT_WORKER_TIMEOUT`.
 
+    Parameters
+    ----------
+    seconds : float, optional
+        The wait, s; None: from the environment or the default.
+
     Raises
     ------
     SchedulerError
@@ -156,7 +161,13 @@ def _run_task(function: Callable, *args):
 
 @dataclass(frozen=True)
 class Shared:
-    """An argument several tasks receive: sent to the cluster once, not once per task."""
+    """An argument several tasks receive: sent to the cluster once, not once per task.
+
+    Parameters
+    ----------
+    value : object
+        The argument itself.
+    """
 
     value: Any
 
@@ -165,6 +176,11 @@ def scheduler_address(scheduler: str | None = None) -> str | None:
     """The scheduler to use: ``scheduler``, else ``$EXCAVATOR_PAYLOAD_SCHEDULER``, else ``None``.
 
     ``HOST:PORT`` gets the ``tcp://`` prefix.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        A scheduler address (``tcp://HOST:PORT`` or ``HOST:PORT``); None: from the environment.
 
     Raises
     ------
@@ -232,7 +248,13 @@ def job_threads() -> int:
 
 
 def worker_threads(workers: int) -> int:
-    """Threads of each of ``workers`` local worker processes: their share of :func:`job_threads`."""
+    """Threads of each of ``workers`` local worker processes: their share of :func:`job_threads`.
+
+    Parameters
+    ----------
+    workers : int
+        Number of local worker processes (values below 1 count as 1).
+    """
     return max(1, job_threads() // max(1, int(workers)))
 
 
@@ -240,7 +262,13 @@ def worker_threads(workers: int) -> int:
 def numeric_threads(threads: int):
     """Inside the block torch's intra-op pool (when torch is loaded) and every BLAS / OpenMP pool
     ``threadpoolctl`` finds (numpy's and scipy's OpenBLAS, torch's OpenMP) use ``threads``
-    threads; the previous settings come back after."""
+    threads; the previous settings come back after.
+
+    Parameters
+    ----------
+    threads : int
+        Threads for the numeric pools inside the block (at least 1).
+    """
     from threadpoolctl import threadpool_limits
 
     threads = max(1, int(threads))
@@ -315,7 +343,18 @@ def start_local_cluster(workers: int):
     """A Dask ``LocalCluster`` of ``workers`` worker processes running one task at a time, each
     with its share of the cores for its numerics (:func:`worker_threads`), started the way this
     layer starts them (:data:`LOCAL_START_METHOD`, :data:`LOCAL_WORKER_CONFIG`, workers that
-    ignore Ctrl-C); close it when done."""
+    ignore Ctrl-C); close it when done.
+
+    Parameters
+    ----------
+    workers : int
+        Number of worker processes.
+
+    Returns
+    -------
+    distributed.LocalCluster
+        The started cluster.
+    """
     import dask
     from distributed import LocalCluster
 
@@ -356,7 +395,13 @@ def dask_setup(worker) -> None:
     after a crash): the workers ignore Ctrl-C; the command stops them itself, without a
     traceback from each worker. The libraries the worker has loaded already (from the fork
     server) take its share of the cores (:func:`job_threads` reads the share from its
-    environment), since they read their thread counts when they were loaded."""
+    environment), since they read their thread counts when they were loaded.
+
+    Parameters
+    ----------
+    worker : distributed.Worker
+        The starting worker (passed by Dask; not used otherwise).
+    """
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     from threadpoolctl import threadpool_limits
@@ -491,7 +536,13 @@ class Execution:
         return f"{self.workers} local worker process(es)"
 
     def runs_in_process(self, n_tasks: int) -> bool:
-        """Whether a job of ``n_tasks`` tasks runs in this process (no cluster)."""
+        """Whether a job of ``n_tasks`` tasks runs in this process (no cluster).
+
+        Parameters
+        ----------
+        n_tasks : int
+            Number of tasks in the job.
+        """
         return self.scheduler is None and (self.workers == 1 or n_tasks <= 1)
 
     @property
@@ -643,5 +694,11 @@ class Execution:
 
 
 def interrupted_message(what: str = "finished work is kept; rerun the same command to resume") -> str:
-    """The one line the commands print on Ctrl-C."""
+    """The one line the commands print on Ctrl-C.
+
+    Parameters
+    ----------
+    what : str, optional
+        What happens to the work, shown in parentheses after "interrupted".
+    """
     return f"[red]interrupted[/red] ({what})"
