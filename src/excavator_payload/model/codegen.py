@@ -54,6 +54,18 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
     The library is built in a temporary folder and renamed into place, so concurrent
     processes never load half a file. Raises ``OSError`` / ``subprocess.SubprocessError`` if
     there is no compiler or it fails.
+
+    Parameters
+    ----------
+    functions : list of casadi.Function
+        The functions to compile into one library.
+    name : str
+        The library's base name (the C file's and the exported module's).
+
+    Returns
+    -------
+    pathlib.Path
+        The shared library in :func:`cache_folder`.
     """
     cc = compiler()
     if cc is None:
@@ -84,7 +96,13 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
 
 
 def file_sha256(path: Path) -> str:
-    """SHA-256 (hex) of a file's bytes."""
+    """SHA-256 (hex) of a file's bytes.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file to hash.
+    """
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
@@ -101,6 +119,11 @@ def verified(library: Path) -> bool:
 
     A truncated or altered shared library must never be loaded: mapping it can kill the process
     with SIGBUS, which no ``except`` catches. Anything that does not match is rebuilt.
+
+    Parameters
+    ----------
+    library : pathlib.Path
+        The shared library; its checksum is the file of the same name plus ``.sha256``.
     """
     try:
         if not library.is_file():
@@ -115,6 +138,13 @@ def native(function: ca.Function, *companions: ca.Function) -> ca.Function:
 
     ``companions`` are compiled into the same library, e.g. ``function.jacobian()`` so that
     CasADi's ``external`` finds compiled derivatives too.
+
+    Parameters
+    ----------
+    function : casadi.Function
+        The function to compile; its name names the library.
+    *companions : casadi.Function
+        Further functions compiled into the same library.
     """
     if compiler() is None:
         return function
@@ -195,7 +225,15 @@ class ColumnMap:
 def column_map(function: ca.Function, n: int) -> ColumnMap:
     """A :class:`ColumnMap` of ``function`` on ``n`` samples. The last few are kept per thread
     (calibration evaluates the same samples once per iteration; a map's buffers are its state,
-    so threads never share one)."""
+    so threads never share one).
+
+    Parameters
+    ----------
+    function : casadi.Function
+        The function to map over samples.
+    n : int
+        Number of samples (columns) the map evaluates at once.
+    """
     cache = getattr(_LOCAL, "maps", None)
     if cache is None:
         cache = _LOCAL.maps = {}

@@ -207,7 +207,17 @@ def _cols(a: np.ndarray) -> np.ndarray:
 
 
 def base_regressor(q, qd, qdd) -> np.ndarray:
-    """The base regressor Y(q, q̇, q̈) on arrays, shape (..., 2, 7): τ = Y θ, joint on axis -2."""
+    """The base regressor Y(q, q̇, q̈) on arrays, shape (..., 2, 7): τ = Y θ, joint on axis -2.
+
+    Parameters
+    ----------
+    q : array_like, shape (..., 2)
+        Joint angles (boom, dipper), rad.
+    qd : array_like, shape (..., 2)
+        Joint rates, rad/s.
+    qdd : array_like, shape (..., 2)
+        Joint accelerations, rad/s².
+    """
     arrays = [np.asarray(a, dtype=float) for a in (q, qd, qdd)]
     lead = np.broadcast_shapes(*(a.shape[:-1] for a in arrays))
     cols = [_cols(np.broadcast_to(a, lead + a.shape[-1:])) for a in arrays]
@@ -254,41 +264,127 @@ class ArmModel:
 
     # -- public API ------------------------------------------------------------------------
     def inverse_dynamics(self, q, qd, qdd, payload):
-        """Joint torques τ = M(q)q̈ + C(q,q̇)q̇ + G(q) + Bq̇, N·m, shape (..., 2)."""
+        """Joint torques τ = M(q)q̈ + C(q,q̇)q̇ + G(q) + Bq̇, N·m, shape (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        qd : array_like, shape (..., 2)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 2)
+            Joint accelerations, rad/s².
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._call("inverse_dynamics", [q, qd, qdd], payload)
 
     def forward_dynamics(self, q, qd, tau, payload):
-        """Joint accelerations q̈ = M⁻¹(τ − Cq̇ − G − Bq̇), rad/s², shape (..., 2)."""
+        """Joint accelerations q̈ = M⁻¹(τ − Cq̇ − G − Bq̇), rad/s², shape (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        qd : array_like, shape (..., 2)
+            Joint rates, rad/s.
+        tau : array_like, shape (..., 2)
+            Joint torques, N·m.
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._call("forward_dynamics", [q, qd, tau], payload)
 
     def payload_regressor(self, q, qd, qdd):
-        """φ = ∂τ/∂m (N·m/kg), so that τ = τ₀ + m·φ, shape (..., 2)."""
+        """φ = ∂τ/∂m (N·m/kg), so that τ = τ₀ + m·φ, shape (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        qd : array_like, shape (..., 2)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 2)
+            Joint accelerations, rad/s².
+        """
         return self._call("payload_regressor", [q, qd, qdd])
 
     def torque_empty(self, q, qd, qdd):
-        """τ₀, the torques with an empty bucket (payload 0), shape (..., 2)."""
+        """τ₀, the torques with an empty bucket (payload 0), shape (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        qd : array_like, shape (..., 2)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 2)
+            Joint accelerations, rad/s².
+        """
         return self._call("torque_empty", [q, qd, qdd])
 
     def mass_matrix(self, q, payload):
-        """M(q), shape (..., 2, 2)."""
+        """M(q), shape (..., 2, 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         out = self._call("mass_matrix", [q], payload, out_dim=4)
         return out.reshape(out.shape[:-1] + (2, 2))
 
     def gravity_torque(self, q, payload):
-        """G(q), the torques that hold the arm still, shape (..., 2)."""
+        """G(q), the torques that hold the arm still, shape (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._call("gravity_torque", [q], payload)
 
     def energy(self, q, qd, payload):
-        """(kinetic, potential) energy in J, each of the leading shape."""
+        """(kinetic, potential) energy in J, each of the leading shape.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        qd : array_like, shape (..., 2)
+            Joint rates, rad/s.
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         k, p = self._call("energy", [q, qd], payload, out_dim=1)
         return k, p
 
     def state_derivative(self, state, tau, payload):
-        """ẋ for x = [q1, q2, q̇1, q̇2], shape (..., 4)."""
+        """ẋ for x = [q1, q2, q̇1, q̇2], shape (..., 4).
+
+        Parameters
+        ----------
+        state : array_like, shape (..., 4)
+            The state [q1, q2, q̇1, q̇2], rad and rad/s.
+        tau : array_like, shape (..., 2)
+            Joint torques, N·m.
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._call("state_derivative", [state, tau], payload, out_dim=4)
 
     def tip_position(self, q):
-        """Position of the dipper tip (bucket) in m, shape (..., 2)."""
+        """Position of the dipper tip (bucket) in m, shape (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 2)
+            Joint angles (boom, dipper), rad.
+        """
         return self._call("tip_position", [q])
 
     def base_parameters(self) -> tuple[np.ndarray, np.ndarray]:
@@ -314,6 +410,11 @@ class ArmModel:
 
         The returned function has the same inputs minus ``p``; use it inside CasADi graphs
         (NMPC, EKF Jacobians) and for C code generation.
+
+        Parameters
+        ----------
+        name : str
+            A function of the symbolic model (e.g. ``inverse_dynamics``, ``energy``).
         """
         f = self._f[name]
         names = [f.name_in(i) for i in range(f.n_in()) if f.name_in(i) != "p"]

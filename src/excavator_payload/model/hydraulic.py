@@ -94,7 +94,13 @@ HYDRAULIC_PARAMETER_NAMES: tuple[str, ...] = (
 
 
 def parameter_vector(machine: HydraulicMachine) -> np.ndarray:
-    """The machine's parameters in the order of :data:`HYDRAULIC_PARAMETER_NAMES`."""
+    """The machine's parameters in the order of :data:`HYDRAULIC_PARAMETER_NAMES`.
+
+    Parameters
+    ----------
+    machine : HydraulicMachine
+        The machine.
+    """
     m = machine
     v: dict[str, float] = {"gravity": m.gravity, "boom_length": m.boom.length,
                            "dipper_length": m.dipper.length, "bucket_length": m.bucket.length,
@@ -404,7 +410,13 @@ _NATIVE: dict[str, ca.Function] = {}
 
 def compiled_function(name: str) -> ca.Function:
     """The symbolic function ``name`` compiled to C (cached on disk, loaded once per process);
-    the function itself where no compiler is available."""
+    the function itself where no compiler is available.
+
+    Parameters
+    ----------
+    name : str
+        A function of the hydraulic symbolic model (e.g. ``motion_signals``).
+    """
     from excavator_payload.model.codegen import native
 
     if name not in _NATIVE:
@@ -489,38 +501,122 @@ class HydraulicArmModel:
 
     # -- rigid-body dynamics ---------------------------------------------------------------
     def inverse_dynamics(self, q, qd, qdd, tilt, payload):
-        """Generalised forces [τ_boom, τ_dipper, τ_bucket, τ_slew] (N·m), shape (..., 4)."""
+        """Generalised forces [τ_boom, τ_dipper, τ_bucket, τ_slew] (N·m), shape (..., 4).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 4)
+            Joint accelerations, rad/s².
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._ordered("inverse_dynamics", dict(q=q, qd=qd, qdd=qdd, tilt=tilt), payload)
 
     def forward_dynamics(self, q, qd, tau, tilt, payload):
-        """Accelerations q̈ (rad/s²) under generalised forces ``tau``, shape (..., 4)."""
+        """Accelerations q̈ (rad/s²) under generalised forces ``tau``, shape (..., 4).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        tau : array_like, shape (..., 4)
+            Generalised forces [τ_boom, τ_dipper, τ_bucket, τ_slew], N·m.
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._ordered("forward_dynamics", dict(q=q, qd=qd, tau=tau, tilt=tilt), payload)
 
     def payload_regressor(self, q, qd, qdd, tilt):
-        """∂τ/∂m, so that τ = τ₀ + m·φ, shape (..., 4)."""
+        """∂τ/∂m, so that τ = τ₀ + m·φ, shape (..., 4).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 4)
+            Joint accelerations, rad/s².
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        """
         return self._ordered("payload_regressor", dict(q=q, qd=qd, qdd=qdd, tilt=tilt))
 
     def torque_empty(self, q, qd, qdd, tilt):
-        """τ₀: the generalised forces with an empty bucket, shape (..., 4)."""
+        """τ₀: the generalised forces with an empty bucket, shape (..., 4).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 4)
+            Joint accelerations, rad/s².
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        """
         return self._ordered("torque_empty", dict(q=q, qd=qd, qdd=qdd, tilt=tilt))
 
     def mass_matrix(self, q, payload):
         """Mass matrix M(q) of boom, dipper, bucket and slew with payload ``payload`` (kg),
-        kg·m², shape (..., 4, 4)."""
+        kg·m², shape (..., 4, 4).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         out = self._call("mass_matrix", [q], payload)
         return out.reshape(out.shape[:-1] + (4, 4))
 
     def energy(self, q, qd, tilt, payload):
-        """(kinetic, potential) energy, J."""
+        """(kinetic, potential) energy, J.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         return self._ordered("energy", dict(q=q, qd=qd, tilt=tilt), payload)
 
     # -- cylinders -------------------------------------------------------------------------
     def cylinder_lengths(self, q):
-        """Pin-to-pin lengths of the boom, dipper and bucket cylinders, m, shape (..., 3)."""
+        """Pin-to-pin lengths of the boom, dipper and bucket cylinders, m, shape (..., 3).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        """
         return self._call("cylinder_lengths", [q])
 
     def moment_arms(self, q):
-        """∂l_j/∂q_j of the three cylinders, m/rad, shape (..., 3)."""
+        """∂l_j/∂q_j of the three cylinders, m/rad, shape (..., 3).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        """
         return self._call("moment_arms", [q])
 
     def rod_speed_limits(self) -> np.ndarray:
@@ -533,7 +629,15 @@ class HydraulicArmModel:
     def joint_sweep(self, j: int, points: int = 200) -> np.ndarray:
         """(points, 4) poses sweeping joint ``j`` (boom, dipper, bucket) over its angle range, the
         other joints at a mid pose: a cylinder's length, speed ratio and moment arm depend on its
-        own joint's angle only."""
+        own joint's angle only.
+
+        Parameters
+        ----------
+        j : int
+            The joint to sweep: 0 boom, 1 dipper, 2 bucket.
+        points : int, default 200
+            Number of angles sampled over each joint's range.
+        """
         grid = np.zeros((points, 4))
         grid[:, :3] = (-0.3, -1.3, -0.8)
         grid[:, j] = np.linspace(*self.machine.angle_ranges[j], points)
@@ -541,7 +645,13 @@ class HydraulicArmModel:
 
     def moment_arm_range(self, points: int = 200) -> np.ndarray:
         """(3, 2): the smallest and largest ``|∂l_j/∂q_j|`` (m/rad) over each joint's angle range,
-        on ``points`` angles (:meth:`joint_sweep`)."""
+        on ``points`` angles (:meth:`joint_sweep`).
+
+        Parameters
+        ----------
+        points : int, default 200
+            Number of angles sampled over each joint's range.
+        """
         out = np.zeros((3, 2))
         for j in range(3):
             arms = np.abs(self.moment_arms(self.joint_sweep(j, points))[:, j])
@@ -553,7 +663,13 @@ class HydraulicArmModel:
         file's hydraulics: the faster of a rod's two speed limits (:meth:`rod_speed_limits`)
         at the joint's smallest moment arm over its range (:meth:`moment_arm_range`); the slew
         at ``max_slew_rate``. A joint whose arm reaches 0 in its range (a linkage at its dead
-        point) has no finite limit: inf."""
+        point) has no finite limit: inf.
+
+        Parameters
+        ----------
+        points : int, default 400
+            Number of angles sampled over each joint's range.
+        """
         smallest_arm = self.moment_arm_range(points)[:, 0]
         rod_speed = self.rod_speed_limits().max(axis=1)
         with np.errstate(divide="ignore"):
@@ -561,23 +677,63 @@ class HydraulicArmModel:
         return np.r_[rates, self.machine.house.max_slew_rate]
 
     def cylinder_speeds(self, q, qd):
-        """Rod speeds l̇_j (m/s, extension positive), shape (..., 3)."""
+        """Rod speeds l̇_j (m/s, extension positive), shape (..., 3).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        """
         return self._call("cylinder_speeds", [q, qd])
 
     def load_force(self, q, arm_torque):
-        """Force per cylinder (N) that produces the arm torques ``arm_torque`` (..., 3)."""
+        """Force per cylinder (N) that produces the arm torques ``arm_torque`` (..., 3).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        arm_torque : array_like, shape (..., 3)
+            Torques at the boom, dipper and bucket joints, N·m.
+        """
         return self._call("load_force", [q, arm_torque])
 
     def friction(self, velocity, state, load):
-        """Seal friction force per cylinder (N), opposing ``velocity`` (..., 3)."""
+        """Seal friction force per cylinder (N), opposing ``velocity`` (..., 3).
+
+        Parameters
+        ----------
+        velocity : array_like, shape (..., 3)
+            Rod speeds of the boom, dipper and bucket cylinders, m/s (extension positive).
+        state : array_like, shape (..., 3)
+            Presliding (Dahl) friction state of each cylinder, in [-1, 1].
+        load : array_like, shape (..., 3)
+            Load force of each cylinder, N.
+        """
         return self._call("friction", [velocity, state, load])
 
     def pressures(self, force):
-        """(head, rod) pressures, Pa, that give the cylinder force ``force`` (N), each (..., 3)."""
+        """(head, rod) pressures, Pa, that give the cylinder force ``force`` (N), each (..., 3).
+
+        Parameters
+        ----------
+        force : array_like, shape (..., 3)
+            Force of each cylinder, N (push positive).
+        """
         return self._call("pressures", [force])
 
     def house_inclination(self, q, tilt):
-        """(pitch, roll) of the house (rad) at slew angle q[..., 3] on ground ``tilt``, (..., 2)."""
+        """(pitch, roll) of the house (rad) at slew angle q[..., 3] on ground ``tilt``, (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        """
         q, tilt = np.asarray(q, float), np.asarray(tilt, float)
         lead = np.broadcast_shapes(q.shape[:-1], tilt.shape[:-1])
         n = int(np.prod(lead)) if lead else 1
@@ -586,22 +742,58 @@ class HydraulicArmModel:
         return np.asarray(out).T.reshape(lead + (2,)) if n else np.zeros(lead + (2,))
 
     def tip_position(self, q):
-        """Bucket teeth in the arm plane [x, z] of the house frame, m."""
+        """Bucket teeth in the arm plane [x, z] of the house frame, m.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        """
         return self._call("tip_position", [q])
 
     def motion_signals(self, q, qd, qdd, tilt, payload) -> dict[str, np.ndarray]:
         """Everything the simulator needs from the rigid body and the cylinder kinematics in one
         pass: ``tau`` (..., 4), per-cylinder ``load`` force, rod ``speed`` and ``length``
-        (..., 3), house ``inclination`` (..., 2)."""
+        (..., 3), house ``inclination`` (..., 2).
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        qdd : array_like, shape (..., 4)
+            Joint accelerations, rad/s².
+        tilt : array_like, shape (..., 2)
+            Ground tilt [pitch, roll], rad (pitch: front up, roll: left side up).
+        payload : float or array_like
+            Payload mass, kg; broadcasts against the leading axes.
+        """
         out = self._ordered("motion_signals", dict(q=q, qd=qd, qdd=qdd, tilt=tilt), payload)
         return dict(zip(("tau", "load", "speed", "length", "inclination"), out))
 
     def cylinder_pressures(self, velocity, state, load):
         """(friction (..., 3), head (..., 3), rod (..., 3)): seal friction and the pressures that
-        give load + friction."""
+        give load + friction.
+
+        Parameters
+        ----------
+        velocity : array_like, shape (..., 3)
+            Rod speeds of the boom, dipper and bucket cylinders, m/s (extension positive).
+        state : array_like, shape (..., 3)
+            Presliding (Dahl) friction state of each cylinder, in [-1, 1].
+        load : array_like, shape (..., 3)
+            Load force of each cylinder, N.
+        """
         friction, pressures = self._call("cylinder_pressures", [velocity, state, load])
         return friction, pressures[..., :3], pressures[..., 3:]
 
     def linkage_margin(self, q):
-        """> 0 where the bucket four-bar closes (a² − along²), m²."""
+        """> 0 where the bucket four-bar closes (a² − along²), m².
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        """
         return self._call("linkage_reach", [q])
