@@ -56,7 +56,25 @@ def _f(kind: str, default: Any = None, doc: str = ""):
 
 @dataclass(frozen=True, kw_only=True)
 class House:
-    """The slewing upper structure (without the arm)."""
+    """The slewing upper structure (without the arm).
+
+    Parameters
+    ----------
+    mass : float
+        Mass of the house, kg.
+    com : tuple of 3 float
+        Centre of mass [x, y, z] in the house frame, m.
+    slew_inertia : float
+        Inertia about the vertical axis through its centre of mass, kg·m².
+    boom_foot : tuple of 2 float
+        The boom joint [x, z] in the house frame, m.
+    slew_friction : float, default 0.0
+        Viscous slew friction, N·m·s/rad.
+    max_slew_rate : float, default 0.7
+        Fastest slew, rad/s.
+    max_slew_torque : float, default 1.5e5
+        The swing drive's largest torque, N·m.
+    """
 
     mass: float = _f("pos")
     com: tuple[float, float, float] = _f("vec3")  # [x, y, z] in the house frame
@@ -69,7 +87,23 @@ class House:
 
 @dataclass(frozen=True, kw_only=True)
 class Link:
-    """One rigid link of the arm (boom, dipper or bucket)."""
+    """One rigid link of the arm (boom, dipper or bucket).
+
+    Parameters
+    ----------
+    length : float
+        Joint to next joint (bucket: joint to teeth), m.
+    mass : float
+        Mass of the link, kg.
+    com : tuple of 2 float
+        Centre of mass [u, w] in the link frame, m.
+    inertia : tuple of 3 float
+        Principal inertia [along u, about the joint axis, along w] about the centre of mass, kg·m².
+    angle_range : tuple of 2 float
+        [lowest, highest] joint angle, rad.
+    joint_friction : float, default 0.0
+        Viscous friction of the pin, N·m·s/rad.
+    """
 
     length: float = _f("pos")  # joint to next joint (bucket: joint to teeth), m
     mass: float = _f("pos")
@@ -82,7 +116,17 @@ class Link:
 @dataclass(frozen=True, kw_only=True)
 class Payload:
     """The payload the machine is rated for: rated and largest mass (kg) and the centre of the
-    load in the bucket frame ([u, w], m)."""
+    load in the bucket frame ([u, w], m).
+
+    Parameters
+    ----------
+    rated : float
+        Rated payload, kg.
+    max : float
+        Largest payload, kg.
+    position : tuple of 2 float
+        Centre of the payload [u, w] in the bucket frame, m.
+    """
 
     rated: float = _f("pos")
     max: float = _f("pos")
@@ -91,7 +135,37 @@ class Payload:
 
 @dataclass(frozen=True, kw_only=True)
 class Cylinder:
-    """A hydraulic cylinder (or ``count`` identical ones in parallel) and its seal friction."""
+    """A hydraulic cylinder (or ``count`` identical ones in parallel) and its seal friction.
+
+    Parameters
+    ----------
+    count : int, default 1
+        Identical cylinders in parallel on this joint.
+    parent_point : tuple of 2 float
+        Barrel pin in the parent's frame, m: [x, z] in the house frame (boom cylinder), [u, w] in
+        the boom frame (dipper cylinder) or the dipper frame (bucket cylinder).
+    child_point : tuple of 2 float, optional
+        Rod pin [u, w] in the driven link's frame, m; empty for the bucket cylinder (it drives the
+        linkage).
+    bore : float
+        Piston diameter, m.
+    rod : float
+        Rod diameter, m.
+    stroke : tuple of 2 float
+        [shortest, longest] pin-to-pin length, m.
+    coulomb : float
+        Coulomb seal friction, N.
+    load_coefficient : float, default 0.0
+        Extra Coulomb friction per N of load force.
+    static_ratio : float, default 1.0
+        Breakaway over Coulomb friction (the Stribeck peak).
+    stribeck_velocity : float, default 0.005
+        Stribeck velocity, m/s.
+    viscous : float, default 0.0
+        Viscous friction, N·s/m.
+    presliding : float, default 0.001
+        Displacement over which the friction reverses, m.
+    """
 
     count: int = _f("count", 1)
     parent_point: tuple[float, float] = _f("vec2")
@@ -119,7 +193,21 @@ class Cylinder:
 
 @dataclass(frozen=True, kw_only=True)
 class Linkage:
-    """The bucket four-bar: the cylinder drives the rocker/link joint G."""
+    """The bucket four-bar: the cylinder drives the rocker/link joint G.
+
+    Parameters
+    ----------
+    rocker_pivot : tuple of 2 float
+        Rocker pivot E [u, w] in the dipper frame, m.
+    rocker_length : float
+        Rocker length |EG|, m.
+    link_length : float
+        Link length |GF|, m.
+    bucket_point : tuple of 2 float
+        Link pin F [u, w] in the bucket frame, m.
+    branch : int, default 1
+        Which of the two circle intersections G is (+1 or -1).
+    """
 
     rocker_pivot: tuple[float, float] = _f("vec2")  # E, dipper frame
     rocker_length: float = _f("pos")  # |EG|
@@ -131,7 +219,17 @@ class Linkage:
 @dataclass(frozen=True, kw_only=True)
 class Hydraulics:
     """The hydraulic supply: pump flow available to one cylinder function (m³/s), relief
-    pressure (Pa) and the back pressure held on the return side (Pa)."""
+    pressure (Pa) and the back pressure held on the return side (Pa).
+
+    Parameters
+    ----------
+    pump_flow : float
+        Largest flow one cylinder function can get, m³/s.
+    relief_pressure : float
+        Relief valve pressure, Pa.
+    back_pressure : float
+        Pressure held on the return side, Pa.
+    """
 
     pump_flow: float = _f("pos")  # largest flow one cylinder function can get, m³/s
     relief_pressure: float = _f("pos")  # Pa
@@ -148,7 +246,29 @@ TOP_LEVEL = ("kind", "name", "description", "gravity")
 
 @dataclass(frozen=True, kw_only=True)
 class HydraulicMachine:
-    """A hydraulic excavator: house, three links, cylinders, bucket linkage, hydraulics."""
+    """A hydraulic excavator: house, three links, cylinders, bucket linkage, hydraulics.
+
+    Parameters
+    ----------
+    name : str
+        The machine's name.
+    house : House
+        The slewing upper structure.
+    boom, dipper, bucket : Link
+        The arm's links.
+    payload : Payload
+        The payload it is rated for.
+    boom_cylinder, dipper_cylinder, bucket_cylinder : Cylinder
+        The cylinders of the three joints.
+    linkage : Linkage
+        The bucket four-bar.
+    hydraulics : Hydraulics
+        The hydraulic supply.
+    description : str, default ""
+        One line for humans.
+    gravity : float, default 9.81
+        Gravitational acceleration, m/s².
+    """
 
     name: str
     house: House
@@ -203,7 +323,15 @@ class HydraulicMachine:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "machine") -> "HydraulicMachine":
-        """Parse (strictly) the nested dictionaries of :meth:`to_dict` or a TOML file."""
+        """Parse (strictly) the nested dictionaries of :meth:`to_dict` or a TOML file.
+
+        Parameters
+        ----------
+        data : dict
+            The machine's tables.
+        source : str, default "machine"
+            Where they came from (a file name), the start of every error message.
+        """
         return parse_hydraulic(data, source, default_name="hydraulic")
 
     def to_toml(self) -> str:
@@ -232,6 +360,13 @@ def off_by(machine: HydraulicMachine, fraction: float = 0.03) -> HydraulicMachin
     pins, bores, rods, friction, back pressure) becomes x·(1 ± ``fraction``), the signs following
     :data:`OFF_BY_SIGNS` through the file; limits and counts (:data:`LIMIT_FIELDS`) and gravity
     are unchanged. ``off_by(cat345c-hydraulic)`` is the preset ``cat345c-hydraulic-3pct``.
+
+    Parameters
+    ----------
+    machine : HydraulicMachine
+        The right machine.
+    fraction : float, default 0.03
+        Relative change of each number, in [0, 1).
 
     Raises
     ------
@@ -273,12 +408,27 @@ def _toml(value) -> str:
 
 
 def is_hydraulic_data(data: dict) -> bool:
-    """Whether parsed TOML/JSON data describe a hydraulic machine (``kind`` or cylinder tables)."""
+    """Whether parsed TOML/JSON data describe a hydraulic machine (``kind`` or cylinder tables).
+
+    Parameters
+    ----------
+    data : dict
+        Parsed machine file.
+    """
     return data.get("kind") == KIND or any(t in data for t in ("boom_cylinder", "cylinders"))
 
 
 def parse_hydraulic(data: dict, source: str, default_name: str) -> HydraulicMachine:
     """A :class:`HydraulicMachine` from parsed TOML, strictly checked.
+
+    Parameters
+    ----------
+    data : dict
+        The parsed machine file.
+    source : str
+        Where it came from (a file name), the start of every error message.
+    default_name : str
+        The name when the file has none.
 
     Raises
     ------

@@ -30,7 +30,31 @@ GRAVITY = 9.81  # m/s², as the thesis
 
 @dataclass(frozen=True)
 class Machine:
-    """Physical parameters of a two-link excavator arm (boom + dipper, bucket at the tip)."""
+    """Physical parameters of a two-link excavator arm (boom + dipper, bucket at the tip).
+
+    Parameters
+    ----------
+    name : str
+        The machine's name.
+    boom_length, dipper_length : float
+        Joint-to-joint lengths (dipper: joint to bucket), m.
+    boom_mass, dipper_mass : float
+        Link masses (uniform bars), kg.
+    boom_friction, dipper_friction : float
+        Viscous joint friction, N·m·s/rad.
+    bucket_mass : float
+        Mass of the empty bucket (a point mass at the dipper tip), kg.
+    rated_payload, max_payload : float
+        Rated and largest payload, kg.
+    boom_angle_range, dipper_angle_range : tuple of 2 float
+        [low, high] joint angles, rad (dipper relative to the boom).
+    boom_torque_limit, dipper_torque_limit : float
+        Largest joint torques, N·m.
+    description : str, default ""
+        One line for humans.
+    gravity : float, default 9.81
+        Gravitational acceleration, m/s².
+    """
 
     name: str
     boom_length: float
@@ -90,7 +114,13 @@ class Machine:
     @classmethod
     def from_dict(cls, d: dict) -> "Machine":
         """The machine of a flat dict of its fields (as :meth:`to_dict` writes; angle ranges as
-        ``[low, high]``), checked for physical sense; :class:`MachineError` otherwise."""
+        ``[low, high]``), checked for physical sense; :class:`MachineError` otherwise.
+
+        Parameters
+        ----------
+        d : dict
+            The machine's fields.
+        """
         if not isinstance(d, dict):
             raise MachineError(f"a machine must be a table of fields, got {type(d).__name__}")
         d = dict(d)
@@ -164,6 +194,17 @@ def list_presets() -> list[str]:
 
 def load_machine(name_or_path: str | Path | Machine) -> Machine:
     """Load a preset by name (``cat345c``) or a user's TOML machine file by path.
+
+    Parameters
+    ----------
+    name_or_path : str, pathlib.Path, Machine or HydraulicMachine
+        A preset name, a TOML machine file, or a machine (returned as it is).
+
+    Returns
+    -------
+    Machine or HydraulicMachine
+        The machine; a hydraulic machine file (``kind = "hydraulic"`` or cylinder tables) gives a
+        :class:`~excavator_payload.model.hydraulic_machine.HydraulicMachine`.
 
     Raises
     ------
