@@ -62,7 +62,7 @@ def machine_chunk_size(n_experiments: int) -> int:
 class Motion:
     """A motion family: how one experiment is simulated and how a run is cut into chunks.
 
-    Attributes
+    Parameters
     ----------
     experiment : str
         ``"module:function"`` of ``f(spec, experiment) -> (rows DataFrame, metadata dict)``,

@@ -32,7 +32,41 @@ INCLINATIONS = ("house_pitch", "house_roll")
 
 @dataclass(frozen=True)
 class MachineNoise:
-    """Magnitudes (1σ, SI units) of the machine sensor set's errors."""
+    """Magnitudes (1σ, SI units) of the machine sensor set's errors.
+
+    Parameters
+    ----------
+    name : str
+        The preset's name.
+    angle_noise, angle_offset : float, default 0.0
+        White noise and per-session offset of the link angles (1σ), rad.
+    rate_noise, rate_offset : float, default 0.0
+        White noise and per-session offset of the link and slew rates (1σ), rad/s.
+    inclination_noise, inclination_offset : float, default 0.0
+        White noise and per-session offset of the house pitch and roll (1σ), rad.
+    pressure_noise, pressure_offset : float, default 0.0
+        White noise and per-session offset of the cylinder pressures (1σ), Pa.
+    ripple_fraction : float, default 0.0
+        Pump ripple amplitude as a share of the pressure.
+    pump_shaft_frequency : float, default 30.0
+        The pump shaft's rotation frequency, Hz.
+    pump_pistons : int, default 9
+        Pistons of the pump: the ripple is at pistons × shaft frequency.
+    ripple_harmonics : int, default 3
+        Multiples of the piston frequency in the ripple (the fundamental included).
+    antialias_cutoff : float, default 40.0
+        Cut-off of the first-order anti-alias filter before sampling, Hz.
+    imu_lag : float, default 0.0
+        First-order time constant of the IMU output filter, s.
+    acceleration_leak : float, default 0.0
+        Share of the apparent tilt from acceleration left after the IMU's sensor fusion.
+    link_imu_distance : float, default 1.5
+        Distance of each link IMU from its link's joint, m.
+    house_imu_radius : float, default 1.0
+        Distance of the house IMU from the slew axis, m.
+    description : str, default ""
+        One line for humans.
+    """
 
     name: str
     angle_noise: float = 0.0
@@ -88,7 +122,13 @@ PRESETS: dict[str, MachineNoise] = {
 
 
 def get_machine_noise(name: "str | MachineNoise") -> MachineNoise:
-    """The machine-sensor noise preset ``name`` (``field`` or ``none``)."""
+    """The machine-sensor noise preset ``name`` (``field`` or ``none``).
+
+    Parameters
+    ----------
+    name : str or MachineNoise
+        A preset name, or a :class:`MachineNoise` (returned as it is).
+    """
     if isinstance(name, MachineNoise):
         return name
     try:
@@ -104,6 +144,18 @@ def session_offsets(session: int, noise: MachineNoise) -> dict[str, float]:
 
     Drawn from the session number alone (not from the experiment seed): every experiment of
     a session shares them, and another session draws other ones.
+
+    Parameters
+    ----------
+    session : int
+        The working session's number (the seed of the draws).
+    noise : MachineNoise
+        The noise magnitudes; each offset is its 1σ offset times a standard normal draw.
+
+    Returns
+    -------
+    dict of str to float
+        Offset of each signal of the machine sensor set, in the signal's SI unit.
     """
     import numpy as np
 

@@ -28,14 +28,30 @@ DEG = math.pi / 180.0
 
 @dataclass(frozen=True)
 class NoisePreset:
-    """Standard deviation of the additive white noise on each signal (SI units)."""
+    """Standard deviation of the additive white noise on each signal (SI units).
+
+    Parameters
+    ----------
+    name : str
+        The preset's name.
+    std : dict of str to float
+        Standard deviation of each thesis signal, in its SI unit (rad, rad/s, rad/s², N·m).
+    description : str, default ""
+        One line for humans.
+    """
 
     name: str
     std: dict[str, float]
     description: str = ""
 
     def std_vector(self, columns=SIGNALS):
-        """Standard deviations (SI units) of ``columns``, in that order (default :data:`SIGNALS`)."""
+        """Standard deviations (SI units) of ``columns``, in that order (default :data:`SIGNALS`).
+
+        Parameters
+        ----------
+        columns : sequence of str, default SIGNALS
+            Signal names, each a key of :attr:`std`.
+        """
         import numpy as np
 
         return np.array([self.std[c] for c in columns], dtype=float)
@@ -83,7 +99,13 @@ PRESETS: dict[str, NoisePreset] = {
 
 
 def get_noise_preset(name: str | NoisePreset) -> NoisePreset:
-    """The noise preset called ``name`` (``thesis``, ``none`` or ``field``)."""
+    """The noise preset called ``name`` (``thesis``, ``none`` or ``field``).
+
+    Parameters
+    ----------
+    name : str or NoisePreset
+        A preset name, or a :class:`NoisePreset` (returned as it is).
+    """
     if isinstance(name, NoisePreset):
         return name
     try:
