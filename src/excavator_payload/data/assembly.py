@@ -161,7 +161,7 @@ class SampleAssembler:
         stamp : float
             The frame's timestamp, s.
         decoded : sequence of (int, float)
-            ``(signal index, value)`` pairs decoded from the frame, values in SI units.
+            ``(signal index, value)`` pairs decoded from the frame (NaN: a bad value).
 
         Returns
         -------
