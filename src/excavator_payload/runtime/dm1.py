@@ -189,7 +189,7 @@ class DM1Transmitter:
 
     Parameters
     ----------
-    sensor_set : SensorSet or str
+    sensor_set : SensorSet
         The sensor set whose signals' SPNs the DTCs carry.
     source : int, optional
         The J1939 source address the DM1 is sent from.
