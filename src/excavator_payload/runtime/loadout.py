@@ -76,7 +76,7 @@ class Pass:
     Parameters
     ----------
     truck : int
-        Number of the truck the pass went into (1, 2, ... in the data).
+        Number of the truck the pass went into (1, 2, ...).
     index : int
         1, 2, ... within the truck.
     time_dig : float
