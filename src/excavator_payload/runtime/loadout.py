@@ -251,7 +251,7 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
     status : ndarray of str
         The estimates' statuses.
     start, stop : int
-        The sample range (the dig's end and the dump's start).
+        Samples ``start`` to ``stop - 1`` are searched (the dig's end to the dump's start).
     """
     window = np.asarray(status[start:stop]) == "ok"
     ok = np.flatnonzero(window & np.isfinite(estimate[start:stop]))

@@ -324,7 +324,8 @@ class BusLoadout:
         message : can.Message
             The frame; its timestamp (s) is the sensor's clock.
         received_at : float, optional
-            s, the receiver's clock at reception (default: ``time.monotonic()`` now).
+            s, the receiver's clock at reception (None: the truck gap is timed on
+            ``time.monotonic()``, the sensor's time-outs on the frame's timestamp).
         """
         out: list[can.Message] = []
         if self.button.matches(message):

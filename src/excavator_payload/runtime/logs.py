@@ -104,7 +104,12 @@ def text_format(path: Path) -> str:
     Parameters
     ----------
     path : Path
-        A ``.log`` or ``.txt`` file; ``empty`` when it has no frame line.
+        A ``.log`` or ``.txt`` CAN log.
+
+    Returns
+    -------
+    str
+        One of ``canutils``, ``screen``, ``unknown``, or ``empty`` when it has no frame line.
     """
     line = _first_frame_line(path)
     if line is None:

@@ -96,8 +96,8 @@ def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None 
     progress : bool, optional
         Show a progress bar.
     jitter : float, optional
-        s, standard deviation of the normal timing jitter added to each frame (clipped to
-        three of it and to a third of the sample period); 0: none.
+        s, standard deviation of the normal timing jitter added to each frame (clipped at
+        three standard deviations and at a third of the sample period); 0: none.
     burst_every : float, optional
         s between bursts: one message's next ``burst_length`` frames are held back and sent
         back to back; 0: none.
