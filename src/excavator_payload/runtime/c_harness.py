@@ -94,7 +94,15 @@ def c_compiler() -> str | None:
 
 @dataclass
 class CBuild:
-    """A compiled export: the harness binary and the object file of the model."""
+    """A compiled export: the harness binary and the object file of the model.
+
+    Parameters
+    ----------
+    binary : Path
+        The linked harness program (the model and :data:`HARNESS`).
+    object_file : Path
+        The model's object file (for code and data sizes).
+    """
 
     binary: Path
     object_file: Path
@@ -123,7 +131,24 @@ class CBuild:
                                   text=True).stdout)
 
     def run(self, dataset: Dataset, signals=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Estimates, status codes and ``ep_sigma`` of every sample (reset at each experiment)."""
+        """Estimates, status codes and ``ep_sigma`` of every sample (reset at each experiment).
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The samples to run, reset at the start of each experiment.
+        signals : sequence of str, optional
+            The columns fed to ``ep_step``, in order (default: the dataset's sensor-set signals).
+
+        Returns
+        -------
+        estimate : ndarray
+            kg, per sample (NaN where none).
+        status : ndarray of int
+            ``ep_step``'s status code per sample.
+        sigma : ndarray
+            kg, ``ep_sigma`` after each sample.
+        """
         out = subprocess.run([str(self.binary)], input=_rows(dataset, signals), check=True,
                              capture_output=True, text=True, timeout=120).stdout.split()
         est = np.array([float(v) for v in out[0::3]])
@@ -132,7 +157,20 @@ class CBuild:
         return est, status, sigma
 
     def bench(self, dataset: Dataset, repetitions: int) -> float:
-        """Mean time of one ``ep_step``, ns (CPU time over all samples × repetitions)."""
+        """Mean time of one ``ep_step``, ns (CPU time over all samples × repetitions).
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The samples stepped through (its sensor-set signals).
+        repetitions : int
+            How many times the whole dataset is stepped.
+
+        Returns
+        -------
+        float
+            ns per ``ep_step`` (CPU time).
+        """
         out = subprocess.run([str(self.binary), "bench", str(repetitions)], input=_rows(dataset),
                              check=True, capture_output=True, text=True, timeout=600).stdout
         return float(out.split()[0])
@@ -153,7 +191,31 @@ def _rows(dataset: Dataset, signals=None) -> str:
 
 def build(c_file: str | Path, folder: str | Path, single: bool = False, optimise: str = "-O2",
           extra_flags: tuple[str, ...] = ()) -> CBuild:
-    """Compile ``c_file`` under :data:`STRICT_FLAGS` and link it with the harness."""
+    """Compile ``c_file`` under :data:`STRICT_FLAGS` and link it with the harness.
+
+    Parameters
+    ----------
+    c_file : str or Path
+        The exported ``.c`` file; its ``.h`` must sit beside it.
+    folder : str or Path
+        Where the object file, harness source and binary are written (created if missing).
+    single : bool, optional
+        Compile with ``EP_SINGLE=1`` (``float`` arithmetic) instead of ``double``.
+    optimise : str, optional
+        The optimisation flag passed to the compiler.
+    extra_flags : tuple of str, optional
+        More compiler flags for the model's object file.
+
+    Returns
+    -------
+    CBuild
+        The harness binary and the model's object file.
+
+    Raises
+    ------
+    CompileError
+        No C compiler, a warning or error in ``c_file``, or the harness does not link.
+    """
     cc = c_compiler()
     if cc is None:
         raise CompileError("no C compiler (cc or gcc) on this machine")

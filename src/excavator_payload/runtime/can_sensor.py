@@ -51,7 +51,26 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class SensorOutput:
-    """One published estimate."""
+    """One published estimate.
+
+    Parameters
+    ----------
+    time : float
+        s, time of the sample (or of the stale tick).
+    estimate : float
+        kg, the payload estimate; NaN when none.
+    status : str
+        A :class:`~excavator_payload.estimators.base.Status` value or ``"stale"``.
+    sigma : float
+        kg, one-sigma uncertainty; NaN when unknown.
+    stale : tuple of str, optional
+        The signals too old for this sample (status ``"stale"``).
+    fault : str, optional
+        ``"signal:kind,..."`` while the status is ``sensor_fault``.
+    values : ndarray or None, optional
+        The sample's signals (sensor-set order) the estimate was made from; None for a
+        ``stale`` output of a silent bus.
+    """
 
     time: float          # s, time of the sample (or of the stale tick)
     estimate: float      # kg, NaN when none
@@ -65,7 +84,20 @@ class SensorOutput:
 
 
 def estimate_sigma(estimator: Estimator, result) -> float:
-    """The estimate's one-sigma uncertainty, kg, where the estimator knows it (else NaN)."""
+    """The estimate's one-sigma uncertainty, kg, where the estimator knows it (else NaN).
+
+    Parameters
+    ----------
+    estimator : Estimator
+        The estimator that made ``result`` (its ``uncertainty`` or ``payload_std``, if any).
+    result : object
+        The step result; its ``sigma`` attribute is used first when present.
+
+    Returns
+    -------
+    float
+        kg, finite, or NaN.
+    """
     for value in (getattr(result, "sigma", None), getattr(estimator, "uncertainty", None),
                   getattr(estimator, "payload_std", None)):
         if value is not None:
@@ -84,7 +116,24 @@ CARGO_RESOLUTION = 2.0
 def j1939_raw(value: float, resolution: float, offset: float, bits: int = 16) -> int:
     """The raw value of a J1939 signal: "not available" for NaN, the "error" indicator for a
     value outside the signal's data range (never clamped into a valid-looking number: a -5 t
-    estimate went out as -2000 kg), else the value at ``resolution``."""
+    estimate went out as -2000 kg), else the value at ``resolution``.
+
+    Parameters
+    ----------
+    value : float
+        The physical value (signal unit, e.g. kg).
+    resolution : float
+        Signal unit per bit.
+    offset : float
+        Physical value of raw 0.
+    bits : int, optional
+        Width of the signal.
+
+    Returns
+    -------
+    int
+        The raw value to put in the frame.
+    """
     if not math.isfinite(value):
         return dbc.not_available(bits)
     raw = round((value - offset) / resolution)
@@ -103,11 +152,23 @@ class EstimateEncoder:
         self.statuses = dbc.status_names()
 
     def status_code(self, status: str) -> int:
-        """The raw bus code of ``status`` (its index in :func:`~excavator_payload.runtime.dbc.status_names`)."""
+        """The raw bus code of ``status`` (its index in :func:`~excavator_payload.runtime.dbc.status_names`).
+
+        Parameters
+        ----------
+        status : str
+            A status name (``"ok"``, ``"stale"``, ...).
+        """
         return self.statuses.index(status)
 
     def frames(self, output: SensorOutput) -> list[can.Message]:
-        """The two frames that publish ``output``."""
+        """The two frames that publish ``output``.
+
+        Parameters
+        ----------
+        output : SensorOutput
+            The estimate to publish.
+        """
         payload = j1939_raw(output.estimate, dbc.PAYLOAD_RESOLUTION, dbc.PAYLOAD_OFFSET)
         sigma = j1939_raw(output.sigma, dbc.PAYLOAD_RESOLUTION, 0.0)
         data = self.estimate_message.encode(
@@ -129,7 +190,13 @@ class EstimateEncoder:
                             timestamp=output.time)]
 
     def decode(self, message: can.Message) -> tuple[float, str, float] | None:
-        """(payload kg, status, sigma kg) of a ``PayloadEstimate`` frame, else None."""
+        """(payload kg, status, sigma kg) of a ``PayloadEstimate`` frame, else None.
+
+        Parameters
+        ----------
+        message : can.Message
+            Any received frame.
+        """
         if message.arbitration_id != self.estimate_message.frame_id or len(message.data) != 8:
             return None
         raw = self.estimate_message.decode(bytes(message.data), scaling=False, decode_choices=False)
@@ -201,7 +268,18 @@ class PayloadSensor:
     def accepts(self, message: can.Message):
         """The sensor message ``message`` is a frame of, if it comes from that message's sender,
         else None (counted: ``ignored`` for other ids, ``other_senders`` for a sensor PGN from
-        another address). A generic DBC's message locks onto the first address heard."""
+        another address). A generic DBC's message locks onto the first address heard.
+
+        Parameters
+        ----------
+        message : can.Message
+            A received frame.
+
+        Returns
+        -------
+        cantools Message or None
+            The sensor message of the frame, or None when it is not one (from its sender).
+        """
         if message.is_error_frame or message.is_remote_frame:
             self.counters["ignored"] += 1
             return None
@@ -226,6 +304,15 @@ class PayloadSensor:
 
         ``received_at`` is the receiver's clock at reception (default: the frame's timestamp);
         ``spec``: what :meth:`accepts` returned for it, if the caller asked already.
+
+        Parameters
+        ----------
+        message : can.Message
+            The received frame; its ``timestamp`` (s) is the frame's own clock.
+        received_at : float, optional
+            s, receiver's clock at reception (default: the frame's timestamp).
+        spec : cantools Message, optional
+            What :meth:`accepts` returned for the frame, if the caller asked already.
         """
         self.counters["frames"] += 1
         if spec is None:
@@ -284,6 +371,11 @@ class PayloadSensor:
     def poll(self, now: float) -> list[SensorOutput]:
         """Called regularly with the receiver's clock: flush a timed-out partial sample, report
         stale. Returns the outputs to publish now.
+
+        Parameters
+        ----------
+        now : float
+            s, the receiver's clock.
         """
         outputs = []
         if self._pending_received is not None and now - self._pending_received > self.period:
@@ -299,7 +391,13 @@ class PayloadSensor:
 
     def frames(self, output: SensorOutput) -> list[can.Message]:
         """The frames that publish ``output``: the estimate, and a DM1 while a sensor is faulty
-        (once a second) and once after it clears (:mod:`~excavator_payload.runtime.dm1`)."""
+        (once a second) and once after it clears (:mod:`~excavator_payload.runtime.dm1`).
+
+        Parameters
+        ----------
+        output : SensorOutput
+            The estimate to publish.
+        """
         return self.encoder.frames(output) + self.dm1.update(output.time, output.fault)
 
 
@@ -310,6 +408,19 @@ def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
     Publishes each estimate as it completes (at the sensor rate); while the sensors are silent
     it publishes ``stale`` at the sample rate. Bus errors (error frames, a failing ``recv`` or
     ``send``) are logged and counted, never fatal. ``clock`` is the receiver's clock.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The open bus, read and written.
+    sensor : PayloadSensor
+        The virtual sensor the frames feed.
+    stop : threading.Event
+        Set to end the loop.
+    clock : callable, optional
+        Returns the receiver's clock, s (default :func:`time.time`).
+    error_pause : float, optional
+        s, wait after a failing ``recv`` before trying again.
 
     Returns
     -------

@@ -29,7 +29,13 @@ def _codec(estimator, dbc_file, signal_map):
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``can-dbc``, ``can-record``, ``can-replay``, ``can-run`` and ``export`` to ``app``."""
+    """Add ``can-dbc``, ``can-record``, ``can-replay``, ``can-run`` and ``export`` to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application the commands are added to.
+    """
 
     from excavator_payload.runtime import loadout_command
 

@@ -99,7 +99,13 @@ DBC_FOLDER = "dbc"
 
 
 def valid_raw_max(bits: int) -> int:
-    """Largest raw value that is data (not an error / not-available indicator), J1939-71."""
+    """Largest raw value that is data (not an error / not-available indicator), J1939-71.
+
+    Parameters
+    ----------
+    bits : int
+        Width of the signal.
+    """
     if bits < 8:
         return (1 << bits) - 1
     if bits == 8:
@@ -108,31 +114,83 @@ def valid_raw_max(bits: int) -> int:
 
 
 def not_available(bits: int) -> int:
-    """The raw value meaning "not available" (all ones)."""
+    """The raw value meaning "not available" (all ones).
+
+    Parameters
+    ----------
+    bits : int
+        Width of the signal.
+    """
     return (1 << bits) - 1
 
 
 def error_indicator(bits: int) -> int:
-    """The raw value meaning "error" (0xFE followed by zeros... as J1939-71: 0xFE00 for 16 bits)."""
+    """The raw value meaning "error" (0xFE followed by zeros... as J1939-71: 0xFE00 for 16 bits).
+
+    Parameters
+    ----------
+    bits : int
+        Width of the signal (below 8 bits: all ones, as "not available").
+    """
     if bits < 8:
         return (1 << bits) - 1
     return 0xFE << (bits - 8)
 
 
 def dbc_name(signal: str) -> str:
-    """CamelCase DBC name of a column name: ``boom_angle`` -> ``BoomAngle``."""
+    """CamelCase DBC name of a column name: ``boom_angle`` -> ``BoomAngle``.
+
+    Parameters
+    ----------
+    signal : str
+        A snake_case column name of a sensor set.
+    """
     return "".join(part.capitalize() for part in signal.split("_"))
 
 
 def frame_id(pgn: int, source_address: int, priority: int = PRIORITY) -> int:
-    """29-bit J1939 frame id of a PDU2 (broadcast) PGN."""
+    """29-bit J1939 frame id of a PDU2 (broadcast) PGN.
+
+    Parameters
+    ----------
+    pgn : int
+        The parameter group number (PDU2, so no destination address).
+    source_address : int
+        The sender's J1939 address, 0 to 255.
+    priority : int, optional
+        J1939 priority, 0 (highest) to 7.
+    """
     return (priority << 26) | (pgn << 8) | source_address
 
 
 # -- layout ------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SignalLayout:
-    """Where one sensor-set signal sits in the generated DBC."""
+    """Where one sensor-set signal sits in the generated DBC.
+
+    Parameters
+    ----------
+    signal : str
+        The sensor set's column name.
+    name : str
+        The signal's CamelCase DBC name.
+    message : str
+        Name of the message that carries it.
+    start : int
+        First bit in the message's 8 data bytes (little-endian).
+    bits : int
+        Width (16 or 32).
+    scale : float
+        SI unit per bit.
+    offset : float
+        SI value of raw 0 (minus the plausible limit).
+    minimum, maximum : float
+        The DBC range, SI unit (the sensor set's plausible limits).
+    unit : str
+        The SI unit.
+    spn : int
+        Its manufacturer-specific J1939 SPN.
+    """
 
     signal: str          # column name
     name: str            # DBC name
@@ -150,7 +208,19 @@ class SignalLayout:
 @dataclass(frozen=True)
 class MessageLayout:
     """One message of the generated DBC: its name, J1939 PGN, 29-bit frame id and the signals it
-    carries."""
+    carries.
+
+    Parameters
+    ----------
+    name : str
+        The message's DBC name.
+    pgn : int
+        Its J1939 parameter group number.
+    frame_id : int
+        Its 29-bit frame id (without the DBC's extended-id flag).
+    signals : tuple of SignalLayout
+        The signals it carries, in order.
+    """
 
     name: str
     pgn: int
@@ -159,7 +229,20 @@ class MessageLayout:
 
 
 def signal_bits(span: float, resolution: float) -> int:
-    """16 if ``span / resolution`` raw steps fit the 16-bit J1939 data range, else 32."""
+    """16 if ``span / resolution`` raw steps fit the 16-bit J1939 data range, else 32.
+
+    Parameters
+    ----------
+    span : float
+        Range the signal must carry, SI unit (maximum minus minimum).
+    resolution : float
+        SI unit per bit.
+
+    Raises
+    ------
+    CanConfigError
+        When even 32 bits are not enough.
+    """
     steps = math.ceil(span / resolution - 1e-9)
     for bits in (16, 32):
         if steps <= valid_raw_max(bits):
@@ -168,7 +251,13 @@ def signal_bits(span: float, resolution: float) -> int:
 
 
 def sensor_layout(sensor_set: SensorSet) -> list[MessageLayout]:
-    """Messages of the sensor set's signals, in column order (see the module docstring)."""
+    """Messages of the sensor set's signals, in column order (see the module docstring).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        Its signals, units and plausible limits give the layout.
+    """
     messages: list[MessageLayout] = []
     current: list[SignalLayout] = []
     used = 0
@@ -228,7 +317,13 @@ def _sg(s: SignalLayout | tuple, receiver: str) -> str:
 
 
 def generate_dbc(sensor_set: SensorSet | str) -> str:
-    """The DBC text of a sensor set (deterministic: the same set gives the same text)."""
+    """The DBC text of a sensor set (deterministic: the same set gives the same text).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet or str
+        The sensor set, or its name (``thesis``, ``machine``).
+    """
     sensors = get_sensor_set(sensor_set)
     layout = sensor_layout(sensors)
     statuses = status_names()
@@ -380,7 +475,13 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
 
 
 def shipped_dbc_path(sensor_set: SensorSet | str) -> Path:
-    """Path of the DBC shipped in the package for a sensor set."""
+    """Path of the DBC shipped in the package for a sensor set.
+
+    Parameters
+    ----------
+    sensor_set : SensorSet or str
+        The sensor set, or its name.
+    """
     name = get_sensor_set(sensor_set).name
     return Path(str(resources.files("excavator_payload.runtime") / DBC_FOLDER / f"{name}.dbc"))
 
@@ -399,7 +500,18 @@ def write_shipped_dbcs() -> list[Path]:
 
 
 def load_dbc(path: str | Path) -> cantools.database.can.Database:
-    """A DBC file as a cantools database (one clear line if it cannot be read)."""
+    """A DBC file as a cantools database (one clear line if it cannot be read).
+
+    Parameters
+    ----------
+    path : str or Path
+        The DBC file.
+
+    Raises
+    ------
+    CanConfigError
+        The file is missing, unreadable, or defines a message twice.
+    """
     path = Path(path)
     if not path.is_file():
         raise CanConfigError(f"DBC file '{path}' does not exist")
@@ -442,7 +554,13 @@ def sensor_set_database(name: str) -> cantools.database.can.Database:
 
 
 def is_j1939(db) -> bool:
-    """Whether the database declares ``ProtocolType "J1939"``."""
+    """Whether the database declares ``ProtocolType "J1939"``.
+
+    Parameters
+    ----------
+    db : cantools Database
+        A parsed DBC.
+    """
     try:
         attr = db.dbc.attributes.get("ProtocolType") if db.dbc is not None else None
     except AttributeError:
@@ -453,7 +571,19 @@ def is_j1939(db) -> bool:
 # -- codec -----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SignalSource:
-    """Where one of our signals comes from: ``value_SI = factor * dbc_value + offset``."""
+    """Where one of our signals comes from: ``value_SI = factor * dbc_value + offset``.
+
+    Parameters
+    ----------
+    message : str
+        Name of the DBC message that carries the signal.
+    signal : str
+        Name of the signal in that message.
+    factor : float, optional
+        SI unit per DBC unit.
+    offset : float, optional
+        SI value added after the factor.
+    """
 
     message: str
     signal: str
@@ -465,9 +595,14 @@ class SignalSource:
 class MessageOptions:
     """What the signal map's ``[messages.<name>]`` table says of one DBC message.
 
-    ``source_address``: the only J1939 source address whose frames are this message (None: the
-    DBC's frame id says it, see :meth:`SignalCodec.expected_source`). ``period``: its nominal
-    period, s (None: the DBC's ``GenMsgCycleTime``, else learnt from the log)."""
+    Parameters
+    ----------
+    source_address : int or None, optional
+        The only J1939 source address (0 to 253) whose frames are this message (None: the
+        DBC's frame id says it, see :meth:`SignalCodec.expected_source`).
+    period : float or None, optional
+        Its nominal period, s (None: the DBC's ``GenMsgCycleTime``, else learnt from the log).
+    """
 
     source_address: int | None = None
     period: float | None = None
@@ -547,7 +682,13 @@ class SignalCodec:
 
     @classmethod
     def for_sensor_set(cls, sensor_set: SensorSet | str) -> "SignalCodec":
-        """The codec of the generated (shipped) DBC of a sensor set."""
+        """The codec of the generated (shipped) DBC of a sensor set.
+
+        Parameters
+        ----------
+        sensor_set : SensorSet or str
+            The sensor set, or its name.
+        """
         sensors = get_sensor_set(sensor_set)
         db = sensor_set_database(sensors.name)
         sources = {s.signal: SignalSource(s.message, s.name)
@@ -557,7 +698,22 @@ class SignalCodec:
     @classmethod
     def from_files(cls, sensor_set: SensorSet, dbc: str | Path | None,
                    signal_map: str | Path | None) -> "SignalCodec":
-        """Codec of a user's DBC and TOML signal map (both None: the generated DBC)."""
+        """Codec of a user's DBC and TOML signal map (both None: the generated DBC).
+
+        Parameters
+        ----------
+        sensor_set : SensorSet
+            The sensor set whose signals the files map.
+        dbc : str or Path or None
+            The user's DBC file (``--dbc``).
+        signal_map : str or Path or None
+            The TOML signal map (``--signal-map``); given together with ``dbc``.
+
+        Raises
+        ------
+        CanConfigError
+            Only one of the two given, or a file that cannot be read.
+        """
         if dbc is None and signal_map is None:
             return cls.for_sensor_set(sensor_set)
         if dbc is None or signal_map is None:
@@ -574,7 +730,13 @@ class SignalCodec:
     def message_of(self, arbitration_id: int):
         """The sensor message with this frame id (J1939: its PGN, from any source address), or None.
 
-        Whether the frame's sender is the message's is :meth:`expected_source`'s to say."""
+        Whether the frame's sender is the message's is :meth:`expected_source`'s to say.
+
+        Parameters
+        ----------
+        arbitration_id : int
+            The frame id of a received frame.
+        """
         message = self._by_id.get(arbitration_id)
         if message is None and self._by_pgn:
             candidates = self._by_pgn.get(_pgn(arbitration_id))
@@ -590,7 +752,13 @@ class SignalCodec:
         """The J1939 source address whose frames are message ``name``: the signal map's
         ``source_address``, else the DBC frame id's; None where that is the null address 0xFE
         (a generic DBC: the sensor then listens to the first address it hears) or the DBC is
-        not J1939 (11-bit ids carry no address)."""
+        not J1939 (11-bit ids carry no address).
+
+        Parameters
+        ----------
+        name : str
+            A DBC message name among :attr:`message_names`.
+        """
         option = self.message_options.get(name)
         if option is not None and option.source_address is not None:
             return option.source_address
@@ -602,7 +770,13 @@ class SignalCodec:
 
     def nominal_period(self, name: str) -> float | None:
         """Message ``name``'s period, s: the signal map's ``period``, else the DBC's
-        ``GenMsgCycleTime``; None when neither says (the sensor learns it from the frames)."""
+        ``GenMsgCycleTime``; None when neither says (the sensor learns it from the frames).
+
+        Parameters
+        ----------
+        name : str
+            A DBC message name among :attr:`message_names`.
+        """
         option = self.message_options.get(name)
         if option is not None and option.period is not None:
             return option.period
@@ -615,6 +789,13 @@ class SignalCodec:
 
         A frame of the wrong length, a J1939 error / not-available raw value or a value outside
         the signal's DBC range gives NaN for the signals concerned (never an exception).
+
+        Parameters
+        ----------
+        message : cantools Message
+            The sensor message the frame is (:meth:`message_of`).
+        data : bytes
+            The frame's data bytes.
         """
         targets = self._by_message[message.name]
         if len(data) != message.length:
@@ -647,6 +828,11 @@ class SignalCodec:
 
         A non-finite value is sent as "not available", a value outside the DBC range as the
         J1939 error indicator (or clipped in a non-J1939 DBC).
+
+        Parameters
+        ----------
+        values : sequence of float
+            One sample's signals in SI units, in the sensor set's column order.
         """
         frames = []
         for name, message in self.messages.items():
@@ -680,7 +866,18 @@ class SignalCodec:
         return int(raw)
 
     def quantise(self, values: np.ndarray) -> np.ndarray:
-        """What the receiver decodes from ``values`` (rows of samples): encode then decode."""
+        """What the receiver decodes from ``values`` (rows of samples): encode then decode.
+
+        Parameters
+        ----------
+        values : array_like
+            Samples (rows) of signals in SI units, sensor-set column order.
+
+        Returns
+        -------
+        ndarray
+            The decoded values, same shape (2-D); NaN where the bus carries none.
+        """
         values = np.atleast_2d(np.asarray(values, dtype=float))
         out = np.full_like(values, np.nan)
         for r, row in enumerate(values):
@@ -709,6 +906,16 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
         message = "ArmAngles"
         signal = "BoomAngleDeg"
         factor = 0.017453292519943295   # deg -> rad
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+
+    Returns
+    -------
+    dict
+        Our signal name -> :class:`SignalSource`.
     """
     import tomllib
 
@@ -745,6 +952,16 @@ def read_message_map(path: str | Path) -> dict[str, MessageOptions]:
         [messages.HouseInclination]
         source_address = 0x21   # only this J1939 sender's frames are the message
         period = 0.1            # s, when the DBC has no GenMsgCycleTime for it
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML signal map.
+
+    Returns
+    -------
+    dict
+        DBC message name -> :class:`MessageOptions` (empty without ``[messages]``).
     """
     import tomllib
 

@@ -43,7 +43,25 @@ MAX_OC = 126  # 127 = not available
 
 
 def encode_dm1(dtcs: list[tuple[int, int, int]], lamp: int | None = None) -> bytes:
-    """The DM1 data of ``dtcs`` ([(spn, fmi, occurrence count)]); none: "no active DTC"."""
+    """The DM1 data of ``dtcs`` ([(spn, fmi, occurrence count)]); none: "no active DTC".
+
+    Parameters
+    ----------
+    dtcs : list of (int, int, int)
+        Active DTCs as (SPN, FMI, occurrence count); empty: "no active DTC".
+    lamp : int, optional
+        The lamp status byte (default: amber warning when there is a DTC, else all off).
+
+    Returns
+    -------
+    bytes
+        At least 8 bytes (padded with ``0xFF``).
+
+    Raises
+    ------
+    ValueError
+        An SPN, FMI or occurrence count outside its bit width.
+    """
     if lamp is None:
         lamp = AMBER_LAMP_ON if dtcs else 0x00
     data = bytearray([lamp & 0xFF, 0xFF])
@@ -57,7 +75,18 @@ def encode_dm1(dtcs: list[tuple[int, int, int]], lamp: int | None = None) -> byt
 
 
 def decode_dm1(data: bytes) -> tuple[int, list[tuple[int, int, int]]]:
-    """(lamp status byte, [(spn, fmi, oc)]) of DM1 data; the "no active DTC" entry is dropped."""
+    """(lamp status byte, [(spn, fmi, oc)]) of DM1 data; the "no active DTC" entry is dropped.
+
+    Parameters
+    ----------
+    data : bytes
+        DM1 data (a single frame's or a reassembled transport's), at least 6 bytes.
+
+    Raises
+    ------
+    ValueError
+        Fewer than 6 bytes.
+    """
     data = bytes(data)
     if len(data) < 6:
         raise ValueError(f"a DM1 has at least 6 bytes, got {len(data)}")
@@ -74,7 +103,17 @@ def decode_dm1(data: bytes) -> tuple[int, list[tuple[int, int, int]]]:
 
 
 def dm1_frames(data: bytes, source: int, timestamp: float) -> list[can.Message]:
-    """``data`` as one DM1 frame, or as a BAM transport (TP.CM then TP.DT frames) if longer than 8."""
+    """``data`` as one DM1 frame, or as a BAM transport (TP.CM then TP.DT frames) if longer than 8.
+
+    Parameters
+    ----------
+    data : bytes
+        The DM1 data (:func:`encode_dm1`).
+    source : int
+        The sender's J1939 source address.
+    timestamp : float
+        s, the frames' timestamp.
+    """
     if len(data) <= 8:
         return [can.Message(arbitration_id=dbc.frame_id(DM1_PGN, source), data=data,
                             is_extended_id=True, timestamp=timestamp)]
@@ -92,7 +131,13 @@ def dm1_frames(data: bytes, source: int, timestamp: float) -> list[can.Message]:
 
 
 def reassemble(frames: list[can.Message]) -> list[bytes]:
-    """The DM1 data carried by ``frames`` (single frames and BAM transports), in order."""
+    """The DM1 data carried by ``frames`` (single frames and BAM transports), in order.
+
+    Parameters
+    ----------
+    frames : list of can.Message
+        Frames of a bus or log; those that are not DM1 or its transport are ignored.
+    """
     out, pending = [], None
     for f in frames:
         pgn = (f.arbitration_id >> 8) & 0x3FFFF
@@ -110,7 +155,25 @@ def reassemble(frames: list[can.Message]) -> list[bytes]:
 
 @dataclass
 class DtcEpisode:
-    """One fault as the bus carried it."""
+    """One fault as the bus carried it.
+
+    Parameters
+    ----------
+    spn : int
+        The signal's SPN.
+    fmi : int
+        The failure mode identifier of the fault kind.
+    signal : str
+        The faulty signal (column name).
+    kind : str
+        The fault kind (``stuck``, ``dropout``, ...; :data:`~excavator_payload.estimators.health.FMI`).
+    start : float
+        s, when it became active.
+    end : float, optional
+        s, when it cleared; NaN while active.
+    sent : int, optional
+        How many DM1 messages carried it.
+    """
 
     spn: int
     fmi: int
@@ -122,7 +185,15 @@ class DtcEpisode:
 
 
 class DM1Transmitter:
-    """Turns the estimator's fault strings into DM1 messages (see the module docstring)."""
+    """Turns the estimator's fault strings into DM1 messages (see the module docstring).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The sensor set whose signals' SPNs the DTCs carry.
+    source : int, optional
+        The J1939 source address the DM1 is sent from.
+    """
 
     def __init__(self, sensor_set, source: int = dbc.ESTIMATOR_ADDRESS) -> None:
         self.source = source
@@ -138,7 +209,13 @@ class DM1Transmitter:
         self.messages = 0
 
     def dtcs(self, fault: str) -> dict[tuple[int, int], tuple[str, str]]:
-        """``"signal:kind,..."`` as {(spn, fmi): (signal, kind)} (unknown signals or kinds skipped)."""
+        """``"signal:kind,..."`` as {(spn, fmi): (signal, kind)} (unknown signals or kinds skipped).
+
+        Parameters
+        ----------
+        fault : str
+            The estimator's fault string, ``"signal:kind,..."`` (empty: none).
+        """
         out = {}
         for item in filter(None, fault.split(",")):
             signal, _, kind = item.partition(":")
@@ -147,7 +224,15 @@ class DM1Transmitter:
         return out
 
     def update(self, time: float, fault: str) -> list[can.Message]:
-        """The DM1 frames to send at ``time`` for the active ``fault`` string (often none)."""
+        """The DM1 frames to send at ``time`` for the active ``fault`` string (often none).
+
+        Parameters
+        ----------
+        time : float
+            s, time of the output the fault string came with.
+        fault : str
+            The active faults, ``"signal:kind,..."`` (empty: none).
+        """
         now = self.dtcs(fault)
         changed = set(now) != set(self.active)
         for key in set(self.active) - set(now):

@@ -134,7 +134,18 @@ class _NarxGraph(torch.nn.Module):
 
 
 def onnx_graph(est: Estimator) -> torch.nn.Module:
-    """The PyTorch module that is exported (float32)."""
+    """The PyTorch module that is exported (float32).
+
+    Parameters
+    ----------
+    est : Estimator
+        A fitted network with an ONNX export (:data:`~excavator_payload.runtime.exportable.ONNX_EXPORTABLE`).
+
+    Raises
+    ------
+    EstimatorError
+        ``est`` has no ONNX export, or was trained with options that stop one.
+    """
     graph = _GRAPHS.get(est.name)
     if graph is None:
         raise EstimatorError(f"{est.name} has no ONNX export; exportable: {', '.join(ONNX_EXPORTABLE)}")
@@ -145,7 +156,20 @@ def onnx_graph(est: Estimator) -> torch.nn.Module:
 
 
 def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
-    """Write ``<name>.onnx`` for a fitted network into folder ``out``."""
+    """Write ``<name>.onnx`` for a fitted network into folder ``out``.
+
+    Parameters
+    ----------
+    est : Estimator
+        A fitted network with an ONNX export.
+    out : str or Path
+        The folder to write into (created if missing).
+
+    Returns
+    -------
+    list of Path
+        The file written.
+    """
     import onnx
 
     if not est.fitted:

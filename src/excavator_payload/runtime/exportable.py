@@ -18,7 +18,13 @@ ONNX_EXPORTABLE = exportable("onnx")
 def per_sample_options(est) -> list[str]:
     """The options of a network that stop it from being exported, as given to ``train``
     (``--decimation 5``, ``--smoothing 0.3``): an export runs the network alone on every sample,
-    so only ``--decimation 1 --smoothing 0`` export. Empty for every other estimator."""
+    so only ``--decimation 1 --smoothing 0`` export. Empty for every other estimator.
+
+    Parameters
+    ----------
+    est : Estimator
+        Any estimator (only networks' ``decimation`` and ``smoothing`` count).
+    """
     offending = []
     decimation = getattr(est, "decimation", 1)
     if decimation != 1:
@@ -31,7 +37,15 @@ def per_sample_options(est) -> list[str]:
 
 def per_sample_refusal(est, fmt: str) -> str | None:
     """The one-line refusal of exporting ``est`` as ``fmt`` (``C`` or ``ONNX``) for the options
-    that stop it (:func:`per_sample_options`), else ``None``."""
+    that stop it (:func:`per_sample_options`), else ``None``.
+
+    Parameters
+    ----------
+    est : Estimator
+        Any estimator.
+    fmt : str
+        The format's name as shown in the message (``C`` or ``ONNX``).
+    """
     offending = per_sample_options(est)
     if not offending:
         return None

@@ -71,7 +71,31 @@ PHASES = ("dig", "lift-swing", "dump", "return")
 
 @dataclass
 class Pass:
-    """One bucket pass: its phases' times (s), its locked weight (kg) and σ, its status."""
+    """One bucket pass: its phases' times (s), its locked weight (kg) and σ, its status.
+
+    Parameters
+    ----------
+    truck : int
+        Number of the truck the pass went into (1, 2, ...).
+    index : int
+        1, 2, ... within the truck.
+    time_dig : float
+        s, when the dig's curl ends (the bucket is full).
+    time_dump : float
+        s, when the dump starts.
+    time_lock : float or None
+        s, the sample the weight was locked at; None when not weighed.
+    weight : float or None
+        kg, the locked weight; None when not weighed.
+    sigma : float or None
+        kg, its one-sigma uncertainty (NaN when the estimator gives none); None when not weighed.
+    status : str
+        ``"ok"`` or ``"not_weighed"``.
+    reason : str, optional
+        Why it was not weighed (the statuses it had instead).
+    true_weight : float or None, optional
+        kg, the simulated truth of the pass, where the data has it.
+    """
 
     truck: int
     index: int  # 1, 2, … within the truck
@@ -87,7 +111,27 @@ class Pass:
 
 @dataclass
 class Truck:
-    """One truck: its passes and total (kg); ``target`` as given or from the data."""
+    """One truck: its passes and total (kg); ``target`` as given or from the data.
+
+    Parameters
+    ----------
+    truck : int
+        The truck's number (1, 2, ...).
+    passes : list of Pass, optional
+        Its passes, in order.
+    target : float or None, optional
+        kg, its target load; None when none is given.
+    true_total : float or None, optional
+        kg, the true load, where the data has it.
+    true_passes : int or None, optional
+        How many passes the truth holds.
+    matched : int or None, optional
+        How many of them were found by one detected pass each.
+    start : float or None, optional
+        s, the log's / bus's time of its first sample.
+    faults : list of dict, optional
+        The sensor faults (DM1 episodes) that began in this truck (:func:`episode_row`).
+    """
 
     truck: int
     passes: list[Pass] = field(default_factory=list)
@@ -121,7 +165,17 @@ def _smooth(x: np.ndarray, period: float) -> np.ndarray:
 
 def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int, float]]:
     """The bucket's moves: (first sample, last sample, change of angle in rad) of each run where
-    its smoothed rate stays beyond :data:`MOVE_RATE` in one direction (+: opening, −: curling)."""
+    its smoothed rate stays beyond :data:`MOVE_RATE` in one direction (+: opening, −: curling).
+
+    Parameters
+    ----------
+    time : ndarray
+        s, sample times (evenly spaced: the median step is the period).
+    angle : ndarray
+        rad, the bucket angle per sample.
+    rate : ndarray
+        rad/s, the bucket's angular rate per sample.
+    """
     period = float(np.median(np.diff(time))) if len(time) > 1 else 0.01
     r = _smooth(rate, period)
     sign = np.where(r > MOVE_RATE, 1, np.where(r < -MOVE_RATE, -1, 0))
@@ -134,7 +188,17 @@ def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[
 
 
 def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int]]:
-    """(dig end, dump start) sample of each pass, from the bucket's moves (module doc)."""
+    """(dig end, dump start) sample of each pass, from the bucket's moves (module doc).
+
+    Parameters
+    ----------
+    time : ndarray
+        s, sample times.
+    angle : ndarray
+        rad, the bucket angle per sample.
+    rate : ndarray
+        rad/s, the bucket's angular rate per sample.
+    """
     passes, dig = [], None
     for a, b, change in bucket_moves(time, angle, rate):
         if change < -DIG_CURL:
@@ -148,7 +212,13 @@ def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[t
 def phases(frame: pd.DataFrame) -> np.ndarray:
     """Phase of each sample of one truck (:data:`PHASES`; "" before the first dig): the dig's
     curl, lift-swing until the dump, the dump's opening, then return (and the wait before the
-    next cut) until the next curl."""
+    next cut) until the next curl.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        One truck's samples, with ``time``, ``bucket_angle`` and ``bucket_rate`` columns.
+    """
     time = frame["time"].to_numpy(float)
     out = np.full(len(time), "", dtype=object)
     angle, rate = frame["bucket_angle"].to_numpy(float), frame["bucket_rate"].to_numpy(float)
@@ -168,7 +238,21 @@ def phases(frame: pd.DataFrame) -> np.ndarray:
 
 def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, status: np.ndarray,
                 start: int, stop: int) -> tuple[float | None, float | None, float | None, str]:
-    """The last ``ok`` estimate in samples ``start … stop-1``: (time, weight, σ, reason if none)."""
+    """The last ``ok`` estimate in samples ``start … stop-1``: (time, weight, σ, reason if none).
+
+    Parameters
+    ----------
+    time : ndarray
+        s, sample times.
+    estimate : ndarray
+        kg, the estimates per sample.
+    sigma : ndarray
+        kg, their one-sigma uncertainties.
+    status : ndarray of str
+        The estimates' statuses.
+    start, stop : int
+        Samples ``start`` to ``stop - 1`` are searched (the dig's end to the dump's start).
+    """
     window = np.asarray(status[start:stop]) == "ok"
     ok = np.flatnonzero(window & np.isfinite(estimate[start:stop]))
     if len(ok):
@@ -180,7 +264,13 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
 
 
 def split_trucks(frame: pd.DataFrame) -> list[pd.DataFrame]:
-    """One frame per truck: per experiment, cut where :data:`TRUCK_GAP` s pass without a sample."""
+    """One frame per truck: per experiment, cut where :data:`TRUCK_GAP` s pass without a sample.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        A dataset's samples, with ``experiment`` and ``time`` columns.
+    """
     out = []
     for _, rows in frame.groupby("experiment", sort=False):
         t = rows["time"].to_numpy(float)
@@ -206,7 +296,21 @@ def _truth_match(passes: list[Pass], truth: list[dict]) -> int:
 
 def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
                 truth: list[dict] | None = None) -> Truck:
-    """The passes of one truck's samples ``rows`` weighed by ``estimator`` (reset first)."""
+    """The passes of one truck's samples ``rows`` weighed by ``estimator`` (reset first).
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted estimator (reset, then run over ``rows``).
+    rows : pandas.DataFrame
+        One truck's samples (its sensor-set signals and ``time``).
+    truck : int
+        The truck's number.
+    target : float or None
+        kg, its target load, if any.
+    truth : list of dict, optional
+        The simulated passes (``release`` interval, s, and ``payload``, kg) to match against.
+    """
     from excavator_payload.data.dataset import Dataset
 
     rows = rows.copy()
@@ -232,7 +336,17 @@ def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
 
 def fault_episodes(sensor_set, time: np.ndarray, faults: np.ndarray) -> list[dict]:
     """The DM1 episodes (:class:`~excavator_payload.runtime.dm1.DM1Transmitter`) of one truck's
-    ``faults`` (the estimates' ``signal:kind,...`` column at ``time``), as dicts."""
+    ``faults`` (the estimates' ``signal:kind,...`` column at ``time``), as dicts.
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The estimator's sensor set (the SPNs of its signals).
+    time : ndarray
+        s, sample times.
+    faults : ndarray of str
+        The estimates' ``fault`` column (empty or None: no fault).
+    """
     from excavator_payload.runtime.dm1 import DM1Transmitter
 
     dm1 = DM1Transmitter(sensor_set)
@@ -242,20 +356,38 @@ def fault_episodes(sensor_set, time: np.ndarray, faults: np.ndarray) -> list[dic
 
 
 def episode_row(episode) -> dict:
-    """One :class:`~excavator_payload.runtime.dm1.DtcEpisode` as a record row."""
+    """One :class:`~excavator_payload.runtime.dm1.DtcEpisode` as a record row.
+
+    Parameters
+    ----------
+    episode : DtcEpisode
+        A fault as the bus carried it.
+    """
     return {"spn": episode.spn, "fmi": episode.fmi, "signal": episode.signal, "kind": episode.kind,
             "start": float(episode.start), "end": float(episode.end)}
 
 
 def fault_line(fault: dict) -> str:
-    """``DM1 SPN 520195 FMI 7 (boom_angle stuck): 12.30-14.10 s`` (end: "to the truck's end")."""
+    """``DM1 SPN 520195 FMI 7 (boom_angle stuck): 12.30-14.10 s`` (end: "to the truck's end").
+
+    Parameters
+    ----------
+    fault : dict
+        A record row of a fault (:func:`episode_row`).
+    """
     end = f"-{fault['end']:.2f} s" if math.isfinite(fault["end"]) else " s to the truck's end"
     return (f"DM1 SPN {fault['spn']} FMI {fault['fmi']} ({fault['signal']} {fault['kind']}): "
             f"{fault['start']:.2f}{end}")
 
 
 def file_key(path: str | Path) -> str:
-    """SHA-256 of a file's bytes: the same data, wherever it lies, is the same source."""
+    """SHA-256 of a file's bytes: the same data, wherever it lies, is the same source.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to hash.
+    """
     h = hashlib.sha256()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -284,7 +416,13 @@ CREATE TABLE IF NOT EXISTS faults (
 
 
 class ShiftRecord:
-    """The shift's SQLite record (module doc): rerunning the same data replaces, never doubles."""
+    """The shift's SQLite record (module doc): rerunning the same data replaces, never doubles.
+
+    Parameters
+    ----------
+    path : str or Path
+        The SQLite file (created if missing; an older record gains the newer columns).
+    """
 
     def __init__(self, path: str | Path):
         path = Path(path)
@@ -301,20 +439,48 @@ class ShiftRecord:
             raise DatasetError(f"--db '{path}' is not a usable SQLite database: {exc}") from None
 
     def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
-        """Record the start of a loadout run over ``source`` (the data's hash); returns its id."""
+        """Record the start of a loadout run over ``source`` (the data's hash); returns its id.
+
+        Parameters
+        ----------
+        source : str
+            SHA-256 of the data file (:func:`file_key`).
+        data : str
+            The data's name as given (for the record's reader).
+        model : str
+            The model's name as given.
+        rated : float, optional
+            kg, the model's rated payload, if any.
+        """
         with self.db:
             cur = self.db.execute("INSERT INTO runs (source, data, model, rated, started) VALUES (?, ?, ?, ?, ?)",
                                   (source, data, model, rated, _time.time()))
         return int(cur.lastrowid)
 
     def finish_run(self, run: int) -> None:
-        """Mark run ``run`` finished (a run without it was interrupted)."""
+        """Mark run ``run`` finished (a run without it was interrupted).
+
+        Parameters
+        ----------
+        run : int
+            The id :meth:`start_run` returned.
+        """
         with self.db:
             self.db.execute("UPDATE runs SET finished = ? WHERE run = ?", (_time.time(), run))
 
     def write_truck(self, source: str, run: int, truck: Truck) -> None:
         """One truck, its passes and faults in one transaction; an earlier run's rows of it replaced
-        (a live truck is written again with each pass: the latest state of it, never twice)."""
+        (a live truck is written again with each pass: the latest state of it, never twice).
+
+        Parameters
+        ----------
+        source : str
+            SHA-256 of the data file.
+        run : int
+            The run that weighed it.
+        truck : Truck
+            The truck, its passes and faults.
+        """
         with self.db:
             self.db.execute("DELETE FROM passes WHERE source = ? AND truck = ?", (source, truck.truck))
             self.db.execute("DELETE FROM faults WHERE source = ? AND truck = ?", (source, truck.truck))
@@ -346,7 +512,18 @@ def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
     payload the runs' models had, kg, if one; ``attrs["faults"]``: the ``faults`` table's rows
     as dicts, none for a record made before it had one — a list, not a frame: pandas compares
-    attrs when frames are merged, and a frame there made every merge raise)."""
+    attrs when frames are merged, and a frame there made every merge raise).
+
+    Parameters
+    ----------
+    path : str or Path
+        A shift record made by ``loadout --db``.
+
+    Raises
+    ------
+    DatasetError
+        The file is missing or not a shift record.
+    """
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"--db '{path}' does not exist")
@@ -367,14 +544,26 @@ def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
 
 
 def passes_frame(trucks: list[Truck]) -> pd.DataFrame:
-    """Every pass of ``trucks`` as a table (the Parquet export)."""
+    """Every pass of ``trucks`` as a table (the Parquet export).
+
+    Parameters
+    ----------
+    trucks : list of Truck
+        The trucks whose passes are listed.
+    """
     rows = [asdict(p) for t in trucks for p in t.passes]
     cols = [f.name for f in Pass.__dataclass_fields__.values()]
     return pd.DataFrame(rows, columns=cols).rename(columns={"index": "pass"})
 
 
 def truck_table(truck: Truck):
-    """A rich table of one truck's passes, with the running total and what is left."""
+    """A rich table of one truck's passes, with the running total and what is left.
+
+    Parameters
+    ----------
+    truck : Truck
+        The truck shown.
+    """
     from rich.table import Table
 
     title = f"truck {truck.truck}"
@@ -396,7 +585,30 @@ def truck_table(truck: Truck):
 def run_loadout(estimator, dataset, record: ShiftRecord | None, source: str, target: float | None,
                 on_truck=None, data_name: str = "", model_name: str = "") -> list[Truck]:
     """Weigh every truck of ``dataset`` and record each as it is done (``on_truck(truck)``
-    after each, for a live view). ``target`` (kg) overrides the data's truck targets."""
+    after each, for a live view). ``target`` (kg) overrides the data's truck targets.
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted estimator.
+    dataset : Dataset
+        The samples; each experiment is one truck, or several cut at :data:`TRUCK_GAP`.
+    record : ShiftRecord or None
+        Where each truck is written as it is done; None: nowhere.
+    source : str
+        SHA-256 of the data file (the record's key).
+    target : float or None
+        kg, every truck's target; None: the data's ``truck_target`` per experiment.
+    on_truck : callable, optional
+        Called with each :class:`Truck` once weighed.
+    data_name, model_name : str, optional
+        The data's and model's names as given, for the record.
+
+    Returns
+    -------
+    list of Truck
+        The trucks, numbered 1, 2, ... in the data's order.
+    """
     metas = dataset.experiment_meta
     run = (record.start_run(source, data_name, model_name, getattr(estimator, "rated_payload", None))
            if record is not None else 0)
@@ -418,7 +630,15 @@ def run_loadout(estimator, dataset, record: ShiftRecord | None, source: str, tar
 
 
 def split_trucks_of(rows: pd.DataFrame, dataset) -> list[int]:
-    """How many trucks the experiment of ``rows`` was split into (truth only for whole ones)."""
+    """How many trucks the experiment of ``rows`` was split into (truth only for whole ones).
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        Samples of one experiment (or of part of it).
+    dataset : Dataset
+        The dataset they come from.
+    """
     k = int(rows["experiment"].iloc[0])
     t = dataset.frame.loc[dataset.frame["experiment"] == k, "time"].to_numpy(float)
     return list(range(int(np.sum(np.diff(t) >= TRUCK_GAP)) + 1))
@@ -426,7 +646,15 @@ def split_trucks_of(rows: pd.DataFrame, dataset) -> list[int]:
 
 def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | None = None) -> dict:
     """Counts and, where the record has the truth, errors: passes within 1 % of ``rated`` (kg;
-    without it not counted), trucks within 0.5 % of their load."""
+    without it not counted), trucks within 0.5 % of their load.
+
+    Parameters
+    ----------
+    passes, trucks : pandas.DataFrame
+        The record's tables (:func:`read_record`).
+    rated : float, optional
+        kg, the rated payload (the 1 % pass criterion is left out without it).
+    """
     weighed = passes[passes["status"] == "ok"]
     out = {"trucks": int(len(trucks)), "passes": int(len(passes)), "not_weighed": int((passes["status"] != "ok").sum()),
            "total": float(trucks["total"].sum())}
@@ -451,7 +679,17 @@ def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | Non
 
 def write_shift_report(db: str | Path, out: str | Path, rated: float | None = None) -> Path:
     """A shift report from a record: ``shift.md`` (trucks, passes, totals, against the truth
-    where recorded) and ``pass_weights.png`` (histogram of pass weights). Returns the Markdown."""
+    where recorded) and ``pass_weights.png`` (histogram of pass weights). Returns the Markdown.
+
+    Parameters
+    ----------
+    db : str or Path
+        The shift record.
+    out : str or Path
+        The folder written into (created if missing).
+    rated : float, optional
+        kg, the rated payload (default: the record's).
+    """
     import matplotlib
 
     matplotlib.use("Agg")

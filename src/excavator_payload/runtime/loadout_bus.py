@@ -91,6 +91,18 @@ class TruckButton:
             signal = "NextTruck"
             pressed = 1
             source_address = 0x28
+
+        Parameters
+        ----------
+        path : str or Path or None
+            The TOML signal map (None: :meth:`default`).
+        database : cantools Database
+            The DBC the button's message is looked up in.
+
+        Raises
+        ------
+        CanConfigError
+            An unreadable map, or a ``[truck_button]`` table that is wrong or names what the DBC lacks.
         """
         import tomllib
 
@@ -126,7 +138,13 @@ class TruckButton:
         return cls(message, str(table["signal"]), float(pressed), address)
 
     def matches(self, frame: can.Message) -> bool:
-        """Whether ``frame`` is the button's message from the button's sender."""
+        """Whether ``frame`` is the button's message from the button's sender.
+
+        Parameters
+        ----------
+        frame : can.Message
+            Any received frame.
+        """
         mine = self.message.frame_id
         if not (frame.is_extended_id and self.message.is_extended_frame):
             return frame.arbitration_id == mine and frame.is_extended_id == self.message.is_extended_frame
@@ -136,7 +154,13 @@ class TruckButton:
 
     def press(self, frame: can.Message) -> bool:
         """Whether ``frame`` (one of :meth:`matches`) is a new press: pressed now, and released
-        or silent for :data:`PRESS_HOLD` s before."""
+        or silent for :data:`PRESS_HOLD` s before.
+
+        Parameters
+        ----------
+        frame : can.Message
+            A frame of the button; its timestamp (s) is remembered for the next.
+        """
         try:
             value = self.message.decode(bytes(frame.data), decode_choices=False).get(self.signal)
         except Exception:  # a frame the DBC cannot decode is no press
@@ -147,7 +171,15 @@ class TruckButton:
         return now and (last is None or not last[1] or t - last[0] > PRESS_HOLD)
 
     def frame(self, pressed: bool = True, timestamp: float = 0.0) -> can.Message:
-        """A frame of the button (tests, and a panel that is a computer)."""
+        """A frame of the button (tests, and a panel that is a computer).
+
+        Parameters
+        ----------
+        pressed : bool, optional
+            Send the "pressed" value (else 0).
+        timestamp : float, optional
+            s, the frame's timestamp.
+        """
         values = {s.name: 0 for s in self.message.signals}
         values[self.signal] = self.pressed if pressed else 0
         data = self.message.encode(values, padding=True, strict=False)
@@ -184,7 +216,14 @@ class TruckTracker:
         self._held = (0.0, 0.0)  # the last finite bucket angle and rate (a stale sample holds them)
 
     def add(self, output) -> list[Pass]:
-        """One estimate with its sample's values; returns the passes locked by it (0 or 1, rarely 2)."""
+        """One estimate with its sample's values; returns the passes locked by it (0 or 1, rarely 2).
+
+        Parameters
+        ----------
+        output : SensorOutput
+            A published estimate whose ``values`` hold its sample (a NaN bucket signal holds the last
+            finite one).
+        """
         if self.truck.start is None:
             self.truck.start = float(output.time)
         angle, rate = float(output.values[self.angle_index]), float(output.values[self.rate_index])
@@ -278,7 +317,16 @@ class BusLoadout:
 
     # -- frames in ---------------------------------------------------------------------------
     def feed(self, message: can.Message, received_at: float | None = None) -> list[can.Message]:
-        """One frame from the bus or a log; returns the frames to send (``send``) for it."""
+        """One frame from the bus or a log; returns the frames to send (``send``) for it.
+
+        Parameters
+        ----------
+        message : can.Message
+            The frame; its timestamp (s) is the sensor's clock.
+        received_at : float, optional
+            s, the receiver's clock at reception (None: the truck gap is timed on
+            ``time.monotonic()``, the sensor's time-outs on the frame's timestamp).
+        """
         out: list[can.Message] = []
         if self.button.matches(message):
             if self.button.press(message):
@@ -375,7 +423,13 @@ class BusLoadout:
     def poll(self, now: float) -> list[can.Message]:
         """Live: called regularly with the receiver's clock (``time.monotonic``-like, the clock
         of ``received_at``): the sensor's time-outs, and a truck that left by a gap without
-        waiting for the next frame."""
+        waiting for the next frame.
+
+        Parameters
+        ----------
+        now : float
+            s, the receiver's clock.
+        """
         out: list[can.Message] = []
         for output in self.sensor.poll(now):
             out += self._output(output)
@@ -443,7 +497,13 @@ class _Publisher:
 
 
 def decode_loadout(frame: can.Message) -> dict | None:
-    """A LoadoutPass or LoadoutTruck frame as SI values (NaN: not available / error), else None."""
+    """A LoadoutPass or LoadoutTruck frame as SI values (NaN: not available / error), else None.
+
+    Parameters
+    ----------
+    frame : can.Message
+        Any frame.
+    """
     db = dbc.estimate_database()
     for name in (dbc.LOADOUT_PASS_MESSAGE, dbc.LOADOUT_TRUCK_MESSAGE):
         message = db.get_message_by_name(name)
@@ -461,7 +521,22 @@ def decode_loadout(frame: can.Message) -> dict | None:
 # -- a log -------------------------------------------------------------------------------------
 def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Truck]:
     """Every frame of the CAN log ``path`` through ``loadout``; the trucks (one line if nothing
-    in the log is the sensor's, saying what it holds)."""
+    in the log is the sensor's, saying what it holds).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CAN log (a format :func:`~excavator_payload.runtime.logs.read_frames` reads).
+    loadout : BusLoadout
+        Fed every frame, then finished.
+    progress : bool, optional
+        Show a progress bar.
+
+    Raises
+    ------
+    DatasetError
+        No frame of the log is one of the sensor's.
+    """
     from excavator_payload.runtime.logs import LogSummary, read_frames
     from excavator_payload.runtime.replay import _expected, _foreign
 
@@ -564,7 +639,13 @@ def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, 
 
 
 def advice(truck: Truck) -> str:
-    """What is left for the truck and what the last pass should carry (empty without a target)."""
+    """What is left for the truck and what the last pass should carry (empty without a target).
+
+    Parameters
+    ----------
+    truck : Truck
+        The truck being loaded.
+    """
     if truck.target is None:
         return ""
     left = truck.target - truck.total
@@ -583,7 +664,13 @@ def advice(truck: Truck) -> str:
 def live_view(loadout: BusLoadout):
     """The cab's view (rich): the truck being loaded (its passes, running total against the
     target, what the last pass should carry), the current estimate, active sensor faults, the
-    trucks done."""
+    trucks done.
+
+    Parameters
+    ----------
+    loadout : BusLoadout
+        The shift being followed.
+    """
     from rich.console import Group
     from rich.text import Text
 

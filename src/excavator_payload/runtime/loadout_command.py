@@ -16,7 +16,13 @@ console = Console()
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``loadout`` to ``app``."""
+    """Add ``loadout`` to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application the command is added to.
+    """
 
     @app.command("loadout")
     def loadout(
@@ -102,7 +108,13 @@ def register(app: typer.Typer) -> None:
 
 
 def show_truck(truck) -> None:
-    """A finished truck: its table, a line with its total against the target, its sensor faults."""
+    """A finished truck: its table, a line with its total against the target, its sensor faults.
+
+    Parameters
+    ----------
+    truck : Truck
+        The finished truck, printed on the console.
+    """
     from excavator_payload.runtime.loadout import fault_line, truck_table
 
     console.print(truck_table(truck))

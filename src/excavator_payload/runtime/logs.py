@@ -56,7 +56,15 @@ _SCREEN = re.compile(
 
 
 def check_suffix(path: Path, suffixes=READ_SUFFIXES) -> None:
-    """Raise :class:`DatasetError` unless ``path`` ends in one of ``suffixes`` (any case)."""
+    """Raise :class:`DatasetError` unless ``path`` ends in one of ``suffixes`` (any case).
+
+    Parameters
+    ----------
+    path : Path
+        The log file.
+    suffixes : sequence of str, optional
+        Accepted suffixes, lower case with the dot (default :data:`READ_SUFFIXES`).
+    """
     suffix = path.suffix.lower()
     if suffix in PACKED_MDF:
         raise DatasetError(f"'{path}': a CANedge compressed or encrypted log ({path.suffix}); unpack it "
@@ -91,7 +99,18 @@ def _first_frame_line(path: Path) -> str | None:
 
 def text_format(path: Path) -> str:
     """``canutils`` (candump ``-l``), ``screen`` (candump's default) or ``unknown``, by the first
-    frame line of a text log."""
+    frame line of a text log.
+
+    Parameters
+    ----------
+    path : Path
+        A ``.log`` or ``.txt`` CAN log.
+
+    Returns
+    -------
+    str
+        One of ``canutils``, ``screen``, ``unknown``, or ``empty`` when it has no frame line.
+    """
     line = _first_frame_line(path)
     if line is None:
         return "empty"
@@ -107,6 +126,18 @@ def read_frames(path: str | Path, skipped: list[int] | None = None) -> Iterator[
 
     ``skipped``, if given (a list ``[n]``), has the records the reader could not parse and
     skipped added to ``n``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log file; its suffix says the format.
+    skipped : list of int, optional
+        A one-element counter ``[n]`` the unparsable records are added to.
+
+    Raises
+    ------
+    DatasetError
+        A folder, a missing file, an unknown or unreadable format.
     """
     path = Path(path)
     if path.is_dir():
@@ -200,7 +231,13 @@ def _read_screen(path: Path, skipped: list[int]) -> Iterator[can.Message]:
 
 # -- what a log holds --------------------------------------------------------------------------
 def pgn_of(arbitration_id: int) -> int:
-    """PGN of a 29-bit J1939 id (PDU1: destination address dropped)."""
+    """PGN of a 29-bit J1939 id (PDU1: destination address dropped).
+
+    Parameters
+    ----------
+    arbitration_id : int
+        A 29-bit frame id.
+    """
     pgn = (arbitration_id >> 8) & 0x3FFFF
     if ((pgn >> 8) & 0xFF) < 240:
         pgn &= 0x3FF00
@@ -217,7 +254,13 @@ class LogSummary:
         self.last = -math.inf
 
     def add(self, message: can.Message) -> None:
-        """Count one frame."""
+        """Count one frame.
+
+        Parameters
+        ----------
+        message : can.Message
+            A frame of the log (error frames are counted, not listed by id).
+        """
         self.frames += 1
         if message.is_error_frame:
             return
@@ -233,7 +276,13 @@ class LogSummary:
             self.first, self.last = min(self.first, t), max(self.last, t)
 
     def describe(self, limit: int = 8) -> str:
-        """``"4319 frames over 43.2 s from 12 ids: 18FF01A0 (PGN 0xFF01, SA 0xA0) 432 at 10 Hz, …"``."""
+        """``"4319 frames over 43.2 s from 12 ids: 18FF01A0 (PGN 0xFF01, SA 0xA0) 432 at 10 Hz, …"``.
+
+        Parameters
+        ----------
+        limit : int, optional
+            How many ids (the most frequent) are listed.
+        """
         if not self.frames:
             return "no frames"
         span = self.last - self.first if math.isfinite(self.first) else 0.0

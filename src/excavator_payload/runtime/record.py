@@ -36,12 +36,31 @@ LOG_SUFFIXES = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4")
 
 def check_log_suffix(path: Path) -> None:
     """Raise :class:`DatasetError` unless ``path`` ends in a CAN log format of
-    :data:`LOG_SUFFIXES` (any case)."""
+    :data:`LOG_SUFFIXES` (any case).
+
+    Parameters
+    ----------
+    path : Path
+        The log file to write.
+    """
     check_suffix(path, LOG_SUFFIXES)
 
 
 def message_strides(codec: SignalCodec, period: float) -> dict[str, int]:
-    """Every how many samples each message goes out (its period / the sample period)."""
+    """Every how many samples each message goes out (its period / the sample period).
+
+    Parameters
+    ----------
+    codec : SignalCodec
+        Its messages' nominal periods (None: every sample).
+    period : float
+        s, the data's sample period.
+
+    Raises
+    ------
+    DatasetError
+        A message period that is not a whole number of sample periods.
+    """
     strides = {}
     for name in codec.message_names:
         nominal = codec.nominal_period(name)
@@ -61,6 +80,31 @@ def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None 
                    jitter: float = 0.0, burst_every: float = 0.0, burst_length: int = 3,
                    seed: int = 0) -> dict:
     """Write ``dataset`` as a CAN log ``out`` (format by suffix), atomically.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The samples to send; experiments follow one another :data:`EXPERIMENT_GAP` s apart.
+    out : str or Path
+        The log file; its suffix (:data:`LOG_SUFFIXES`) says the format.
+    codec : SignalCodec, optional
+        How the signals go into frames (default: the sensor set's generated DBC).
+    start_time : float, optional
+        s, timestamp of the first sample in the log.
+    channel : int or str, optional
+        The frames' channel.
+    progress : bool, optional
+        Show a progress bar.
+    jitter : float, optional
+        s, standard deviation of the normal timing jitter added to each frame (clipped at
+        three standard deviations and at a third of the sample period); 0: none.
+    burst_every : float, optional
+        s between bursts: one message's next ``burst_length`` frames are held back and sent
+        back to back; 0: none.
+    burst_length : int, optional
+        Frames per burst.
+    seed : int, optional
+        Seed of the jitter and of the choice of burst message.
 
     Returns
     -------

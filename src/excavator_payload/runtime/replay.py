@@ -36,13 +36,45 @@ SEGMENT_GAP = 2.0
 
 
 def read_log(path: str | Path, skipped: list[int] | None = None):
-    """Iterate the frames of a CAN log (:func:`~excavator_payload.runtime.logs.read_frames`)."""
+    """Iterate the frames of a CAN log (:func:`~excavator_payload.runtime.logs.read_frames`).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CAN log.
+    skipped : list of int, optional
+        A one-element counter ``[n]`` the unparsable records are added to.
+    """
     return read_frames(path, skipped)
 
 
 def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEGMENT_GAP,
                progress: bool = False) -> pd.DataFrame:
-    """Estimates of every sample in the log ``path`` (see the module docstring)."""
+    """Estimates of every sample in the log ``path`` (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CAN log.
+    sensor : PayloadSensor
+        The virtual sensor the frames feed (reset first).
+    segment_gap : float, optional
+        s of silence of the sensor's own frames that starts a new experiment.
+    progress : bool, optional
+        Show a progress bar.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per estimate: ``experiment``, ``time`` (s from the segment's start),
+        ``payload_estimate`` and ``payload_sigma`` (kg), ``status``, ``log_time`` (s),
+        ``stale_signals``, ``fault``.
+
+    Raises
+    ------
+    DatasetError
+        No sensor frame, frames out of order, wrong rates, or no readable sample.
+    """
     rows: list[tuple] = []
     skipped = [0]
     fed = 0
@@ -175,7 +207,22 @@ def check_message_rates(intervals: dict[str, list[float]], sensor: PayloadSensor
     ``GenMsgCycleTime`` or the signal map's ``period``) must come within 0.8 … 1.25 of it; the
     fastest message must come at least at the model's rate (a slower one gives no sample per
     period). A message faster than the model without a nominal period is fine: the newest value
-    is taken each period."""
+    is taken each period.
+
+    Parameters
+    ----------
+    intervals : dict of str to list of float
+        s between consecutive frames, per sensor message.
+    sensor : PayloadSensor
+        Its codec's nominal periods and sensor set's sample rate are the reference.
+    path : str or Path
+        The log (named in the message).
+
+    Raises
+    ------
+    DatasetError
+        A message off its nominal rate, or the fastest slower than the model's rate.
+    """
     expected = sensor.sensor_set.sample_period
     rate = f"{sensor.sensor_set.sample_rate:g} Hz"
     fastest = (math.inf, "", None)
