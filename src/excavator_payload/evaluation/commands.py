@@ -19,7 +19,13 @@ console = Console()
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``evaluate``, ``report`` and ``demo`` to ``app``."""
+    """Add ``evaluate``, ``report`` and ``demo`` to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application that gains the commands.
+    """
 
     @app.command()
     def evaluate(

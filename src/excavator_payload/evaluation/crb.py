@@ -28,6 +28,22 @@ def sample_information(dataset: Dataset, machine: Machine | str | None = None,
 
     Uses the noise-free ``true_*`` kinematics where the dataset has them, else the measured
     ones (their noise is negligible for the bound at the thesis' noise levels).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Thesis-sensor-set data with boom and dipper angles (rad), rates (rad/s) and
+        accelerations (rad/s²).
+    machine : Machine or str, optional
+        The machine (or preset name or TOML file); default the dataset's.
+    noise : NoisePreset or str, optional
+        The torque noise (or preset name); default the dataset's preset, else the thesis default.
+
+    Returns
+    -------
+    numpy.ndarray
+        One Fisher information (kg⁻²) per row of ``dataset.frame``; ``inf`` everywhere when the
+        torques are noise-free.
     """
     machine = load_machine(machine) if machine is not None else dataset.machine()
     if machine is None:

@@ -285,7 +285,20 @@ def _episode_information(G, w, still, stiction) -> np.ndarray:
 
 def dataset_machine_bound(dataset: Dataset, estimator) -> np.ndarray | None:
     """The bound for ``dataset`` given a fitted model; ``None`` when the model has no machine
-    calibration (only ``calibrated`` fitted on the machine sensor set carries one)."""
+    calibration (only ``calibrated`` fitted on the machine sensor set carries one).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set test data with the true ``payload`` column (kg).
+    estimator : Estimator
+        A fitted estimator; its ``calibration`` attribute, if any, is the identified machine.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        :func:`machine_bound` (kg, one per row), or ``None`` as said above.
+    """
     cal = getattr(estimator, "calibration", None)
     if cal is None or not HYDRAULIC.carries(dataset) or "payload" not in dataset.frame:
         return None

@@ -60,7 +60,27 @@ NOISE = "thesis"
 
 @dataclass(frozen=True)
 class Scale:
-    """Sizes of one demo scale (experiment counts)."""
+    """Sizes of one demo scale (experiment counts).
+
+    Parameters
+    ----------
+    train, validation, test : int
+        Experiments of the training, validation and test sets.
+    calibration : int
+        Calibration experiments of the calibrated estimator (the first training ones).
+    lifts : int
+        Calibration lifts of the quasi-static map.
+    pool : int
+        Experiments simulated in all (≥ train + validation + test); 0: just those.
+    chunk : int
+        At most this many experiments per cached simulation file (what a resume redoes).
+    plots : int
+        Test experiments drawn like thesis Figures 7.1–7.12.
+    net_options : dict
+        Options given to the networks at this scale (those their class knows).
+    note : str
+        Sentence added to the report's headline.
+    """
 
     train: int
     validation: int
@@ -98,6 +118,19 @@ class Entry:
     ``Scale.train`` experiments and log the validation error on the next ``Scale.validation``,
     appendix A.3), ``calibration`` (the first ``Scale.calibration`` training experiments:
     known payloads, thesis-like effort) or ``lifts``.
+
+    Parameters
+    ----------
+    label : str
+        Name in the tables and the report (the thesis' where it is the thesis' estimator).
+    estimator : str
+        Registry name of the estimator.
+    machine : str or None
+        Machine preset the estimator is given (``cat345c-3pct``: a 3 % wrong model).
+    options : dict
+        The estimator's keyword options.
+    fit_on : str
+        The data it is fitted on, as above.
     """
 
     label: str
@@ -154,7 +187,26 @@ def _reason(exc: BaseException) -> str:
 # -- data -----------------------------------------------------------------------------------
 def simulate(n: int, first: int, seed: int, motion: str, execution: Execution) -> Dataset:
     """Simulate experiments ``first … first+n−1`` of base seed ``seed`` (truth columns on) through
-    ``execution`` (the demo's one execution layer: one cluster for all its chunks)."""
+    ``execution`` (the demo's one execution layer: one cluster for all its chunks).
+
+    Parameters
+    ----------
+    n : int
+        Number of experiments.
+    first : int
+        Number of the first experiment (its seed is derived from ``seed`` and its number).
+    seed : int
+        Base seed.
+    motion : str
+        ``nmpc`` or ``minimum-jerk``.
+    execution : Execution
+        Where the simulations run.
+
+    Returns
+    -------
+    Dataset
+        Thesis-sensor-set data of :data:`TRUE_MACHINE` with :data:`NOISE`, truth columns on.
+    """
     if motion not in ("nmpc", "minimum-jerk"):
         raise ExcavatorPayloadError(f"unknown motion '{motion}': choose nmpc or minimum-jerk")
     return simulate_dataset(n, seed, TRUE_MACHINE, NOISE, with_truth=True, motion=motion,
@@ -162,12 +214,38 @@ def simulate(n: int, first: int, seed: int, motion: str, execution: Execution) -
 
 
 def simulate_lift_data(n: int, seed: int, workers: int | None) -> Dataset:
-    """Calibration lifts for the quasi-static map (``simulation.lifts.simulate_lifts``)."""
+    """Calibration lifts for the quasi-static map (``simulation.lifts.simulate_lifts``).
+
+    Parameters
+    ----------
+    n : int
+        Number of lifts.
+    seed : int
+        Seed of the lifts.
+    workers : int or None
+        Not used: the lifts are simulated in this process.
+    """
     return simulate_lifts(n, seed, TRUE_MACHINE, NOISE, with_truth=True)
 
 
 class Demo:
-    """One demo run: settings, cache folders and what happened (timings, failures, notes)."""
+    """One demo run: settings, cache folders and what happened (timings, failures, notes).
+
+    Parameters
+    ----------
+    out : Path
+        Output folder; ``data``, ``models``, ``estimates`` and ``report`` are created in it.
+    scale : str
+        A key of :data:`SCALES`.
+    workers : int or None
+        Worker processes of the simulations; ``None`` the default.
+    motion : str
+        ``nmpc`` or ``minimum-jerk``.
+    seed : int
+        Base seed of every simulation.
+    console : rich.console.Console
+        Where progress is printed.
+    """
 
     def __init__(self, out: Path, scale: str, workers: int | None, motion: str, seed: int,
                  console: Console) -> None:
@@ -196,7 +274,17 @@ class Demo:
                 "machine": load_machine(TRUE_MACHINE).to_dict(), "noise": NOISE, "version": __version__}
 
     def experiments(self, name: str, first: int, n: int) -> Dataset:
-        """Experiments ``first … first+n−1``, simulated in cached chunks."""
+        """Experiments ``first … first+n−1``, simulated in cached chunks.
+
+        Parameters
+        ----------
+        name : str
+            What they are for (``train``, ``test``, …), shown in progress lines.
+        first : int
+            Number of the first experiment.
+        n : int
+            Number of experiments.
+        """
         parts = []
         n_chunks = -(-n // self.scale.chunk)
         size = -(-n // n_chunks)  # equal chunks of at most Scale.chunk experiments
@@ -235,7 +323,20 @@ class Demo:
 
     # -- estimators ----------------------------------------------------------------------
     def options_for(self, entry: Entry, klass) -> dict:
-        """The entry's options plus the scale's network options the class knows."""
+        """The entry's options plus the scale's network options the class knows.
+
+        Parameters
+        ----------
+        entry : Entry
+            The estimator of the demo.
+        klass : type
+            Its estimator class (its ``OPTIONS`` filter the scale's network options).
+
+        Returns
+        -------
+        dict
+            Keyword options for the estimator.
+        """
         options = dict(entry.options)
         if entry.network:
             options.update({k: v for k, v in self.scale.net_options.items() if k in klass.OPTIONS})
@@ -245,7 +346,17 @@ class Demo:
         return {k: v for k, v in options.items() if k in klass.OPTIONS or k in entry.options}
 
     def fit(self, entry: Entry, data: dict[str, Dataset | None], data_keys: dict[str, str]):
-        """Fit (or load the cached fit of) one estimator; returns (estimator, model folder)."""
+        """Fit (or load the cached fit of) one estimator; returns (estimator, model folder).
+
+        Parameters
+        ----------
+        entry : Entry
+            The estimator of the demo.
+        data : dict of str to Dataset or None
+            The data by ``Entry.fit_on`` name; ``None`` where it could not be made.
+        data_keys : dict of str to str
+            Cache key of each of those data sets.
+        """
         from excavator_payload.estimators.base import create_estimator, estimator_class, load_estimator
 
         klass = estimator_class(entry.estimator)
@@ -280,7 +391,26 @@ class Demo:
         return est, folder
 
     def estimate(self, entry: Entry, est, folder: Path, test: Dataset, test_key: str) -> pd.DataFrame:
-        """Estimates on the test set (cached next to the model's key)."""
+        """Estimates on the test set (cached next to the model's key).
+
+        Parameters
+        ----------
+        entry : Entry
+            The estimator of the demo (its label and name).
+        est : Estimator
+            The fitted estimator.
+        folder : Path
+            Its model folder (its name keys the cache).
+        test : Dataset
+            The test set.
+        test_key : str
+            Cache key of the test set.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Estimates table (``experiment``, ``time``, ``payload_estimate``).
+        """
         from excavator_payload.estimators.running import estimate_in_chunks, progress_bar
 
         path = self.out / "estimates" / f"{folder.name}-{test_key}.parquet"
@@ -360,7 +490,30 @@ def _calibration_curve(demo: Demo, data: dict[str, Dataset | None], test: Datase
 def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", workers: int | None = None,
              motion: str = "nmpc", seed: int = 2024, only: Sequence[str] | None = None,
              console: Console | None = None) -> dict:
-    """Run the demo; returns ``{"report": Path, "evaluations": [...], "failures": {...}}``."""
+    """Run the demo; returns ``{"report": Path, "evaluations": [...], "failures": {...}}``.
+
+    Parameters
+    ----------
+    out : str or Path
+        Output folder (cache and report).
+    scale : str
+        A key of :data:`SCALES`: ``tiny``, ``quick`` or ``thesis``.
+    workers : int, optional
+        Worker processes of the simulations; default the execution layer's.
+    motion : str
+        ``nmpc`` or ``minimum-jerk``.
+    seed : int
+        Base seed; the lifts use ``seed + 1``.
+    only : sequence of str, optional
+        Labels of :data:`ROSTER` to run (default all); an unknown label is refused.
+    console : rich.console.Console, optional
+        Where progress goes; default a new console.
+
+    Returns
+    -------
+    dict
+        ``report`` (the HTML path), ``markdown``, ``evaluations``, ``failures`` and ``timings`` (s).
+    """
     from excavator_payload.evaluation.tables import summary_table
     from excavator_payload.evaluation.report import build_report, choose_experiments
 

@@ -45,6 +45,27 @@ def motion_trajectory(n: int, seed: int, payloads, machine="cat345c-hydraulic", 
     The motions are those the simulator draws (true angles, noise-free); the payloads are the
     technician's known weights; ``slope_deg`` puts the machine on a slope of that angle
     (pitch, in a direction drawn per experiment).
+
+    Parameters
+    ----------
+    n : int
+        Number of motions (experiments, numbered from 0).
+    seed : int
+        Seed of the motions and of the slope directions.
+    payloads : sequence of float
+        Payloads, kg, given to the experiments in turn.
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+    motion : str
+        Simulator motion kind to draw (``swing``, ``nmpc``, …).
+    slope_deg : float, optional
+        Ground slope, degrees; ``None`` level ground (no ground columns).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Trajectory table: ``experiment``, ``time`` (s), the four angles (rad), ``payload`` (kg)
+        and, on a slope, ``ground_pitch`` and ``ground_roll`` (rad).
     """
     from excavator_payload.simulation.generate import simulate_dataset
 
@@ -68,7 +89,22 @@ def motion_trajectory(n: int, seed: int, payloads, machine="cat345c-hydraulic", 
 def hand_made_trajectory(n: int, seed: int, rated: float = RATED_PAYLOAD) -> pd.DataFrame:
     """Operator-like motions written here by hand (no generator of the project makes them):
     moves of the boom, dipper, bucket and slew as smoothed ramps, with pauses and small
-    corrections, from the preset's digging pose; payloads uniform in 0…``rated``."""
+    corrections, from the preset's digging pose; payloads uniform in 0…``rated``.
+
+    Parameters
+    ----------
+    n : int
+        Number of motions (14 s each at 20 Hz).
+    seed : int
+        Seed of the move sizes and payloads.
+    rated : float
+        Largest payload drawn, kg.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Trajectory table: ``experiment``, ``time`` (s), the four angles (rad) and ``payload`` (kg).
+    """
     deg = math.pi / 180
     rng = np.random.default_rng(seed)
     rows = []
@@ -90,7 +126,25 @@ def hand_made_trajectory(n: int, seed: int, rated: float = RATED_PAYLOAD) -> pd.
 
 
 def simulate_trajectory(table: pd.DataFrame, seed: int, session: int, machine="cat345c-hydraulic") -> Dataset:
-    """Machine-sensor-set data of a trajectory table in working session ``session``."""
+    """Machine-sensor-set data of a trajectory table in working session ``session``.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        Trajectory table (:func:`motion_trajectory`, :func:`hand_made_trajectory`).
+    seed : int
+        Seed of the simulation's noise.
+    session : int
+        Working session; it draws the sensor offsets (:data:`SESSION_CALIBRATION`,
+        :data:`SESSION_WORK`).
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+
+    Returns
+    -------
+    Dataset
+        The simulated data, with the true signals.
+    """
     from excavator_payload.simulation.generate import simulate_dataset
     from excavator_payload.simulation.trajectory import trajectory_from_frame
 
@@ -104,7 +158,13 @@ def simulate_trajectory(table: pd.DataFrame, seed: int, session: int, machine="c
 
 
 def calibration_payloads(machine="cat345c-hydraulic") -> tuple[float, float, float]:
-    """The known weights of the calibration motions, cycled: empty, half rated, rated (kg)."""
+    """The known weights of the calibration motions, cycled: empty, half rated, rated (kg).
+
+    Parameters
+    ----------
+    machine : HydraulicMachine or str
+        The machine whose rated payload is used (or preset name or TOML file).
+    """
     from excavator_payload.model.machine import load_machine
 
     rated = float(load_machine(machine).rated_payload)
@@ -112,7 +172,17 @@ def calibration_payloads(machine="cat345c-hydraulic") -> tuple[float, float, flo
 
 
 def calibration_data(n: int = 10, seed: int = 100, machine="cat345c-hydraulic") -> Dataset:
-    """``n`` calibration motions with known payloads (:func:`calibration_payloads`), session A."""
+    """``n`` calibration motions with known payloads (:func:`calibration_payloads`), session A.
+
+    Parameters
+    ----------
+    n : int
+        Number of motions.
+    seed : int
+        Seed of the motions and of the simulation.
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+    """
     return simulate_trajectory(motion_trajectory(n, seed, calibration_payloads(machine), machine), seed,
                                SESSION_CALIBRATION, machine)
 
@@ -124,7 +194,15 @@ ZERO_MIN_TRAVEL = math.radians(10.0)
 
 def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
     """One empty-bucket swing, session B (the zero check), drawn again until the boom, dipper and
-    bucket each travel :data:`ZERO_MIN_TRAVEL`, as a technician is told to move them."""
+    bucket each travel :data:`ZERO_MIN_TRAVEL`, as a technician is told to move them.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the first draw (later draws are offset from it).
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+    """
     for attempt in range(50):
         draw = seed + 7919 * attempt
         table = motion_trajectory(1, draw, (0.0,), machine)
@@ -136,7 +214,22 @@ def zero_data(seed: int = 200, machine="cat345c-hydraulic") -> Dataset:
 
 def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str, Dataset]:
     """Session-B test data: NMPC swings with slewing (the issue's target motions), planned swings
-    (which start slowly), work cycles, swings on a 5° slope."""
+    (which start slowly), work cycles, swings on a 5° slope.
+
+    Parameters
+    ----------
+    n : int
+        Experiments per test set.
+    seed : int
+        Base seed; each set uses its own offset from it.
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+
+    Returns
+    -------
+    dict of str to Dataset
+        ``nmpc``, ``swing``, ``work-cycle`` (cut at the dump) and ``slope-5deg``.
+    """
     from excavator_payload.model.machine import load_machine
     from excavator_payload.simulation.generate import simulate_dataset
 
@@ -154,7 +247,13 @@ def test_sets(n: int, seed: int = 300, machine="cat345c-hydraulic") -> dict[str,
 
 
 def before_release(dataset: Dataset) -> Dataset:
-    """Each work cycle up to the dump (:meth:`Dataset.until_dump`)."""
+    """Each work cycle up to the dump (:meth:`Dataset.until_dump`).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Data whose experiments may carry the dump's ``release`` times.
+    """
     return dataset.until_dump()
 
 
@@ -176,7 +275,30 @@ NEEDS_TRAINING_SET = tuple(n for n, t in ESTIMATOR_TRAITS.items() if t.needs_tra
 def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="cat345c-hydraulic-3pct",
                    progress: bool = True, options: dict | None = None, lifts: Dataset | None = None) -> dict:
     """Fit every estimator in ``names`` on the calibration data (``calibrated`` also zeroed;
-    the quasi-static map on ``lifts``)."""
+    the quasi-static map on ``lifts``).
+
+    Parameters
+    ----------
+    calibration : Dataset
+        Calibration motions with known payloads (session A).
+    zero : Dataset
+        Empty-bucket zero check (session B), used by ``calibrated``.
+    names : iterable of str
+        Registry names of the estimators; networks are listed as not fitted.
+    prior_machine : HydraulicMachine or str
+        The roughly right machine file the estimators that need a machine start from.
+    progress : bool
+        Not used (kept for callers).
+    options : dict, optional
+        Estimator name -> its keyword options.
+    lifts : Dataset, optional
+        Slow lifts the quasi-static map is made from; default the calibration data.
+
+    Returns
+    -------
+    dict
+        ``fitted`` (name -> estimator) and ``failures`` (name -> reason).
+    """
     from excavator_payload.estimators.base import estimator_class
     from excavator_payload.estimators.classical import calibrated_machine
 
@@ -199,7 +321,24 @@ def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="ca
 
 
 def judge(estimator, dataset: Dataset, label: str, bound: np.ndarray | None):
-    """Evaluation (metrics.evaluate_estimates) of one estimator on one test set."""
+    """Evaluation (metrics.evaluate_estimates) of one estimator on one test set.
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted estimator, run on ``dataset``.
+    dataset : Dataset
+        The test set, with the true payloads.
+    label : str
+        Name of the evaluation.
+    bound : numpy.ndarray or None
+        Cramér–Rao bound, kg, per row; ``None``: no efficiency.
+
+    Returns
+    -------
+    Evaluation
+        Judged with the first :data:`DISCARD` samples of each experiment skipped.
+    """
     from excavator_payload.evaluation.metrics import evaluate_estimates
 
     return evaluate_estimates(dataset, estimator.estimate(dataset), label=label, bound=bound,
@@ -213,6 +352,22 @@ def attainable(dataset: Dataset, bound: np.ndarray, tolerance: float, discard: i
     reaches it) stays within the tolerance over the whole judged window. Where it is False the
     motion itself (a slow start, a long standstill) does not carry the information, whatever
     the estimator.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The test set (rows aligned with ``bound``).
+    bound : numpy.ndarray
+        Cramér–Rao bound on the payload error, kg, per row.
+    tolerance : float
+        Largest MAX error allowed, kg.
+    discard : int
+        Samples not judged at the start of each experiment.
+
+    Returns
+    -------
+    pandas.Series of bool
+        Indexed by experiment number.
     """
     f = dataset.frame
     exp = f["experiment"].to_numpy()
@@ -228,7 +383,22 @@ def attainable(dataset: Dataset, bound: np.ndarray, tolerance: float, discard: i
 def summary_row(evaluation, rated: float = RATED_PAYLOAD, attainable_1pct: pd.Series | None = None) -> dict:
     """Mean MAX / RMS, shares within 1 / 0.5 / 0.25 % of rated, efficiency; with
     ``attainable_1pct`` (:func:`attainable`) also the share of experiments where 1 % is
-    physically attainable and the estimator's share within 1 % among them."""
+    physically attainable and the estimator's share within 1 % among them.
+
+    Parameters
+    ----------
+    evaluation : Evaluation
+        One estimator on one test set.
+    rated : float
+        Rated payload, kg: the base of the shares.
+    attainable_1pct : pandas.Series of bool, optional
+        Per experiment, whether 1 % is attainable (:func:`attainable`).
+
+    Returns
+    -------
+    dict
+        One row of ``results.csv`` (errors in kg, shares in 0…1).
+    """
     pe = evaluation.per_experiment
     max_err = pe["max_error"].to_numpy(float)
     rms = pe["rms_error"].to_numpy(float)
@@ -266,6 +436,18 @@ def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
     * ``offsets``: the sensor offsets not corrected (no calibration or zero of them);
     * ``IMU dynamics``: the IMUs' output lag and acceleration leak not corrected;
     * ``uncalibrated 3 % file``: the machine file as it is, no calibration (offsets neither).
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted ``calibrated`` estimator (it carries a ``calibration``); copied, not changed.
+    test : Dataset
+        Machine-sensor-set test data; copied where a signal is blanked.
+
+    Returns
+    -------
+    dict of str to (Estimator, Dataset)
+        The variants above plus ``none ignored``.
     """
     import copy
 
@@ -306,7 +488,18 @@ def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
 
 
 def markdown_table(table: pd.DataFrame) -> str:
-    """A Markdown table (numbers to 3 significant digits), without the tabulate package."""
+    """A Markdown table (numbers to 3 significant digits), without the tabulate package.
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        The rows and columns to write.
+
+    Returns
+    -------
+    str
+        The table, lines joined by newlines.
+    """
     def cell(v):
         return f"{v:.3g}" if isinstance(v, float) else str(v)
 
@@ -319,7 +512,28 @@ def markdown_table(table: pd.DataFrame) -> str:
 def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str = "quick", seed: int = 2024,
                      console=None) -> dict:
     """The whole study on the hydraulic machine (module doc); writes ``results.csv`` and
-    ``report.md`` to ``out`` and returns the results table and failures."""
+    ``report.md`` to ``out`` and returns the results table and failures.
+
+    Parameters
+    ----------
+    out : Path
+        Output folder (created): ``results.csv``, ``report.md``, ``weighing.png``, ``data/``
+        and ``trajectories/``.
+    machine : str
+        The hydraulic machine (preset name or TOML file); a non-hydraulic one is refused.
+    scale : str
+        Size, a key of :data:`MACHINE_SCALES` (``tiny``, ``quick``, ``thesis``).
+    seed : int
+        Base seed of every simulation.
+    console : rich.console.Console, optional
+        Where progress lines go; ``None`` is silent.
+
+    Returns
+    -------
+    dict
+        ``table`` (pandas.DataFrame of :func:`summary_row` rows) and ``failures``
+        (name -> reason).
+    """
     from excavator_payload.data.io import write_dataset
     from excavator_payload.errors import ExcavatorPayloadError
     from excavator_payload.evaluation.crb_machine import dataset_machine_bound

@@ -28,7 +28,22 @@ MARKERS = ("o", "s", "^", "v", "D", "P", "X", "*", "<", ">", "h", "p")
 
 
 def save_png(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
-    """Write ``fig`` as PNG and close it."""
+    """Write ``fig`` as PNG and close it.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure; closed afterwards.
+    path : str or Path
+        PNG file to write; its folder is created.
+    dpi : int
+        Resolution, dots per inch.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
@@ -37,7 +52,14 @@ def save_png(fig: Figure, path: str | Path, dpi: int = 110) -> Path:
 
 
 def error_per_experiment(evaluations: Sequence[Evaluation]) -> Figure:
-    """Thesis Figure 7.0: MAX and RMS error of every test experiment, one marker per estimator."""
+    """Thesis Figure 7.0: MAX and RMS error of every test experiment, one marker per estimator.
+
+    Parameters
+    ----------
+    evaluations : sequence of Evaluation
+        One per estimator, judged on the same dataset; the first's summary gives the rated
+        payload and the discard drawn.
+    """
     fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
     for i, ev in enumerate(evaluations):
         pe = ev.per_experiment
@@ -61,7 +83,15 @@ def error_per_experiment(evaluations: Sequence[Evaluation]) -> Figure:
 
 
 def joint_measurements(dataset: Dataset, experiment: int) -> Figure:
-    """Thesis Figures 7.1, 7.3, …: the measured joint signals of one experiment."""
+    """Thesis Figures 7.1, 7.3, …: the measured joint signals of one experiment.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Thesis-sensor-set data (boom and dipper angle, rate, acceleration and torque).
+    experiment : int
+        Number of the experiment drawn.
+    """
     rows = _rows(dataset, experiment)
     t = rows["time"].to_numpy()
     fig, axes = plt.subplots(4, 1, figsize=(8, 9), sharex=True)
@@ -82,7 +112,15 @@ def joint_measurements(dataset: Dataset, experiment: int) -> Figure:
 
 def machine_measurements(dataset: Dataset, experiment: int) -> Figure:
     """One experiment of the machine sensor set: arm angles, slew, cylinder pressures and house
-    inclination (degrees and bar at this edge; the data stay SI). ``plot`` and the report draw it."""
+    inclination (degrees and bar at this edge; the data stay SI). ``plot`` and the report draw it.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data (simulated or a field log).
+    experiment : int
+        Number of the experiment drawn.
+    """
     rows = _rows(dataset, experiment)
     t = rows["time"].to_numpy(float)
     fig, axes = plt.subplots(4, 1, figsize=(9, 10), sharex=True, constrained_layout=True)
@@ -132,6 +170,18 @@ def payload_estimates(dataset: Dataset, evaluations: Sequence[Evaluation], exper
 
     With ``zoom`` the y-range is ±5 % of the rated payload around the truth, so the accurate
     estimators can be told apart.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The test data, with the true ``payload`` column (kg).
+    evaluations : sequence of Evaluation
+        One per estimator, judged on the same dataset; the first's summary gives the rated
+        payload and the discard drawn.
+    experiment : int
+        Number of the experiment drawn.
+    zoom : bool
+        Narrow the y-range to ±5 % of the rated payload around the truth.
     """
     mask = (dataset.frame["experiment"] == experiment).to_numpy()
     rows = dataset.frame[mask]
@@ -172,6 +222,15 @@ def error_against_bound(evaluations: Sequence[Evaluation], dataset: Dataset) -> 
 
     An estimator on its bound curve is as good as any unbiased estimator using the same
     information can be; the curves are drawn on a log scale.
+
+    Parameters
+    ----------
+    evaluations : sequence of Evaluation
+        One per estimator, judged on ``dataset``; those with a bound add its curve (once per
+        bound window).
+    dataset : Dataset
+        The test data; all its experiments must have the same number of samples, else a
+        figure saying so is returned.
     """
     n_samples = dataset.frame.groupby("experiment", sort=False).size()
     fig, ax = plt.subplots(figsize=(8, 4.8))
@@ -211,6 +270,11 @@ def calibration_curve(curve: pd.DataFrame | Mapping) -> Figure:
 
     ``curve`` has a column of experiment counts (``calibration_experiments``, else the first
     column) and error columns in kg (``n_*`` counts and signed ``bias`` columns are not drawn).
+
+    Parameters
+    ----------
+    curve : pandas.DataFrame or mapping
+        The table described above (anything ``pandas.DataFrame`` accepts).
     """
     frame = pd.DataFrame(curve)
     xcol = next((c for c in ("calibration_experiments", "n_experiments", "n_calibration", "n")
@@ -236,7 +300,16 @@ def calibration_curve(curve: pd.DataFrame | Mapping) -> Figure:
 
 
 def training_log(log: pd.DataFrame, title: str) -> Figure:
-    """A network's training graph from its ``training_log.csv`` (every numeric column vs epoch)."""
+    """A network's training graph from its ``training_log.csv`` (every numeric column vs epoch).
+
+    Parameters
+    ----------
+    log : pandas.DataFrame
+        The training log; ``epoch``, ``iteration`` or ``step`` is the x axis if present, else
+        the row number. Positive numeric columns are drawn on a log scale.
+    title : str
+        Title of the figure.
+    """
     xcol = next((c for c in ("epoch", "iteration", "step") if c in log.columns), None)
     x = log[xcol].to_numpy() if xcol else np.arange(len(log))
     fig, ax = plt.subplots(figsize=(7, 4.2))
@@ -262,6 +335,16 @@ def weighing_over_time(evaluations: Mapping[str, tuple[Evaluation, Dataset]], ra
 
     Experiments may differ in length (work cycles): times are each experiment's own, from its
     start; the median is taken on a 0.1 s grid over the experiments still running.
+
+    Parameters
+    ----------
+    evaluations : mapping of str to (Evaluation, Dataset)
+        Per test set (the panel's title): one estimator's evaluation and the data it was
+        judged on.
+    rated : float
+        Rated payload, kg: the 1 % line and the y range.
+    discard_s : float
+        Seconds at the start shaded as not judged.
     """
     n = max(len(evaluations), 1)
     fig, axes = plt.subplots(1, n, figsize=(3.6 * n, 3.6), sharey=True, squeeze=False)

@@ -61,7 +61,18 @@ PERCENTILES = (90, 95, 99)
 def default_discard(sensor_set) -> int:
     """Samples not judged at the start of every experiment unless told: its platform's default
     discard (:data:`DEFAULT_DISCARD` on the thesis sensor set, the first
-    :data:`DEFAULT_DISCARD_SECONDS` on the machine set)."""
+    :data:`DEFAULT_DISCARD_SECONDS` on the machine set).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet or str
+        The sensor set (or its name) whose platform decides.
+
+    Returns
+    -------
+    int
+        Number of samples.
+    """
     return platform_for(sensor_set).default_discard()
 
 
@@ -87,6 +98,18 @@ def bound_window(estimator: str | None, options: Mapping[str, Any] | None = None
     options when they declare delays (an integer = the largest delay, or a list of delays),
     otherwise :data:`BOUND_WINDOWS`. Unknown estimators get the whole history (the smallest
     bound, so the efficiency ratio is never flattered).
+
+    Parameters
+    ----------
+    estimator : str or None
+        Registry name of the estimator (``None``: unknown, whole history).
+    options : mapping, optional
+        The estimator's options; delays declared there override the registry's window.
+
+    Returns
+    -------
+    int or None
+        Window in samples, or ``None`` for the whole history.
     """
     if estimator is None:
         return None
@@ -128,6 +151,20 @@ def convergence_time(time: np.ndarray, error: np.ndarray, tolerance: float) -> f
 
     Time is measured from the experiment's first sample. A NaN estimate counts as not
     converged.
+
+    Parameters
+    ----------
+    time : array (n_samples,)
+        Sample times of one experiment, s.
+    error : array (n_samples,)
+        Estimate minus true payload at those times, kg (NaN where there is no estimate).
+    tolerance : float
+        Band, kg, that ``|error|`` must stay within.
+
+    Returns
+    -------
+    float
+        Seconds from the first sample, NaN if the error is outside the band at the end.
     """
     time = np.asarray(time, dtype=float)
     inside = np.abs(np.asarray(error, dtype=float)) < tolerance  # NaN compares False
@@ -212,6 +249,20 @@ def align_estimates(dataset: Dataset, estimates: pd.DataFrame, source: str = "es
     Rows are matched on ``experiment`` and ``time`` (to the nearest microsecond, so estimates
     written by other tools match too).
 
+    Parameters
+    ----------
+    dataset : Dataset
+        The rows to align to.
+    estimates : pandas.DataFrame
+        Estimates table with columns ``experiment``, ``time`` (s) and ``payload_estimate`` (kg).
+    source : str
+        Name of the estimates (a file or a label) used in error messages.
+
+    Returns
+    -------
+    numpy.ndarray
+        One estimate (kg) per row of ``dataset.frame``.
+
     Raises
     ------
     DatasetError
@@ -245,7 +296,7 @@ def align_estimates(dataset: Dataset, estimates: pd.DataFrame, source: str = "es
 class Evaluation:
     """The metrics of one estimator on one dataset.
 
-    Attributes
+    Parameters
     ----------
     label : str
         Display name (e.g. ``EKF_ideal``).
@@ -276,6 +327,14 @@ class Evaluation:
 
 def summarize(per_experiment: pd.DataFrame, rated_payload: float = DEFAULT_RATED_PAYLOAD) -> dict:
     """Figures over experiments (thesis Tables 7.1 and 7.2 and more).
+
+    Parameters
+    ----------
+    per_experiment : pandas.DataFrame
+        One row per experiment with the columns of :func:`experiment_metrics`.
+    rated_payload : float
+        Rated payload of the machine, kg: the base of the ``_pct`` figures and of the 1 %
+        requirement.
 
     Returns
     -------
@@ -404,7 +463,21 @@ def evaluate_estimates(dataset: Dataset, estimates: pd.DataFrame | np.ndarray, *
 
 
 def dataset_bound(dataset: Dataset, window: int | None = None) -> np.ndarray | None:
-    """Cramér–Rao bound of every row, or ``None`` when the dataset lacks machine or noise info."""
+    """Cramér–Rao bound of every row, or ``None`` when the dataset lacks machine or noise info.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Thesis-sensor-set data naming its machine (the machine set's bound is
+        :mod:`.crb_machine`'s).
+    window : int or None
+        Samples of information used (see :func:`bound_window`); ``None`` the whole history.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Bound on the payload error's std, kg, one per row.
+    """
     from excavator_payload.evaluation.crb import cramer_rao_bound
 
     if dataset.machine() is None or not THESIS.carries(dataset):
@@ -435,7 +508,18 @@ def _clean(obj):
 
 
 def to_jsonable(obj):
-    """Public alias of the JSON cleaner (NaN -> null)."""
+    """Public alias of the JSON cleaner (NaN -> null).
+
+    Parameters
+    ----------
+    obj : object
+        Dicts, lists, tuples, NumPy arrays and scalars, nested; keys become strings.
+
+    Returns
+    -------
+    object
+        A copy of plain Python values, non-finite floats as ``None``.
+    """
     return _clean(obj)
 
 
@@ -461,6 +545,20 @@ def display_label(estimator: str, options: Mapping[str, Any] | None = None,
     ``EKF_tuned``); ``ekf`` with ``tuning=thesis`` on ``cat345c`` / ``cat345c-1pct`` /
     ``cat345c-3pct`` → ``EKF_ideal`` / ``EKF_1%`` / ``EKF_3%``; the machine is added when it is
     not the ideal one, except to the thesis' own names.
+
+    Parameters
+    ----------
+    estimator : str
+        Registry name of the estimator.
+    options : mapping, optional
+        Its options (only ``tuning`` matters here).
+    machine_name : str, optional
+        Name of the machine model the estimator uses.
+
+    Returns
+    -------
+    str
+        The label.
     """
     options = dict(options or {})
     if estimator == "ekf" and options.get("tuning") == "thesis" and machine_name in _EKF_THESIS_LABELS:

@@ -12,7 +12,22 @@ from excavator_payload.platforms import HYDRAULIC, platform_for
 
 def plot_experiment(dataset, experiment: int, out: str | Path) -> Path:
     """Angles, slew, house inclination and cylinder pressures of one experiment (PNG/PDF/SVG),
-    :func:`excavator_payload.evaluation.figures.machine_measurements`."""
+    :func:`excavator_payload.evaluation.figures.machine_measurements`.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Data of the hydraulic machine's sensor set.
+    experiment : int
+        Number of the experiment to draw; must be in the dataset.
+    out : str or Path
+        Figure file; the suffix picks the format. Written atomically, folders created.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
     from excavator_payload.evaluation.figures import machine_measurements
 
     if platform_for(dataset) is not HYDRAULIC:  # the figure draws cylinders and a slewing house
@@ -34,7 +49,13 @@ def plot_experiment(dataset, experiment: int, out: str | Path) -> Path:
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``plot`` to ``app``."""
+    """Add ``plot`` to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application that gains the command.
+    """
 
     @app.command("plot")
     def plot(

@@ -58,7 +58,20 @@ def versions() -> dict[str, str]:
 
 
 def choose_experiments(dataset: Dataset, count: int = 6) -> list[int]:
-    """``count`` experiments spread over the payload range (lightest to heaviest)."""
+    """``count`` experiments spread over the payload range (lightest to heaviest).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Data with one true payload per experiment.
+    count : int
+        How many experiments at most (fewer if the dataset has fewer).
+
+    Returns
+    -------
+    list of int
+        Experiment numbers, by increasing payload.
+    """
     ids = dataset.experiment_ids
     payloads = dataset.payloads
     order = np.argsort(payloads, kind="stable")
@@ -69,7 +82,19 @@ def choose_experiments(dataset: Dataset, count: int = 6) -> list[int]:
 @dataclass
 class ReportPaths:
     """The files :func:`build_report` wrote: ``report.html``, ``report.md``, ``evaluation.json``
-    and the figures (PNG)."""
+    and the figures (PNG).
+
+    Parameters
+    ----------
+    html : Path
+        The self-contained ``report.html``.
+    markdown : Path
+        ``report.md``.
+    json : Path
+        ``evaluation.json`` with every number of the tables.
+    figures : list of Path
+        The figure files written under ``figures/``.
+    """
 
     html: Path
     markdown: Path
@@ -87,7 +112,18 @@ class _Section:
 
 
 def headline_table(evaluations: Sequence[Evaluation]) -> pd.DataFrame:
-    """One row per estimator: the figures a reader wants first."""
+    """One row per estimator: the figures a reader wants first.
+
+    Parameters
+    ----------
+    evaluations : sequence of Evaluation
+        One per estimator (its ``label`` and ``summary`` are used).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The headline columns (:data:`HEADLINE_DEFINITIONS` says what they mean).
+    """
     rows = []
     for ev in evaluations:
         s = ev.summary
@@ -128,7 +164,18 @@ HEADLINE_DEFINITIONS: dict[str, str] = {
 
 
 def interpretation(evaluations: Sequence[Evaluation]) -> str:
-    """A few sentences reading the headline table (what the README says, from these numbers)."""
+    """A few sentences reading the headline table (what the README says, from these numbers).
+
+    Parameters
+    ----------
+    evaluations : sequence of Evaluation
+        One per estimator (its ``label`` and ``summary`` are used).
+
+    Returns
+    -------
+    str
+        One or two sentences per estimator.
+    """
     lines = []
     for ev in evaluations:
         s = ev.summary
@@ -151,7 +198,19 @@ def interpretation(evaluations: Sequence[Evaluation]) -> str:
 
 
 def thesis_tables(evaluations: Sequence[Evaluation]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Thesis Tables 7.1 (means) and 7.2 (standard deviations), thesis and ours side by side."""
+    """Thesis Tables 7.1 (means) and 7.2 (standard deviations), thesis and ours side by side.
+
+    Parameters
+    ----------
+    evaluations : sequence of Evaluation
+        Matched to the thesis' estimators by label (``Net1``, ``EKF_ideal``, …); the others
+        are not shown.
+
+    Returns
+    -------
+    (pandas.DataFrame, pandas.DataFrame)
+        Table 7.1 and Table 7.2, kg; NaN where an estimator was not evaluated.
+    """
     ours = {ev.label: ev.summary for ev in evaluations}
     t71, t72 = [], []
     for name, ref in THESIS_TABLE.items():

@@ -48,7 +48,28 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
                      execution=None) -> list[Evaluation]:
     """Evaluate saved models (run on ``dataset``, through ``execution`` if it is big: see
     :func:`estimate_in_chunks`) and estimates files, in the order given; ``discard`` defaults to
-    :func:`~excavator_payload.evaluation.metrics.default_discard` of the dataset's sensor set."""
+    :func:`~excavator_payload.evaluation.metrics.default_discard` of the dataset's sensor set.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Test data with the true ``payload`` column (kg).
+    models : sequence of Path
+        Saved estimator folders, each run on ``dataset``.
+    estimates : sequence of Path
+        Estimates files (``experiment``, ``time``, ``payload_estimate``) made on this very dataset.
+    discard : int, optional
+        Samples not judged at the start of every experiment; default by sensor set.
+    progress : rich.progress.Progress, optional
+        Progress bar to advance while the models estimate.
+    execution : Execution, optional
+        Workers that share the estimating of a big dataset; ``None`` runs here.
+
+    Returns
+    -------
+    list of Evaluation
+        One per model, then one per estimates file, with unique labels.
+    """
     from excavator_payload.estimators.base import load_estimator
 
     if not models and not estimates:
@@ -116,7 +137,15 @@ def evaluate_sources(dataset: Dataset, models: Sequence[Path] = (), estimates: S
 
 def write_json(path: Path, payload: dict) -> None:
     """Write ``payload`` as indented JSON (NaN as null) to ``path``, creating its folder; written
-    to a private temporary file and renamed, so a reader never sees half a file."""
+    to a private temporary file and renamed, so a reader never sees half a file.
+
+    Parameters
+    ----------
+    path : Path
+        The JSON file to write.
+    payload : dict
+        JSON-like content; NumPy/pandas values are converted by :func:`to_jsonable`.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
     tmp.write_text(json.dumps(to_jsonable(payload), indent=2))

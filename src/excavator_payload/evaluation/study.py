@@ -114,7 +114,40 @@ class StudyError(ExcavatorPayloadError):
 # -- the study file -------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Cell:
-    """One combination of the grid: an estimator under one set of data conditions."""
+    """One combination of the grid: an estimator under one set of data conditions.
+
+    Parameters
+    ----------
+    label : str
+        Display name of the estimator (unique in the study).
+    estimator : str
+        Registry name of the estimator.
+    options : tuple
+        Its options as sorted ``(name, value)`` pairs (lists as tuples: hashable).
+    machine : str
+        The machine file the estimator believes in; ``none`` for estimators that need none.
+    noise : str
+        Sensor noise preset of the test data.
+    motion : str
+        Motion family of the test data.
+    noise_mode : str
+        ``independent``, ``frozen`` or ``frozen-mismatch`` (module docstring).
+    test_experiments : int
+        Number of test experiments.
+    fit_experiments : int
+        Experiments the estimator fits, trains or calibrates on.
+    seed : int
+        Study seed: fit data use base seed ``seed``, test data ``seed +``
+        :data:`TEST_SEED_OFFSET`.
+    true_machine : str
+        The machine that generates the data.
+    fit_motion : str
+        Motion family of the fit data.
+    fit_noise : str
+        Noise preset of the fit data.
+    discard : int
+        Samples not judged at the start of every test experiment.
+    """
 
     label: str
     estimator: str
@@ -148,7 +181,25 @@ class Cell:
 
 @dataclass
 class Study:
-    """A parsed study file."""
+    """A parsed study file.
+
+    Parameters
+    ----------
+    name : str
+        The study's name (default the file's stem).
+    description : str
+        What the study shows (goes into the report).
+    cells : list of Cell
+        Every combination of the grid.
+    axes : dict of str to list
+        Every axis (``estimator`` first) with the values it takes in the grid.
+    rows, columns : str
+        Axes of the report's heatmap rows and columns; the other axes are pooled.
+    source : str
+        Where the study came from (its file), for messages and the report.
+    config : dict
+        The parsed TOML as read (saved in the report's settings).
+    """
 
     name: str
     description: str
@@ -172,7 +223,23 @@ def shipped_studies() -> dict[str, Traversable]:
 
 def find_study(config: str | Path) -> Path | Traversable:
     """The study file ``config``: a path, or the name of a shipped study (``full_grid`` or
-    ``full_grid.toml``, see :func:`shipped_studies`)."""
+    ``full_grid.toml``, see :func:`shipped_studies`).
+
+    Parameters
+    ----------
+    config : str or Path
+        A study file, or a shipped study's name.
+
+    Returns
+    -------
+    Path or importlib.resources.abc.Traversable
+        The study file.
+
+    Raises
+    ------
+    StudyError
+        When it is neither, listing the shipped studies.
+    """
     path = Path(config)
     if path.is_file():
         return path
@@ -188,6 +255,16 @@ def find_study(config: str | Path) -> Path | Traversable:
 def load_study(config: str | Path) -> Study:
     """Parse and check a study file; names (estimators, noise presets, motions, machines) are
     checked here, at the edge, so that a typo fails before anything runs.
+
+    Parameters
+    ----------
+    config : str or Path
+        A study file (TOML), or a shipped study's name (:func:`find_study`).
+
+    Returns
+    -------
+    Study
+        The parsed study.
 
     Raises
     ------
@@ -236,7 +313,26 @@ def _check_value(key: str, value, where: str):
 
 
 def parse_study(raw: dict, source: str = "study") -> Study:
-    """A :class:`Study` from the parsed TOML ``raw`` (see the module docstring)."""
+    """A :class:`Study` from the parsed TOML ``raw`` (see the module docstring).
+
+    Parameters
+    ----------
+    raw : dict
+        The study file as ``tomllib`` parsed it.
+    source : str
+        Where it came from, used in error messages and as the default name.
+
+    Returns
+    -------
+    Study
+        Every cell of the grid, names checked.
+
+    Raises
+    ------
+    StudyError
+        Naming the bad key or value, or when the grid is too big (:data:`MAX_CELLS`,
+        :data:`MAX_EXPERIMENTS`).
+    """
     from excavator_payload.estimators.base import estimator_class
     from excavator_payload.evaluation.metrics import display_label
 
@@ -341,7 +437,18 @@ CONFIRM_EXPERIMENTS = 100_000
 
 def study_experiments(study: Study) -> int:
     """Experiments the study simulates: each distinct dataset (cells share fit and test data
-    with the same machine, noise, motion, size, seed and noise mode) counted once."""
+    with the same machine, noise, motion, size, seed and noise mode) counted once.
+
+    Parameters
+    ----------
+    study : Study
+        A parsed study (:func:`load_study`).
+
+    Returns
+    -------
+    int
+        Number of experiments.
+    """
     datasets = {}
     for c in study.cells:
         datasets[("fit", c.true_machine, c.fit_noise, c.fit_motion, c.fit_experiments, c.seed,
@@ -352,7 +459,13 @@ def study_experiments(study: Study) -> int:
 
 
 def study_size(study: Study) -> str:
-    """One line: cells, estimators, experiments to simulate."""
+    """One line: cells, estimators, experiments to simulate.
+
+    Parameters
+    ----------
+    study : Study
+        A parsed study (:func:`load_study`).
+    """
     return (f"study '{study.name}': {len(study.cells):,} cells ({len(study.axes['estimator'])} estimator(s)), "
             f"{study_experiments(study):,} experiments to simulate (fewer if cached)")
 
@@ -376,7 +489,13 @@ def _machine_json(name: str) -> str | None:
 
 
 def data_specs(cell: Cell) -> tuple:
-    """The (fit, test) :class:`~excavator_payload.simulation.experiment.RunSpec` of a cell."""
+    """The (fit, test) :class:`~excavator_payload.simulation.experiment.RunSpec` of a cell.
+
+    Parameters
+    ----------
+    cell : Cell
+        One cell of the grid.
+    """
     from excavator_payload.simulation.generate import make_spec
 
     fit_frozen, test_frozen = {"independent": (None, None), "frozen": (FROZEN_SEED, FROZEN_SEED),
@@ -390,14 +509,28 @@ def data_specs(cell: Cell) -> tuple:
 
 def spec_key(spec) -> str:
     """Cache key of a dataset: a short hash of its ``RunSpec`` and the package version (names its
-    file in the study's ``data`` folder)."""
+    file in the study's ``data`` folder).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The dataset's simulation spec (:func:`data_specs`).
+    """
     return _key({"spec": spec.to_dict(), "version": __version__})
 
 
 def fit_key(cell: Cell, fit_spec) -> str:
     """Cache key of a fitted estimator: a short hash of the estimator, its options, the machine it
     believes in, the fit data's :func:`spec_key` and the package version (cells that share it
-    share one fit)."""
+    share one fit).
+
+    Parameters
+    ----------
+    cell : Cell
+        One cell of the grid.
+    fit_spec : RunSpec
+        The spec of its fit data (:func:`data_specs`).
+    """
     return _key({"estimator": cell.estimator, "options": cell.option_dict(),
                  "machine": _machine_dict(cell.machine), "fit_data": spec_key(fit_spec),
                  "version": __version__})
@@ -405,7 +538,13 @@ def fit_key(cell: Cell, fit_spec) -> str:
 
 def cell_key(cell: Cell) -> str:
     """Cache key of a cell's results: a short hash of every field but the label (machines by their
-    contents, not their names) and the package version."""
+    contents, not their names) and the package version.
+
+    Parameters
+    ----------
+    cell : Cell
+        One cell of the grid.
+    """
     values = asdict(cell)
     values["machine"] = _machine_dict(cell.machine)
     values["true_machine"] = _machine_dict(cell.true_machine)
@@ -426,6 +565,17 @@ def fit_task(estimator: str, machine, options: dict, fit_data) -> dict:
     The fitted estimator travels pickled (bytes: cached as they are in ``models/``), not through
     its ``save`` folder: a fit on noise-free data legitimately holds infinite weights, which
     ``load_estimator`` refuses as corrupt.
+
+    Parameters
+    ----------
+    estimator : str
+        Registry name of the estimator.
+    machine : Machine or None
+        The machine it believes in; ``None`` for estimators that need none.
+    options : dict
+        Its keyword options.
+    fit_data : Dataset
+        The data it is fitted on.
     """
     from excavator_payload.estimators.base import create_estimator
 
@@ -441,7 +591,17 @@ def fit_task(estimator: str, machine, options: dict, fit_data) -> dict:
 
 def score_task(cell: Cell, model: bytes, test_data) -> dict:
     """Estimate on the test data and judge every experiment; ``{"rows": DataFrame}`` or
-    ``{"error": why}``."""
+    ``{"error": why}``.
+
+    Parameters
+    ----------
+    cell : Cell
+        One cell of the grid.
+    model : bytes
+        The fitted estimator, pickled (:func:`fit_task`).
+    test_data : Dataset
+        The cell's test data, with the true payloads.
+    """
     from excavator_payload.evaluation.metrics import INDUSTRY_TOLERANCE, bound_window, evaluate_estimates
 
     try:
@@ -479,6 +639,20 @@ def _write_frame(frame: pd.DataFrame, path: Path) -> None:
 def run_study(study: Study, out: str | Path, execution: Execution, progress: bool = True,
               console=None) -> dict:
     """Run the missing cells of ``study``, write ``out/results.parquet`` and the report.
+
+    Parameters
+    ----------
+    study : Study
+        The parsed study.
+    out : str or Path
+        Output folder: ``data/``, ``models/``, ``cells/`` (caches), ``results.parquet``,
+        ``report/``.
+    execution : Execution
+        Where simulations, fits and scoring run.
+    progress : bool
+        Show progress bars.
+    console : rich.console.Console, optional
+        Where status lines go; default standard error.
 
     Returns
     -------
@@ -627,7 +801,21 @@ def _describe(cell: Cell) -> str:
 # -- the report ---------------------------------------------------------------------------------
 def pooled(frame: pd.DataFrame, by: list[str]) -> pd.DataFrame:
     """Figures per group: experiments, mean MAX, mean RMS (kg), share within 1 % of rated,
-    pooled efficiency (RMS of error / bound over every judged sample)."""
+    pooled efficiency (RMS of error / bound over every judged sample).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Per-experiment results (``results.parquet``'s columns).
+    by : list of str
+        Columns to group by (axes of the grid).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per group: ``by`` and ``experiments``, ``mean_max_kg``, ``mean_rms_kg``,
+        ``worst_max_kg``, ``within_1pct`` (share), ``efficiency``.
+    """
     def figures(g: pd.DataFrame) -> pd.Series:
         n_eff = g["n_efficiency"].sum()
         return pd.Series({
@@ -702,7 +890,21 @@ def _error_against(results: pd.DataFrame, study: Study, axis: str):
 def build_study_report(study: Study, results: pd.DataFrame, out_dir: Path, failures: dict | None = None,
                        timings: dict | None = None) -> Path:
     """``out_dir/report.html`` (figures embedded, PNGs in ``figures/`` beside it) and
-    ``report.md``; returns the HTML path."""
+    ``report.md``; returns the HTML path.
+
+    Parameters
+    ----------
+    study : Study
+        The study (its axes order the heatmaps).
+    results : pandas.DataFrame
+        Per-experiment results of the finished cells (may be empty).
+    out_dir : Path
+        Report folder; its ``figures/`` is replaced.
+    failures : dict, optional
+        Cell description -> reason it failed (shown).
+    timings : dict, optional
+        Stage -> seconds, shown in the settings.
+    """
     from excavator_payload.evaluation import figures
     from excavator_payload.evaluation.report import _atomic_text, _render_html, _render_markdown, _Section
 

@@ -15,7 +15,13 @@ console = Console(stderr=True)
 
 
 def register(app: typer.Typer) -> None:
-    """Add the ``study`` command to ``app``."""
+    """Add the ``study`` command to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application that gains the command.
+    """
 
     @app.command("study")
     def study(

@@ -19,6 +19,20 @@ def summary_table(evaluations: Sequence[Evaluation], title: str = "Payload accur
 
     On a terminal narrower than 110 columns only the essential columns are shown (numbers are
     never cut short); the full set is in ``--json`` and the report.
+
+    Parameters
+    ----------
+    evaluations : sequence of Evaluation
+        One row each, in this order, labelled by ``Evaluation.label``.
+    title : str
+        Title shown above the table.
+    width : int, optional
+        Terminal width in columns that decides the compact layout; default the console's.
+
+    Returns
+    -------
+    rich.table.Table
+        The table, with a caption explaining its columns.
     """
     width = Console().width if width is None else width
     compact = width < 110
