@@ -18,7 +18,13 @@ console = Console(stderr=True)
 
 
 def register(app: typer.Typer) -> None:
-    """Add this role's commands to ``app``."""
+    """Add this role's commands to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application that receives ``simulate`` and ``export-mat``.
+    """
 
     @app.command("simulate")
     def simulate(

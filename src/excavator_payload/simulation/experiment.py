@@ -19,7 +19,31 @@ def experiment_frame(experiment: int, time: np.ndarray, q: np.ndarray, qd: np.nd
                      rng: np.random.Generator, with_truth: bool = False) -> pd.DataFrame:
     """Rows of one experiment: measured signals (truth + noise), optionally the truth.
 
-    ``q, qd, qdd, tau`` are (n_samples, 2) arrays of the true joint signals at the sample times.
+    Parameters
+    ----------
+    experiment : int
+        Experiment number written into the ``experiment`` column.
+    time : numpy.ndarray
+        Sample times, s, shape (n_samples,).
+    q, qd, qdd : numpy.ndarray
+        True joint angles (rad), rates (rad/s) and accelerations (rad/s²) of boom and dipper
+        at the sample times, shape (n_samples, 2).
+    tau : numpy.ndarray
+        True joint torques, N·m, shape (n_samples, 2).
+    payload : float
+        Payload mass, kg, written into the ``payload`` column.
+    noise : NoisePreset
+        Sensor noise added to the true signals.
+    rng : numpy.random.Generator
+        Source of the sensor noise.
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per sample: ``experiment``, ``time``, the measured signals, ``payload`` and,
+        with ``with_truth``, the true signals.
     """
     truth = np.column_stack([q[:, 0], qd[:, 0], qdd[:, 0], q[:, 1], qd[:, 1], qdd[:, 1],
                              tau[:, 0], tau[:, 1]])
@@ -41,7 +65,7 @@ class RunSpec:
     A worker process (local or on a cluster) simulates experiment ``k`` of the run from this
     and ``k`` alone, so the data do not depend on where or in which order experiments run.
 
-    Attributes
+    Parameters
     ----------
     motion : str
         Motion family, a key of :data:`excavator_payload.simulation.generate.MOTIONS`.
@@ -72,7 +96,15 @@ class RunSpec:
     options: tuple = ()
 
     def option(self, name: str, default: Any = None) -> Any:
-        """The value of motion setting ``name`` in :attr:`options`, else ``default``."""
+        """The value of motion setting ``name`` in :attr:`options`, else ``default``.
+
+        Parameters
+        ----------
+        name : str
+            Name of the motion setting.
+        default : object
+            Returned when :attr:`options` has no setting ``name``.
+        """
         return dict(self.options).get(name, default)
 
     def to_dict(self) -> dict:
@@ -95,7 +127,20 @@ def _jsonable_option(value):
 
 
 def noise_rng(spec: RunSpec, independent: np.random.Generator) -> np.random.Generator:
-    """The generator of an experiment's sensor noise: its own stream, or the frozen sequence's."""
+    """The generator of an experiment's sensor noise: its own stream, or the frozen sequence's.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run; its ``frozen_noise_seed`` decides which generator is returned.
+    independent : numpy.random.Generator
+        The experiment's own noise stream, returned when the noise is not frozen.
+
+    Returns
+    -------
+    numpy.random.Generator
+        ``independent``, or a fresh generator seeded with ``spec.frozen_noise_seed``.
+    """
     if spec.frozen_noise_seed is None:
         return independent
     return np.random.default_rng(int(spec.frozen_noise_seed))

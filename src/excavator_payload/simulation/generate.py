@@ -74,12 +74,29 @@ MACHINE_MOTIONS: dict[str, Motion] = HYDRAULIC.motions
 
 
 def motions_for(machine) -> dict[str, Motion]:
-    """The motion families a machine can be simulated with (its platform's table)."""
+    """The motion families a machine can be simulated with (its platform's table).
+
+    Parameters
+    ----------
+    machine : Machine or HydraulicMachine
+        The simulated machine.
+
+    Returns
+    -------
+    dict of str to Motion
+        Its platform's motion table.
+    """
     return platform_for(machine).motions
 
 
 def sensor_set_of(machine):
-    """The sensor set a simulated machine carries (its platform's)."""
+    """The sensor set a simulated machine carries (its platform's).
+
+    Parameters
+    ----------
+    machine : Machine or HydraulicMachine
+        The simulated machine.
+    """
     return platform_for(machine).sensors
 
 
@@ -90,7 +107,22 @@ def _import(path: str):
 
 def chunk_size_for(n_experiments: int, motion: str = "nmpc", machine=None) -> int:
     """Experiments per chunk of a run of ``n_experiments`` ``motion`` experiments (of the thesis'
-    arm unless ``machine`` is given)."""
+    arm unless ``machine`` is given).
+
+    Parameters
+    ----------
+    n_experiments : int
+        Size of the run.
+    motion : str
+        Motion family, a key of the platform's motion table.
+    machine : Machine or HydraulicMachine, optional
+        The simulated machine, which chooses the platform; default the thesis' arm.
+
+    Returns
+    -------
+    int
+        Experiments per chunk (the motion's chunk size rule).
+    """
     platform = THESIS if machine is None else platform_for(machine)
     return platform.motions[motion].chunk_size(n_experiments)
 
@@ -115,6 +147,29 @@ def simulate_nmpc_experiment(experiment: int, seed: int, machine: Machine, noise
                              with_truth: bool, frozen_noise_seed: int | None = None) -> tuple[pd.DataFrame, dict]:
     """Rows and metadata of NMPC experiment number ``experiment`` of the run ``seed``.
 
+    Parameters
+    ----------
+    experiment : int
+        Experiment number.
+    seed : int
+        Base seed of the run; scenario and noise come from the streams of ``(seed, experiment)``.
+    machine : Machine
+        The simulated (thesis) arm.
+    noise : str or NoisePreset
+        Sensor noise preset or its name.
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+    frozen_noise_seed : int, optional
+        Draw the noise from this seed instead of the experiment's own stream (the same noise
+        in every experiment).
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its scenario, ``status`` and the controller's information.
+
     Raises
     ------
     excavator_payload.simulation.nmpc.ControlFailure
@@ -132,7 +187,22 @@ def simulate_nmpc_experiment(experiment: int, seed: int, machine: Machine, noise
 
 
 def nmpc_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """NMPC experiment ``experiment`` of the run ``spec`` (the :data:`MOTIONS` entry)."""
+    """NMPC experiment ``experiment`` of the run ``spec`` (the :data:`MOTIONS` entry).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run.
+    experiment : int
+        Experiment number.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its metadata (see :func:`simulate_nmpc_experiment`).
+    """
     return simulate_nmpc_experiment(experiment, spec.seed, spec.machine, spec.noise, spec.with_truth,
                                     spec.frozen_noise_seed)
 
@@ -140,7 +210,26 @@ def nmpc_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]
 # -- one chunk: the unit of work ----------------------------------------------------------------
 def simulate_chunk(spec: RunSpec, first: int, count: int) -> tuple[pd.DataFrame, list[dict], list[dict]]:
     """Experiments ``first … first+count-1`` of the run ``spec``: (rows, metadata of the written
-    experiments, skipped experiments with their reason)."""
+    experiments, skipped experiments with their reason).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run.
+    first : int
+        Number of the chunk's first experiment.
+    count : int
+        Number of experiments in the chunk.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        Rows of the written experiments (empty, with the sensor set's columns, if none).
+    metas : list of dict
+        Metadata of each written experiment.
+    skipped : list of dict
+        ``{"experiment", "reason"}`` of each experiment whose simulation failed.
+    """
     platform = platform_for(spec.machine)
     motion = platform.motions[spec.motion]
     simulate = _import(motion.experiment)
@@ -207,6 +296,50 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
     simulates a trajectory faster than the pumps instead of refusing it (the trajectory's
     ``warnings`` say where).
     ``truck_target`` (kg) is the load each truck of ``motion="shift"`` aims at.
+
+    Parameters
+    ----------
+    n_experiments : int
+        Number of experiments (a trajectory may hold fewer: then as many as it holds).
+    seed : int
+        Base seed; experiment ``k`` uses the streams of ``(seed, k)``.
+    machine : Machine, HydraulicMachine or str
+        Machine, preset name or TOML machine file.
+    noise : NoisePreset, MachineNoise or str, optional
+        Noise preset or its name; default the machine kind's own.
+    with_truth : bool
+        Add the noise-free ``true_*`` columns.
+    motion : str, optional
+        Motion family; default the machine kind's own.
+    first_experiment : int
+        Number of the first experiment; the spec covers experiments 0 …
+        ``first_experiment + n_experiments − 1``.
+    frozen_noise_seed : int, optional
+        Put the same noise sequence (drawn from this seed) in every experiment.
+    options : dict, optional
+        Extra motion settings (e.g. ``move_time``); the platform's settings are added.
+    session : int
+        Hydraulic machine: working session, draws the sensor offsets.
+    trajectory : str, Path or Trajectory, optional
+        Hydraulic machine: prescribed motions to replay.
+    payload : float, optional
+        Hydraulic machine: mass every generated experiment carries, kg.
+    smooth : float, optional
+        Filter a trajectory's angles over this many seconds first, s.
+    allow_overspeed : bool
+        Simulate a trajectory faster than the pumps instead of refusing it.
+    truck_target : float, optional
+        Load each truck of ``motion="shift"`` aims at, kg.
+
+    Returns
+    -------
+    RunSpec
+        The checked description of the run.
+
+    Raises
+    ------
+    ExcavatorPayloadError
+        Bad arguments, or a trajectory that cannot be read or simulated.
     """
     machine = load_machine(machine)
     platform = platform_for(machine)
@@ -246,7 +379,24 @@ def make_spec(n_experiments: int, seed: int = 0, machine: Machine | str = "cat34
 def run_chunks(spec: RunSpec, chunks: list[tuple[int, int]], execution: Execution, progress: bool,
                on_done: Callable[[int, int, tuple], None], description: str = "simulating") -> None:
     """Simulate ``chunks`` of the run ``spec`` through ``execution``; ``on_done(first, count,
-    result)`` is called in this process as each chunk finishes."""
+    result)`` is called in this process as each chunk finishes.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run.
+    chunks : list of (int, int)
+        ``(first, count)`` of each chunk to simulate.
+    execution : Execution
+        The open execution layer the chunks run on.
+    progress : bool
+        Show a progress bar.
+    on_done : callable
+        ``on_done(first, count, result)`` with the :func:`simulate_chunk` result, called in
+        the order chunks finish.
+    description : str
+        Label of the progress bar.
+    """
     def done(index, result):
         first, count = chunks[index]
         on_done(first, count, result)
@@ -256,7 +406,26 @@ def run_chunks(spec: RunSpec, chunks: list[tuple[int, int]], execution: Executio
 
 
 def assemble(parts: dict[int, tuple], spec: RunSpec) -> Dataset:
-    """The dataset of the finished chunks ``{first: (rows, metas, skipped)}`` of the run ``spec``."""
+    """The dataset of the finished chunks ``{first: (rows, metas, skipped)}`` of the run ``spec``.
+
+    Parameters
+    ----------
+    parts : dict of int to tuple
+        :func:`simulate_chunk` result of each finished chunk, keyed by its first experiment.
+    spec : RunSpec
+        The run (its description goes into the metadata).
+
+    Returns
+    -------
+    Dataset
+        Rows in experiment order; ``meta`` describes the run, the written experiments and the
+        skipped ones.
+
+    Raises
+    ------
+    ExcavatorPayloadError
+        If every experiment failed.
+    """
     frames, metas, skipped = [], [], []
     for first in sorted(parts):
         frame, m, s = parts[first]
@@ -287,7 +456,24 @@ def assemble(parts: dict[int, tuple], spec: RunSpec) -> Dataset:
 def simulate_many(specs: dict, execution: Execution, progress: bool = True,
                   description: str = "simulating") -> dict:
     """Every experiment of several runs ``{key: spec}`` in one job (their chunks interleave on
-    the workers); returns ``{key: Dataset}``. Experiments are numbered 0 … ``spec.n_experiments − 1``."""
+    the workers); returns ``{key: Dataset}``. Experiments are numbered 0 … ``spec.n_experiments − 1``.
+
+    Parameters
+    ----------
+    specs : dict
+        The runs, by any hashable key.
+    execution : Execution
+        The open execution layer the chunks run on.
+    progress : bool
+        Show a progress bar.
+    description : str
+        Label of the progress bar.
+
+    Returns
+    -------
+    dict
+        The dataset of each run, by the same keys.
+    """
     keys = list(specs)
     tasks = [(specs[key], first, count) for key in keys
              for first, count in _chunks(0, specs[key].n_experiments,
@@ -307,7 +493,28 @@ def simulate_many(specs: dict, execution: Execution, progress: bool = True,
 
 def simulate_spec(spec: RunSpec, first_experiment: int, n_experiments: int, execution: Execution,
                   progress: bool = True, description: str = "simulating") -> Dataset:
-    """Experiments ``first_experiment …`` of the run ``spec``, in memory, through ``execution``."""
+    """Experiments ``first_experiment …`` of the run ``spec``, in memory, through ``execution``.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run.
+    first_experiment : int
+        Number of the first experiment.
+    n_experiments : int
+        Number of experiments (fewer if the run holds fewer, e.g. a short trajectory).
+    execution : Execution
+        The open execution layer the chunks run on.
+    progress : bool
+        Show a progress bar.
+    description : str
+        Label of the progress bar.
+
+    Returns
+    -------
+    Dataset
+        The simulated experiments.
+    """
     # A trajectory run may hold fewer experiments than asked for: the spec knows how many.
     n_experiments = min(int(n_experiments), spec.n_experiments - int(first_experiment))
     chunks = _chunks(int(first_experiment), n_experiments,
@@ -390,7 +597,18 @@ def simulate_dataset(n_experiments: int, seed: int = 0, machine: Machine | str =
 
 # -- to a file, with checkpoints ---------------------------------------------------------------
 def partial_folder(out: str | Path) -> Path:
-    """Folder holding the finished chunks of an unfinished :func:`simulate_to_file` run."""
+    """Folder holding the finished chunks of an unfinished :func:`simulate_to_file` run.
+
+    Parameters
+    ----------
+    out : str or Path
+        The run's dataset file.
+
+    Returns
+    -------
+    Path
+        ``<out>.partial`` next to it.
+    """
     out = Path(out)
     return out.with_name(out.name + PARTIAL_SUFFIX)
 
@@ -425,7 +643,48 @@ def simulate_to_file(out: str | Path, n_experiments: int, seed: int = 0,
 
     Finished chunks of experiments are kept in ``<out>.partial/`` until the file is written;
     run the same command again after an interruption to continue where it stopped.
-    Parameters as :func:`simulate_dataset`. Returns the written dataset.
+
+    Parameters
+    ----------
+    out : str or Path
+        The dataset file to write.
+    n_experiments : int
+        Number of experiments (numbered from 0).
+    seed : int
+        Base seed; experiment ``k`` uses the streams of ``(seed, k)``.
+    machine : Machine, HydraulicMachine or str
+        Machine, preset name or TOML machine file.
+    noise : NoisePreset, MachineNoise or str, optional
+        Noise preset or its name; default the machine kind's own.
+    with_truth : bool
+        Add the noise-free ``true_*`` columns.
+    workers : int, optional
+        Local worker processes (default: all cores). The data do not depend on it.
+    motion : str, optional
+        Motion family; default the machine kind's own.
+    progress : bool
+        Show a progress bar.
+    scheduler : str, optional
+        Address of a Dask scheduler to run on.
+    frozen_noise_seed : int, optional
+        Put the same noise sequence (drawn from this seed) in every experiment.
+    execution : Execution, optional
+        An open execution layer to use instead of ``workers`` / ``scheduler`` (kept open).
+    session : int
+        Hydraulic machine: working session, draws the sensor offsets.
+    trajectory : str, Path or Trajectory, optional
+        Hydraulic machine: prescribed motions to replay.
+    payload : float, optional
+        Hydraulic machine: mass every generated experiment carries, kg.
+    allow_overspeed : bool
+        Simulate a trajectory faster than the pumps instead of refusing it.
+    truck_target : float, optional
+        Load each truck of ``motion="shift"`` aims at, kg.
+
+    Returns
+    -------
+    Dataset
+        The written dataset.
 
     Raises
     ------
@@ -526,7 +785,21 @@ def simulate_spec_to_file(out: str | Path, spec: RunSpec, workers: int | None = 
 
 
 def summary(dataset: Dataset, wall_time: float | None = None) -> dict:
-    """Counts for the CLI: written, skipped (with reasons), share that reached the target."""
+    """Counts for the CLI: written, skipped (with reasons), share that reached the target.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        A simulated dataset.
+    wall_time : float, optional
+        Duration of the run, s, passed through.
+
+    Returns
+    -------
+    dict
+        ``written`` (int), ``skipped`` (list of dict), ``reached_share`` (float in [0, 1], or
+        ``None`` when the motion does not record it) and ``wall_time``.
+    """
     metas = dataset.meta.get("experiments", [])
     reached = [m.get("reached") for m in metas if "reached" in m]
     return {

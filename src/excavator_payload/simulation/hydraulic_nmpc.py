@@ -74,7 +74,37 @@ class ControlFailure(RuntimeError):
 @dataclass(frozen=True)
 class HydraulicNMPCSettings:
     """Tunable settings of the hydraulic NMPC: timing (s), cost weights, solver iterations and the
-    force lag (defaults and meaning: see the module docstring)."""
+    force lag (defaults and meaning: see the module docstring).
+
+    Parameters
+    ----------
+    control_period : float
+        Control period :math:`T_c`, s.
+    horizon : float
+        Prediction horizon :math:`T_p`, s (a whole number of control periods).
+    angle_weight : float
+        Stage weight :math:`w_q` on the angle error, per rad² per s.
+    rate_weight : float
+        Stage weight :math:`w_v` on the joint rates, per (rad/s)² per s.
+    input_rate_weight : float
+        Weight :math:`w_u` on the input change, per (ΔU)² with U in units of the bounds.
+    terminal_weight : float
+        Weight :math:`w_T` on the angle error at the end of the horizon, per rad².
+    terminal_rate_weight : float
+        Weight :math:`w_{Tv}` on the joint rates at the end of the horizon, per (rad/s)².
+    substeps : int
+        RK4 steps per control interval in the prediction.
+    speed_margin : float
+        Share of the speed limits the plan may use at its nodes.
+    sqp_iterations : int
+        Warm-started SQP iterations per control period.
+    cold_iterations : int
+        SQP iterations of the first step of a swing (and of a retry).
+    force_lag : float
+        Time constant of the lag from commanded to applied forces, s.
+    qp_solver : str
+        CasADi QP solver of the SQP (``qrqp``; ``qpoases``, ``daqp`` or ``osqp`` if installed).
+    """
 
     control_period: float = 0.25  # s (0.2 s: ~1.8× the time per experiment, same swings)
     horizon: float = 2.0  # s
@@ -177,7 +207,22 @@ def _rk4_jacobian(f: ca.Function, duration: float, substeps: int, name: str) -> 
 
 
 def hydraulic_bounds(arm: HydraulicArmModel):
-    """(u_low, u_high, rate_limit (4,), angle ranges (3, 2)) of the machine's hydraulics."""
+    """(u_low, u_high, rate_limit (4,), angle ranges (3, 2)) of the machine's hydraulics.
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model (cylinders, relief and back pressure, slew drive).
+
+    Returns
+    -------
+    u_low, u_high : numpy.ndarray
+        Bounds of the boom, dipper and bucket cylinder forces (N) and the slew torque (N·m).
+    rate_limit : numpy.ndarray
+        Largest rate of each joint, rad/s, shape (4,).
+    angle_ranges : numpy.ndarray
+        Boom, dipper and bucket angle ranges, rad, shape (3, 2).
+    """
     m = arm.machine
     h = m.hydraulics
     low, high, rate = [], [], []
@@ -194,7 +239,15 @@ def hydraulic_bounds(arm: HydraulicArmModel):
 
 
 class HydraulicNMPC:
-    """The NMPC of the module docstring for one machine."""
+    """The NMPC of the module docstring for one machine.
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The controlled machine's model.
+    settings : HydraulicNMPCSettings, optional
+        Tuning; default :class:`HydraulicNMPCSettings`.
+    """
 
     def __init__(self, arm: HydraulicArmModel, settings: HydraulicNMPCSettings | None = None):
         self.arm = arm
@@ -272,7 +325,20 @@ class HydraulicNMPC:
 
     def reset(self, state, target, tilt, payload) -> None:
         """Start a new swing from rest at ``state`` ([q, q̇], 8): the forces applied and the first
-        guess hold the arm still against gravity (the full state is then ``initial_state``)."""
+        guess hold the arm still against gravity (the full state is then ``initial_state``).
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            Start angles (rad) and rates (rad/s) of boom, dipper, bucket and slew; the first 8
+            entries are used.
+        target : numpy.ndarray
+            Target angles of boom, dipper, bucket and slew, rad, shape (4,).
+        tilt : numpy.ndarray
+            Ground tilt (pitch, roll), rad.
+        payload : float
+            Payload mass, kg.
+        """
         N = self.N
         state = np.asarray(state, float)[:8]
         tau = self.arm.inverse_dynamics(state[:4], np.zeros(4), np.zeros(4), tilt, payload)
@@ -295,7 +361,25 @@ class HydraulicNMPC:
         return np.concatenate([state[:8], (state[8:] - self.u_centre) / self.u_half])
 
     def control(self, state) -> np.ndarray:
-        """Forces and slew torque to apply for the next control period."""
+        """Forces and slew torque to apply for the next control period.
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            Plant state ``[q, q̇, F]`` (rad, rad/s, applied forces N and slew torque N·m),
+            shape (12,).
+
+        Returns
+        -------
+        numpy.ndarray
+            Commanded boom, dipper, bucket cylinder forces (N) and slew torque (N·m).
+
+        Raises
+        ------
+        ControlFailure
+            If the first solve of a swing fails, or the solves fail more than
+            ``MAX_PLAN_FOLLOWING`` periods in a row.
+        """
         start = _time.perf_counter()
         w0 = self._w.copy()
         w0[:self.nx] = self._scaled(state)
@@ -344,7 +428,17 @@ class HydraulicNMPC:
 
 
 class HydraulicNMPCSimulator:
-    """Runs NMPC swings: controller every ``control_period``, plant and sensors at 100 Hz."""
+    """Runs NMPC swings: controller every ``control_period``, plant and sensors at 100 Hz.
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model (controller and plant).
+    settings : HydraulicNMPCSettings, optional
+        Tuning of the controller; default :class:`HydraulicNMPCSettings`.
+    sample_period : float
+        Plant and sensor sample period, s.
+    """
 
     def __init__(self, arm: HydraulicArmModel, settings: HydraulicNMPCSettings | None = None,
                  sample_period: float = 0.01):
@@ -363,7 +457,37 @@ class HydraulicNMPCSimulator:
 
     def run(self, start, target, tilt, payload, duration: float):
         """(time, q, q̇, q̈, applied forces, info) of one swing from rest at ``start`` towards
-        ``target``."""
+        ``target``.
+
+        Parameters
+        ----------
+        start : numpy.ndarray
+            Start angles of boom, dipper, bucket and slew, rad, shape (4,); the arm starts at rest.
+        target : numpy.ndarray
+            Target angles, rad, shape (4,).
+        tilt : numpy.ndarray
+            Ground tilt (pitch, roll), rad.
+        payload : float
+            Payload mass, kg.
+        duration : float
+            Length of the swing, s.
+
+        Returns
+        -------
+        time : numpy.ndarray
+            Sample times, s, shape (n,).
+        q, qd, qdd : numpy.ndarray
+            Angles (rad), rates (rad/s) and accelerations (rad/s²), shape (n, 4).
+        forces : numpy.ndarray
+            Applied cylinder forces (N) and slew torque (N·m), shape (n, 4).
+        info : dict
+            Final error, reached, solver counts and solve times.
+
+        Raises
+        ------
+        ControlFailure
+            If the controller fails or the plant state stops being finite.
+        """
         n = int(round(duration / self.sample_period)) + 1
         time = np.arange(n) * self.sample_period
         x = np.concatenate([np.asarray(start, float), np.zeros(4)])

@@ -54,6 +54,31 @@ def lift_motion(boom_start: float, boom_end: float, dipper_angle: float, boom_sp
 
     The boom covers ``v·T_r/2`` during each ramp, so the constant-speed phase lasts
     ``(boom_end − boom_start)/v − T_r``.
+
+    Parameters
+    ----------
+    boom_start, boom_end : float
+        Boom angle at the start and at the end of the lift, rad.
+    dipper_angle : float
+        Dipper angle held during the lift, rad.
+    boom_speed : float
+        Constant boom speed ``v``, rad/s.
+    ramp_time : float
+        Duration ``T_r`` of each smooth speed ramp, s.
+    sample_rate : float
+        Sampling rate, Hz.
+
+    Returns
+    -------
+    t : numpy.ndarray
+        Sample times, s, shape (n,).
+    q, qd, qdd : numpy.ndarray
+        Boom and dipper angles (rad), rates (rad/s) and accelerations (rad/s²), shape (n, 2).
+
+    Raises
+    ------
+    ExcavatorPayloadError
+        If the lift is too short for its two ramps.
     """
     travel = boom_end - boom_start
     constant = travel / boom_speed - ramp_time
@@ -92,8 +117,20 @@ def _lift_levels(spec: RunSpec) -> list[float]:
 def lift_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]:
     """Rows and metadata of lift ``experiment`` of the run ``spec`` (``spec.n_experiments`` lifts).
 
-    ``spec.options`` may set ``payloads``, ``boom_speed_deg``, ``ramp_time`` and ``margin_deg``
-    (see :func:`simulate_lifts`).
+    Parameters
+    ----------
+    spec : RunSpec
+        The run; ``spec.options`` may set ``payloads``, ``boom_speed_deg``, ``ramp_time`` and
+        ``margin_deg`` (see :func:`simulate_lifts`).
+    experiment : int
+        Lift number; it picks the payload level and the dipper angle.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The lift's rows.
+    meta : dict
+        Its payload (kg), start and target poses (rad), boom speed (rad/s), ramp time (s).
     """
     machine = spec.machine
     boom_speed_deg = float(spec.option("boom_speed_deg", 5.0))

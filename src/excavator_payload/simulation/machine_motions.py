@@ -50,6 +50,19 @@ class Step:
 
     Minimum-jerk by default; with ``ramp`` (s) a constant-speed move whose speed ramps up and
     down smoothly (σ of the rate) over ``ramp`` at both ends, as the calibration lifts.
+
+    Parameters
+    ----------
+    joint : int
+        Coordinate moved: 0 boom, 1 dipper, 2 bucket (relative), 3 slew.
+    start : float
+        Time the step begins, s.
+    duration : float
+        Duration of the step, s.
+    delta : float
+        Change of the coordinate over the step, rad.
+    ramp : float, optional
+        Duration of the speed ramps of a constant-speed move, s; ``None``: minimum-jerk.
     """
 
     joint: int
@@ -59,7 +72,19 @@ class Step:
     ramp: float | None = None
 
     def profile(self, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Displacement, rate and acceleration of this step at ``time``."""
+        """Displacement, rate and acceleration of this step at ``time``.
+
+        Parameters
+        ----------
+        time : numpy.ndarray
+            Sample times, s, shape (n,).
+
+        Returns
+        -------
+        pos, rate, accel : numpy.ndarray
+            Displacement from the start angle (rad), rate (rad/s) and acceleration (rad/s²),
+            shape (n,).
+        """
         tau = time - self.start
         D = self.duration
         if self.ramp is None:
@@ -90,7 +115,28 @@ class Step:
 
 @dataclass
 class Motion:
-    """A planned motion: initial pose, steps, duration, ground tilt, payload (kg, maybe over time)."""
+    """A planned motion: initial pose, steps, duration, ground tilt, payload (kg, maybe over time).
+
+    Parameters
+    ----------
+    initial : numpy.ndarray
+        Initial pose (boom, dipper, bucket relative, slew), rad, shape (4,).
+    steps : list of Step
+        The steps, possibly overlapping in time.
+    duration : float
+        Duration of the motion, s.
+    tilt : numpy.ndarray
+        Ground tilt (pitch, roll), rad, shape (2,).
+    payload : float
+        Mass in the bucket, kg.
+    release : tuple of float, optional
+        Times (s) between which the load leaves the bucket (linearly).
+    info : dict
+        Description of the motion for the dataset's metadata.
+    loads : list of tuple, optional
+        Loads one after another (a shift): ``(fill start, fill end, release start, release
+        end, kg)`` each, times in s; overrides ``payload`` / ``release`` in :meth:`payload_at`.
+    """
 
     initial: np.ndarray  # (4,) rad
     steps: list[Step]
@@ -105,7 +151,13 @@ class Motion:
     loads: list[tuple[float, float, float, float, float]] | None = None
 
     def stretched(self, factor: float) -> "Motion":
-        """The same motion ``factor`` times slower."""
+        """The same motion ``factor`` times slower.
+
+        Parameters
+        ----------
+        factor : float
+            Time stretch (> 1: slower); step times, durations, ramps and load windows scale by it.
+        """
         steps = [Step(s.joint, s.start * factor, s.duration * factor, s.delta,
                       None if s.ramp is None else s.ramp * factor) for s in self.steps]
         release = None if self.release is None else (self.release[0] * factor, self.release[1] * factor)
@@ -115,7 +167,18 @@ class Motion:
                       self.payload, release, dict(self.info), loads)
 
     def sample(self, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(q, q̇, q̈) at ``time``, each (n, 4)."""
+        """(q, q̇, q̈) at ``time``, each (n, 4).
+
+        Parameters
+        ----------
+        time : numpy.ndarray
+            Sample times, s, shape (n,).
+
+        Returns
+        -------
+        q, qd, qdd : numpy.ndarray
+            Angles (rad), rates (rad/s) and accelerations (rad/s²), shape (n, 4).
+        """
         n = len(time)
         q = np.tile(self.initial, (n, 1)).astype(float)
         qd = np.zeros((n, 4))
@@ -128,7 +191,18 @@ class Motion:
         return q, qd, qdd
 
     def payload_at(self, time: np.ndarray) -> np.ndarray:
-        """Mass in the bucket at ``time`` (falls linearly to 0 over the release window)."""
+        """Mass in the bucket at ``time`` (falls linearly to 0 over the release window).
+
+        Parameters
+        ----------
+        time : numpy.ndarray
+            Sample times, s, shape (n,).
+
+        Returns
+        -------
+        numpy.ndarray
+            Payload mass, kg, shape (n,).
+        """
         if self.loads is not None:
             mass = np.zeros(len(time))
             for a, b, c, d, m in self.loads:
@@ -141,7 +215,21 @@ class Motion:
 
 
 def speed_share(arm: HydraulicArmModel, q: np.ndarray, qd: np.ndarray) -> float:
-    """Largest share of the hydraulic speed limits a sampled motion uses (> 1: too fast)."""
+    """Largest share of the hydraulic speed limits a sampled motion uses (> 1: too fast).
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model (rod speed limits, slew rate limit).
+    q, qd : numpy.ndarray
+        Angles (rad) and rates (rad/s) of boom, dipper, bucket and slew, shape (n, 4).
+
+    Returns
+    -------
+    float
+        Largest ratio of a rod speed to its pump-flow limit, or of the slew rate to
+        ``max_slew_rate``.
+    """
     m = arm.machine
     speeds = arm.cylinder_speeds(q, qd)
     ratios = []
@@ -152,13 +240,41 @@ def speed_share(arm: HydraulicArmModel, q: np.ndarray, qd: np.ndarray) -> float:
 
 
 def speed_ratio(arm: HydraulicArmModel, motion: Motion, time: np.ndarray) -> float:
-    """Largest share of the hydraulic speed limits the motion uses (> 1: too fast)."""
+    """Largest share of the hydraulic speed limits the motion uses (> 1: too fast).
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model.
+    motion : Motion
+        The planned motion.
+    time : numpy.ndarray
+        Times (s) at which the motion is sampled for the check.
+
+    Returns
+    -------
+    float
+        As :func:`speed_share`.
+    """
     q, qd, _ = motion.sample(time)
     return speed_share(arm, q, qd)
 
 
 def fit_to_hydraulics(arm: HydraulicArmModel, motion: Motion) -> Motion:
-    """``motion``, slowed down uniformly if it asks for more speed than the pumps give."""
+    """``motion``, slowed down uniformly if it asks for more speed than the pumps give.
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model.
+    motion : Motion
+        The planned motion; its ``info`` receives ``time_stretch`` and ``speed_share``.
+
+    Returns
+    -------
+    Motion
+        ``motion`` itself when it fits, else a stretched copy.
+    """
     time = np.arange(0.0, motion.duration + 1e-9, 0.02)
     ratio = speed_ratio(arm, motion, time)
     if ratio > 1.0:
@@ -177,7 +293,24 @@ def _uniform(rng, lo, hi):
 def shortest_duration(arm: HydraulicArmModel, joint: int, start: float, delta: float) -> float:
     """Shortest minimum-jerk step of ``joint`` from ``start`` by ``delta`` that the hydraulics
     allow on its own: rod speed ≤ pump flow / area (each cylinder moves only its joint, so
-    its moment arm depends on that joint's angle alone), slew rate ≤ ``max_slew_rate``."""
+    its moment arm depends on that joint's angle alone), slew rate ≤ ``max_slew_rate``.
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model.
+    joint : int
+        Coordinate moved: 0 boom, 1 dipper, 2 bucket, 3 slew.
+    start : float
+        Angle of the joint at the start of the step, rad.
+    delta : float
+        Change of the angle, rad.
+
+    Returns
+    -------
+    float
+        Shortest duration of the step, s.
+    """
     m = arm.machine
     s = np.linspace(0.0, 1.0, 41)
     shape = 30 * s**2 - 60 * s**3 + 30 * s**4  # σ'(s)
@@ -206,21 +339,60 @@ def _inside(machine, margin=5 * DEG):
 
 
 def dig_pose(rng, machine) -> np.ndarray:
-    """End of a dig: boom low, dipper pulled in, bucket curled."""
+    """End of a dig: boom low, dipper pulled in, bucket curled.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the draws.
+    machine : HydraulicMachine
+        The machine (its boom angle range).
+
+    Returns
+    -------
+    numpy.ndarray
+        Pose (boom, dipper, bucket, slew = 0), rad.
+    """
     r = _inside(machine)
     return np.array([_uniform(rng, r[0, 0], r[0, 0] + 25 * DEG), _uniform(rng, -110 * DEG, -75 * DEG),
                      _uniform(rng, -60 * DEG, -30 * DEG), 0.0])
 
 
 def carry_pose(rng, machine) -> np.ndarray:
-    """Over the truck: boom high, dipper half out, bucket curled in to hold the load."""
+    """Over the truck: boom high, dipper half out, bucket curled in to hold the load.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the draws.
+    machine : HydraulicMachine
+        The machine (its boom angle range).
+
+    Returns
+    -------
+    numpy.ndarray
+        Pose (boom, dipper, bucket, slew = 0), rad.
+    """
     r = _inside(machine)
     return np.array([_uniform(rng, 25 * DEG, r[0, 1]), _uniform(rng, -90 * DEG, -45 * DEG),
                      _uniform(rng, -115 * DEG, -85 * DEG), 0.0])
 
 
 def swing_motion(rng, arm: HydraulicArmModel) -> Motion:
-    """A loaded swing while slewing 30-180°, from a digging to a dumping pose."""
+    """A loaded swing while slewing 30-180°, from a digging to a dumping pose.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the motion's draws (poses, timing, payload).
+    arm : HydraulicArmModel
+        The machine's model (speed limits of the steps).
+
+    Returns
+    -------
+    Motion
+        The planned swing.
+    """
     machine = arm.machine
     start = dig_pose(rng, machine)
     target = carry_pose(rng, machine)
@@ -238,7 +410,22 @@ def swing_motion(rng, arm: HydraulicArmModel) -> Motion:
 
 
 def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
-    """Curl, lift while slewing, pause with corrections, dump, return (module doc)."""
+    """Curl, lift while slewing, pause with corrections, dump, return (module doc).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the motion's draws.
+    arm : HydraulicArmModel
+        The machine's model.
+    tilt : numpy.ndarray
+        Ground tilt (pitch, roll), rad.
+
+    Returns
+    -------
+    Motion
+        The planned cycle, kept inside the angle ranges.
+    """
     machine = arm.machine
     start = dig_pose(rng, machine)
     start[2] = _uniform(rng, -20 * DEG, 10 * DEG)  # bucket still open at the end of the cut
@@ -292,6 +479,20 @@ def shift_passes(rng, truck_target: float, machine) -> list[float]:
     As many passes as a bucket at 90 % of rated needs (2-6), each of the target's share
     × 0.85-1.10 (the operator's fill varies), within 20 % of rated … the maximum payload:
     the truck's true load is their sum, near but not at the target, as on a real site.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the fill draws.
+    truck_target : float
+        Load the truck aims at, kg.
+    machine : HydraulicMachine
+        The machine (rated and maximum payload).
+
+    Returns
+    -------
+    list of float
+        Fill of each pass, kg.
     """
     rated = float(machine.rated_payload)
     n = int(np.clip(np.ceil(truck_target / (0.9 * rated)), *SHIFT_PASSES))
@@ -307,6 +508,20 @@ def shift_motion(rng, arm: HydraulicArmModel, truck_target: float) -> Motion:
     left it to the next cut (each joint a minimum-jerk step the hydraulics allow). Each pass's
     fill enters the bucket during its curl and leaves during its dump's release window
     (:attr:`Motion.loads`). ``info["passes"]``: per pass its fill and times.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the motion's draws.
+    arm : HydraulicArmModel
+        The machine's model.
+    truck_target : float
+        Load the truck aims at, kg (see :func:`shift_passes`).
+
+    Returns
+    -------
+    Motion
+        The chained passes, with :attr:`Motion.loads` set.
     """
     machine = arm.machine
     fills = shift_passes(rng, truck_target, machine)
@@ -351,7 +566,22 @@ def _paced_step(rng, arm, joint, begin, start_angle, delta, share) -> Step:
 
 
 def operator_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
-    """A loaded lift and slew with a pause, an overshoot and continuous trims (module doc)."""
+    """A loaded lift and slew with a pause, an overshoot and continuous trims (module doc).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the motion's draws.
+    arm : HydraulicArmModel
+        The machine's model.
+    tilt : numpy.ndarray
+        Ground tilt (pitch, roll), rad.
+
+    Returns
+    -------
+    Motion
+        The planned motion, kept inside the angle ranges.
+    """
     machine = arm.machine
     start = dig_pose(rng, machine)
     carry = carry_pose(rng, machine)
@@ -423,7 +653,18 @@ def _clip_to_ranges(motion: Motion, machine) -> Motion:
 
 
 def slope_tilt(rng) -> np.ndarray:
-    """Ground tilt of up to 10° in a random direction: [pitch, roll]."""
+    """Ground tilt of up to 10° in a random direction: [pitch, roll].
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the draws.
+
+    Returns
+    -------
+    numpy.ndarray
+        (pitch, roll), rad.
+    """
     slope = _uniform(rng, 0.0, 10 * DEG)
     direction = _uniform(rng, 0.0, 2 * np.pi)
     return np.array([slope * np.cos(direction), slope * np.sin(direction)])
@@ -435,6 +676,22 @@ def lift_motion(k: int, machine, n_dipper_angles: int = 5, boom_speed: float = 5
     Payloads alternate empty / rated (even / odd ``k``); each pair uses the next of
     ``n_dipper_angles`` dipper angles spread over -120°…-40°; bucket held curled, no slew,
     level ground (as the thesis' lifts, EP0736752A1).
+
+    Parameters
+    ----------
+    k : int
+        Lift number; it picks the payload and the dipper angle.
+    machine : HydraulicMachine
+        The machine (boom angle range, rated payload).
+    n_dipper_angles : int
+        Number of dipper angles the lifts cycle through.
+    boom_speed : float
+        Constant boom speed, rad/s.
+
+    Returns
+    -------
+    Motion
+        The planned lift.
     """
     r = _inside(machine)
     dippers = np.linspace(-120 * DEG, -40 * DEG, n_dipper_angles)

@@ -21,7 +21,20 @@ SAMPLE_RATE = MACHINE_SENSORS.sample_rate
 
 
 def machine_rngs(seed: int, experiment: int) -> tuple[np.random.Generator, np.random.Generator]:
-    """Independent (motion, noise) generators of experiment ``experiment`` of run ``seed``."""
+    """Independent (motion, noise) generators of experiment ``experiment`` of run ``seed``.
+
+    Parameters
+    ----------
+    seed : int
+        Base seed of the run.
+    experiment : int
+        Experiment number.
+
+    Returns
+    -------
+    motion_rng, noise_rng : numpy.random.Generator
+        Generator of the motion draws and generator of the sensor noise.
+    """
     ss = np.random.SeedSequence([int(seed), int(experiment), 11])
     a, b = ss.spawn(2)
     return np.random.default_rng(a), np.random.default_rng(b)
@@ -30,7 +43,20 @@ def machine_rngs(seed: int, experiment: int) -> tuple[np.random.Generator, np.ra
 def closing_rng(seed: int, experiment: int) -> np.random.Generator:
     """A third independent stream of the experiment: how its valves close (:func:`rest_friction`).
     Its own stream, so that the motions and the noise drawn stay those of the same seed before
-    friction at rest was drawn (SeedSequence children do not depend on how many are spawned)."""
+    friction at rest was drawn (SeedSequence children do not depend on how many are spawned).
+
+    Parameters
+    ----------
+    seed : int
+        Base seed of the run.
+    experiment : int
+        Experiment number.
+
+    Returns
+    -------
+    numpy.random.Generator
+        The experiment's valve-closing stream.
+    """
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(experiment), 11]).spawn(3)[2])
 
 
@@ -38,7 +64,18 @@ _ARMS: dict[str, HydraulicArmModel] = {}
 
 
 def arm_model(machine: HydraulicMachine) -> HydraulicArmModel:
-    """The process's :class:`HydraulicArmModel` of ``machine`` (built once per process)."""
+    """The process's :class:`HydraulicArmModel` of ``machine`` (built once per process).
+
+    Parameters
+    ----------
+    machine : HydraulicMachine
+        The simulated machine (its dictionary is the cache key).
+
+    Returns
+    -------
+    HydraulicArmModel
+        The cached model.
+    """
     key = json.dumps(machine.to_dict(), sort_keys=True)
     if key not in _ARMS:
         _ARMS[key] = HydraulicArmModel(machine)
@@ -54,6 +91,22 @@ def friction_states(lengths: np.ndarray, presliding: np.ndarray, initial: np.nda
     the motion over the presliding displacement x_p and keeps its value while the cylinder
     stands still. ``forced`` (n, 3, NaN elsewhere) sets s where a standstill holds the friction
     its valve left (:func:`rest_friction`), so that the motion after it starts from there.
+
+    Parameters
+    ----------
+    lengths : numpy.ndarray
+        Length of each cylinder at each sample, m, shape (n, 3).
+    presliding : numpy.ndarray
+        Presliding displacement ``x_p`` of each cylinder, m, shape (3,).
+    initial : numpy.ndarray
+        State ``s`` of each cylinder at the first sample, in [-1, 1], shape (3,).
+    forced : numpy.ndarray, optional
+        State imposed at some samples (NaN elsewhere), shape (n, 3).
+
+    Returns
+    -------
+    numpy.ndarray
+        State ``s`` of each cylinder at each sample, shape (n, 3).
     """
     dx = np.diff(lengths, axis=0)
     decay = np.exp(-np.abs(dx) / presliding)
@@ -89,6 +142,25 @@ def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarr
     stiffness (F_C/x_p ≈ 5·10⁶ N/m), so a change of the load goes to the pressures. Where the
     breakaway :math:`F_b(t)` shrinks below it the seal gives at the band's edge. Moving samples
     keep ``friction``. ``breakaway`` (n, 3), N; ``closing`` (k, 3), used in order per cylinder.
+
+    Parameters
+    ----------
+    speed : numpy.ndarray
+        Rod speed of each cylinder, m/s, shape (n, 3).
+    breakaway : numpy.ndarray
+        Breakaway friction :math:`F_b` of each cylinder at each sample, N, shape (n, 3).
+    rest_speed : numpy.ndarray
+        Speed below which each rod stands still, m/s, shape (3,).
+    friction : numpy.ndarray
+        Friction of the moving samples, N, shape (n, 3); copied, not changed.
+    closing : numpy.ndarray
+        Draws :math:`u` in [−1, 1] of how the valves closed, shape (k, 3); the k-th standstill
+        of a cylinder uses row ``k mod len(closing)``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``friction`` with the standstills' held friction, N, shape (n, 3).
     """
     out = friction.copy()
     for j in range(speed.shape[1]):
@@ -108,6 +180,31 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
 
     ``rng`` draws how each valve closed where a rod stops (:func:`rest_friction`); without it the
     draws come from ``friction_initial`` (reproducible, for callers without a generator).
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine's model.
+    time : numpy.ndarray
+        Sample times, s, shape (n,).
+    q, qd, qdd : numpy.ndarray
+        Angles (rad), rates (rad/s) and accelerations (rad/s²) of boom, dipper, bucket
+        (relative) and slew, shape (n, 4).
+    tilt : numpy.ndarray
+        Ground tilt (pitch, roll), rad, shape (2,) or (n, 2).
+    payload : numpy.ndarray
+        Payload mass, kg, per sample (or a scalar).
+    friction_initial : numpy.ndarray
+        Presliding state of each cylinder at the start, in [-1, 1], shape (3,).
+    rng : numpy.random.Generator, optional
+        Stream of the valve-closing draws.
+
+    Returns
+    -------
+    dict of str to numpy.ndarray
+        ``tau`` (N·m, (n, 4)), cylinder ``load``, ``friction`` (N), ``head`` and ``rod``
+        pressures (Pa), ``lengths`` (m), ``speeds`` (m/s), all (n, 3), and house
+        ``inclination`` (rad, (n, 2)).
     """
     tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
     sig = arm.motion_signals(q, qd, qdd, tilt, payload)
@@ -150,7 +247,35 @@ def _truth_columns(q, qd, qdd, physics) -> dict[str, np.ndarray]:
 def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payload: float,
                     noise: MachineNoise, offsets: dict, rng: np.random.Generator,
                     with_truth: bool) -> pd.DataFrame:
-    """Rows of one experiment in the machine sensor set's columns (+ truth columns)."""
+    """Rows of one experiment in the machine sensor set's columns (+ truth columns).
+
+    Parameters
+    ----------
+    experiment : int
+        Experiment number written into the ``experiment`` column.
+    time : numpy.ndarray
+        Sample times, s, shape (n,).
+    q, qd, qdd : numpy.ndarray
+        True angles (rad), rates (rad/s) and accelerations (rad/s²) of boom, dipper, bucket
+        (relative) and slew, shape (n, 4).
+    physics : dict
+        The motion's true signals, as :func:`motion_physics` returns them.
+    payload : float
+        Payload mass, kg, written into the ``payload`` column.
+    noise : MachineNoise
+        Sensor noise preset.
+    offsets : dict
+        The session's sensor offsets, SI units (:func:`session_offsets`).
+    rng : numpy.random.Generator
+        The experiment's noise stream.
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The rows, in the machine sensor set's column order.
+    """
     truth = _truth_columns(q, qd, qdd, physics)
     measured = measure(truth, time, qdd, noise, offsets, rng)
     data = {"experiment": np.full(len(time), int(experiment), dtype=np.int64), "time": time}
@@ -171,6 +296,12 @@ def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payl
 
 def sample_times(duration: float) -> np.ndarray:
     """Sample times (s) from 0 to ``duration`` s inclusive at the machine sensor set's
-    :data:`SAMPLE_RATE` (Hz)."""
+    :data:`SAMPLE_RATE` (Hz).
+
+    Parameters
+    ----------
+    duration : float
+        Duration of the experiment, s.
+    """
     n = int(math.floor(duration * SAMPLE_RATE + 1e-9)) + 1
     return np.arange(n) / SAMPLE_RATE

@@ -89,7 +89,38 @@ def simulate_nmpc_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: M
                              offsets: dict, with_truth: bool,
                              payload_override: float | None = None) -> tuple[pd.DataFrame, dict]:
     """NMPC swing ``k``: from a digging pose to a dumping pose while slewing 30-120°, 10 s.
-    ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``)."""
+    ``payload_override`` (kg): this mass instead of the drawn one (``simulate --payload``).
+
+    Parameters
+    ----------
+    k : int
+        Experiment number; motion and noise come from the streams of ``(seed, k)``.
+    seed : int
+        Base seed of the run.
+    arm : HydraulicArmModel
+        The machine's model.
+    noise : MachineNoise
+        Sensor noise preset.
+    offsets : dict
+        The session's sensor offsets, SI units (:func:`session_offsets`).
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+    payload_override : float, optional
+        Mass in the bucket, kg, instead of the drawn one.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+
+    Raises
+    ------
+    ValueError
+        If no swing within the relief pressure and the pumps' speed was found in
+        ``MAX_ATTEMPTS`` draws.
+    """
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
     valves = closing_rng(seed, k)
@@ -158,7 +189,43 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
     """Rows and metadata of generated experiment ``k`` (redrawn until within the relief pressure).
     ``draw_motion(k, rng, arm)`` plans the motion called ``motion``; ``any_peak``: keep the first
     draw whatever its peak (the calibration lifts). ``payload_override`` (kg): this mass instead
-    of the drawn one (``simulate --payload``)."""
+    of the drawn one (``simulate --payload``).
+
+    Parameters
+    ----------
+    k : int
+        Experiment number; motion and noise come from the streams of ``(seed, k)``.
+    seed : int
+        Base seed of the run.
+    arm : HydraulicArmModel
+        The machine's model.
+    noise : MachineNoise
+        Sensor noise preset.
+    offsets : dict
+        The session's sensor offsets, SI units (:func:`session_offsets`).
+    motion : str
+        Name of the motion family, written into the metadata.
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+    payload_override : float, optional
+        Mass in the bucket, kg, instead of the drawn one.
+    draw_motion : callable
+        ``draw_motion(k, rng, arm) -> Motion`` plans one candidate motion.
+    any_peak : bool
+        Keep the first draw whatever its peak pressure.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+
+    Raises
+    ------
+    ValueError
+        If no draw stayed within the relief pressure in ``MAX_ATTEMPTS`` draws.
+    """
     machine = arm.machine
     motion_rng, noise_rng = machine_rngs(seed, k)
     relief = machine.hydraulics.relief_pressure
@@ -184,7 +251,13 @@ def simulate_motion_experiment(k: int, seed: int, arm: HydraulicArmModel, noise:
 
 
 def default_truck_target(machine) -> float:
-    """Truck target (kg) of ``--motion shift`` without ``--truck-target``: 4 passes at 90 % of rated."""
+    """Truck target (kg) of ``--motion shift`` without ``--truck-target``: 4 passes at 90 % of rated.
+
+    Parameters
+    ----------
+    machine : HydraulicMachine
+        The machine (its rated payload, kg).
+    """
     return 4 * 0.9 * float(machine.rated_payload)
 
 
@@ -197,6 +270,35 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
     column (and the metadata's ``payload``) is the truck's true load; the mass in the bucket
     over time is in the metadata's ``passes``: each pass's true fill (kg) and times (s),
     ``fill`` (the load enters, linearly) and ``release`` (it leaves, linearly).
+
+    Parameters
+    ----------
+    k : int
+        Experiment number; motion and noise come from the streams of ``(seed, k)``.
+    seed : int
+        Base seed of the run.
+    arm : HydraulicArmModel
+        The machine's model.
+    noise : MachineNoise
+        Sensor noise preset.
+    offsets : dict
+        The session's sensor offsets, SI units (:func:`session_offsets`).
+    truck_target : float
+        Load the truck aims at, kg.
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+
+    Raises
+    ------
+    ValueError
+        If no truck within the relief pressure was found in ``MAX_ATTEMPTS`` draws.
     """
     motion_rng, noise_rng = machine_rngs(seed, k)
     plan, time, (q, qd, qdd), physics, peak, attempt = _within_relief(
@@ -224,40 +326,145 @@ def _generated(spec, k: int, draw_motion, any_peak: bool = False) -> tuple[pd.Da
 
 
 def swing_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Swing ``experiment`` of the run ``spec`` (:func:`~.machine_motions.swing_motion`)."""
+    """Swing ``experiment`` of the run ``spec`` (:func:`~.machine_motions.swing_motion`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     return _generated(spec, experiment, lambda k, rng, arm: mm.swing_motion(rng, arm))
 
 
 def work_cycle_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Work cycle ``experiment`` of the run ``spec`` (:func:`~.machine_motions.work_cycle_motion`)."""
+    """Work cycle ``experiment`` of the run ``spec`` (:func:`~.machine_motions.work_cycle_motion`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     return _generated(spec, experiment, lambda k, rng, arm: mm.work_cycle_motion(rng, arm))
 
 
 def slopes_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Work cycle ``experiment`` of the run ``spec`` on a drawn slope."""
+    """Work cycle ``experiment`` of the run ``spec`` on a drawn slope.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     return _generated(spec, experiment,
                       lambda k, rng, arm: mm.work_cycle_motion(rng, arm, tilt=mm.slope_tilt(rng)))
 
 
 def lifts_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Calibration lift ``experiment`` of the run ``spec`` (:func:`~.machine_motions.lift_motion`)."""
+    """Calibration lift ``experiment`` of the run ``spec`` (:func:`~.machine_motions.lift_motion`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     return _generated(spec, experiment, lambda k, rng, arm: mm.lift_motion(k, arm.machine), any_peak=True)
 
 
 def operator_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Operator-like lift and slew ``experiment`` of the run ``spec``."""
+    """Operator-like lift and slew ``experiment`` of the run ``spec``.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     return _generated(spec, experiment, lambda k, rng, arm: mm.operator_motion(rng, arm))
 
 
 def nmpc_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """NMPC swing ``experiment`` of the run ``spec`` (:func:`simulate_nmpc_experiment`)."""
+    """NMPC swing ``experiment`` of the run ``spec`` (:func:`simulate_nmpc_experiment`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     return simulate_nmpc_experiment(experiment, spec.seed, arm_model(spec.machine), spec.noise,
                                     session_offsets(spec.option("session", 0), spec.noise), spec.with_truth,
                                     spec.option("payload"))
 
 
 def shift_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Truck ``experiment`` of the run ``spec`` (:func:`simulate_shift_experiment`)."""
+    """Truck ``experiment`` of the run ``spec`` (:func:`simulate_shift_experiment`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``, ``truck_target``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     target = spec.option("truck_target")
     return simulate_shift_experiment(experiment, spec.seed, arm_model(spec.machine), spec.noise,
                                      session_offsets(spec.option("session", 0), spec.noise),
@@ -266,14 +473,35 @@ def shift_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
 
 
 def machine_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
-    """Experiment ``experiment`` of the run ``spec``, by the hydraulic platform's motion table."""
+    """Experiment ``experiment`` of the run ``spec``, by the hydraulic platform's motion table.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``, and the motion's own).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, poses in rad, peak pressure in Pa, draws, …).
+    """
     module, _, name = HYDRAULIC.motion(spec.motion).experiment.partition(":")
     return getattr(importlib.import_module(module), name)(spec, experiment)
 
 
 def dataset_meta(spec) -> dict:
     """File metadata a hydraulic run adds (:meth:`HydraulicPlatform.run_meta
-    <excavator_payload.platforms.hydraulic.HydraulicPlatform.run_meta>`)."""
+    <excavator_payload.platforms.hydraulic.HydraulicPlatform.run_meta>`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The hydraulic run.
+    """
     return HYDRAULIC.run_meta(spec)
 
 
@@ -337,8 +565,43 @@ def simulate_machine_to_file(out, n_experiments: int, seed: int = 0, session: in
                              progress: bool = True, **execution) -> Dataset:
     """Simulate and write a dataset (Parquet, atomic); an interrupted run resumes.
 
-    A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_to_file`;
-    parameters as :func:`simulate_machine_dataset`.
+    A convenience wrapper of :func:`excavator_payload.simulation.generate.simulate_to_file`.
+
+    Parameters
+    ----------
+    out : str or Path
+        The dataset file to write; finished chunks wait in ``<out>.partial/``.
+    n_experiments : int
+        Number of experiments (with a trajectory: at most that many of its experiments).
+    seed, session : int
+        Motions and noise from ``seed``; sensor offsets from ``session``.
+    machine : HydraulicMachine or str
+        A hydraulic machine, preset name or TOML file.
+    noise : str
+        ``field`` or ``none``.
+    motion : str, optional
+        Motion family (default ``swing``), as for :func:`simulate_machine_dataset`.
+    with_truth : bool
+        Add the ``true_*`` columns.
+    workers : int, optional
+        Worker processes (None: all cores); the data do not depend on it.
+    trajectory : str, Path or Trajectory, optional
+        Prescribed motions for ``motion="trajectory"`` (see :mod:`.trajectory`).
+    progress : bool
+        Show a progress bar.
+    **execution
+        Passed on to :func:`~excavator_payload.simulation.generate.simulate_to_file`
+        (e.g. ``scheduler``, ``execution``, ``payload``).
+
+    Returns
+    -------
+    Dataset
+        The written dataset.
+
+    Raises
+    ------
+    MachineError
+        If ``machine`` is not a hydraulic machine.
     """
     from excavator_payload.model.machine import load_machine
     from excavator_payload.simulation.generate import simulate_to_file

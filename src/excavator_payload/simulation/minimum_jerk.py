@@ -21,7 +21,22 @@ from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
 
 
 def minimum_jerk(q0: np.ndarray, q1: np.ndarray, t: np.ndarray, move_time: float):
-    """Angle, rate and acceleration of a minimum-jerk move from q0 to q1 (rest to rest)."""
+    """Angle, rate and acceleration of a minimum-jerk move from q0 to q1 (rest to rest).
+
+    Parameters
+    ----------
+    q0, q1 : numpy.ndarray
+        Start and end joint angles, rad, shape (n_joints,).
+    t : numpy.ndarray
+        Sample times, s, shape (n_samples,); after ``move_time`` the joints rest at ``q1``.
+    move_time : float
+        Duration of the move, s.
+
+    Returns
+    -------
+    pos, vel, acc : numpy.ndarray
+        Angles (rad), rates (rad/s) and accelerations (rad/s²), shape (n_samples, n_joints).
+    """
     s = np.clip(t / move_time, 0.0, 1.0)[:, None]
     d = (np.asarray(q1) - np.asarray(q0))[None, :]
     pos = np.asarray(q0)[None, :] + d * (10 * s**3 - 15 * s**4 + 6 * s**5)
@@ -50,7 +65,19 @@ def _arm(machine: Machine) -> ArmModel:
 def minimum_jerk_experiment(spec: RunSpec, experiment: int) -> tuple[pd.DataFrame, dict]:
     """Rows and metadata of minimum-jerk experiment ``experiment`` of the run ``spec``.
 
-    ``spec.options`` may set ``move_time`` (range of the move durations, s).
+    Parameters
+    ----------
+    spec : RunSpec
+        The run; ``spec.options`` may set ``move_time`` (range of the move durations, s).
+    experiment : int
+        Experiment number.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its scenario, the drawn ``move_time`` (s) and ``status``.
     """
     machine = spec.machine
     move_time = tuple(spec.option("move_time", MOVE_TIME))
@@ -69,7 +96,31 @@ def simulate_minimum_jerk(n_experiments: int, seed: int = 0, machine: Machine | 
                           noise: str | NoisePreset = "thesis", with_truth: bool = False,
                           move_time: tuple[float, float] = MOVE_TIME,
                           first_experiment: int = 0) -> Dataset:
-    """Dataset of minimum-jerk swings between the thesis' random start and target poses."""
+    """Dataset of minimum-jerk swings between the thesis' random start and target poses.
+
+    Parameters
+    ----------
+    n_experiments : int
+        Number of experiments.
+    seed : int
+        Base seed (same seed, same data).
+    machine : Machine or str
+        Machine, or a preset name or TOML file for :func:`load_machine`.
+    noise : str or NoisePreset
+        Sensor noise preset or its name.
+    with_truth : bool
+        Also store the noise-free ``true_*`` columns.
+    move_time : tuple of float
+        Range (low, high) the move duration of each experiment is drawn from, s.
+    first_experiment : int
+        Number of the first experiment (experiments ``first_experiment`` …
+        ``first_experiment + n_experiments - 1`` are simulated).
+
+    Returns
+    -------
+    Dataset
+        The rows of all experiments and their metadata.
+    """
     machine = load_machine(machine)
     preset = get_noise_preset(noise)
     spec = RunSpec("minimum-jerk", int(seed), machine, preset, bool(with_truth),

@@ -95,7 +95,36 @@ class ControlFailure(RuntimeError):
 
 @dataclass
 class NMPCSettings:
-    """Tunable settings of :class:`NMPCController` (defaults: see the module docstring)."""
+    """Tunable settings of :class:`NMPCController` (defaults: see the module docstring).
+
+    Parameters
+    ----------
+    control_period : float
+        Control period :math:`T_s`, s; the inputs are held over it.
+    horizon : float
+        Prediction horizon :math:`T_p`, s (a whole number of control periods).
+    terminal_weight : tuple of float
+        Diagonal of the terminal weight :math:`P` on the error of (boom, dipper angle, rad;
+        boom, dipper rate, rad/s).
+    angle_weight : float
+        Stage weight :math:`Q` on each angle error, per second of horizon (1/(rad²·s)).
+    input_rate_weight : float
+        Weight R_Δ on each torque change, in units of the torque limit.
+    rate_weight : float
+        Stage weight :math:`Q_v` on each joint rate, per second of horizon.
+    model_substeps : int
+        RK4 steps per control interval in the prediction model.
+    sqp_iterations : int
+        SQP iterations per (warm-started) control step.
+    cold_iterations : int
+        SQP iterations of the first control step of an experiment.
+    max_defect : float
+        Largest shooting defect (rad or rad/s) accepted before falling back to IPOPT.
+    jit : bool
+        Compile the interval model and its Jacobian to C when a C compiler exists.
+    extra : dict
+        Further options of CasADi's ``sqpmethod``, passed as they are.
+    """
 
     control_period: float = CONTROL_PERIOD
     horizon: float = HORIZON
@@ -113,7 +142,17 @@ class NMPCSettings:
 
 @dataclass
 class SolveRecord:
-    """Outcome of one control step."""
+    """Outcome of one control step.
+
+    Parameters
+    ----------
+    seconds : float
+        Wall time of the step, s.
+    status : str
+        Solver return status (``ipopt:``-prefixed after a fallback).
+    fallback : bool
+        Whether the IPOPT fallback was used.
+    """
 
     seconds: float
     status: str
@@ -128,6 +167,7 @@ class NMPCController:
     arm : ArmModel
         Model of the controlled machine (the controller knows the payload, as the thesis).
     settings : NMPCSettings, optional
+        Tuning of the controller; default :class:`NMPCSettings`.
     """
 
     def __init__(self, arm: ArmModel, settings: NMPCSettings | None = None):
@@ -214,7 +254,17 @@ class NMPCController:
     # -- state of the controller -----------------------------------------------------------
     def reset(self, state: np.ndarray, target: np.ndarray, payload: float) -> None:
         """Start a new experiment: rest at ``state``, reach ``target``; the first guess is
-        the gravity-holding torque at the start, constant, with the arm standing still."""
+        the gravity-holding torque at the start, constant, with the arm standing still.
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            Start state ``[q1, q2, q1dot, q2dot]`` (rad, rad/s).
+        target : numpy.ndarray
+            Target (boom, dipper) angles, rad.
+        payload : float
+            Payload mass, kg (known to the controller).
+        """
         N = self.n_intervals
         state = np.asarray(state, dtype=float)
         hold = self.arm.gravity_torque(state[:2], payload) / self.limits
@@ -238,6 +288,16 @@ class NMPCController:
 
     def control(self, state: np.ndarray) -> np.ndarray:
         """The torques (N·m) to apply for the next control period from ``state``.
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            Measured state ``[q1, q2, q1dot, q2dot]`` (rad, rad/s).
+
+        Returns
+        -------
+        numpy.ndarray
+            Boom and dipper torques, N·m, shape (2,).
 
         Raises
         ------
@@ -300,7 +360,21 @@ REST_RATE = np.pi / 180.0  # 1°/s
 
 @dataclass
 class ExperimentResult:
-    """True signals of one simulated experiment at the sample instants, and how it went."""
+    """True signals of one simulated experiment at the sample instants, and how it went.
+
+    Parameters
+    ----------
+    time : numpy.ndarray
+        Sample times, s, shape (n,).
+    q, qd : numpy.ndarray
+        Boom and dipper angles (rad) and rates (rad/s), shape (n, 2).
+    qdd : numpy.ndarray
+        Accelerations from the dynamics under the applied torque, rad/s², shape (n, 2).
+    tau : numpy.ndarray
+        Torque applied from each instant on (zero-order hold), N·m, shape (n, 2).
+    info : dict
+        Final error, reached, settle time, solver status, fallbacks, solve times.
+    """
 
     time: np.ndarray  # (n,) s
     q: np.ndarray  # (n, 2) rad
@@ -318,6 +392,17 @@ class NMPCSimulator:
     torque recorded at a sample instant is the one applied from that instant on, and the
     acceleration is the dynamics' q̈ under that torque, so every sample satisfies the inverse
     dynamics exactly.
+
+    Parameters
+    ----------
+    arm : ArmModel
+        Model of the machine (controller and plant).
+    settings : NMPCSettings, optional
+        Tuning of the controller; default :class:`NMPCSettings`.
+    sample_period : float
+        Sensor sample period, s; the control period must be a whole multiple of it.
+    duration : float
+        Length of an experiment, s.
     """
 
     def __init__(self, arm: ArmModel, settings: NMPCSettings | None = None,
@@ -336,6 +421,20 @@ class NMPCSimulator:
 
     def run(self, start_pose, target_pose, payload: float) -> ExperimentResult:
         """Simulate one experiment from rest at ``start_pose`` (rad) towards ``target_pose``.
+
+        Parameters
+        ----------
+        start_pose : sequence of float
+            Start (boom, dipper) angles, rad; the arm starts at rest.
+        target_pose : sequence of float
+            Target (boom, dipper) angles, rad.
+        payload : float
+            Payload mass, kg.
+
+        Returns
+        -------
+        ExperimentResult
+            The true signals at the sample times and a summary of the run.
 
         Raises
         ------

@@ -31,7 +31,26 @@ PLANT_SUBSTEP = 0.0025
 
 
 def rk4_step(f: ca.Function, x, u, payload, h: float):
-    """One classical RK4 step of ``xdot = f(x, u, payload)`` of length ``h`` (symbolic or numeric)."""
+    """One classical RK4 step of ``xdot = f(x, u, payload)`` of length ``h`` (symbolic or numeric).
+
+    Parameters
+    ----------
+    f : casadi.Function
+        Right-hand side ``(x, u, payload) -> xdot``.
+    x : casadi.SX or numpy.ndarray
+        State at the start of the step, ``[q1, q2, q1dot, q2dot]`` (rad, rad/s).
+    u : casadi.SX or numpy.ndarray
+        Joint torques held over the step, N·m.
+    payload : casadi.SX or float
+        Payload mass, kg.
+    h : float
+        Step length, s.
+
+    Returns
+    -------
+    casadi.SX or casadi.DM
+        State at the end of the step.
+    """
     k1 = f(x, u, payload)
     k2 = f(x + h / 2 * k1, u, payload)
     k3 = f(x + h / 2 * k2, u, payload)
@@ -40,7 +59,24 @@ def rk4_step(f: ca.Function, x, u, payload, h: float):
 
 
 def rk4_interval(arm: ArmModel, duration: float, substeps: int, name: str = "rk4_interval") -> ca.Function:
-    """CasADi function ``(x, u, payload) -> x(t + duration)`` by ``substeps`` RK4 steps, u held."""
+    """CasADi function ``(x, u, payload) -> x(t + duration)`` by ``substeps`` RK4 steps, u held.
+
+    Parameters
+    ----------
+    arm : ArmModel
+        The arm whose ``state_derivative`` is integrated.
+    duration : float
+        Length of the interval, s.
+    substeps : int
+        Number of equal RK4 steps over the interval.
+    name : str
+        Name of the CasADi function.
+
+    Returns
+    -------
+    casadi.Function
+        ``(x, u, payload) -> xf``.
+    """
     f = arm.casadi_function("state_derivative")
     x = ca.SX.sym("x", 4)
     u = ca.SX.sym("u", 2)
@@ -54,7 +90,22 @@ def rk4_interval(arm: ArmModel, duration: float, substeps: int, name: str = "rk4
 
 def cvodes_integrator(arm: ArmModel, duration: float, reltol: float = 1e-10,
                       abstol: float = 1e-10) -> ca.Function:
-    """CasADi CVODES integrator over ``duration`` with ``p = [u1, u2, payload]`` held constant."""
+    """CasADi CVODES integrator over ``duration`` with ``p = [u1, u2, payload]`` held constant.
+
+    Parameters
+    ----------
+    arm : ArmModel
+        The arm whose ``state_derivative`` is integrated.
+    duration : float
+        Length of the interval, s.
+    reltol, abstol : float
+        Relative and absolute tolerances of CVODES.
+
+    Returns
+    -------
+    casadi.Function
+        The integrator (inputs ``x0`` and ``p``, output ``xf`` among others).
+    """
     f = arm.casadi_function("state_derivative")
     x = ca.SX.sym("x", 4)
     p = ca.SX.sym("p", 3)
@@ -85,9 +136,39 @@ class Plant:
         self._xdot = arm.casadi_function("state_derivative")
 
     def step(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
-        """State after one sample period with ``torque`` held constant."""
+        """State after one sample period with ``torque`` held constant.
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            State ``[q1, q2, q1dot, q2dot]`` (rad, rad/s) at the start of the period.
+        torque : numpy.ndarray
+            Boom and dipper torques, N·m, held over the period.
+        payload : float
+            Payload mass, kg.
+
+        Returns
+        -------
+        numpy.ndarray
+            State after :attr:`sample_period`, shape (4,).
+        """
         return np.asarray(self._step(state, torque, payload)).ravel()
 
     def acceleration(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
-        """True joint accelerations q̈ = M⁻¹(τ − h) at ``state`` under ``torque``, rad/s²."""
+        """True joint accelerations q̈ = M⁻¹(τ − h) at ``state`` under ``torque``, rad/s².
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            State ``[q1, q2, q1dot, q2dot]`` (rad, rad/s).
+        torque : numpy.ndarray
+            Boom and dipper torques, N·m.
+        payload : float
+            Payload mass, kg.
+
+        Returns
+        -------
+        numpy.ndarray
+            Boom and dipper accelerations, rad/s², shape (2,).
+        """
         return np.asarray(self._xdot(state, torque, payload)).ravel()[2:]

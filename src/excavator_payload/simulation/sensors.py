@@ -27,6 +27,21 @@ from excavator_payload.platforms.thesis import (  # noqa: F401
 
 
 def add_noise(truth: np.ndarray, preset: NoisePreset, rng: np.random.Generator) -> np.ndarray:
-    """Measured signals = truth + white Gaussian noise; ``truth`` is (n_samples, 8) in SIGNALS order."""
+    """Measured signals = truth + white Gaussian noise.
+
+    Parameters
+    ----------
+    truth : numpy.ndarray
+        True signals, shape (n_samples, 8), columns in ``SIGNALS`` order, SI units.
+    preset : NoisePreset
+        Standard deviation of the noise of each signal.
+    rng : numpy.random.Generator
+        Source of the noise.
+
+    Returns
+    -------
+    numpy.ndarray
+        Measured signals, same shape as ``truth``.
+    """
     std = preset.std_vector()
     return truth + rng.standard_normal(truth.shape) * std

@@ -53,7 +53,23 @@ ANGLE_COLUMNS = ("boom_angle", "dipper_angle", "bucket_angle", "slew_angle")
 
 @dataclass
 class Trajectory:
-    """Prescribed motions: ``experiments`` is a list of (experiment number, its rows)."""
+    """Prescribed motions: ``experiments`` is a list of (experiment number, its rows).
+
+    Parameters
+    ----------
+    source : str
+        Where the motions come from (file name), for messages.
+    digest : str
+        Content hash of the motions (cache keys, checkpoint settings).
+    experiments : list of (int, pandas.DataFrame)
+        Each experiment's number and its rows (trajectory columns, SI units).
+    ignored : tuple of str
+        Columns of the file that are no trajectory column (reported, not used).
+    smoothed : float
+        Width of the Gaussian filter applied (``--smooth``), s; 0 for none.
+    warnings : tuple of str
+        What :func:`check_trajectory_motion` let through with a warning, one line each.
+    """
 
     source: str
     digest: str
@@ -89,7 +105,26 @@ RANGE_SLACK = np.radians(1.0)
 
 
 def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Trajectory:
-    """Check a trajectory table and split it into experiments (one-line errors)."""
+    """Check a trajectory table and split it into experiments (one-line errors).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        One row per sample with the trajectory columns (module docstring).
+    source : str
+        Name of the table's origin, used in messages and kept in the result.
+
+    Returns
+    -------
+    Trajectory
+        The experiments, in the order they first appear.
+
+    Raises
+    ------
+    DatasetError
+        A missing, misspelt, non-numeric or non-finite column, values out of range or in the
+        wrong unit, or an experiment with too few or unordered samples.
+    """
     from excavator_payload.data.io import HOUSE_TILT_LIMIT
     from excavator_payload.model.machine import MAX_PAYLOAD
 
@@ -157,6 +192,23 @@ def smooth_trajectory(trajectory: Trajectory, seconds: float) -> Trajectory:
     and held between its samples) has a spline through every step: accelerations of hundreds
     of rad/s² that no arm makes. The filter keeps the motion (no lag) and removes the steps;
     tilt is interpolated linearly, the payload kept.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+        The motions to filter.
+    seconds : float
+        Filter width, s (the kernel's standard deviation is half of it); in (0, 10].
+
+    Returns
+    -------
+    Trajectory
+        The filtered motions sampled at :data:`SAMPLE_RATE`, with a new digest.
+
+    Raises
+    ------
+    DatasetError
+        If ``seconds`` is not a time in (0, 10] s.
     """
     from scipy.ndimage import gaussian_filter1d
 
@@ -181,7 +233,23 @@ def smooth_trajectory(trajectory: Trajectory, seconds: float) -> Trajectory:
 
 
 def read_trajectory(path: str | Path) -> Trajectory:
-    """Read and check a trajectory file (Parquet; a CSV is refused with a line saying so)."""
+    """Read and check a trajectory file (Parquet; a CSV is refused with a line saying so).
+
+    Parameters
+    ----------
+    path : str or Path
+        The Parquet trajectory file.
+
+    Returns
+    -------
+    Trajectory
+        Its experiments (see :func:`trajectory_from_frame`).
+
+    Raises
+    ------
+    DatasetError
+        If the file is missing, a folder, not Parquet or not a valid trajectory.
+    """
     path = Path(path)
     if path.is_dir():
         raise DatasetError(f"trajectory file '{path}' is a folder; give a Parquet file")
@@ -234,6 +302,26 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
 
     The replay would push such a motion through the model and give absurd pressures (and a
     message about pressures in the wrong unit); checked once, before any experiment is simulated.
+
+    Parameters
+    ----------
+    trajectory : Trajectory
+        The motions to check.
+    machine : HydraulicMachine
+        The machine that would replay them.
+    allow_overspeed : bool
+        Let a motion up to :data:`MAX_SPEED_SHARE` times faster than the pumps through, with a
+        warning, instead of refusing it.
+
+    Returns
+    -------
+    list of str
+        One warning line per experiment let through by ``allow_overspeed``.
+
+    Raises
+    ------
+    DatasetError
+        For the first motion the machine cannot make, with the reason.
     """
 
     arm = arm_model(machine)
@@ -301,7 +389,25 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
 
 
 def interpolate(rows: pd.DataFrame, sample_rate: float):
-    """Time grid at ``sample_rate`` and (q, q̇, q̈) (n, 4), tilt (n, 2) by cubic splines."""
+    """Time grid at ``sample_rate`` and (q, q̇, q̈) (n, 4), tilt (n, 2) by cubic splines.
+
+    Parameters
+    ----------
+    rows : pandas.DataFrame
+        One experiment's rows (``time`` in s, angles in rad, optional ground tilt in rad).
+    sample_rate : float
+        Rate of the output grid, Hz.
+
+    Returns
+    -------
+    time : numpy.ndarray
+        Sample times from the first recorded time, s, shape (n,).
+    q, qd, qdd : numpy.ndarray
+        Angles (rad), rates (rad/s) and accelerations (rad/s²) of boom, dipper, bucket and
+        slew, shape (n, 4).
+    tilt : numpy.ndarray
+        Ground (pitch, roll), rad, interpolated linearly (0 where absent), shape (n, 2).
+    """
     from scipy.interpolate import CubicSpline
 
     t = rows["time"].to_numpy(dtype=float)
@@ -318,7 +424,37 @@ def interpolate(rows: pd.DataFrame, sample_rate: float):
 
 def simulate_trajectory_experiment(position: int, seed: int, arm, noise, offsets, trajectory: Trajectory,
                                    with_truth: bool):
-    """Rows and metadata of the trajectory's experiment at ``position`` (numbered as in the file)."""
+    """Rows and metadata of the trajectory's experiment at ``position`` (numbered as in the file).
+
+    Parameters
+    ----------
+    position : int
+        Index into ``trajectory.experiments``.
+    seed : int
+        Base seed; noise and valve draws come from the streams of ``(seed, experiment number)``.
+    arm : HydraulicArmModel
+        The machine's model.
+    noise : MachineNoise
+        Sensor noise preset.
+    offsets : dict
+        The session's sensor offsets, SI units.
+    trajectory : Trajectory
+        The motions to replay.
+    with_truth : bool
+        Also add the noise-free ``true_*`` columns.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, peak pressure in Pa, speed share, passes of a changing load).
+
+    Raises
+    ------
+    ValueError
+        If the bucket angle leaves the range where the bucket linkage closes.
+    """
     from excavator_payload.simulation.machine_motions import speed_share
 
     exp_id, rows = trajectory.experiments[position]
@@ -360,7 +496,21 @@ def payload_passes(time: np.ndarray, load: np.ndarray) -> list[dict]:
     its largest value (kg); ``fill`` is from its rise to :data:`PLATEAU_SHARE` of that, ``release``
     from the last time there to its return to 0 (s, the experiment's time), as ``--motion
     shift``'s metadata has them (``loadout`` reports against them). A load that rises from 0
-    and never comes back is one pass without a release end: the experiment's end is used."""
+    and never comes back is one pass without a release end: the experiment's end is used.
+
+    Parameters
+    ----------
+    time : numpy.ndarray
+        Sample times, s, shape (n,).
+    load : numpy.ndarray
+        Mass in the bucket at each sample, kg, shape (n,).
+
+    Returns
+    -------
+    list of dict
+        Per pass: ``pass`` (from 1), ``payload`` (kg), ``fill`` and ``release`` windows and
+        ``start`` / ``end`` (s).
+    """
     above = np.r_[False, load > 0, False]
     edges = np.flatnonzero(np.diff(above.astype(int)))
     passes = []
