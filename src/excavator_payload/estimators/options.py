@@ -19,7 +19,7 @@ class Option:
     default : Any
         Value when the option is not given.
     help : str
-        One-line help shown by ``excavator-payload estimators``.
+        One-line help text shown on the command line.
     choices : tuple or None
         Allowed values (None: any).
     """

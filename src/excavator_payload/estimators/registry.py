@@ -79,7 +79,7 @@ def create_estimator(name: str, machine: Machine | str | None = None, **options:
     name : str
         Command-line name of the estimator (e.g. ``ekf``).
     machine : Machine, str or None
-        Machine the estimator believes in: object, preset name or TOML file (None: the data's).
+        Machine the estimator believes in: object, preset name or TOML file (None: ``cat345c`` where one is needed).
     **options
         The estimator's options (see its ``OPTIONS``).
     """

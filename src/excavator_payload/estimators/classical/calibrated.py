@@ -134,7 +134,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     Parameters
     ----------
     machine : Machine, str or None
-        The machine model the estimator believes in (preset name or file; None: the data's).
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
     **options
         Estimator options, see the class attribute ``OPTIONS``.
     """

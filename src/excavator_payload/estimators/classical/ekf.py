@@ -83,7 +83,7 @@ class KalmanEstimatorBase(Estimator):
     Parameters
     ----------
     machine : Machine, str or None
-        The machine model the estimator believes in (preset name or file; None: the data's).
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
     **options
         Estimator options, see the class attribute ``OPTIONS``.
     """

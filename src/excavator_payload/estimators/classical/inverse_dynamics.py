@@ -151,7 +151,7 @@ def base_parameters(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     tuple of numpy.ndarray
-        ``(theta_0, theta_1)``, lengths 7 and 5 (SI: kg·m², kg·m).
+        ``(theta_0, theta_1)``, lengths 7 and 5, SI units (as in the formulas above).
     """
     return ArmModel(machine).base_parameters()
 
@@ -532,7 +532,7 @@ class InverseDynamicsEstimator(Estimator):
     Parameters
     ----------
     machine : Machine, str or None
-        The machine model the estimator believes in (preset name or file; None: the data's).
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
     **options
         Estimator options, see the class attribute ``OPTIONS``.
     """

@@ -662,7 +662,7 @@ class NeuralEstimator(Estimator):
     Parameters
     ----------
     machine : Machine, str or None
-        Not needed by a network (limits come from the data's machine); kept for the protocol.
+        Optional: a network needs none (its plausibility limits then come from the data's machine).
     **options
         Estimator options, see the class attribute ``OPTIONS``.
     """

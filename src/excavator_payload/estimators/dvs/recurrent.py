@@ -665,7 +665,7 @@ class RecurrentNetwork(NeuralEstimator):
     Parameters
     ----------
     machine : Machine, str or None
-        Not needed by a network; kept for the protocol.
+        Optional: a network needs none (its plausibility limits then come from the data's machine).
     **options
         Estimator options, see the class attribute ``OPTIONS``.
     """

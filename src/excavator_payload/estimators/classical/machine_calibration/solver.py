@@ -330,7 +330,7 @@ class MachineCalibration:
         speed : numpy.ndarray
             Rod speeds (n, 3), m/s.
         stiction : numpy.ndarray
-            Breakaway force of each cylinder (n, 3), N.
+            Stiction (breakaway) torque of each cylinder on its joint (n, 3), N·m.
         low_speed : str
             One of :data:`LOW_SPEED_CHOICES`.
         pressure_std : float
