@@ -324,7 +324,18 @@ class Estimator(ABC):
 
     # -- protocol --------------------------------------------------------------------------
     def fit(self, dataset: Dataset) -> "Estimator":
-        """Fit to ``dataset`` and return ``self``."""
+        """Fit to ``dataset`` and return ``self``.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Training / calibration data on a sensor set in :attr:`SENSOR_SETS`.
+
+        Returns
+        -------
+        Estimator
+            ``self``, fitted.
+        """
         self.sensor_set = self._check_sensor_set(dataset)
         self.fit_warnings = []
         self.fit_refusals = []
@@ -411,6 +422,16 @@ class Estimator(ABC):
         """Consume one sample (a mapping with ``time`` and the signals of the sensor set).
 
         Never raises for bad data: the status says what happened (see the module docstring).
+
+        Parameters
+        ----------
+        sample : Mapping[str, float]
+            ``time`` (s) and one value per signal of the sensor set (SI units).
+
+        Returns
+        -------
+        StepResult
+            The estimate (kg), its status and sigma.
         """
         if not self.fitted:
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
@@ -426,7 +447,20 @@ class Estimator(ABC):
         return StepResult(self._last_estimate, status, self._last_sigma)
 
     def step_values(self, time: float, values: np.ndarray) -> StepResult:
-        """:meth:`step` for a sample given as ``time`` and an array in ``sensor_set.signals`` order."""
+        """:meth:`step` for a sample given as ``time`` and an array in ``sensor_set.signals`` order.
+
+        Parameters
+        ----------
+        time : float
+            Sample time, s.
+        values : numpy.ndarray
+            One value per signal, in ``sensor_set.signals`` order (SI units).
+
+        Returns
+        -------
+        StepResult
+            The estimate (kg), its status and sigma.
+        """
         if not self.fitted:
             raise EstimatorError(f"{self.name}: call fit() (or load a trained model) before step()")
         try:
@@ -530,12 +564,38 @@ class Estimator(ABC):
         """What a user should know about estimating on ``dataset`` beyond the per-sample status
         (printed by ``estimate``); ``estimates``: what :meth:`estimate` returned on it, if at
         hand. None by default (an estimator adds its own; :meth:`all_estimate_notes` adds the
-        notes every estimator shares)."""
+        notes every estimator shares).
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The data estimated on.
+        estimates : pandas.DataFrame or None
+            What :meth:`estimate` returned on ``dataset``, if at hand.
+
+        Returns
+        -------
+        list of str
+            One note per line to print.
+        """
         return []
 
     def all_estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         """The notes ``estimate`` prints: :meth:`non_finite_notes`, :meth:`out_of_range_notes`,
-        then :meth:`estimate_notes`."""
+        then :meth:`estimate_notes`.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The data estimated on.
+        estimates : pandas.DataFrame or None
+            What :meth:`estimate` returned on ``dataset``, if at hand.
+
+        Returns
+        -------
+        list of str
+            One note per line to print.
+        """
         return [*self.non_finite_notes(dataset, estimates), *self.out_of_range_notes(dataset, estimates),
                 *self.estimate_notes(dataset, estimates)]
 
@@ -543,7 +603,20 @@ class Estimator(ABC):
         """A note when more than :data:`OUT_OF_RANGE_SHARE` of the estimates are ``out_of_range``:
         which signals lie outside their plausibility limits, on how many samples, the limits and
         the values seen, and where the limits come from. The status alone left a user with a
-        machine file whose pump flow was too low guessing why 72 % of the samples were skipped."""
+        machine file whose pump flow was too low guessing why 72 % of the samples were skipped.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The data estimated on.
+        estimates : pandas.DataFrame or None
+            What :meth:`estimate` returned on ``dataset``; no note without it.
+
+        Returns
+        -------
+        list of str
+            The note, or empty.
+        """
         if (estimates is None or "status" not in estimates.columns or len(estimates) == 0
                 or self.plausible_low is None):
             return []
@@ -562,7 +635,20 @@ class Estimator(ABC):
         ``invalid_input``, ``gap`` or ``no_data`` and the estimator's input columns hold NaN or
         infinite values: which columns, how many. A sparse NaN (one every 50 samples) makes an
         estimator restart its warm-up at every one and leaves a whole dataset without an
-        estimate; the per-sample statuses alone do not say why."""
+        estimate; the per-sample statuses alone do not say why.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The data estimated on.
+        estimates : pandas.DataFrame or None
+            What :meth:`estimate` returned on ``dataset``; no note without it.
+
+        Returns
+        -------
+        list of str
+            The note, or empty.
+        """
         if estimates is None or "status" not in estimates.columns or len(estimates) == 0:
             return []
         unusable = int(estimates["status"].isin(UNUSABLE_STATUSES).sum())
@@ -586,6 +672,11 @@ class Estimator(ABC):
 
     def estimate(self, dataset: Dataset) -> pd.DataFrame:
         """Batch estimates: reset at each experiment and step through its samples.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Data with the columns of the fitted sensor set, rows grouped by experiment.
 
         Returns
         -------
@@ -623,7 +714,18 @@ class Estimator(ABC):
 
     # -- persistence -----------------------------------------------------------------------
     def save(self, directory: str | Path) -> Path:
-        """Save to ``directory`` (created): ``estimator.json`` (readable) + ``arrays.npz``."""
+        """Save to ``directory`` (created): ``estimator.json`` (readable) + ``arrays.npz``.
+
+        Parameters
+        ----------
+        directory : str or Path
+            Model folder (created if missing).
+
+        Returns
+        -------
+        Path
+            ``directory``.
+        """
         if not self.fitted:
             raise EstimatorError(f"{self.name}: nothing to save, the estimator is not fitted")
         directory = Path(directory)
@@ -658,7 +760,18 @@ class Estimator(ABC):
 
     @classmethod
     def load(cls, directory: str | Path) -> "Estimator":
-        """Load an estimator saved with :meth:`save` (any registered kind)."""
+        """Load an estimator saved with :meth:`save` (any registered kind).
+
+        Parameters
+        ----------
+        directory : str or Path
+            A model folder written by :meth:`save`.
+
+        Returns
+        -------
+        Estimator
+            The fitted estimator (of ``cls`` when called on a subclass).
+        """
         return load_estimator(directory, expected=cls if cls is not Estimator else None)
 
     def __repr__(self) -> str:

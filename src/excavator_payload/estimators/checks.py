@@ -35,7 +35,18 @@ MAX_CONSECUTIVE_REJECTIONS = 5
 
 def max_consecutive_rejections(sensor_set) -> int:
     """Rejections in a row after which an estimator on ``sensor_set`` re-initialises:
-    :data:`MAX_REJECTED_DURATION` of samples (5 at 20 Hz, 25 at 100 Hz)."""
+    :data:`MAX_REJECTED_DURATION` of samples (5 at 20 Hz, 25 at 100 Hz).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The sensor set (its ``sample_rate``, Hz).
+
+    Returns
+    -------
+    int
+        At least 1.
+    """
     return max(1, int(round(MAX_REJECTED_DURATION * sensor_set.sample_rate)))
 #: The gate widens (never narrows below 1) to ``GATE_SCALE_HEADROOM`` × the recent accepted
 #: innovations' share of the threshold, an exponential average with this weight per sample.
@@ -116,7 +127,18 @@ def sensor_margin(kind: str) -> float:
     can lie outside the true one's range, the largest over the sensor model's presets: offset
     and white noise, :data:`ANGLE_MARGIN_SIGMAS` standard deviations each (the IMU's lag is a
     convex combination of past true rates, and the pump ripple a share of the pressure itself
-    that vanishes at 0: neither adds)."""
+    that vanishes at 0: neither adds).
+
+    Parameters
+    ----------
+    kind : str
+        ``"rate"`` or ``"pressure"`` (the sensor model's field prefix).
+
+    Returns
+    -------
+    float
+        The margin, rad/s or Pa.
+    """
     from excavator_payload.simulation.machine_sensors import PRESETS
 
     return max(ANGLE_MARGIN_SIGMAS * (getattr(n, f"{kind}_offset") + getattr(n, f"{kind}_noise"))
@@ -124,7 +146,18 @@ def sensor_margin(kind: str) -> float:
 
 
 def gate_threshold(dof: int) -> float:
-    """Chi-square quantile of ``1 - GATE_PROBABILITY`` with ``dof`` degrees of freedom."""
+    """Chi-square quantile of ``1 - GATE_PROBABILITY`` with ``dof`` degrees of freedom.
+
+    Parameters
+    ----------
+    dof : int
+        Degrees of freedom of the innovation (its dimension).
+
+    Returns
+    -------
+    float
+        The threshold on the normalised innovation squared.
+    """
     if dof not in _CHI2:
         from scipy.stats import chi2
 
@@ -133,7 +166,20 @@ def gate_threshold(dof: int) -> float:
 
 
 def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple[np.ndarray, np.ndarray]:
-    """``(low, high)`` per signal of ``sensor_set`` (its order) from the tables above."""
+    """``(low, high)`` per signal of ``sensor_set`` (its order) from the tables above.
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The sensor set whose signals are limited.
+    machine : Machine or None
+        Machine file that tightens the limits (None: the sensor set's only).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(low, high)``, SI units of each signal.
+    """
     high = np.array([float(sensor_set.plausible_abs[s]) for s in sensor_set.signals])
     low = -high
     if machine is not None:

@@ -31,7 +31,20 @@ class _TrainCommand(TyperCommand):
 
 
 def parse_extra_options(args: list[str], name: str) -> dict[str, str]:
-    """``["--tuning", "thesis", "--flag"]`` -> ``{"tuning": "thesis", "flag": "true"}``."""
+    """``["--tuning", "thesis", "--flag"]`` -> ``{"tuning": "thesis", "flag": "true"}``.
+
+    Parameters
+    ----------
+    args : list of str
+        The extra command-line arguments after ``train NAME``.
+    name : str
+        Estimator name, for error messages.
+
+    Returns
+    -------
+    dict of str to str
+        Option name (underscores) -> raw text (``"true"`` for a bare flag).
+    """
     options: dict[str, str] = {}
     i = 0
     while i < len(args):
@@ -71,13 +84,30 @@ STATUS_MEANING = {
 
 
 def status_breakdown(status) -> str:
-    """``"960 ok, 50 warming_up"``: how many estimates have each status, most common first."""
+    """``"960 ok, 50 warming_up"``: how many estimates have each status, most common first.
+
+    Parameters
+    ----------
+    status : pandas.Series
+        The ``status`` column of an estimates frame.
+
+    Returns
+    -------
+    str
+        The counts, comma-separated.
+    """
     counts = status.value_counts()
     return ", ".join(f"{int(n)} {name}" for name, n in counts.items())
 
 
 def register(app: typer.Typer) -> None:
-    """Add ``train``, ``estimate`` and ``estimators`` to ``app``."""
+    """Add ``train``, ``estimate`` and ``estimators`` to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application.
+    """
 
     @app.command(cls=_TrainCommand, context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
     def train(

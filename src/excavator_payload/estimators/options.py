@@ -10,7 +10,19 @@ from excavator_payload.errors import EstimatorError
 
 @dataclass(frozen=True)
 class Option:
-    """A command-line option of an estimator (``--name value`` after ``train NAME``)."""
+    """A command-line option of an estimator (``--name value`` after ``train NAME``).
+
+    Parameters
+    ----------
+    type : type
+        Type the raw value is converted to (``bool``, ``int``, ``float``, ``str``, ``list``, ...).
+    default : Any
+        Value when the option is not given.
+    help : str
+        One-line help text shown on the command line.
+    choices : tuple or None
+        Allowed values (None: any).
+    """
 
     type: type
     default: Any
@@ -20,7 +32,20 @@ class Option:
     def parse(self, name: str, raw: Any) -> Any:
         """Convert the raw value ``raw`` of option ``name`` to the option's type (booleans from
         ``1/0/true/false/yes/no``, lists from comma-separated text) and check it is one of
-        ``choices``; :class:`EstimatorError` otherwise."""
+        ``choices``; :class:`EstimatorError` otherwise.
+
+        Parameters
+        ----------
+        name : str
+            Option name (underscores; shown as ``--name-with-dashes`` in errors).
+        raw : Any
+            Raw value, usually command-line text.
+
+        Returns
+        -------
+        Any
+            The converted value.
+        """
         try:
             if self.type is bool and isinstance(raw, str):
                 if raw.lower() not in ("1", "0", "true", "false", "yes", "no"):

@@ -42,7 +42,20 @@ def _jsonable(obj):
 
 def load_estimator(directory: str | Path, expected: type | None = None):
     """Load any saved estimator (an :class:`~excavator_payload.estimators.base.Estimator`) from
-    ``directory``; clear errors for foreign or corrupt folders."""
+    ``directory``; clear errors for foreign or corrupt folders.
+
+    Parameters
+    ----------
+    directory : str or Path
+        Model folder written by :meth:`Estimator.save`.
+    expected : type or None
+        Estimator class the folder must hold (None: any registered one).
+
+    Returns
+    -------
+    Estimator
+        The fitted estimator.
+    """
     directory = Path(directory)
     cfg_path = directory / CONFIG_FILE
     if directory.exists() and not directory.is_dir():

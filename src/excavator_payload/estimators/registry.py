@@ -19,7 +19,18 @@ _REGISTRY: dict[str, type] = {}
 
 
 def register(klass: type) -> type:
-    """Class decorator: make an estimator available by its ``name``."""
+    """Class decorator: make an estimator available by its ``name``.
+
+    Parameters
+    ----------
+    klass : type
+        An estimator class with a non-empty ``name``.
+
+    Returns
+    -------
+    type
+        ``klass`` unchanged.
+    """
     if not klass.name:
         raise TypeError(f"{klass.__name__} has no name")
     _REGISTRY[klass.name] = klass
@@ -32,7 +43,18 @@ def estimator_names() -> list[str]:
 
 
 def estimator_class(name: str) -> type:
-    """The class registered as ``name`` (importing its module on demand)."""
+    """The class registered as ``name`` (importing its module on demand).
+
+    Parameters
+    ----------
+    name : str
+        Command-line name of the estimator (e.g. ``ekf``).
+
+    Returns
+    -------
+    type
+        The estimator class; :class:`EstimatorError` for an unknown or unavailable name.
+    """
     if name not in _REGISTRY:
         module = ESTIMATOR_MODULES.get(name)
         if module is None:
@@ -50,5 +72,15 @@ def estimator_class(name: str) -> type:
 
 def create_estimator(name: str, machine: Machine | str | None = None, **options: Any) :
     """A new, unfitted estimator (an :class:`~excavator_payload.estimators.base.Estimator`) called
-    ``name`` with the given options."""
+    ``name`` with the given options.
+
+    Parameters
+    ----------
+    name : str
+        Command-line name of the estimator (e.g. ``ekf``).
+    machine : Machine, str or None
+        Machine the estimator believes in: object, preset name or TOML file (None: ``cat345c`` where one is needed).
+    **options
+        The estimator's options (see its ``OPTIONS``).
+    """
     return estimator_class(name)(machine=machine, **options)

@@ -41,7 +41,20 @@ MAX_ESTIMATE_TASKS = 200
 
 
 def estimate_task(estimator, dataset: Dataset) -> pd.DataFrame:
-    """One chunk of experiments estimated on a worker (the unit of work of the execution layer)."""
+    """One chunk of experiments estimated on a worker (the unit of work of the execution layer).
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted estimator.
+    dataset : Dataset
+        The chunk of experiments.
+
+    Returns
+    -------
+    pandas.DataFrame
+        As :meth:`Estimator.estimate`.
+    """
     return estimator.estimate(dataset)
 
 
@@ -54,6 +67,26 @@ def estimate_in_chunks(estimator, dataset: Dataset, progress: Progress | None = 
     that the rest would take more than :data:`PARALLEL_MIN_SECONDS` here, the rest is split by
     experiment into chunks that run on its workers (the estimator is sent once); the estimates
     are the same, in the same order.
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A fitted estimator.
+    dataset : Dataset
+        Data to estimate on.
+    progress : rich.progress.Progress or None
+        Progress bar to advance per experiment (None: none).
+    description : str
+        Label of the progress task.
+    chunk : int
+        Experiments per chunk.
+    execution : Execution or None
+        Execution layer to run the rest on in parallel (None: here, serially).
+
+    Returns
+    -------
+    pandas.DataFrame
+        As :meth:`Estimator.estimate`.
     """
     ids = list(dataset.experiment_ids)
     task = (progress.add_task(escape(description), total=len(ids))  # labels hold paths: not markup

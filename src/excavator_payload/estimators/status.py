@@ -35,6 +35,17 @@ class Status(str, Enum):
 class StepResult:
     """One streaming result.
 
+    Parameters
+    ----------
+    estimate : float
+        Payload, kg (NaN: none).
+    status : Status
+        What the estimate means.
+    sigma : float
+        One-sigma uncertainty, kg (NaN: unknown).
+    fault : str
+        Faulty signals and kinds, ``"signal:kind,..."`` (only with ``sensor_fault``).
+
     Attributes
     ----------
     estimate : float

@@ -74,7 +74,17 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
 
 
 def check_zero_output(model: Path, data: str | Path, out: Path) -> None:
-    """Refuse an ``--out`` that is ``--model``, inside it, the data, a file or a full folder."""
+    """Refuse an ``--out`` that is ``--model``, inside it, the data, a file or a full folder.
+
+    Parameters
+    ----------
+    model : Path
+        The calibrated model folder (``--model``).
+    data : str or Path
+        The empty-bucket data file (``--data``).
+    out : Path
+        The folder to write (``--out``).
+    """
     from excavator_payload.data.io import check_output_path
 
     if out.resolve() == Path(model).resolve():
@@ -86,7 +96,13 @@ def check_zero_output(model: Path, data: str | Path, out: Path) -> None:
 
 
 def register(app: typer.Typer) -> None:
-    """Add the ``zero`` command to ``app``."""
+    """Add the ``zero`` command to ``app``.
+
+    Parameters
+    ----------
+    app : typer.Typer
+        The command-line application.
+    """
 
     @app.command("zero")
     def zero(
@@ -120,7 +136,18 @@ def register(app: typer.Typer) -> None:
 def load_offsets(model: Path):
     """A copy of the sensor offsets of the calibrated model saved in folder ``model``, in
     ``calibrated_machine.OFFSET_SIGNALS`` order (Pa for pressures, rad for angles);
-    :class:`EstimatorError` when it is not a ``calibrated`` model of the machine sensor set."""
+    :class:`EstimatorError` when it is not a ``calibrated`` model of the machine sensor set.
+
+    Parameters
+    ----------
+    model : Path
+        Folder of a saved ``calibrated`` model.
+
+    Returns
+    -------
+    numpy.ndarray
+        The offsets, Pa or rad.
+    """
     from excavator_payload.estimators.base import load_estimator
 
     estimator = load_estimator(model)

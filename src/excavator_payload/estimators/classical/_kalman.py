@@ -117,6 +117,15 @@ class KalmanModel:
     ``f_d`` (5), ``F = ∂f_d/∂x`` (5×5), ``G = ∂f_d/∂u`` (5×2), ``h`` (6), ``H = ∂h/∂x`` (6×5)
     and the mass matrix ``M`` (2×2); see :meth:`unpack`. ``transition(x, u)`` and
     ``measurement(x, a)`` are ``f_d`` and ``h`` as CasADi functions (for building graphs).
+
+    Parameters
+    ----------
+    machine : Machine
+        The 2-link machine the model is built for.
+    abs_payload : bool
+        Whether the model uses ``|payload|`` (thesis tuning) instead of the signed payload.
+    terms, transition, measurement : casadi.Function
+        The compiled functions described above.
     """
 
     machine: Machine
@@ -133,7 +142,13 @@ class KalmanModel:
     @staticmethod
     def unpack(packed: np.ndarray):
         """Split the packed output of :attr:`terms` into ``(f, F, G, h, H, M)`` (column-major
-        matrices, shapes as in the class docstring)."""
+        matrices, shapes as in the class docstring).
+
+        Parameters
+        ----------
+        packed : numpy.ndarray
+            The 80 values :attr:`terms` returns.
+        """
         v = np.asarray(packed).ravel()
         f = v[0:5]
         F = v[5:30].reshape(5, 5, order="F")
@@ -150,6 +165,11 @@ class BufferedFunction:
     A plain ``Function.__call__`` converts numpy arrays to ``DM`` and back (≈50 µs for the
     filter's functions); the buffer interface evaluates in place into numpy memory (≈15 µs).
     One instance per filter: the buffers are private state.
+
+    Parameters
+    ----------
+    function : casadi.Function
+        The function to call (dense inputs, first output only).
     """
 
     def __init__(self, function: ca.Function):
@@ -169,7 +189,15 @@ class BufferedFunction:
         return self._out.copy()
 
     def set_input(self, index: int, value: np.ndarray) -> None:
-        """Write input ``index`` (kept until overwritten: constants need writing once)."""
+        """Write input ``index`` (kept until overwritten: constants need writing once).
+
+        Parameters
+        ----------
+        index : int
+            Input position of the function.
+        value : numpy.ndarray
+            The input value (flattened column-major).
+        """
         self._inputs[index][:] = np.ravel(value, order="F")
 
     def evaluate(self, *leading: np.ndarray) -> np.ndarray:
@@ -324,6 +352,24 @@ def joseph_update(x, P, innovation, H, R):
 
         S = H P H^\top + R,\quad K = P H^\top S^{-1},\quad x^+ = x + K\nu,\quad
         P^+ = (I - KH) P (I - KH)^\top + K R K^\top
+
+    Parameters
+    ----------
+    x : casadi.SX
+        Prior state (5).
+    P : casadi.SX
+        Prior covariance (5 × 5).
+    innovation : casadi.SX
+        Measurement minus prediction, ν.
+    H : casadi.SX
+        Measurement Jacobian.
+    R : casadi.SX
+        Measurement noise covariance.
+
+    Returns
+    -------
+    tuple of casadi.SX
+        Posterior ``(x, P)``, P symmetrised.
     """
     S = H @ P @ H.T + R
     K = scaled_solve(S, H @ P, R).T              # P Hᵀ S⁻¹ (S, P symmetric)
@@ -339,6 +385,15 @@ def scaled_solve(A: ca.SX, B: ca.SX, R: ca.SX) -> ca.SX:
     The measurements span 14 orders of magnitude (10⁻⁸ rad² … 10⁶ N²m²) and CasADi's symbolic
     solve does not pivot, so the system is first scaled by :math:`W = \mathrm{diag}(R)^{-1/2}`:
     :math:`A^{-1}B = W (W A W)^{-1} W B`.
+
+    Parameters
+    ----------
+    A : casadi.SX
+        Square covariance-like matrix (e.g. the innovation covariance S).
+    B : casadi.SX
+        Right-hand side, as many rows as ``A``.
+    R : casadi.SX
+        Measurement noise covariance whose diagonal sets the scaling.
     """
     w = 1.0 / ca.sqrt(ca.diag(R))
     W = ca.diag(w)
@@ -361,7 +416,18 @@ def sigma_point_function(machine: Machine, abs_payload: bool, n_points: int) -> 
 
 
 def kalman_mass_matrix(model: KalmanModel) -> ca.Function:
-    """M(q, m) of the filter state x (payload convention of ``model``)."""
+    """M(q, m) of the filter state x (payload convention of ``model``).
+
+    Parameters
+    ----------
+    model : KalmanModel
+        The compiled model (machine and payload convention).
+
+    Returns
+    -------
+    casadi.Function
+        ``x -> vec(M)`` (2 × 2, kg·m²).
+    """
     arm = ArmModel(model.machine)
     x = ca.SX.sym("x", N_STATE)
     payload = ca.fabs(x[PAYLOAD]) if model.abs_payload else x[PAYLOAD]
@@ -372,6 +438,21 @@ def kalman_mass_matrix(model: KalmanModel) -> ca.Function:
 @dataclass
 class Tuning:
     """Covariances and initial conditions of one filter (everything that is saved).
+
+    Parameters
+    ----------
+    name : str
+        ``"thesis"`` or ``"consistent"``.
+    Q, R, torque_cov, accel_cov : numpy.ndarray
+        Covariances as described under Attributes (SI units squared).
+    x0 : numpy.ndarray
+        Initial state (rad, rad/s, kg).
+    P0 : numpy.ndarray
+        Initial covariance.
+    init_from_sample : bool
+        Whether angles and rates start at the first sample.
+    noise : str
+        Noise preset the covariances come from.
 
     Attributes
     ----------
@@ -414,7 +495,15 @@ class Tuning:
     @classmethod
     def restore(cls, config: dict, arrays) -> "Tuning":
         """The tuning saved by :meth:`config` and :meth:`arrays`; :class:`EstimatorError` when an
-        array is missing, of the wrong shape or not finite."""
+        array is missing, of the wrong shape or not finite.
+
+        Parameters
+        ----------
+        config : dict
+            What :meth:`config` returned.
+        arrays : Mapping[str, numpy.ndarray]
+            What :meth:`arrays` returned.
+        """
         shapes = {"Q": (5, 5), "R": (4, 4), "torque_cov": (2, 2), "accel_cov": (2, 2), "x0": (5,),
                   "P0": (5, 5)}
         values = {}
@@ -430,7 +519,13 @@ class Tuning:
 
 
 def thesis_tuning(machine: Machine) -> Tuning:
-    """Thesis §6.1: Q = 10⁶·I (1.005·10⁶ EKF₁%, 1.01·10⁶ EKF₃%), R, P0 = 5·10¹⁵·I, fixed x0."""
+    """Thesis §6.1: Q = 10⁶·I (1.005·10⁶ EKF₁%, 1.01·10⁶ EKF₃%), R, P0 = 5·10¹⁵·I, fixed x0.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its name picks Q's scale).
+    """
     scale = THESIS_Q_SCALE.get(machine.name, THESIS_Q_SCALE["cat345c"])
     return Tuning(name="thesis", Q=scale * np.eye(N_STATE), R=THESIS_R.copy(),
                   torque_cov=np.zeros((2, 2)), accel_cov=np.zeros((2, 2)), x0=THESIS_X0.copy(),
@@ -444,6 +539,13 @@ def euler_truncation_std(dataset: Dataset, quantile: float = 0.99) -> tuple[np.n
     :math:`\tfrac{T_s^2}{2}\dddot q` on the rates. The jerk is the difference of consecutive
     measured accelerations over :math:`T_s` (within each experiment). The error is systematic,
     not white, so the filter gets its ``quantile`` (99 %), not its RMS.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Training data with ``boom_accel`` and ``dipper_accel``, rad/s².
+    quantile : float
+        Quantile of the absolute acceleration / jerk used, in (0, 1).
 
     Returns
     -------
@@ -465,7 +567,24 @@ def euler_truncation_std(dataset: Dataset, quantile: float = 0.99) -> tuple[np.n
 
 def consistent_tuning(machine: Machine, noise: str, angle_trunc: np.ndarray, rate_trunc: np.ndarray,
                       payload_walk: float) -> Tuning:
-    """Covariances from the sensor noise preset ``noise`` (see the module docstring)."""
+    """Covariances from the sensor noise preset ``noise`` (see the module docstring).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (its maximum payload sets x0 and P0, kg).
+    noise : str
+        Sensor noise preset name.
+    angle_trunc, rate_trunc : numpy.ndarray
+        Euler truncation errors (2 each), rad and rad/s (:func:`euler_truncation_std`).
+    payload_walk : float
+        Payload random walk, kg/√s.
+
+    Returns
+    -------
+    Tuning
+        The ``consistent`` tuning.
+    """
     try:
         preset = get_noise_preset(noise)
     except ExcavatorPayloadError as exc:
@@ -494,7 +613,20 @@ def consistent_tuning(machine: Machine, noise: str, angle_trunc: np.ndarray, rat
 
 
 def dataset_noise(dataset: Dataset, override: str) -> str:
-    """The noise preset to tune for: the option if given, else the dataset's metadata."""
+    """The noise preset to tune for: the option if given, else the dataset's metadata.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Training data (its ``noise`` metadata).
+    override : str
+        The ``--noise`` option (empty: not given).
+
+    Returns
+    -------
+    str
+        The preset name.
+    """
     if override:
         return override
     noise = dataset.meta.get("noise")
@@ -505,12 +637,31 @@ def dataset_noise(dataset: Dataset, override: str) -> str:
 
 
 def symmetrise(P: np.ndarray) -> np.ndarray:
-    """(P + Pᵀ)/2: keeps rounding from making the covariance asymmetric."""
+    """(P + Pᵀ)/2: keeps rounding from making the covariance asymmetric.
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        A square matrix.
+    """
     return 0.5 * (P + P.T)
 
 
 def sample_parts(values: np.ndarray, tuning: Tuning):
-    """Split a sample (SIGNALS order) into measurement y, input u and measured acceleration a."""
+    """Split a sample (SIGNALS order) into measurement y, input u and measured acceleration a.
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        The sample, :data:`SIGNALS` order (SI units).
+    tuning : Tuning
+        The tuning (whether the torque channel is measured).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(y, u, a)``.
+    """
     u = values[TORQUES]
     a = values[ACCELS]
     y = values[MEASURED + TORQUES] if tuning.torque_channel else values[MEASURED]
@@ -518,7 +669,15 @@ def sample_parts(values: np.ndarray, tuning: Tuning):
 
 
 def initial_state(tuning: Tuning, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x0, P0 for the first sample of an experiment."""
+    """x0, P0 for the first sample of an experiment.
+
+    Parameters
+    ----------
+    tuning : Tuning
+        The tuning (x0, P0, ``init_from_sample``).
+    values : numpy.ndarray
+        The first sample, :data:`SIGNALS` order (SI units).
+    """
     x = tuning.x0.copy()
     if tuning.init_from_sample:
         x[:4] = values[MEASURED]
@@ -526,14 +685,31 @@ def initial_state(tuning: Tuning, values: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def payload_bounds(machine: Machine) -> tuple[float, float]:
-    """Box the payload state is kept in: the bucket mass must stay positive for M⁻¹ to exist."""
+    """Box the payload state is kept in: the bucket mass must stay positive for M⁻¹ to exist.
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine (bucket mass, maximum and rated payload, kg).
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)``, kg.
+    """
     return -0.5 * machine.bucket_mass, 20.0 * max(machine.max_payload, machine.rated_payload)
 
 
 # -- sigma-point helpers (the UKF and the machine set's unscented update) -------------------
 
 def covariance_sqrt(P: np.ndarray) -> np.ndarray:
-    """Lower Cholesky factor of P, repairing P first if rounding left it indefinite."""
+    """Lower Cholesky factor of P, repairing P first if rounding left it indefinite.
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        Covariance matrix (n × n).
+    """
     try:
         return np.linalg.cholesky(P)
     except np.linalg.LinAlgError:
@@ -545,6 +721,13 @@ def repair_covariance(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
 
     Working on the correlation matrix keeps states of very different scale (rad² vs kg²) from
     being clipped by one absolute threshold.
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        Covariance matrix (n × n).
+    floor : float
+        Smallest variance and correlation eigenvalue kept.
     """
     P = symmetrise(P)
     d = np.sqrt(np.maximum(np.diag(P), floor))
@@ -555,7 +738,20 @@ def repair_covariance(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
 
 
 def statistical_linearisation(P: np.ndarray, P_xy: np.ndarray) -> np.ndarray:
-    """H_s = P_xyᵀ P⁻¹, solved on the correlation matrix of P (states of very different scale)."""
+    """H_s = P_xyᵀ P⁻¹, solved on the correlation matrix of P (states of very different scale).
+
+    Parameters
+    ----------
+    P : numpy.ndarray
+        State covariance (n × n).
+    P_xy : numpy.ndarray
+        State-measurement cross covariance (n × m).
+
+    Returns
+    -------
+    numpy.ndarray
+        H_s, shape (m, n).
+    """
     d = np.sqrt(np.maximum(np.diag(P), 1e-300))
     C = P / np.outer(d, d)
     try:

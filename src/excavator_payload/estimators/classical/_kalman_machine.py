@@ -173,7 +173,15 @@ def transition_matrix() -> np.ndarray:
 
 
 def process_noise(jerk: np.ndarray, payload_walk: float) -> np.ndarray:
-    """Q of the white-jerk chains with densities ``jerk`` (4: boom, dipper, bucket, slew), 12×12."""
+    """Q of the white-jerk chains with densities ``jerk`` (4: boom, dipper, bucket, slew), 12×12.
+
+    Parameters
+    ----------
+    jerk : numpy.ndarray
+        Jerk densities (4), rad²/s⁵.
+    payload_walk : float
+        Payload random walk, kg/√s.
+    """
     Q = np.zeros((N_STATE, N_STATE))
     block = np.array([[T**5 / 20, T**4 / 8, T**3 / 6], [T**4 / 8, T**3 / 3, T**2 / 2],
                       [T**3 / 6, T**2 / 2, T]])
@@ -194,6 +202,15 @@ def jerk_density(dataset: Dataset, half_window: int = 10, quantile: float = 0.99
     acceleration by :math:`\sqrt{s T}` per sample; the motions' jerk is smooth, not white, so
     the density is set to let the acceleration follow the ``quantile`` (99 %) jerk within one
     sample: :math:`s = j_{99}^2 T`.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set training data (the four rates, rad/s).
+    half_window : int
+        Samples each side of the least-squares slope.
+    quantile : float
+        Quantile of the absolute jerk used, in (0, 1).
     """
     rates = dataset.signals(["boom_rate", "dipper_rate", "bucket_rate", "slew_rate"])
     exp = dataset.frame["experiment"].to_numpy()
@@ -217,6 +234,23 @@ def jerk_density(dataset: Dataset, half_window: int = 10, quantile: float = 0.99
 @dataclass
 class MachineTuning:
     """Covariances of the machine-set filters (everything that is saved).
+
+    Parameters
+    ----------
+    R_kinematic : numpy.ndarray
+        Variances of the 7 angle and rate measurements, rad² and (rad/s)².
+    pressure_std : float
+        White noise of one pressure transmitter, Pa.
+    ripple_fraction : float
+        Pump ripple as a share of the pressure.
+    jerk : numpy.ndarray
+        Jerk densities (4), rad²/s⁵.
+    payload_walk : float
+        Payload random walk, kg/√s.
+    noise : str
+        Name of the noise preset.
+    spike_threshold : numpy.ndarray or None
+        Per-signal glitch thresholds (None: no test).
 
     Attributes
     ----------
@@ -255,7 +289,15 @@ class MachineTuning:
     @classmethod
     def restore(cls, config: dict, arrays) -> "MachineTuning":
         """The tuning saved by :meth:`config` and :meth:`arrays`; :class:`EstimatorError` when a
-        value is missing or a covariance is not positive and finite."""
+        value is missing or a covariance is not positive and finite.
+
+        Parameters
+        ----------
+        config : dict
+            What :meth:`config` returned.
+        arrays : Mapping[str, numpy.ndarray]
+            What :meth:`arrays` returned.
+        """
         try:
             R = np.asarray(arrays["R_kinematic"], float)
             jerk = np.asarray(arrays["jerk"], float)
@@ -274,7 +316,17 @@ class MachineTuning:
 
 
 def machine_tuning(dataset: Dataset, noise_name: str, payload_walk: float) -> MachineTuning:
-    """Covariances from the machine noise preset and the training data's jerk (module doc)."""
+    """Covariances from the machine noise preset and the training data's jerk (module doc).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set training data.
+    noise_name : str
+        Machine noise preset (empty: the dataset's).
+    payload_walk : float
+        Payload random walk, kg/√s.
+    """
     from excavator_payload.simulation.machine_sensors import get_machine_noise
 
     if not noise_name:
@@ -372,7 +424,18 @@ class MachineKalman:
 
     def initial_state(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Angles and rates from the sample (broad prior), accelerations 0 ± 1 rad/s², payload
-        m_max/2 ± m_max/2."""
+        m_max/2 ± m_max/2.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample, machine-set :data:`SIGNALS` order (SI units).
+
+        Returns
+        -------
+        tuple of numpy.ndarray
+            ``(x, P)``.
+        """
         x = np.zeros(N_STATE)
         x[:N_KIN] = values[KINEMATIC]
         x[PAYLOAD] = self._max_payload / 2
@@ -381,14 +444,33 @@ class MachineKalman:
 
     def restart_kinematics(self, values: np.ndarray, elapsed: float) -> None:
         """After a gap: kinematic states from the new sample, the payload kept (its variance
-        grown by the random walk over ``elapsed`` seconds)."""
+        grown by the random walk over ``elapsed`` seconds).
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample after the gap, machine-set :data:`SIGNALS` order (SI units).
+        elapsed : float
+            Length of the gap, s.
+        """
         payload, var = self.x[PAYLOAD], self.P[PAYLOAD, PAYLOAD]
         self.x, self.P = self.initial_state(values)
         self.x[PAYLOAD] = payload
         self.P[PAYLOAD, PAYLOAD] = var + self.tuning.payload_walk**2 * elapsed
 
     def force_noise(self, pressures: np.ndarray) -> np.ndarray:
-        """Variance of each measured piston force from its two pressures (noise + ripple), N²."""
+        """Variance of each measured piston force from its two pressures (noise + ripple), N².
+
+        Parameters
+        ----------
+        pressures : numpy.ndarray
+            Head and rod pressures of the three cylinders, interleaved (6), Pa.
+
+        Returns
+        -------
+        numpy.ndarray
+            Three force variances, N².
+        """
         p_head, p_rod = pressures[0::2], pressures[1::2]
         return (self._head2 * (self._pvar + self._ripple * p_head**2)
                 + self._rod2 * (self._pvar + self._ripple * p_rod**2))
@@ -433,7 +515,18 @@ class MachineKalman:
         self.P = 0.5 * (P + P.T)
 
     def step(self, values: np.ndarray) -> bool:
-        """Update with one sample and predict to the next; False (state kept) if not finite."""
+        """Update with one sample and predict to the next; False (state kept) if not finite.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample, machine-set :data:`SIGNALS` order (SI units).
+
+        Returns
+        -------
+        bool
+            Whether the state was updated.
+        """
         if self.x is None:
             self.x, self.P = self.initial_state(values)
         x, P, _, _ = self._kinematic_update(self.x, self.P, values)

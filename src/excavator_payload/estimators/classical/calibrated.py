@@ -130,6 +130,13 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     (:mod:`~excavator_payload.estimators.classical.calibrated_machine`); ``excavator-payload
     zero`` re-estimates the offsets later. One-sigma uncertainty of the current estimate:
     :attr:`uncertainty` (kg).
+
+    Parameters
+    ----------
+    machine : Machine, str or None
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
+    **options
+        Estimator options, see the class attribute ``OPTIONS``.
     """
 
     name = "calibrated"
@@ -325,7 +332,20 @@ class CalibratedEstimator(InverseDynamicsEstimator):
 
 
 def calibration_subset(estimator, dataset: Dataset) -> tuple[Dataset, list]:
-    """The calibration experiments ``--experiments`` selects (the first N; 0: all) and their ids."""
+    """The calibration experiments ``--experiments`` selects (the first N; 0: all) and their ids.
+
+    Parameters
+    ----------
+    estimator : CalibratedEstimator
+        The estimator (its ``experiments`` option).
+    dataset : Dataset
+        The calibration data.
+
+    Returns
+    -------
+    tuple of (Dataset, list)
+        The selected data and their experiment ids.
+    """
     n = estimator.options["experiments"]
     ids = list(dataset.experiment_ids)
     if n > len(ids):
@@ -339,7 +359,22 @@ def calibration_subset(estimator, dataset: Dataset) -> tuple[Dataset, list]:
 
 def judged_errors(dataset: Dataset, estimates: pd.DataFrame,
                   first_judged: int = FIRST_JUDGED_SAMPLE) -> pd.DataFrame:
-    """Per test experiment: RMS, max |error| and mean error (kg) over samples ≥ ``first_judged``."""
+    """Per test experiment: RMS, max |error| and mean error (kg) over samples ≥ ``first_judged``.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Test data with the true ``payload`` column, kg.
+    estimates : pandas.DataFrame
+        What :meth:`Estimator.estimate` returned on ``dataset`` (same rows).
+    first_judged : int
+        Index of the first judged sample within each experiment.
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``experiment``, ``rms_kg``, ``max_kg``, ``bias_kg``, ``n_judged``.
+    """
     err = estimates["payload_estimate"].to_numpy(float) - dataset.frame["payload"].to_numpy(float)
     exp = dataset.frame["experiment"].to_numpy()
     index = dataset.frame.groupby("experiment", sort=False).cumcount().to_numpy()

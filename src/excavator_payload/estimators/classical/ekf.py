@@ -78,7 +78,15 @@ COMMON_OPTIONS = {
 
 
 class KalmanEstimatorBase(Estimator):
-    """What EKF and UKF share: options, fitting (tuning), status, persistence."""
+    """What EKF and UKF share: options, fitting (tuning), status, persistence.
+
+    Parameters
+    ----------
+    machine : Machine, str or None
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
+    **options
+        Estimator options, see the class attribute ``OPTIONS``.
+    """
 
     OPTIONS = COMMON_OPTIONS
     NEEDS_MACHINE = True

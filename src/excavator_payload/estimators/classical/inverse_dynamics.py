@@ -142,6 +142,16 @@ def base_parameters(machine: Machine) -> tuple[np.ndarray, np.ndarray]:
                    g(\tfrac12 m_1 + m_2 + m_b) l_1,\; g(\tfrac12 m_2 + m_b) l_2,\;
                    \beta_1,\; \beta_2\big) \\
         \theta_1 &= (l_1^2,\; l_2^2,\; l_1 l_2,\; g l_1,\; g l_2)
+
+    Parameters
+    ----------
+    machine : Machine
+        The 2-link machine model.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(theta_0, theta_1)``, lengths 7 and 5, SI units (as in the formulas above).
     """
     return ArmModel(machine).base_parameters()
 
@@ -271,7 +281,20 @@ def _values_columns(q, qd, qdd, tau=None) -> tuple[np.ndarray, tuple[int, ...]]:
 
 
 def torque_jacobian(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """∂τ/∂(q1, q̇1, q̈1, q2, q̇2, q̈2) of τ = Y θ (θ of length 7), shape (..., 2, 6)."""
+    """∂τ/∂(q1, q̇1, q̈1, q2, q̇2, q̈2) of τ = Y θ (θ of length 7), shape (..., 2, 6).
+
+    Parameters
+    ----------
+    q, qd, qdd : numpy.ndarray
+        Joint angles (rad), rates (rad/s) and accelerations (rad/s²), shape (..., 2).
+    theta : numpy.ndarray
+        Base parameters, shape (..., 7).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (..., 2, 6), N·m per unit of each kinematic signal.
+    """
     theta = np.asarray(theta, dtype=float)
     q, qd, qdd = (np.asarray(a, dtype=float) for a in (q, qd, qdd))
     lead = np.broadcast_shapes(q.shape[:-1], qd.shape[:-1], qdd.shape[:-1], theta.shape[:-1])
@@ -282,7 +305,22 @@ def torque_jacobian(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray, theta: np.nd
 
 
 def split_torque(q, qd, qdd, theta_empty, theta_payload) -> tuple[np.ndarray, np.ndarray]:
-    """(τ0, φ) on arrays: τ0 = Y θ0 and φ = Y[:, :5] θ1, each shape (..., 2)."""
+    """(τ0, φ) on arrays: τ0 = Y θ0 and φ = Y[:, :5] θ1, each shape (..., 2).
+
+    Parameters
+    ----------
+    q, qd, qdd : numpy.ndarray
+        Joint angles (rad), rates (rad/s) and accelerations (rad/s²), shape (..., 2).
+    theta_empty : numpy.ndarray
+        Empty-bucket base parameters θ0 (7).
+    theta_payload : numpy.ndarray
+        Payload base parameters θ1 (5).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(tau0, phi)``: N·m and N·m per kg, each shape (..., 2).
+    """
     values, lead = _values_columns(q, qd, qdd)
     out = np.asarray(_batch_functions()[0](values, np.asarray(theta_empty, float),
                                            np.asarray(theta_payload, float))).T
@@ -294,6 +332,17 @@ def residual_covariance(jac: np.ndarray, kinematic_var: np.ndarray, torque_var: 
     r"""Total residual covariance :math:`R = \Sigma_\tau + J\Sigma_x J^\top`, shape (..., 2, 2).
 
     ``weighting="diagonal"`` zeroes the cross term, ``"torque"`` returns :math:`\Sigma_\tau`.
+
+    Parameters
+    ----------
+    jac : numpy.ndarray
+        Torque Jacobian from :func:`torque_jacobian`, shape (..., 2, 6).
+    kinematic_var : numpy.ndarray
+        Variances of the six kinematic signals (rad², (rad/s)², (rad/s²)²).
+    torque_var : numpy.ndarray
+        Variances of the two torques, (N·m)².
+    weighting : str
+        ``"full"``, ``"diagonal"`` or ``"torque"``.
     """
     R = np.zeros(jac.shape[:-2] + (2, 2))
     if weighting != "torque":
@@ -306,7 +355,20 @@ def residual_covariance(jac: np.ndarray, kinematic_var: np.ndarray, torque_var: 
 
 
 def sensor_variances(noise, torque_floor: float = TORQUE_STD_FLOOR) -> np.ndarray:
-    """Variances of the eight :data:`SIGNALS` of a noise preset (torque std floored)."""
+    """Variances of the eight :data:`SIGNALS` of a noise preset (torque std floored).
+
+    Parameters
+    ----------
+    noise : str or NoisePreset
+        The noise preset (name or object).
+    torque_floor : float
+        Smallest torque standard deviation, N·m.
+
+    Returns
+    -------
+    numpy.ndarray
+        The eight variances, :data:`SIGNALS` order (SI units squared).
+    """
     std = get_noise_preset(noise).std_vector(SIGNALS).copy()
     std[6:] = np.maximum(std[6:], torque_floor)
     return std**2
@@ -330,6 +392,25 @@ def information_terms(values, theta_empty, theta_payload, variances, weight_payl
     interpreter: the estimator's ``step`` calls the compiled copy instead); with
     ``trig=casadi`` and CasADi symbols it returns the two SX expressions (for the C export).
 
+    Parameters
+    ----------
+    values : sequence of float or casadi.SX
+        The sample, :data:`SIGNALS` order (rad, rad/s, rad/s², N·m).
+    theta_empty : sequence of float or casadi.SX
+        Empty-bucket base parameters θ0 (7).
+    theta_payload : sequence of float or casadi.SX
+        Payload base parameters θ1 (5).
+    variances : sequence of float or casadi.SX
+        Sensor variances, :data:`SIGNALS` order.
+    weight_payload : float or casadi.SX
+        Payload (kg) at which the weights are evaluated.
+    weighting : str
+        ``"full"``, ``"diagonal"`` or ``"torque"`` (see :func:`residual_covariance`).
+    eiv_correction : bool
+        Add the errors-in-variables trace corrections.
+    trig : module
+        ``math`` (numbers) or ``casadi`` (symbols).
+
     Returns
     -------
     (float, float)
@@ -351,6 +432,28 @@ def residual_nis(values, theta_empty, theta_payload, variances, payload,
     sensors' full residual covariance (whatever the ``weighting`` option): chi-square with 2
     degrees of freedom for a sample the noise model describes. Evaluates :func:`nis_function`
     as :func:`information_terms` does (``trig=casadi``: the SX expression for the C export).
+
+    Parameters
+    ----------
+    values : sequence of float or casadi.SX
+        The sample, :data:`SIGNALS` order (rad, rad/s, rad/s², N·m).
+    theta_empty : sequence of float or casadi.SX
+        Empty-bucket base parameters θ0 (7).
+    theta_payload : sequence of float or casadi.SX
+        Payload base parameters θ1 (5).
+    variances : sequence of float or casadi.SX
+        Sensor variances, :data:`SIGNALS` order.
+    payload : float or casadi.SX
+        Current payload estimate m, kg.
+    payload_var : float or casadi.SX
+        Its variance σ_m², kg².
+    trig : module
+        ``math`` (numbers) or ``casadi`` (symbols).
+
+    Returns
+    -------
+    float or casadi.SX
+        The normalised innovation squared.
     """
     out = _evaluate(nis_function(), trig is ca, values, theta_empty, theta_payload, variances,
                     payload, payload_var)
@@ -399,7 +502,18 @@ class _Kernel:
 
 
 def restore_difference_scale(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
-    """The machine set's per-signal outlier-test scale from a saved model (checked)."""
+    """The machine set's per-signal outlier-test scale from a saved model (checked).
+
+    Parameters
+    ----------
+    arrays : Mapping[str, numpy.ndarray]
+        The saved model's arrays.
+
+    Returns
+    -------
+    numpy.ndarray
+        The 15 per-signal scales (SI units of each signal).
+    """
     if "difference_scale" not in arrays:
         raise EstimatorError("saved model predates the machine set's outlier test: fit it again")
     scale = np.asarray(arrays["difference_scale"], float)
@@ -414,6 +528,13 @@ class InverseDynamicsEstimator(Estimator):
 
     See the module docstring for the equations. ``fit`` only reads the noise preset of the
     training dataset (``--noise auto``) to set the weights; the physics comes from the machine.
+
+    Parameters
+    ----------
+    machine : Machine, str or None
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
+    **options
+        Estimator options, see the class attribute ``OPTIONS``.
     """
 
     name = "inverse-dynamics"

@@ -92,6 +92,16 @@ def ground_tilt(house_pitch: float, house_roll: float) -> tuple[float, float]:
 
     Inverse of ``HydraulicArmModel.house_inclination`` at ψ = 0: the house's z row is
     (cos r sin p, sin r, cos r cos p), so roll = r and sin(pitch_house) = cos r sin p.
+
+    Parameters
+    ----------
+    house_pitch, house_roll : float
+        House inclination, rad.
+
+    Returns
+    -------
+    tuple of float
+        Ground ``(pitch, roll)``, rad.
     """
     roll = house_roll
     ratio = math.sin(house_pitch) / max(math.cos(roll), 1e-9)
@@ -175,7 +185,20 @@ class PressureRegression:
     def update(self, time: float, values: np.ndarray) -> bool:
         """Consume one sample; returns whether a sample (the centre of the window) was used.
         :attr:`rejected` says whether the sample two before this one was judged a glitch; the
-        window regressed ends on that sample (every sample in it has been judged)."""
+        window regressed ends on that sample (every sample in it has been judged).
+
+        Parameters
+        ----------
+        time : float
+            Sample time, s.
+        values : numpy.ndarray
+            The sample, in machine-set :data:`SIGNALS` order (SI units).
+
+        Returns
+        -------
+        bool
+            Whether a sample was used.
+        """
         self._buffer.append((time, values, True))
         self.rejected = False
         if self.judge and len(self._buffer) >= 4:  # the first sample has no neighbour before it
@@ -262,7 +285,18 @@ def one_frame_glitch(before: np.ndarray, sample: np.ndarray, after: np.ndarray, 
 
 def difference_scale(dataset) -> np.ndarray:
     """Spread of each machine-set signal's sample-to-sample change (within experiments), as
-    the std of a Gaussian with the same 99th percentile of the absolute change."""
+    the std of a Gaussian with the same 99th percentile of the absolute change.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+
+    Returns
+    -------
+    numpy.ndarray
+        One scale per signal (its SI unit); infinite with fewer than 100 changes.
+    """
     f = dataset.frame
     x = f[list(SIGNALS)].to_numpy(float)
     exp = f["experiment"].to_numpy()
@@ -277,7 +311,18 @@ def difference_scale(dataset) -> np.ndarray:
 
 
 def spike_threshold(scale: np.ndarray) -> np.ndarray:
-    """Per-signal threshold z·σ_Δ of the one-frame outlier test (module doc)."""
+    """Per-signal threshold z·σ_Δ of the one-frame outlier test (module doc).
+
+    Parameters
+    ----------
+    scale : numpy.ndarray
+        Per-signal scale σ_Δ from :func:`difference_scale`.
+
+    Returns
+    -------
+    numpy.ndarray
+        Thresholds, same units.
+    """
     from scipy.stats import norm
 
     from excavator_payload.estimators.checks import GATE_PROBABILITY

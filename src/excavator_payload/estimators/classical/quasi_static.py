@@ -70,6 +70,20 @@ def local_linear(x: np.ndarray, y: np.ndarray, nodes: np.ndarray, half_width: fl
 
     Weights :math:`w_i = \max(0, 1 - |x_i - x_0|/h)`; solves
     :math:`\min_{a,b} \sum_i w_i (y_i - a - b(x_i - x_0))^2` and returns :math:`a` per node.
+
+    Parameters
+    ----------
+    x, y : numpy.ndarray
+        Sample abscissae and values.
+    nodes : numpy.ndarray
+        Abscissae of the map nodes (units of ``x``).
+    half_width : float
+        Kernel half-width h (units of ``x``).
+
+    Returns
+    -------
+    numpy.ndarray
+        The smoothed value per node.
     """
     d = x[None, :] - nodes[:, None]
     w = np.clip(1.0 - np.abs(d) / half_width, 0.0, None)
@@ -84,7 +98,15 @@ def local_linear(x: np.ndarray, y: np.ndarray, nodes: np.ndarray, half_width: fl
 
 @register
 class QuasiStaticEstimator(Estimator):
-    """Two characteristic boom-torque maps (empty, rated) and linear interpolation between them."""
+    """Two characteristic boom-torque maps (empty, rated) and linear interpolation between them.
+
+    Parameters
+    ----------
+    machine : Machine, str or None
+        The machine model the estimator believes in (preset name or file; None: ``cat345c``).
+    **options
+        Estimator options, see the class attribute ``OPTIONS``.
+    """
 
     name = "quasi-static"
     #: On the machine sensor set the mapped load is the boom cylinder's piston force.
@@ -269,7 +291,13 @@ class QuasiStaticEstimator(Estimator):
         return a + fy * (b - a)
 
     def reference_torques(self, boom: float, dipper: float) -> tuple[float, float] | None:
-        """(empty, rated) map torques at an arm pose, N·m (None outside the maps)."""
+        """(empty, rated) map torques at an arm pose, N·m (None outside the maps).
+
+        Parameters
+        ----------
+        boom, dipper : float
+            Boom and dipper angles, rad.
+        """
         lo, hi = self._lookup(0, boom, dipper), self._lookup(1, boom, dipper)
         return None if lo is None or hi is None else (lo, hi)
 

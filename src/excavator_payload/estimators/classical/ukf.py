@@ -66,7 +66,15 @@ N = kf.N_STATE
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float):
-    """Wan–van der Merwe weights ``(Wm, Wc, n + λ)`` for ``2n + 1`` sigma points."""
+    """Wan–van der Merwe weights ``(Wm, Wc, n + λ)`` for ``2n + 1`` sigma points.
+
+    Parameters
+    ----------
+    n : int
+        State dimension.
+    alpha, beta, kappa : float
+        Spread, prior-distribution and secondary scaling parameters.
+    """
     lam = alpha**2 * (n + kappa) - n
     Wm = np.full(2 * n + 1, 1.0 / (2 * (n + lam)))
     Wc = Wm.copy()
@@ -123,7 +131,15 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
         self._build_gate()
 
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """The 2n+1 sigma points as the columns of an (n, 2n+1) array."""
+        """The 2n+1 sigma points as the columns of an (n, 2n+1) array.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            State mean, shape (n,).
+        P : numpy.ndarray
+            State covariance, shape (n, n).
+        """
         L = covariance_sqrt(self.spread * P)
         return np.hstack([x[:, None], x[:, None] + L, x[:, None] - L])
 
@@ -193,7 +209,24 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
 
 
 def linear_update(x: np.ndarray, P: np.ndarray, y: np.ndarray, R: np.ndarray):
-    """Kalman update (Joseph form) with the angles and rates, ``h(x) = x[0:4]``."""
+    """Kalman update (Joseph form) with the angles and rates, ``h(x) = x[0:4]``.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Prior state [q1, q2, q̇1, q̇2, payload] (rad, rad/s, kg).
+    P : numpy.ndarray
+        Prior covariance.
+    y : numpy.ndarray
+        Measured angles and rates (4), rad and rad/s.
+    R : numpy.ndarray
+        Their noise covariance (4 × 4).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        Posterior ``(x, P)``.
+    """
     H = np.eye(4, N)
     S = H @ P @ H.T + R
     K = np.linalg.solve(S, H @ P).T

@@ -46,7 +46,20 @@ TRAINERS = ("trainbr", "adam")
 
 # -- option parsing -------------------------------------------------------------------------
 def parse_int_list(raw: Any, what: str) -> list[int]:
-    """``"10,10,10"``, ``"[10 10 10]"``, ``"0:5"`` (MATLAB range), ``"0:2:6"``, ``[0, 1]`` or an int."""
+    """``"10,10,10"``, ``"[10 10 10]"``, ``"0:5"`` (MATLAB range), ``"0:2:6"``, ``[0, 1]`` or an int.
+
+    Parameters
+    ----------
+    raw : Any
+        The option's value (text, int or sequence of them).
+    what : str
+        What the list is, for error messages.
+
+    Returns
+    -------
+    list of int
+        The integers, in the order given.
+    """
     if isinstance(raw, (int, np.integer)):
         return [int(raw)]
     if isinstance(raw, (list, tuple, np.ndarray)):
@@ -88,7 +101,15 @@ MAX_DECIMATION = 1000
 
 def block_means(values: np.ndarray, factor: int) -> np.ndarray:
     """Means of consecutive blocks of ``factor`` rows, ``(T // factor, …)``; an incomplete
-    last block is dropped (a streaming network would not have run on it yet)."""
+    last block is dropped (a streaming network would not have run on it yet).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        Samples in rows, ``(T, …)``.
+    factor : int
+        Rows per block (``--decimation``).
+    """
     values = np.asarray(values, dtype=float)
     n = len(values) // factor
     return values[:n * factor].reshape(n, factor, *values.shape[1:]).mean(axis=1)
@@ -106,7 +127,13 @@ MAX_WEIGHTS = {"trainbr": 5000, "adam": 1_000_000}
 
 def parse_hidden(raw: Any) -> list[int]:
     """Hidden-layer sizes from the ``--hidden`` option (any form :func:`parse_int_list` reads):
-    at most 20 layers of 1 to ``MAX_LAYER_SIZE`` neurons each, else :class:`EstimatorError`."""
+    at most 20 layers of 1 to ``MAX_LAYER_SIZE`` neurons each, else :class:`EstimatorError`.
+
+    Parameters
+    ----------
+    raw : Any
+        The ``--hidden`` value.
+    """
     sizes = parse_int_list(raw, "--hidden")
     if any(s <= 0 for s in sizes):
         raise EstimatorError(f"--hidden: layer sizes must be positive, got {raw!r}")
@@ -117,7 +144,13 @@ def parse_hidden(raw: Any) -> list[int]:
 
 def parse_delays(raw: Any) -> list[int]:
     """Tapped-delay-line delays in samples from the ``--delays`` option (e.g. ``'0:5'``), sorted:
-    at least one, distinct, between 0 and ``MAX_DELAY``, else :class:`EstimatorError`."""
+    at least one, distinct, between 0 and ``MAX_DELAY``, else :class:`EstimatorError`.
+
+    Parameters
+    ----------
+    raw : Any
+        The ``--delays`` value.
+    """
     delays = parse_int_list(raw, "--delays")
     if not delays:
         raise EstimatorError("--delays: give at least one delay (e.g. '0:5')")
@@ -130,7 +163,20 @@ def parse_delays(raw: Any) -> list[int]:
 
 def parse_inputs(raw: Any, sensor_set: SensorSet = THESIS_SENSORS) -> list[str]:
     """Signal names (comma separated), ``all``, ``default`` or MATLAB's 1-based column numbers
-    (``'1,2,4'``), of the signals of ``sensor_set``."""
+    (``'1,2,4'``), of the signals of ``sensor_set``.
+
+    Parameters
+    ----------
+    raw : Any
+        The ``--inputs`` value (text or sequence).
+    sensor_set : SensorSet
+        Sensor set whose signals are chosen from.
+
+    Returns
+    -------
+    list of str
+        Signal names.
+    """
     signals = sensor_set.signals
     items = list(raw) if isinstance(raw, (list, tuple)) else \
         [p for p in re.split(r"[,\s;]+", str(raw).strip().strip("[]")) if p]
@@ -163,6 +209,11 @@ class Scaler:
     ``mapminmax``: :math:`c = (x_{max} + x_{min})/2`, :math:`g = 2/(x_{max} - x_{min})`, so the
     training range maps onto :math:`[-1, 1]`. ``mapstd``: :math:`c = \bar x`, :math:`g = 1/s_x`.
     A constant column passes unscaled (:math:`g = 1`), as in MATLAB.
+
+    Parameters
+    ----------
+    method : str
+        ``"mapminmax"`` or ``"mapstd"``.
     """
 
     def __init__(self, method: str = "mapminmax") -> None:
@@ -173,7 +224,13 @@ class Scaler:
         self.gain: np.ndarray | None = None
 
     def fit(self, x: np.ndarray) -> "Scaler":
-        """Fit centre and gain per column of ``x`` (rows are samples); returns ``self``."""
+        """Fit centre and gain per column of ``x`` (rows are samples); returns ``self``.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            Training values, samples in rows (finite).
+        """
         x = np.asarray(x, dtype=float)
         x = x.reshape(len(x), -1)
         if len(x) == 0 or not np.all(np.isfinite(x)):
@@ -195,17 +252,35 @@ class Scaler:
             raise EstimatorError("scaler is not fitted")
 
     def transform(self, x):
-        """Scale ``x``: ``(x - center) * gain``."""
+        """Scale ``x``: ``(x - center) * gain``.
+
+        Parameters
+        ----------
+        x : numpy.ndarray or torch.Tensor
+            Values in their own units, columns as fitted.
+        """
         self._check()
         return (x - self.center) * self.gain
 
     def inverse(self, y):
-        """Undo :meth:`transform`: ``y / gain + center``."""
+        """Undo :meth:`transform`: ``y / gain + center``.
+
+        Parameters
+        ----------
+        y : numpy.ndarray or torch.Tensor
+            Scaled values.
+        """
         self._check()
         return y / self.gain + self.center
 
     def to_arrays(self, prefix: str = "scaler") -> dict[str, np.ndarray]:
-        """``{prefix}_center``, ``{prefix}_gain``, ``{prefix}_method`` (for an ``.npz``)."""
+        """``{prefix}_center``, ``{prefix}_gain``, ``{prefix}_method`` (for an ``.npz``).
+
+        Parameters
+        ----------
+        prefix : str
+            Prefix of the array names.
+        """
         self._check()
         return {f"{prefix}_center": self.center, f"{prefix}_gain": self.gain,
                 f"{prefix}_method": np.array(self.method)}
@@ -213,7 +288,17 @@ class Scaler:
     @classmethod
     def from_arrays(cls, arrays: Mapping[str, np.ndarray], prefix: str = "scaler",
                     method: str | None = None) -> "Scaler":
-        """Inverse of :meth:`to_arrays` (``method`` defaults to the stored one)."""
+        """Inverse of :meth:`to_arrays` (``method`` defaults to the stored one).
+
+        Parameters
+        ----------
+        arrays : Mapping[str, numpy.ndarray]
+            Saved arrays (e.g. an ``.npz``).
+        prefix : str
+            Prefix of the array names.
+        method : str or None
+            Scaling method (None: the stored one, else ``mapminmax``).
+        """
         if method is None:
             method = str(arrays[f"{prefix}_method"]) if f"{prefix}_method" in arrays else "mapminmax"
         s = cls(method)
@@ -224,17 +309,41 @@ class Scaler:
 
 # -- multilayer perceptron --------------------------------------------------------------------
 def mlp_sizes(n_in: int, hidden: Sequence[int], n_out: int = 1) -> list[int]:
-    """Layer sizes ``[n_in, *hidden, n_out]``."""
+    """Layer sizes ``[n_in, *hidden, n_out]``.
+
+    Parameters
+    ----------
+    n_in : int
+        Number of inputs.
+    hidden : Sequence[int]
+        Hidden-layer sizes.
+    n_out : int
+        Number of outputs.
+    """
     return [int(n_in), *[int(h) for h in hidden], int(n_out)]
 
 
 def n_weights(sizes: Sequence[int]) -> int:
-    """Number of weights and biases of an MLP with these layer sizes."""
+    """Number of weights and biases of an MLP with these layer sizes.
+
+    Parameters
+    ----------
+    sizes : Sequence[int]
+        Layer sizes, inputs first (:func:`mlp_sizes`).
+    """
     return sum(sizes[i + 1] * (sizes[i] + 1) for i in range(len(sizes) - 1))
 
 
 def mlp_layers(w, sizes: Sequence[int]) -> list[tuple[Any, Any]]:
-    """Split a flat weight vector (torch or numpy) into ``[(W_1, b_1), …]``."""
+    """Split a flat weight vector (torch or numpy) into ``[(W_1, b_1), …]``.
+
+    Parameters
+    ----------
+    w : torch.Tensor or numpy.ndarray
+        Flat weight vector (last axis), :func:`n_weights` entries.
+    sizes : Sequence[int]
+        Layer sizes, inputs first.
+    """
     if w.shape[-1] != n_weights(sizes):
         raise EstimatorError(f"weight vector has {w.shape[-1]} entries, layers {list(sizes)} "
                              f"need {n_weights(sizes)}")
@@ -255,6 +364,13 @@ def nguyen_widrow_init(sizes: Sequence[int], generator: torch.Generator) -> torc
     :math:`W` uniform in :math:`[-1, 1]` then scaled to norm :math:`\beta = 0.7\,S^{1/R}`, and
     biases spread evenly over :math:`[-\beta, \beta]` with the sign of the first weight, so the
     neurons' active regions tile the input space. A single-neuron layer gets bias 0.
+
+    Parameters
+    ----------
+    sizes : Sequence[int]
+        Layer sizes, inputs first.
+    generator : torch.Generator
+        Random number generator (seeded by the caller).
     """
     parts = []
     for n_prev, n_next in zip(sizes[:-1], sizes[1:]):
@@ -271,7 +387,17 @@ def nguyen_widrow_init(sizes: Sequence[int], generator: torch.Generator) -> torc
 
 def mlp_forward(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int]) -> torch.Tensor:
     r"""Outputs of the MLP: :math:`a_0 = x`, :math:`a_l = \tanh(W_l a_{l-1} + b_l)` for hidden
-    layers, :math:`y = W_L a_{L-1} + b_L`. ``x`` is ``(..., n_in)``, the result ``(..., n_out)``."""
+    layers, :math:`y = W_L a_{L-1} + b_L`. ``x`` is ``(..., n_in)``, the result ``(..., n_out)``.
+
+    Parameters
+    ----------
+    w : torch.Tensor
+        Flat weight vector.
+    x : torch.Tensor
+        Scaled inputs, ``(..., n_in)``.
+    sizes : Sequence[int]
+        Layer sizes, inputs first.
+    """
     layers = mlp_layers(w, sizes)
     a = x
     for W, b in layers[:-1]:
@@ -344,7 +470,15 @@ def mlp_output_jacobian(w: torch.Tensor, x: torch.Tensor, sizes: Sequence[int],
 
 
 def mlp_forward_numpy(layers: Sequence[tuple[np.ndarray, np.ndarray]], x: np.ndarray) -> np.ndarray:
-    """:func:`mlp_forward` with pre-extracted numpy matrices (fast, for streaming)."""
+    """:func:`mlp_forward` with pre-extracted numpy matrices (fast, for streaming).
+
+    Parameters
+    ----------
+    layers : Sequence[tuple[numpy.ndarray, numpy.ndarray]]
+        ``[(W_1, b_1), …]`` from :func:`mlp_layers`.
+    x : numpy.ndarray
+        Scaled inputs, one sample ``(n_in,)`` or rows ``(N, n_in)``.
+    """
     a = x
     for W, b in layers[:-1]:
         a = np.tanh(W @ a + b) if a.ndim == 1 else np.tanh(a @ W.T + b)
@@ -359,6 +493,13 @@ def delay_windows(values: np.ndarray, delays: Sequence[int]) -> np.ndarray:
 
     ``values`` is ``(T, k)``; the result ``(T, k·len(delays))`` is NaN for the first
     ``max(delays)`` rows, whose window would reach before the experiment (``preparets``).
+
+    Parameters
+    ----------
+    values : numpy.ndarray
+        One experiment's inputs, ``(T, k)``.
+    delays : Sequence[int]
+        Delays in samples.
     """
     values = np.asarray(values, dtype=float)
     T, k = values.shape
@@ -376,6 +517,15 @@ class DelayLine:
 
     ``push(x)`` returns the window ``[x(t-d_1), x(t-d_2), …]`` (same order as
     :func:`delay_windows`), or None while the line is still filling.
+
+    Parameters
+    ----------
+    n_channels : int
+        Values per input vector.
+    delays : Sequence[int]
+        Delays in samples.
+    zero_history : bool
+        Start full of zeros instead of waiting to be filled.
     """
 
     def __init__(self, n_channels: int, delays: Sequence[int], zero_history: bool = False) -> None:
@@ -394,7 +544,13 @@ class DelayLine:
         self.buffer[:] = 0.0
 
     def push(self, x: np.ndarray) -> np.ndarray | None:
-        """Add the newest sample; return the window (delays order), or None while filling."""
+        """Add the newest sample; return the window (delays order), or None while filling.
+
+        Parameters
+        ----------
+        x : numpy.ndarray
+            The newest input vector, ``(n_channels,)``.
+        """
         self.position = (self.position + 1) % self.length
         self.buffer[self.position] = x
         self.count += 1
@@ -405,14 +561,28 @@ class DelayLine:
 
 # -- datasets -> per-experiment arrays ------------------------------------------------------
 def experiment_bounds(dataset: Dataset) -> np.ndarray:
-    """Row index bounds ``[a_0, a_1, …, n_rows]`` of consecutive experiments (as :meth:`Estimator.estimate`)."""
+    """Row index bounds ``[a_0, a_1, …, n_rows]`` of consecutive experiments (as :meth:`Estimator.estimate`).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Data with rows grouped by experiment.
+    """
     exp = dataset.frame["experiment"].to_numpy()
     starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
     return np.r_[starts, len(exp)]
 
 
 def experiment_arrays(dataset: Dataset, columns: Sequence[str]) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Per experiment: the ``(T_i, k)`` inputs of ``columns`` and the ``(T_i,)`` payload targets."""
+    """Per experiment: the ``(T_i, k)`` inputs of ``columns`` and the ``(T_i,)`` payload targets.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Data with a ``payload`` column, kg.
+    columns : Sequence[str]
+        Input signal names.
+    """
     x = dataset.signals(columns)
     y = dataset.frame["payload"].to_numpy(dtype=float)
     bounds = experiment_bounds(dataset)
@@ -422,7 +592,17 @@ def experiment_arrays(dataset: Dataset, columns: Sequence[str]) -> tuple[list[np
 
 
 def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Option) -> dict[str, Option]:
-    """The options every network has (with per-network defaults) plus ``extra``."""
+    """The options every network has (with per-network defaults) plus ``extra``.
+
+    Parameters
+    ----------
+    hidden : str
+        Default of ``--hidden``.
+    delays : str
+        Default of ``--delays``.
+    **extra : Option
+        The network's own options.
+    """
     options = {
         "hidden": Option(str, hidden, "hidden layer sizes, e.g. '10,10,10'"),
         "delays": Option(str, delays, "input delays in samples, MATLAB style, e.g. '0:5' or '0,1,2'"),
@@ -478,6 +658,13 @@ class NeuralEstimator(Estimator):
 
     After :meth:`fit`: ``weights`` (numpy float64), ``input_scaler``, ``output_scaler``,
     ``training_log``; ``input_names`` / ``input_index`` say which signals feed the network.
+
+    Parameters
+    ----------
+    machine : Machine, str or None
+        Optional: a network needs none (its plausibility limits then come from the data's machine).
+    **options
+        Estimator options, see the class attribute ``OPTIONS``.
     """
 
     NEEDS_MACHINE = False
@@ -579,7 +766,18 @@ class NeuralEstimator(Estimator):
 
     # -- training --------------------------------------------------------------------------
     def split_experiments(self, dataset: Dataset) -> tuple[Dataset, Dataset | None]:
-        """Training and validation parts (thesis A.3: the first 100, the next 51)."""
+        """Training and validation parts (thesis A.3: the first 100, the next 51).
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The training data.
+
+        Returns
+        -------
+        tuple of (Dataset, Dataset or None)
+            Training part and validation part (None when there is none).
+        """
         n_train = int(self.options["train_experiments"])
         n_val = int(self.options["validation_experiments"])
         n = dataset.n_experiments
@@ -670,7 +868,18 @@ class NeuralEstimator(Estimator):
                    if log.best_epoch >= 0 else ""))
 
     def fit(self, dataset: Dataset) -> "NeuralEstimator":
-        """Train (see :meth:`_fit`), then measure the spread of the net's errors for ``sigma``."""
+        """Train (see :meth:`_fit`), then measure the spread of the net's errors for ``sigma``.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Training data with the true ``payload``, kg.
+
+        Returns
+        -------
+        NeuralEstimator
+            ``self``, trained.
+        """
         super().fit(dataset)
         train, val = self.split_experiments(dataset)
         judged = val if val is not None else train
@@ -795,7 +1004,18 @@ class NeuralEstimator(Estimator):
         self._use_weights(weights)
 
     def save(self, directory: str | Path) -> Path:
-        """Save (see :meth:`Estimator.save`) plus ``training_log.csv`` and ``training.png``."""
+        """Save (see :meth:`Estimator.save`) plus ``training_log.csv`` and ``training.png``.
+
+        Parameters
+        ----------
+        directory : str or Path
+            Model folder (created if missing).
+
+        Returns
+        -------
+        Path
+            ``directory``.
+        """
         directory = super().save(directory)
         if self.training_log is not None:
             tmp = directory / "training_log.csv.tmp"

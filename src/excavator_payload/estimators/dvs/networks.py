@@ -70,7 +70,18 @@ class TimeDelayNetwork(NeuralEstimator):
         return mlp_sizes(self.n_inputs * len(self.delay_list), self.hidden_sizes)
 
     def windows(self, inputs: Sequence[np.ndarray]) -> np.ndarray:
-        """Stacked delay-line rows of all experiments that get an estimate (``preparets``)."""
+        """Stacked delay-line rows of all experiments that get an estimate (``preparets``).
+
+        Parameters
+        ----------
+        inputs : Sequence[numpy.ndarray]
+            Per experiment, the ``(T_i, n_inputs)`` inputs.
+
+        Returns
+        -------
+        numpy.ndarray
+            One delay-line row per estimated sample.
+        """
         d = max(self.delay_list)
         rows = [delay_windows(x, self.delay_list)[d:] for x in inputs]
         out = np.concatenate(rows) if rows else np.empty((0, self._layer_sizes()[0]))
@@ -148,7 +159,13 @@ class TimeDelayNetwork(NeuralEstimator):
 
     def predict_windows(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Batch outputs (kg) per experiment from RAW ``(T_i, n_inputs)`` arrays; NaN where no
-        estimate (used to check that streaming equals batch)."""
+        estimate (used to check that streaming equals batch).
+
+        Parameters
+        ----------
+        inputs : Sequence[numpy.ndarray]
+            Per experiment, the raw ``(T_i, n_inputs)`` inputs (``input_names`` columns, SI units).
+        """
         if self.decimation != 1:
             raise EstimatorError(f"{self.name}: predict_windows runs at the data's rate only "
                                  "(--decimation 1); use estimate()")
@@ -345,7 +362,13 @@ class DistributedDelayNetwork(NeuralEstimator):
         return StepResult(self._unscale_output(a[0]), Status.OK)
 
     def predict_windows(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
-        """Batch outputs (kg) per experiment from RAW inputs, NaN where no estimate."""
+        """Batch outputs (kg) per experiment from RAW inputs, NaN where no estimate.
+
+        Parameters
+        ----------
+        inputs : Sequence[numpy.ndarray]
+            Per experiment, the raw ``(T_i, n_inputs)`` inputs (``input_names`` columns, SI units).
+        """
         dmax = max(self.delay_list)
         w = torch.as_tensor(self.weights)
         out = []

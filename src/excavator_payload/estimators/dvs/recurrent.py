@@ -64,7 +64,22 @@ from excavator_payload.estimators.dvs.common import (
 
 # -- structure ---------------------------------------------------------------------------------
 def parse_delay_option(raw, name: str, minimum: int = 0) -> tuple[int, ...]:
-    """Delays from ``"0:5"``, ``"1"``, ``"1,2"``, ``"none"`` (empty) or a list; sorted, distinct."""
+    """Delays from ``"0:5"``, ``"1"``, ``"1,2"``, ``"none"`` (empty) or a list; sorted, distinct.
+
+    Parameters
+    ----------
+    raw : Any
+        The option's value.
+    name : str
+        Option name, for error messages.
+    minimum : int
+        Smallest delay allowed, samples.
+
+    Returns
+    -------
+    tuple of int
+        The delays, samples.
+    """
     if isinstance(raw, str) and raw.strip().lower() in ("none", ""):
         return ()
     delays = parse_int_list(raw, f"--{name.replace('_', '-')}")
@@ -77,6 +92,17 @@ def parse_delay_option(raw, name: str, minimum: int = 0) -> tuple[int, ...]:
 @dataclass(frozen=True)
 class RecurrentStructure:
     """Sizes and delays of a recurrent network (see the module docstring for the equations).
+
+    Parameters
+    ----------
+    n_signals : int
+        Input signals per sample.
+    hidden : tuple of int
+        Neurons of each hidden layer.
+    input_delays, feedback_delays, layer_delays : tuple of int
+        Delays in samples, as under Attributes.
+    recurrent_layers : tuple of int
+        Hidden layers (0-based) with layer feedback.
 
     Attributes
     ----------
@@ -152,7 +178,13 @@ class RecurrentStructure:
 
     @classmethod
     def from_dict(cls, d: dict) -> "RecurrentStructure":
-        """The structure saved by :meth:`to_dict`."""
+        """The structure saved by :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            What :meth:`to_dict` returned.
+        """
         return cls(int(d["n_signals"]), tuple(d["hidden"]), tuple(d["input_delays"]),
                    tuple(d["feedback_delays"]), tuple(d["layer_delays"]), tuple(d["recurrent_layers"]))
 
@@ -161,6 +193,13 @@ def unpack_weights(w, structure: RecurrentStructure) -> list[tuple]:
     """Split the flat weight vector into ``[(W, b), ...]`` (works for torch and numpy).
 
     Layout: for each layer in order, ``W`` row-major then ``b``.
+
+    Parameters
+    ----------
+    w : torch.Tensor or numpy.ndarray
+        Flat weight vector, ``structure.n_weights`` entries.
+    structure : RecurrentStructure
+        The network's sizes and delays.
     """
     layers, start = [], 0
     for n_out, n_in in structure.layer_shapes():
@@ -180,6 +219,13 @@ def init_weights(structure: RecurrentStructure, generator: torch.Generator) -> t
     Each layer is initialised as a layer whose inputs are all its (scaled, :math:`[-1, 1]`)
     inputs: feed-forward, fed-back output and delayed own outputs alike, as ``initnw`` treats
     every weight into a layer.
+
+    Parameters
+    ----------
+    structure : RecurrentStructure
+        The network's sizes and delays.
+    generator : torch.Generator
+        Random number generator (seeded by the caller).
     """
     return torch.cat([nguyen_widrow_init([n_in, n_out], generator)
                       for n_out, n_in in structure.layer_shapes()])
@@ -192,6 +238,15 @@ def tapped_delay_inputs(u, input_delays: Sequence[int], warmup: int):
     Row :math:`j` (sample :math:`k = \\text{warmup}+j`) is
     :math:`[u_{k-d_0}, u_{k-d_1}, \\dots]`; works on torch tensors and numpy arrays of shape
     ``(..., T, n_signals)``.
+
+    Parameters
+    ----------
+    u : torch.Tensor or numpy.ndarray
+        Scaled inputs, ``(..., T, n_signals)``.
+    input_delays : Sequence[int]
+        Input delays, samples.
+    warmup : int
+        Samples that only fill delay lines (``structure.warmup``).
     """
     T = u.shape[-2]
     parts = [u[..., warmup - d:T - d, :] for d in input_delays]
@@ -273,6 +328,15 @@ class RecurrentStepper:
     Keeps the input delay line, the fed-back outputs and the delayed hidden-layer outputs.
     ``step(u)`` takes one *scaled* input sample and returns the scaled estimate, or NaN while
     the delay lines fill.
+
+    Parameters
+    ----------
+    w : numpy.ndarray
+        Flat weight vector.
+    structure : RecurrentStructure
+        The network's sizes and delays.
+    initial_output : float
+        Fed-back output before the first estimate (scaled units).
     """
 
     def __init__(self, w: np.ndarray, structure: RecurrentStructure, initial_output: float) -> None:
@@ -298,7 +362,13 @@ class RecurrentStepper:
 
     def step(self, u: np.ndarray) -> float:
         """Feed one scaled input sample ``u`` (``n_signals``,); return the scaled estimate, or NaN
-        during the first ``structure.warmup`` samples."""
+        during the first ``structure.warmup`` samples.
+
+        Parameters
+        ----------
+        u : numpy.ndarray
+            One scaled input sample, ``(n_signals,)``.
+        """
         s = self.structure
         self._inputs.append(u)
         if len(self._inputs) > self._max_in + 1:
@@ -349,6 +419,15 @@ def open_loop_gradients(w: torch.Tensor, x: torch.Tensor,
     Written out rather than ``vmap(grad)`` because it is ~25× faster for these tiny layers;
     the result is checked against ``torch.func`` in the tests.
 
+    Parameters
+    ----------
+    w : torch.Tensor
+        Flat weight vector.
+    x : torch.Tensor
+        Inputs of the first layer, (N × n_in).
+    structure : RecurrentStructure
+        The network's sizes and delays.
+
     Returns
     -------
     dy_dw : Tensor (N, n_weights), in the layout of :func:`unpack_weights`
@@ -387,6 +466,17 @@ def narx_jacobian(w: torch.Tensor, u: torch.Tensor, structure: RecurrentStructur
     from one vectorised pass over all experiments and samples (:func:`open_loop_gradients`);
     only the cheap linear recursion runs step by step. Equals ``jacfwd`` of :func:`rollout` (tested) at a
     fraction of its cost, because the only recurrent state is the scalar output.
+
+    Parameters
+    ----------
+    w : torch.Tensor
+        Flat weight vector.
+    u : torch.Tensor
+        Scaled inputs, ``(n_experiments, T, n_signals)``.
+    structure : RecurrentStructure
+        A structure with output feedback only.
+    initial_output : float
+        Fed-back output before the first estimate (scaled units).
 
     Returns
     -------
@@ -428,6 +518,17 @@ def experiment_jacobian(w: torch.Tensor, u: torch.Tensor, structure: RecurrentSt
     one-experiment rollout gives the block-diagonal structure for free: ``n_steps`` backward
     passes per experiment instead of ``n_weights`` forward passes over all of them
     (``jacfwd``). Returns ``(n_experiments, n_steps, n_weights)``.
+
+    Parameters
+    ----------
+    w : torch.Tensor
+        Flat weight vector.
+    u : torch.Tensor
+        Scaled inputs, ``(n_experiments, T, n_signals)``.
+    structure : RecurrentStructure
+        The network's sizes and delays.
+    initial_output : float
+        Fed-back output before the first estimate (scaled units).
     """
     def one(w_, u_):
         return rollout(w_, u_[None], structure, initial_output)[0]
@@ -462,6 +563,19 @@ def bptt_jacobian(w: torch.Tensor, u: torch.Tensor, structure: RecurrentStructur
     :func:`rollout` (tested) at a small fraction of its cost for layer-recurrent nets.
 
     Returns ``(n_experiments, n_steps, n_weights)``.
+
+    Parameters
+    ----------
+    w : torch.Tensor
+        Flat weight vector.
+    u : torch.Tensor
+        Scaled inputs, ``(n_experiments, T, n_signals)``.
+    structure : RecurrentStructure
+        The network's sizes and delays.
+    initial_output : float
+        Fed-back output before the first estimate (scaled units).
+    chunk : int
+        Outputs carried at once (bounds memory).
     """
     if u.shape[0] > chunk:
         return torch.cat([bptt_jacobian(w, u[i:i + chunk], structure, initial_output, chunk)
@@ -547,6 +661,13 @@ class RecurrentNetwork(NeuralEstimator):
 
     After :meth:`fit`, ``initial_payload`` (kg) is the fed-back value before the first estimate
     and ``structure`` describes the network.
+
+    Parameters
+    ----------
+    machine : Machine, str or None
+        Optional: a network needs none (its plausibility limits then come from the data's machine).
+    **options
+        Estimator options, see the class attribute ``OPTIONS``.
     """
 
     def __init__(self, machine=None, **options: Any) -> None:
@@ -651,7 +772,13 @@ class RecurrentNetwork(NeuralEstimator):
 
     def predict_experiments(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Vectorised closed-loop estimates (kg) of unscaled per-experiment ``(T_i, k)`` input
-        arrays (``input_names`` columns); NaN for the warm-up samples. Equals streaming."""
+        arrays (``input_names`` columns); NaN for the warm-up samples. Equals streaming.
+
+        Parameters
+        ----------
+        inputs : Sequence[numpy.ndarray]
+            Per experiment, the raw ``(T_i, k)`` inputs (SI units).
+        """
         if self.decimation != 1:
             raise EstimatorError(f"{self.name}: predict_experiments runs at the data's rate only "
                                  "(--decimation 1); use estimate()")

@@ -109,6 +109,23 @@ class TrainingLog:
     parameters, ``alpha``/``beta`` the regularisation hyper-parameters, ``mu`` the damping used
     for the step, ``validation_sse`` the validation :math:`E_D` (NaN without a validation set),
     ``grad_norm`` :math:`\\|\\nabla F\\|`. ``gamma``, ``alpha``, ``beta``, ``mu`` are NaN for Adam.
+
+    Parameters
+    ----------
+    epoch, sse, sum_sq_weights, gamma, alpha, beta, mu, validation_sse, grad_norm : list
+        Per-epoch columns, as above (empty for a new log).
+    stop_reason : str
+        Why training stopped.
+    seconds : float
+        Training time, s.
+    n_errors : int
+        Number of residuals.
+    n_parameters : int
+        Number of weights.
+    trainer : str
+        ``"trainbr"`` or ``"adam"``.
+    best_epoch : int
+        Epoch whose weights were returned (-1: the last).
     """
 
     epoch: list[int] = field(default_factory=list)
@@ -131,7 +148,15 @@ class TrainingLog:
 
     def append(self, epoch, sse, sum_sq_weights, gamma, alpha, beta, mu, validation_sse,
                grad_norm) -> None:
-        """Add one epoch's row (the per-epoch fields in :data:`LOG_COLUMNS` order)."""
+        """Add one epoch's row (the per-epoch fields in :data:`LOG_COLUMNS` order).
+
+        Parameters
+        ----------
+        epoch : int
+            Epoch number.
+        sse, sum_sq_weights, gamma, alpha, beta, mu, validation_sse, grad_norm : float
+            That epoch's values (see the class docstring).
+        """
         for name, value in zip(LOG_COLUMNS, (epoch, sse, sum_sq_weights, gamma, alpha, beta, mu,
                                              validation_sse, grad_norm)):
             getattr(self, name).append(int(value) if name == "epoch" else float(value))
@@ -145,7 +170,15 @@ class TrainingLog:
                    n_errors: int = 0, n_parameters: int = 0, trainer: str = "",
                    best_epoch: int = -1) -> "TrainingLog":
         """A log from the per-epoch table of :meth:`to_frame` (absent columns become NaN) and the
-        run's summary fields."""
+        run's summary fields.
+
+        Parameters
+        ----------
+        frame : pandas.DataFrame
+            Per-epoch table (:meth:`to_frame`).
+        stop_reason, seconds, n_errors, n_parameters, trainer, best_epoch
+            The run's summary fields (see the class docstring).
+        """
         log = cls(stop_reason=stop_reason, seconds=float(seconds), n_errors=int(n_errors),
                   n_parameters=int(n_parameters), trainer=trainer, best_epoch=int(best_epoch))
         for c in LOG_COLUMNS:
@@ -174,7 +207,13 @@ class TrainingLog:
         return self.validation_sse[self.epoch.index(self.best_epoch)]
 
     def plot(self, path) -> None:
-        """Save a figure like thesis Fig. 6.3: SSE (training and validation), E_W, γ and μ."""
+        """Save a figure like thesis Fig. 6.3: SSE (training and validation), E_W, γ and μ.
+
+        Parameters
+        ----------
+        path : str or Path
+            Image file to write (parent folders created).
+        """
         import matplotlib
 
         matplotlib.use("Agg", force=False)
@@ -221,6 +260,20 @@ def jacobian_forward(residuals: Residuals, w: torch.Tensor, chunk_size: int = 64
     Forward mode costs one forward pass per weight, which beats reverse mode when there are
     fewer weights than residuals (always, for these networks); ``chunk_size`` tangents are
     pushed at once to bound memory.
+
+    Parameters
+    ----------
+    residuals : callable
+        ``residuals(w) -> e``, the flattened errors.
+    w : torch.Tensor
+        Flat weight vector.
+    chunk_size : int
+        Tangents pushed at once.
+
+    Returns
+    -------
+    torch.Tensor
+        J, (N × P).
     """
     n_params = w.numel()
     eye = torch.eye(n_params, dtype=w.dtype)
@@ -246,7 +299,15 @@ GRAM_TILES = 2
 
 
 def row_blocks(n_rows: int, size: int = GRAM_BLOCK_ROWS) -> list[slice]:
-    """``n_rows`` rows cut into ``ceil(n_rows / size)`` contiguous blocks of (nearly) equal size."""
+    """``n_rows`` rows cut into ``ceil(n_rows / size)`` contiguous blocks of (nearly) equal size.
+
+    Parameters
+    ----------
+    n_rows : int
+        Number of rows.
+    size : int
+        Largest block size, rows.
+    """
     n_rows = int(n_rows)
     k = max(1, -(-n_rows // int(size)))
     edges = [(i * n_rows) // k for i in range(k + 1)]
@@ -642,6 +703,34 @@ def train_adam(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, lr
     The log has the same columns; γ, α, β, μ are NaN. Torch runs single-threaded here: a step's
     operations are too small to gain from threads, and on a busy machine threads waiting for
     each other at every operation made them many times slower.
+
+    Parameters
+    ----------
+    residuals : callable
+        ``residuals(w) -> e``: the flattened errors (scaled units).
+    w0 : torch.Tensor
+        Initial weights (1-D).
+    epochs : int
+        Most Adam steps.
+    lr : float
+        Learning rate.
+    validation : callable, optional
+        ``validation(w) -> float``: the validation SSE, logged every epoch.
+    progress : bool
+        Show a progress bar.
+    description : str
+        Label of the progress bar.
+    max_seconds : float, optional
+        Stop after training this long, s.
+    best_validation : bool
+        Return the weights of the lowest validation SSE instead of the last.
+    validation_patience : int
+        Stop after this many epochs without validation improvement (0: never).
+
+    Returns
+    -------
+    tuple of (torch.Tensor, TrainingLog)
+        The weights and the log.
     """
     from excavator_payload.execution import numeric_threads
 

@@ -42,7 +42,24 @@ def held_direction(speed: np.ndarray, runs: np.ndarray, threshold: np.ndarray,
     where it slides faster than ``threshold`` (per cylinder), held through up to ``held``
     slower samples, then 0 — a standstill's friction is unknown within ± breakaway, mean 0, its
     spread in the windows' standstill variance — and 0 from the start of each run until the
-    first sliding. ``speed`` (n, 3), ``runs`` a run id per row."""
+    first sliding. ``speed`` (n, 3), ``runs`` a run id per row.
+
+    Parameters
+    ----------
+    speed : numpy.ndarray
+        Rod speeds of the three arm cylinders, (n, 3), m/s.
+    runs : numpy.ndarray
+        Run id per row (equal ids: contiguous samples).
+    threshold : numpy.ndarray
+        Sliding speed per cylinder (3), m/s.
+    held : int
+        Slower samples through which the last sign is held.
+
+    Returns
+    -------
+    numpy.ndarray
+        -1, 0 or +1 per row and cylinder, (n, 3).
+    """
     marks = np.where(np.abs(speed) > threshold, np.sign(speed), np.nan)
     start = np.r_[True, runs[1:] != runs[:-1]]
     marks[start] = np.where(np.isnan(marks[start]), 0.0, marks[start])
@@ -55,7 +72,20 @@ def held_direction(speed: np.ndarray, runs: np.ndarray, threshold: np.ndarray,
 
 def momentum_windows(runs: np.ndarray, half: int) -> np.ndarray:
     """Centres ``c`` (row indices) whose window ``c - half … c + half`` lies in one run of
-    contiguous samples (``runs``: a run id per row, equal ids = contiguous)."""
+    contiguous samples (``runs``: a run id per row, equal ids = contiguous).
+
+    Parameters
+    ----------
+    runs : numpy.ndarray
+        Run id per row.
+    half : int
+        Samples each side of a window's centre.
+
+    Returns
+    -------
+    numpy.ndarray
+        The centres' row indices.
+    """
     n = len(runs)
     if n <= 2 * half:
         return np.zeros(0, int)
@@ -69,7 +99,15 @@ def balance_weights(half: int, ramp: int) -> tuple[np.ndarray, np.ndarray]:
     intervals (a trapezoid in time, 0 after the last interval); ``u_j = v_{j-1} - v_j`` are its
     differences, so Σ v_j (P_{j+1} - P_j) = Σ u_j P_j (summation by parts) and each end's
     momentum is averaged over ``ramp`` samples. Each interval's integral is the trapezoid rule,
-    (I_j + I_{j+1})/2 Δt, so the integrand's weight is w_j = (v_j + v_{j-1})/2 (Σw = Σv)."""
+    (I_j + I_{j+1})/2 Δt, so the integrand's weight is w_j = (v_j + v_{j-1})/2 (Σw = Σv).
+
+    Parameters
+    ----------
+    half : int
+        Samples each side of the window's centre.
+    ramp : int
+        Sample intervals over which the balance's weight rises and falls.
+    """
     L = 2 * half + 1
     j = np.arange(L)
     v = np.minimum(1.0, np.minimum((j + 1) / ramp, (L - 1 - j) / ramp))
@@ -107,6 +145,26 @@ def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, ha
     of a hydraulic machine are continuous (valve and pressure dynamics; the NMPC simulator's
     force lag). A left rectangle rule is exact only for inputs held over each sample period,
     as the NMPC simulator's were before it had the lag (README, "Not done yet").
+
+    Parameters
+    ----------
+    A : numpy.ndarray
+        Per-sample momentum terms (or their derivatives), (n, 12[, nz]).
+    payload : numpy.ndarray
+        Known payload per row, kg.
+    centres : numpy.ndarray
+        Row indices of the window centres (:func:`momentum_windows`).
+    half : int
+        Samples each side of a centre.
+    dt : float
+        Sample period, s.
+    ramp : int
+        Ramp of the balance weights (:func:`balance_weights`).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(r, -phi)``, one row per window, one column per joint.
     """
     w, u = balance_weights(half, ramp)
     W = float(w.sum()) * dt
@@ -121,7 +179,18 @@ def window_residuals(A: np.ndarray, payload: np.ndarray, centres: np.ndarray, ha
 
 def rate_variance(dataset: Dataset) -> float:
     """White-noise variance of the measured joint rates, from their second differences
-    (var(Δ²x) = 6σ² for white noise on a smooth signal; the median makes it robust to jumps)."""
+    (var(Δ²x) = 6σ² for white noise on a smooth signal; the median makes it robust to jumps).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+
+    Returns
+    -------
+    float
+        Variance, (rad/s)² (0 with fewer than 10 usable rows).
+    """
     rates = dataset.frame[[SIGNALS[i] for i in RATES[:3]]].to_numpy(float)
     d2 = np.diff(rates, 2, axis=0)
     d2 = d2[np.all(np.isfinite(d2), axis=1)]
@@ -133,7 +202,18 @@ def rate_variance(dataset: Dataset) -> float:
 def pressure_noise_from_data(dataset: Dataset) -> float:
     """White noise of the pressure transmitters (Pa) from second differences of the measured
     pressures (as :func:`rate_variance`): needs no known payload, so any data will do; it sees
-    the white noise and the aliased pump ripple, as the estimator does."""
+    the white noise and the aliased pump ripple, as the estimator does.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+
+    Returns
+    -------
+    float
+        Standard deviation, Pa.
+    """
     cols = [SIGNALS[i] for i in PRESSURES]
     x = dataset.frame[cols].to_numpy(float)
     d2 = np.diff(x, 2, axis=0)
@@ -149,6 +229,18 @@ def accel_variance(dataset: Dataset, half_window: int) -> float:
     The rate noise is estimated from the data (second differences of the measured rates:
     var(Δ²x) = 6σ² for white noise on a smooth signal), then passed through the least-squares
     slope: σ² / Σ t_k².
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+    half_window : int
+        Samples each side of the differentiator's slope.
+
+    Returns
+    -------
+    float
+        Variance, (rad/s²)².
     """
     rates = dataset.frame[[SIGNALS[i] for i in RATES[:3]]].to_numpy(float)
     d2 = np.diff(rates, 2, axis=0)
@@ -162,7 +254,15 @@ def accel_variance(dataset: Dataset, half_window: int) -> float:
 
 
 def accelerations(dataset: Dataset, half_window: int) -> np.ndarray:
-    """Centred least-squares slope of the measured rates (n, 4), per experiment, rad/s²."""
+    """Centred least-squares slope of the measured rates (n, 4), per experiment, rad/s².
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+    half_window : int
+        Samples each side of the slope (NaN where the window does not fit an experiment).
+    """
     f = dataset.frame
     rates = f[[SIGNALS[i] for i in RATES]].to_numpy(float)
     out = np.full_like(rates, np.nan)
@@ -231,6 +331,15 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
     With the sensitivities' prior (:data:`IMU_PRIOR_STD`, mean 0): a joint the data hardly
     accelerate keeps about 0 and the prior's std.
 
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data (no payload needed).
+    half_window : int
+        Samples each side of the differentiator for the accelerations.
+    machine : HydraulicMachine or None
+        Machine whose angle ranges end a run (None: no range check).
+
     Returns
     -------
     k, std : ndarray
@@ -280,7 +389,22 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
 
 def calibration_arrays(dataset: Dataset, half_window: int, machine=None):
     """Measured signals, derived accelerations, payloads and run ids of the valid samples
-    (equal run ids: contiguous samples of one experiment)."""
+    (equal run ids: contiguous samples of one experiment).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data (``payload`` column, kg, if any; else 0).
+    half_window : int
+        Samples each side of the differentiator for the accelerations.
+    machine : HydraulicMachine or None
+        Machine whose angle ranges drop samples (None: no range check).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(values, qdd, payload, runs)`` of the valid rows.
+    """
     values = dataset.frame[list(SIGNALS)].to_numpy(float)
     qdd = accelerations(dataset, half_window)
     payload = dataset.frame["payload"].to_numpy(float) if "payload" in dataset.frame else np.zeros(len(values))
@@ -304,6 +428,13 @@ def angle_coverage(dataset: Dataset, offsets: np.ndarray) -> np.ndarray:
     Where a joint's angle leaves this range the calibrated model extrapolates (the bucket's
     four-bar linkage above all: work cycles begin with the bucket open at −20…+10°, calibration
     swings keep it at −115…−30°), and ``--outside-calibration skip`` does not weigh that joint.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The calibration data.
+    offsets : numpy.ndarray
+        Sensor offsets per signal (``MachineCalibration.offset_vector``), SI units.
     """
     angles = dataset.frame[[SIGNALS[i] for i in ANGLES]].to_numpy(float) - offsets[ANGLES]
     out = np.tile([-NO_LIMIT, NO_LIMIT], (3, 1))

@@ -101,7 +101,13 @@ class MachineCalibration:
     @staticmethod
     def prior_std(relative: float) -> np.ndarray:
         """Prior standard deviation of each entry of ``z``: ``relative`` (a share) for every
-        calibrated parameter, then :data:`OFFSET_PRIOR_STD` and :data:`IMU_PRIOR_STD` (SI units)."""
+        calibrated parameter, then :data:`OFFSET_PRIOR_STD` and :data:`IMU_PRIOR_STD` (SI units).
+
+        Parameters
+        ----------
+        relative : float
+            Prior std of each calibrated parameter, as a share of its file value.
+        """
         return np.r_[np.full(len(CALIBRATED_PARAMETERS), relative), OFFSET_PRIOR_STD, IMU_PRIOR_STD]
 
     @property
@@ -143,7 +149,19 @@ class MachineCalibration:
 
     # -- batch evaluation ------------------------------------------------------------------
     def evaluate(self, values: np.ndarray, qdd: np.ndarray, payload: np.ndarray, z: np.ndarray):
-        """Residuals (n, 3), Jacobian (n, 3, nz), lever, speed, stiction (n, 3) of samples."""
+        """Residuals (n, 3), Jacobian (n, 3, nz), lever, speed, stiction (n, 3) of samples.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            Measured samples (n, signals), SI units.
+        qdd : numpy.ndarray
+            Derived accelerations (n, 4), rad/s².
+        payload : numpy.ndarray
+            Known payload per sample, kg.
+        z : numpy.ndarray
+            Calibration vector (parameter shares, offsets, IMU sensitivities).
+        """
         n = len(values)
         out = column_map(compiled("residual"), n)(values.T, qdd.T, payload[None, :], self.p_file, z)
         r, J, lever, speed, stiction, inertia, dr_dm = out
@@ -158,7 +176,25 @@ class MachineCalibration:
                          runs: np.ndarray, half: int = BALANCE_HALF_WINDOW, ramp: int = BALANCE_RAMP):
         """As :meth:`evaluate`, on the momentum-balance windows of ``half`` samples each side
         (:func:`window_residuals`): one row per window centre, and the centres' row indices.
-        The window's lever is its centre's."""
+        The window's lever is its centre's.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            Measured samples (n, signals), SI units.
+        qdd : numpy.ndarray
+            Derived accelerations (n, 4), rad/s².
+        payload : numpy.ndarray
+            Known payload per sample, kg.
+        z : numpy.ndarray
+            Calibration vector.
+        runs : numpy.ndarray
+            Run id per row (equal ids: contiguous samples).
+        half : int
+            Samples each side of a window's centre.
+        ramp : int
+            Ramp of the balance weights, sample intervals.
+        """
         n = len(values)
         sign = held_direction(self.rod_speeds(values), runs, self._stribeck)
         out = column_map(compiled("momentum"), n)(values.T, qdd.T, self.p_file, z, sign.T)
@@ -216,6 +252,22 @@ class MachineCalibration:
         weights), the ends' momentum noise :math:`v_e` as its own. The ratio
         :math:`f_j = \sum w r_j^2 / \sum E[w r_j^2]` (≥ 1) is measured once the machine is
         identified, as a variance component (measured values: docs/findings/machine-calibration.md).
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            Measured samples (n, signals), SI units.
+        qdd : numpy.ndarray
+            Derived accelerations (n, 4), rad/s².
+        payload : numpy.ndarray
+            Known payload per sample, kg.
+        runs : numpy.ndarray
+            Run id per row.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``f_j`` per joint (3), at least 1.
         """
         r, _, lever, speed, stiction, _ = self.evaluate_windows(values, qdd, payload, self.z, runs)
         w = self.weights(lever, speed, stiction, "downweight", self.pressure_std)
@@ -232,7 +284,13 @@ class MachineCalibration:
         return out
 
     def rod_speeds(self, values: np.ndarray) -> np.ndarray:
-        """Rod speeds (n, 3) of the raw measured angles and rates at the file's parameters."""
+        """Rod speeds (n, 3) of the raw measured angles and rates at the file's parameters.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            Measured samples (n, signals), SI units.
+        """
         q = np.zeros((len(values), 4))
         q[:, :3] = values[:, ANGLES]
         f = column_map(compiled_function("cylinder_speeds"), len(values))
@@ -241,7 +299,20 @@ class MachineCalibration:
     def moving_samples(self, values: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Samples on which each arm cylinder (boom, dipper, bucket) moves: its rod speed at the
         identified machine above the 3 Stribeck velocities below which calibration treats it as
-        stuck (what the calibration can learn that cylinder's friction and geometry from)."""
+        stuck (what the calibration can learn that cylinder's friction and geometry from).
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            Measured samples (n, signals), SI units.
+        qdd : numpy.ndarray
+            Derived accelerations (n, 4), rad/s².
+
+        Returns
+        -------
+        numpy.ndarray
+            Count per cylinder (3).
+        """
         n = len(values)
         if n == 0:
             return np.zeros(3, int)
@@ -250,7 +321,21 @@ class MachineCalibration:
         return np.sum(np.abs(out[9:12].T) >= self._still_speed, axis=0)
 
     def weights(self, lever, speed, stiction, low_speed: str, pressure_std: float) -> np.ndarray:
-        """Inverse residual variances (n, 3) for the low-speed choice (0: sample skipped)."""
+        """Inverse residual variances (n, 3) for the low-speed choice (0: sample skipped).
+
+        Parameters
+        ----------
+        lever : numpy.ndarray
+            Lever of each cylinder force on its joint (n, 3), m.
+        speed : numpy.ndarray
+            Rod speeds (n, 3), m/s.
+        stiction : numpy.ndarray
+            Stiction (breakaway) torque of each cylinder on its joint (n, 3), N·m.
+        low_speed : str
+            One of :data:`LOW_SPEED_CHOICES`.
+        pressure_std : float
+            White noise of one pressure transmitter, Pa.
+        """
         var = lever**2 * (self._head**2 + self._rod**2) * (pressure_std**2 + 1.0) + self._extra_var
         still = np.exp(-(speed / self._still_speed) ** 2)
         if low_speed == "downweight":
@@ -268,6 +353,27 @@ class MachineCalibration:
         A plain Gauss–Newton step overshoots where the slow lifts leave directions weakly
         determined and the geometry is non-linear; the damping λ grows until a step lowers the
         posterior cost, and shrinks after each success.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            Measured samples (n, signals), SI units.
+        qdd : numpy.ndarray
+            Derived accelerations (n, 4), rad/s².
+        payload : numpy.ndarray
+            Known payload per sample, kg.
+        free : numpy.ndarray
+            Indices of the entries of z to fit.
+        prior_mean, prior_std : numpy.ndarray
+            Prior mean and std of every entry of z.
+        low_speed : str
+            One of :data:`LOW_SPEED_CHOICES`.
+        iterations : int
+            Most Levenberg–Marquardt steps.
+        estimate_noise : bool
+            Also estimate :attr:`pressure_std` from the residuals.
+        runs : numpy.ndarray or None
+            Run ids: fit the momentum-balance windows (None: per-sample residuals).
         """
         z = self.z.copy()
         scale = prior_std[free]  # solve in prior-normalised units u = (z - μ)/σ: well conditioned
@@ -342,7 +448,23 @@ class MachineCalibration:
                outside_calibration: str = "auto", wait_for_boom: str = "auto",
                new_load: str = "auto") -> "CalibratedKernel":
         """A streaming :class:`CalibratedKernel` weighing with this calibration (the arguments are
-        its own)."""
+        its own).
+
+        Parameters
+        ----------
+        half_window : int
+            Samples each side of the differentiator.
+        forgetting : float
+            Forgetting factor λ in (0, 1].
+        low_speed : str
+            One of :data:`LOW_SPEED_CHOICES`.
+        outside_calibration : str
+            One of :data:`OUTSIDE_CALIBRATION_CHOICES`.
+        wait_for_boom : str
+            One of :data:`WAIT_FOR_BOOM_CHOICES`.
+        new_load : str
+            One of :data:`NEW_LOAD_CHOICES`.
+        """
         return CalibratedKernel(self, half_window, forgetting, low_speed, outside_calibration, wait_for_boom,
                                 new_load)
 
@@ -356,6 +478,26 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
     ``pressure_std`` None: estimated from the data; else fixed (Pa). ``balance``: per-sample
     residuals with differentiated accelerations, or the momentum balance over windows.
     ``imu_leak``: :data:`IMU_LEAK_CHOICES`.
+
+    Parameters
+    ----------
+    arm : HydraulicArmModel
+        The machine file's model (the prior).
+    dataset : Dataset
+        Machine-sensor-set data with the known ``payload``, kg.
+    prior_std : float
+        Prior std of each parameter as a share of its file value.
+    low_speed : str
+        One of :data:`LOW_SPEED_CHOICES`.
+    half_window : int
+        Samples each side of the differentiator (not used: calibration uses
+        :data:`CALIBRATION_HALF_WINDOW`).
+    pressure_std : float or None
+        Pressure noise, Pa (None: from the data).
+    balance : str
+        One of :data:`BALANCE_CHOICES`.
+    imu_leak : str
+        One of :data:`IMU_LEAK_CHOICES`.
     """
     if low_speed not in LOW_SPEED_CHOICES:
         raise EstimatorError(f"--low-speed must be one of {', '.join(LOW_SPEED_CHOICES)}")
@@ -425,7 +567,26 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
                  half_window: int = 5, drift_std: np.ndarray = OFFSET_PRIOR_STD) -> tuple[int, np.ndarray]:
     """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc).
     Returns how many samples it used (the valid ones: finite, angles within range) and, per
-    arm cylinder, how many of them it moved on (a still cylinder's offsets are not checked)."""
+    arm cylinder, how many of them it moved on (a still cylinder's offsets are not checked).
+
+    Parameters
+    ----------
+    cal : MachineCalibration
+        The calibration to update (offsets only).
+    dataset : Dataset
+        Empty-bucket data (payload 0).
+    low_speed : str
+        One of :data:`LOW_SPEED_CHOICES`.
+    half_window : int
+        Samples each side of the differentiator (not used: :data:`CALIBRATION_HALF_WINDOW`).
+    drift_std : numpy.ndarray
+        Prior std of each offset's change, Pa or rad.
+
+    Returns
+    -------
+    tuple of (int, numpy.ndarray)
+        Samples used, and per arm cylinder the samples it moved on.
+    """
     values, qdd, payload, runs = calibration_arrays(dataset, CALIBRATION_HALF_WINDOW, cal.arm.machine)
     cal.accel_var = accel_variance(dataset, CALIBRATION_HALF_WINDOW)
     if len(values) < 50:
