@@ -168,6 +168,31 @@ def parameter_violations(members):
     return out
 
 
+def takes_parameters(obj) -> bool:
+    """Whether ``obj`` takes named parameters a reader must be told about: a function's or
+    method's besides ``self``/``cls``/``*args``/``**kwargs``; a class's only when it defines
+    its own ``__init__`` (a dataclass's generated one included)."""
+    if inspect.isclass(obj):
+        if "__init__" not in vars(obj):
+            return False
+        func = obj.__init__
+    else:
+        func = obj[1] if isinstance(obj, tuple) else obj
+    try:
+        params = inspect.signature(func).parameters.values()
+    except (TypeError, ValueError):
+        return False
+    return any(p.name not in ("self", "cls") and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+               for p in params)
+
+
+def undocumented_parameters(members):
+    """Names of the objects among ``members`` that take parameters but document none (no
+    numpydoc ``Parameters`` section, own or inherited from the method they override)."""
+    return [name for name, obj in members
+            if takes_parameters(obj) and documented_parameters(_own_doc(obj)) is None]
+
+
 # ---------------------------------------------------------------- the tests
 
 MODULES = _modules()
@@ -189,6 +214,12 @@ def test_every_module_has_a_docstring():
 def test_every_public_function_class_and_method_has_a_docstring():
     bad = docstring_violations(MEMBERS)
     assert not bad, "public objects without a docstring:\n" + "\n".join(bad)
+
+
+def test_every_public_callable_documents_its_parameters():
+    bad = undocumented_parameters(MEMBERS)
+    assert not bad, ("public callables that take parameters but have no Parameters section:\n"
+                     + "\n".join(bad))
 
 
 def test_parameters_sections_match_signatures():
@@ -274,6 +305,18 @@ def test_checker_flags_a_bad_dummy():
                ("good", _good_dummy), ("data", _UndocumentedData), ("tuple", _UndocumentedTuple)]
     # the signature dataclasses / NamedTuple put into __doc__ is not a docstring
     assert docstring_violations(members) == ["cls.method", "data", "tuple"]
+
+
+def test_checker_flags_undocumented_parameters():
+    def takes(alpha):
+        """Says nothing of alpha."""
+
+    def takes_none(*args, **kwargs):
+        """Nothing named to document."""
+
+    members = [("takes", takes), ("none", takes_none), ("good", _good_dummy), ("cls", _BadClass),
+               ("cls.method", (_BadClass, _BadClass.method)), ("data", _UndocumentedData)]
+    assert undocumented_parameters(members) == ["takes", "data"]
 
 
 @pytest.mark.parametrize("doc", ["", "   \n  "])
