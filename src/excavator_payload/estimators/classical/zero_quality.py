@@ -18,7 +18,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from excavator_payload.data.schema import MACHINE_SENSORS
-from excavator_payload.estimators.classical import calibrated_machine as cm
+from excavator_payload.estimators.classical.machine_calibration.data import calibration_arrays
+from excavator_payload.estimators.classical.machine_calibration.settings import (
+    CALIBRATED_PARAMETERS, CALIBRATION_HALF_WINDOW, HELD_IN_MOMENTUM, MIN_ZERO_MOVING_SAMPLES,
+    OFFSET_PRIOR_STD, OFFSET_SIGNALS)
+from excavator_payload.estimators.classical.pressure_regression import ANGLES, PRESSURES
 
 #: Arm-angle grid points per joint (boom × dipper × bucket) inside the calibration's coverage at
 #: which the weighing's sensitivity to the offsets is evaluated.
@@ -38,7 +42,7 @@ DETERMINED_SHARE = 0.5
 JOINTS = ("boom", "dipper", "bucket")
 
 
-def grid_poses(cal: "cm.MachineCalibration", points: int = GRID_POINTS) -> np.ndarray:
+def grid_poses(cal: "MachineCalibration", points: int = GRID_POINTS) -> np.ndarray:
     """Arm poses (n, 3: boom, dipper, bucket, rad) on a regular grid over the angles the
     calibration covered (:func:`~excavator_payload.estimators.classical.calibrated_machine.
     angle_coverage`), clipped to the machine's ranges.
@@ -58,7 +62,7 @@ def grid_poses(cal: "cm.MachineCalibration", points: int = GRID_POINTS) -> np.nd
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def _static_samples(cal: "cm.MachineCalibration", poses: np.ndarray, payload: float) -> np.ndarray:
+def _static_samples(cal: "MachineCalibration", poses: np.ndarray, payload: float) -> np.ndarray:
     """Raw signals (n, 15) of the arm standing at ``poses`` on level ground with ``payload``,
     as the sensors with the calibration's offsets would read them: the pressures balance the
     model's arm (one chamber at :data:`BACK_PRESSURE`, the other solved, the model being linear
@@ -66,12 +70,12 @@ def _static_samples(cal: "cm.MachineCalibration", poses: np.ndarray, payload: fl
     n = len(poses)
     offsets = cal.offset_vector()
     values = np.tile(offsets, (n, 1))
-    values[:, cm.ANGLES] += poses
+    values[:, ANGLES] += poses
     work = copy.copy(cal)  # evaluate() leaves scratch attributes behind
     qdd = np.zeros((n, 4))
     m = np.full(n, float(payload))
-    heads = [cm.PRESSURES[2 * j] for j in range(3)]
-    rods = [cm.PRESSURES[2 * j + 1] for j in range(3)]
+    heads = [PRESSURES[2 * j] for j in range(3)]
+    rods = [PRESSURES[2 * j + 1] for j in range(3)]
     values[:, heads] += BACK_PRESSURE
     values[:, rods] += BACK_PRESSURE
     r0 = work.evaluate(values, qdd, m, cal.z)[0]
@@ -91,7 +95,7 @@ def _static_samples(cal: "cm.MachineCalibration", poses: np.ndarray, payload: fl
     return values
 
 
-def weighing_sensitivity(cal: "cm.MachineCalibration", poses: np.ndarray | None = None,
+def weighing_sensitivity(cal: "MachineCalibration", poses: np.ndarray | None = None,
                          payloads: tuple[float, ...] | None = None, columns: np.ndarray | None = None) -> np.ndarray:
     r"""How the payload estimate at each pose moves per unit of each offset (kg per SI unit).
 
@@ -121,7 +125,7 @@ def weighing_sensitivity(cal: "cm.MachineCalibration", poses: np.ndarray | None 
     poses = grid_poses(cal) if poses is None else np.asarray(poses, float)
     if payloads is None:
         payloads = (0.0, float(cal.arm.machine.rated_payload))
-    n_delta, n_off = len(cm.CALIBRATED_PARAMETERS), len(cm.OFFSET_SIGNALS)
+    n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
     rows = []
     work = copy.copy(cal)
     for m in payloads:
@@ -135,7 +139,7 @@ def weighing_sensitivity(cal: "cm.MachineCalibration", poses: np.ndarray | None 
     return np.concatenate(rows)
 
 
-def offset_covariance(cal: "cm.MachineCalibration") -> np.ndarray:
+def offset_covariance(cal: "MachineCalibration") -> np.ndarray:
     """The offsets' block of the calibration's posterior covariance (SI units).
 
     Parameters
@@ -143,7 +147,7 @@ def offset_covariance(cal: "cm.MachineCalibration") -> np.ndarray:
     cal : MachineCalibration
         Calibration (after ``zero``: the zero's posterior).
     """
-    n_delta, n_off = len(cm.CALIBRATED_PARAMETERS), len(cm.OFFSET_SIGNALS)
+    n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
     return cal.covariance[n_delta:n_delta + n_off, n_delta:n_delta + n_off]
 
 
@@ -194,10 +198,10 @@ class ZeroQuality:
                 f"calibration's model as these offsets take it up {self.model_part:.0f} kg, 1 σ)")
 
 
-def _zero_jacobians(cal: "cm.MachineCalibration", dataset, columns: np.ndarray):
+def _zero_jacobians(cal: "MachineCalibration", dataset, columns: np.ndarray):
     """The zero motion's windows (or samples) as the zero weighs them: Jacobian by ``columns``
     of z (n, 3, k) and weights (n, 3)."""
-    values, qdd, payload, runs = cm.calibration_arrays(dataset, cm.CALIBRATION_HALF_WINDOW, cal.arm.machine)
+    values, qdd, payload, runs = calibration_arrays(dataset, CALIBRATION_HALF_WINDOW, cal.arm.machine)
     work = copy.copy(cal)
     if cal.balance == "momentum":
         r, J, lever, speed, stiction, _ = work.evaluate_windows(values, qdd, payload, cal.z, runs)
@@ -210,8 +214,8 @@ def _zero_jacobians(cal: "cm.MachineCalibration", dataset, columns: np.ndarray):
     return np.where(ok[..., None], J, 0.0), np.where(ok, w, 0.0)
 
 
-def zero_quality(cal: "cm.MachineCalibration", dataset, moving: np.ndarray,
-                 drift_std: np.ndarray = cm.OFFSET_PRIOR_STD) -> ZeroQuality:
+def zero_quality(cal: "MachineCalibration", dataset, moving: np.ndarray,
+                 drift_std: np.ndarray = OFFSET_PRIOR_STD) -> ZeroQuality:
     r"""Predict the weighing error a zero leaves and say whether to refuse it.
 
     Two parts, both from posteriors, both carried to the payload estimate at the calibrated
@@ -244,9 +248,9 @@ def zero_quality(cal: "cm.MachineCalibration", dataset, moving: np.ndarray,
     drift_std : ndarray
         The zero's prior std of the offsets (SI units).
     """
-    n_delta, n_off = len(cm.CALIBRATED_PARAMETERS), len(cm.OFFSET_SIGNALS)
+    n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
     offsets = np.arange(n_delta, n_delta + n_off)
-    held = [cm.CALIBRATED_PARAMETERS.index(n) for n in cm.HELD_IN_MOMENTUM]
+    held = [CALIBRATED_PARAMETERS.index(n) for n in HELD_IN_MOMENTUM]
     deltas = np.r_[np.setdiff1d(np.arange(n_delta), held), n_delta + n_off]  # parameters and IMU lag
     deltas = deltas[np.diag(cal.covariance)[deltas] > 0]
     G = weighing_sensitivity(cal, columns=np.r_[deltas, offsets])
@@ -271,14 +275,14 @@ def zero_quality(cal: "cm.MachineCalibration", dataset, moving: np.ndarray,
     refusals = []
     rate = MACHINE_SENSORS.sample_rate
     still = [JOINTS[j] for j in range(3)
-             if moving[j] < cm.MIN_ZERO_MOVING_SAMPLES or determined[j] > DETERMINED_SHARE]
+             if moving[j] < MIN_ZERO_MOVING_SAMPLES or determined[j] > DETERMINED_SHARE]
     if still:
         seconds = ", ".join(f"{j} {moving[JOINTS.index(j)] / rate:.1f} s" for j in still)
         refusals.append(
             f"the zero motion did not determine the pressure offsets of the {' and '.join(still)} "
             f"cylinder{'s' if len(still) > 1 else ''} (moving: {seconds}): repeat it with the empty "
             f"bucket, moving the {' and '.join(still)} up and down through "
-            f"{'their' if len(still) > 1 else 'its'} range, {cm.MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or "
+            f"{'their' if len(still) > 1 else 'its'} range, {MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or "
             "more each, at a steady speed")
     rated = float(cal.arm.machine.rated_payload)
     if predicted > MAX_ERROR_SHARE * rated:
