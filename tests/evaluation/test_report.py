@@ -131,6 +131,8 @@ def test_report_on_machine_work_cycles(tmp_path):
     assert signals and not list(figures_dir.glob("fig_exp*_joints.png"))
     assert all(p.read_bytes()[:8] == PNG_MAGIC for p in signals)
     assert (tmp_path / "r" / "report.html").is_file()
+    # the thesis' Tables 7.1 / 7.2 (its 2-link arm's estimators) are no section of a machine report
+    assert "Thesis Table 7.1" not in (tmp_path / "r" / "report.html").read_text()
     from excavator_payload.evaluation import figures
 
     ev = evaluate_estimates(cycles, est.estimate(cycles), label="id", with_bound=False)
