@@ -81,3 +81,17 @@ def test_attainable_reads_twice_the_bound_over_the_judged_window():
     ds.frame = frame
     reach = dm.attainable(ds, bound, 50.0, discard=100)
     assert reach.to_dict() == {0: True, 1: False}
+
+
+def test_the_reports_table_reads_as_a_table_for_people():
+    """report.md: readable headings, shares in per cent, an em dash where there is no value
+    (it showed raw column names, shares as 0/1 and `nan`)."""
+    import math
+
+    import pandas as pd
+
+    table = pd.DataFrame([{"test": "nmpc", "estimator": "calibrated", "mean_max_kg": 9.614,
+                           "within_1pct": 1.0, "within_0.25pct": 0.785, "efficiency": math.nan}])
+    text = dm.markdown_table(table)
+    assert text.splitlines()[0] == "| test motions | estimator | mean MAX (kg) | MAX ≤ 1 % rated | ≤ 0.25 % | efficiency |"
+    assert text.splitlines()[2] == "| nmpc | calibrated | 9.61 | 100% | 78% | — |"

@@ -487,8 +487,20 @@ def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
             "offsets": variant(no_offsets), "uncalibrated 3 % file": variant(uncalibrated)}
 
 
+#: Readable headings of the results table's columns in ``report.md`` (``results.csv`` keeps
+#: the names); columns named ``within_*``, ``*_share`` and ``attainable_*`` are shares.
+COLUMN_TITLES = {
+    "test": "test motions", "estimator": "estimator", "mean_max_kg": "mean MAX (kg)",
+    "mean_rms_kg": "mean RMS (kg)", "within_1pct": "MAX ≤ 1 % rated", "within_0.5pct": "≤ 0.5 %",
+    "within_0.25pct": "≤ 0.25 %", "efficiency": "efficiency", "n_test": "experiments",
+    "estimated_share": "samples estimated", "attainable_1pct": "1 % attainable (bound)",
+    "within_1pct_where_attainable": "≤ 1 % where attainable",
+}
+
+
 def markdown_table(table: pd.DataFrame) -> str:
-    """A Markdown table (numbers to 3 significant digits), without the tabulate package.
+    """A Markdown table: readable headings (:data:`COLUMN_TITLES`), shares in per cent, other
+    numbers to 3 significant digits, an em dash where there is no value.
 
     Parameters
     ----------
@@ -500,12 +512,21 @@ def markdown_table(table: pd.DataFrame) -> str:
     str
         The table, lines joined by newlines.
     """
-    def cell(v):
-        return f"{v:.3g}" if isinstance(v, float) else str(v)
+    def is_share(column):
+        return column.startswith(("within_", "attainable_")) or column.endswith("_share")
 
-    head = "| " + " | ".join(table.columns) + " |"
-    rule = "|" + "|".join("---" for _ in table.columns) + "|"
-    body = ["| " + " | ".join(cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    def cell(column, v):
+        if isinstance(v, float):
+            if not math.isfinite(v):
+                return "—"
+            return f"{v:.0%}" if is_share(column) else f"{v:.3g}"
+        return str(v)
+
+    columns = list(table.columns)
+    head = "| " + " | ".join(COLUMN_TITLES.get(c, c) for c in columns) + " |"
+    rule = "|" + "|".join("---" for _ in columns) + "|"
+    body = ["| " + " | ".join(cell(c, v) for c, v in zip(columns, row)) + " |"
+            for row in table.itertuples(index=False)]
     return "\n".join([head, rule, *body])
 
 
