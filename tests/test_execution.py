@@ -347,3 +347,22 @@ def test_absurd_worker_count_is_one_clear_error(tmp_path, capsys):
     out = tmp_path / "never-written.parquet"
     assert main(["simulate", "-n", "2", "--workers", "100000", "--out", str(out), "--quiet"]) == 2
     assert "at most" in capsys.readouterr().err and not out.exists()
+
+
+def test_progress_is_plain_lines_where_the_output_is_no_terminal():
+    """Output to a file or CI: rich draws nothing until the end, so a plain line comes at every
+    tenth of the work (and at least once a minute) with what is left (one line in 39 min before)."""
+    import io
+
+    from rich.console import Console
+
+    from excavator_payload.execution import PlainProgress
+
+    out = io.StringIO()
+    plain = PlainProgress("simulating", 100, Console(file=out, force_terminal=False, width=200))
+    for _ in range(100):
+        plain.advance(1)
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 10
+    assert lines[0].startswith("simulating: 10/100 (10%),") and "left" in lines[0]
+    assert [line.split(":")[1].split()[0] for line in lines] == [f"{k}/100" for k in range(10, 101, 10)]

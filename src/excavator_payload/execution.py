@@ -104,6 +104,61 @@ WORKER_TIMEOUT_ENV = "EXCAVATOR_PAYLOAD_WORKER_TIMEOUT"
 DEFAULT_WORKER_TIMEOUT = 60.0
 
 
+
+class PlainProgress:
+    """Progress as plain lines, for output that is no terminal: one line at every tenth of the
+    work and at least once a minute, with the time elapsed and an estimate of what is left.
+
+    Parameters
+    ----------
+    description : str
+        What is being done (the progress bar's label).
+    total : int
+        Units of work in all.
+    console : rich.console.Console
+        Where the lines go.
+    every : float
+        Seconds between lines at the least.
+    """
+
+    def __init__(self, description: str, total: int, console, every: float = 60.0):
+        import time
+
+        self._clock = time.monotonic
+        self.description, self.total, self.console, self.every = description, max(int(total), 1), console, every
+        self.done = 0
+        self._start = self._last = self._clock()
+        self._next_tenth = 1  # the next tenth of the work that gets a line
+
+    def advance(self, units: int) -> None:
+        """Count ``units`` more of the work done; print a line when a tenth or a minute passed.
+
+        Parameters
+        ----------
+        units : int
+            Units of work just finished.
+        """
+        self.done += int(units)
+        now = self._clock()
+        share = self.done / self.total
+        tenth = self.done * 10 // self.total  # whole tenths done (integers: no rounding drift)
+        if tenth < self._next_tenth and now - self._last < self.every and self.done < self.total:
+            return
+        self._next_tenth = max(self._next_tenth, tenth + 1)
+        self._last = now
+        elapsed = now - self._start
+        left = elapsed * (1 - share) / share if share > 0 else float("nan")
+        self.console.print(f"{self.description}: {self.done}/{self.total} ({share:.0%}), "
+                           f"{_minutes(elapsed)} elapsed, about {_minutes(left)} left",
+                           highlight=False, markup=False)
+
+
+def _minutes(seconds: float) -> str:
+    """``seconds`` as ``"42 s"`` or ``"3.5 min"``."""
+    if seconds != seconds:
+        return "?"
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
+
 class SchedulerError(ExcavatorPayloadError):
     """A scheduler address is malformed, the scheduler cannot be reached or no worker joins it."""
 
@@ -622,12 +677,18 @@ class Execution:
         kwargs = {"console": console} if console is not None else {}
         with Progress(*columns, disable=not progress, transient=False, **kwargs) as bar:
             bar_task = bar.add_task(description, total=sum(weights))
+            # rich draws nothing until the end where the output is no terminal (a log file, CI):
+            # there a plain line every tenth of the work or every minute says how far it is
+            plain = PlainProgress(description, sum(weights), bar.console) \
+                if progress and not bar.console.is_terminal else None
 
             def finished(index, result):
                 results[index] = result
                 if on_done is not None:
                     on_done(index, result)
                 bar.advance(bar_task, weights[index])
+                if plain is not None:
+                    plain.advance(weights[index])
 
             if not tasks:
                 return results
