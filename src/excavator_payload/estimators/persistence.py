@@ -18,7 +18,7 @@ from excavator_payload.data.schema import get_sensor_set
 from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.estimators.checks import plausibility_limits
 from excavator_payload.estimators.registry import estimator_class
-from excavator_payload.model.machine import Machine
+from excavator_payload.model.machine import machine_from_dict
 
 SAVE_FORMAT = "excavator-payload-estimator"
 SAVE_VERSION = 1
@@ -125,11 +125,7 @@ def load_estimator(directory: str | Path, expected: type | None = None):
 
 def _machine_from_dict(data: dict):
     """A saved machine: the thesis' 2-link arm or a hydraulic machine (issue 11)."""
-    if data.get("kind") == "hydraulic":
-        from excavator_payload.model.hydraulic_machine import HydraulicMachine
-
-        return HydraulicMachine.from_dict(data)
-    return Machine.from_dict(data)
+    return machine_from_dict(data)  # the model tells the two kinds apart
 
 
 def _saved_limits(saved, est) -> tuple[np.ndarray, np.ndarray]:
