@@ -19,6 +19,7 @@ from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.estimators.checks import plausibility_limits
 from excavator_payload.estimators.registry import estimator_class
 from excavator_payload.model.machine import machine_from_dict
+from excavator_payload.platforms import THESIS
 
 SAVE_FORMAT = "excavator-payload-estimator"
 SAVE_VERSION = 1
@@ -90,7 +91,7 @@ def load_estimator(directory: str | Path, expected: type | None = None):
         machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
         est = klass(machine=machine, **options)
         # Files saved before sensor sets existed hold the thesis set.
-        est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
+        est.sensor_set = get_sensor_set(config.get("sensor_set", THESIS.sensors.name))
         est._restore(state, arrays)
         est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
         rated = config.get("rated_payload", est.rated_payload)  # older files: the machine's
