@@ -160,7 +160,7 @@ class Estimator(ABC):
     NEEDS_MACHINE: ClassVar[bool] = True
     #: Names of the sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`) it runs on
     #: (from its traits).
-    SENSOR_SETS: ClassVar[tuple[str, ...]] = ("thesis",)
+    SENSOR_SETS: ClassVar[tuple[str, ...]] = (THESIS.sensors.name,)
     #: Its facts, declared once in :mod:`~excavator_payload.estimators.traits` (set from
     #: ``name`` when the class is defined; None for a class not in that table).
     TRAITS: ClassVar[EstimatorTraits | None] = None
