@@ -50,6 +50,22 @@ def test_platform_for_resolves_every_handle(platform, sensors, preset, other, ra
     assert platform_for(datasets[platform.name]) is platform
     assert platform.carries(datasets[platform.name]) and platform.carries(sensors)
     assert not platform.carries(datasets[platform_for(load_machine(other)).name])
+    # a sensor set's name, as saved model folders hold it
+    assert platform.carries(sensors.name) and not platform.carries(platform_for(load_machine(other)).sensors.name)
+    assert not platform.carries(None) and not platform.carries("crane")
+
+
+def test_runs_reads_the_estimators_declared_sensor_sets():
+    from excavator_payload.estimators.registry import estimator_class
+
+    ekf = estimator_class("ekf")
+    assert THESIS.runs(ekf) and HYDRAULIC.runs(ekf) and HYDRAULIC.runs(ekf("cat345c-hydraulic"))
+
+    class ThesisOnly:
+        SENSOR_SETS = ("thesis",)
+
+    assert THESIS.runs(ThesisOnly) and not HYDRAULIC.runs(ThesisOnly)
+    assert not THESIS.runs(object())  # declares nothing: runs nowhere
 
 
 def test_platform_for_refuses_what_belongs_to_no_platform():

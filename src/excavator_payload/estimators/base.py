@@ -104,6 +104,7 @@ from excavator_payload.estimators.registry import (  # noqa: F401
     _REGISTRY, ESTIMATOR_MODULES, create_estimator, estimator_class, estimator_names, register)
 from excavator_payload.estimators.status import Status, StepResult  # noqa: F401
 from excavator_payload.model.machine import Machine, load_machine
+from excavator_payload.platforms import HYDRAULIC, THESIS
 
 
 #: Statuses that give no trusted estimate; when more than :data:`UNUSABLE_SHARE` of a dataset's
@@ -159,7 +160,7 @@ class Estimator(ABC):
     NEEDS_MACHINE: ClassVar[bool] = True
     #: Names of the sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`) it runs on
     #: (from its traits).
-    SENSOR_SETS: ClassVar[tuple[str, ...]] = ("thesis",)
+    SENSOR_SETS: ClassVar[tuple[str, ...]] = (THESIS.sensors.name,)
     #: Its facts, declared once in :mod:`~excavator_payload.estimators.traits` (set from
     #: ``name`` when the class is defined; None for a class not in that table).
     TRAITS: ClassVar[EstimatorTraits | None] = None
@@ -195,7 +196,7 @@ class Estimator(ABC):
         if machine is None and self.NEEDS_MACHINE:
             machine = "cat345c"
         self.machine: Machine | None = load_machine(machine) if machine is not None else None
-        if getattr(self.machine, "kind", None) == "hydraulic" and "machine" not in self.SENSOR_SETS:
+        if HYDRAULIC.owns(self.machine) and not HYDRAULIC.runs(self):
             # issue 11: a hydraulic machine file only serves estimators of the machine sensor set
             raise EstimatorError(f"{self.name} does not run on the hydraulic machine "
                                  f"'{self.machine.name}' (it runs on: {', '.join(self.SENSOR_SETS)})")
@@ -237,7 +238,7 @@ class Estimator(ABC):
     @property
     def _hydraulic(self) -> bool:
         """Whether the machine the estimator believes in is a hydraulic machine (issue 11)."""
-        return getattr(self.machine, "kind", None) == "hydraulic"
+        return HYDRAULIC.owns(self.machine)
 
     # -- to implement ----------------------------------------------------------------------
     @abstractmethod
@@ -345,7 +346,7 @@ class Estimator(ABC):
         self.health = str(dataset.meta.get("noise")) != "none"
         # the fitting data's sample-to-sample spread: the family the health monitor's noise
         # check compares with (machine set; see .health)
-        if self.sensor_set.name == "machine":
+        if HYDRAULIC.carries(self.sensor_set):
             from excavator_payload.estimators.health import noise_reference
 
             self.health_reference = noise_reference(dataset.frame, self.sensor_set.signals)
@@ -357,7 +358,7 @@ class Estimator(ABC):
         # that believes another machine (EKF₃%, uncalibrated inverse dynamics) borrows it.
         believes_other = (self.machine is not None and data_machine is not None
                           and data_machine.to_dict() != self.machine.to_dict())
-        if self.sensor_set.name == "thesis" and (self._borrows_gate() or believes_other):
+        if THESIS.carries(self.sensor_set) and (self._borrows_gate() or believes_other):
             machine = data_machine if data_machine is not None else self.machine
             noise = dataset.meta.get("noise")
             if machine is not None and noise:
@@ -396,7 +397,7 @@ class Estimator(ABC):
         if sensors.name not in self.SENSOR_SETS:
             raise EstimatorError(f"{self.name} does not run on the {sensors.name} sensor set "
                                  f"(it runs on: {', '.join(self.SENSOR_SETS)})")
-        if sensors.name != "machine" and getattr(self.machine, "kind", None) == "hydraulic":
+        if not HYDRAULIC.carries(sensors) and HYDRAULIC.owns(self.machine):
             # calibrated fitted the thesis set's parameters of a hydraulic file: an AttributeError
             raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes with "
                                  f"machine-sensor-set data, these are of the {sensors.name} sensor set "
@@ -708,7 +709,7 @@ class Estimator(ABC):
                 est[i], status[i], sigma[i], fault[i] = r.estimate, r.status.value, r.sigma, r.fault
         frame = pd.DataFrame({"experiment": exp, "time": times, "payload_estimate": est,
                               "status": status, "sigma": sigma})
-        if self.sensor_set.name == "machine":
+        if HYDRAULIC.carries(self.sensor_set):
             frame["fault"] = fault  # "signal:kind,..." while sensor_fault (see .health)
         return frame
 

@@ -16,6 +16,8 @@ import numpy as np
 
 from excavator_payload.data.schema import SensorSet
 from excavator_payload.model.machine import Machine
+from excavator_payload.platforms import HYDRAULIC
+from excavator_payload.platforms.hydraulic import ANGLES
 
 
 #: An estimate outside these fractions of the machine's rated payload is never ``ok``: a bucket
@@ -111,10 +113,8 @@ def angle_sensor_margins() -> dict[str, float]:
     the house IMU, which no arm acceleration reaches: one term). Offset and noise are allowed
     :data:`ANGLE_MARGIN_SIGMAS` standard deviations each.
     """
-    from excavator_payload.simulation.machine_sensors import ANGLES, PRESETS
-
     margins = dict.fromkeys(ANGLES, 0.0)
-    for noise in PRESETS.values():
+    for noise in HYDRAULIC.noise_presets.values():
         for j, name in enumerate(ANGLES):
             leak = noise.acceleration_leak * (math.pi / 2) * (1 if j == 0 else 2)
             spread = ANGLE_MARGIN_SIGMAS * (noise.angle_offset + noise.angle_noise)
@@ -139,10 +139,8 @@ def sensor_margin(kind: str) -> float:
     float
         The margin, rad/s or Pa.
     """
-    from excavator_payload.simulation.machine_sensors import PRESETS
-
     return max(ANGLE_MARGIN_SIGMAS * (getattr(n, f"{kind}_offset") + getattr(n, f"{kind}_noise"))
-               for n in PRESETS.values())
+               for n in HYDRAULIC.noise_presets.values())
 
 
 def gate_threshold(dof: int) -> float:
@@ -183,7 +181,7 @@ def plausibility_limits(sensor_set: SensorSet, machine: Machine | None) -> tuple
     high = np.array([float(sensor_set.plausible_abs[s]) for s in sensor_set.signals])
     low = -high
     if machine is not None:
-        hydraulic = getattr(machine, "kind", None) == "hydraulic"
+        hydraulic = HYDRAULIC.owns(machine)
         margins = angle_sensor_margins() if hydraulic else {}
         for signal, (rule, field_name) in (HYDRAULIC_RULES if hydraulic else MACHINE_RULES).items():
             if signal not in sensor_set.signals:

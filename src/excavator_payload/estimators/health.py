@@ -54,6 +54,8 @@ from collections import deque
 
 import numpy as np
 
+from excavator_payload.platforms import HYDRAULIC
+
 #: Window over which a stuck signal does not move, s.
 STUCK_WINDOW = 0.3
 #: A stuck signal's span over the window is at most this many bus resolution steps (a frozen
@@ -476,7 +478,7 @@ def for_sensor_set(sensor_set, reference=None) -> HealthMonitor | None:
     reference : mapping or None
         :func:`noise_reference` of the fitting data (None: no noise check).
     """
-    if sensor_set.name != "machine":
+    if not HYDRAULIC.carries(sensor_set):
         return None
     from excavator_payload.data.schema import RESOLUTION
 

@@ -18,7 +18,8 @@ from excavator_payload.data.schema import get_sensor_set
 from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.estimators.checks import plausibility_limits
 from excavator_payload.estimators.registry import estimator_class
-from excavator_payload.model.machine import Machine
+from excavator_payload.model.machine import machine_from_dict
+from excavator_payload.platforms import THESIS
 
 SAVE_FORMAT = "excavator-payload-estimator"
 SAVE_VERSION = 1
@@ -103,7 +104,7 @@ def load_estimator(directory: str | Path, expected: type | None = None):
         machine = _machine_from_dict(config["machine"]) if config.get("machine") else None
         est = klass(machine=machine, **options)
         # Files saved before sensor sets existed hold the thesis set.
-        est.sensor_set = get_sensor_set(config.get("sensor_set", "thesis"))
+        est.sensor_set = get_sensor_set(config.get("sensor_set", THESIS.sensors.name))
         est._restore(state, arrays)
         est.plausible_low, est.plausible_high = _saved_limits(config.get("plausibility"), est)
         rated = config.get("rated_payload", est.rated_payload)  # older files: the machine's
@@ -138,11 +139,7 @@ def load_estimator(directory: str | Path, expected: type | None = None):
 
 def _machine_from_dict(data: dict):
     """A saved machine: the thesis' 2-link arm or a hydraulic machine (issue 11)."""
-    if data.get("kind") == "hydraulic":
-        from excavator_payload.model.hydraulic_machine import HydraulicMachine
-
-        return HydraulicMachine.from_dict(data)
-    return Machine.from_dict(data)
+    return machine_from_dict(data)  # the model tells the two kinds apart
 
 
 def _saved_limits(saved, est) -> tuple[np.ndarray, np.ndarray]:

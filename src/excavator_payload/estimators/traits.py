@@ -17,8 +17,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from excavator_payload.platforms import HYDRAULIC, THESIS
+
 #: Both sensor sets (:data:`~excavator_payload.data.schema.SENSOR_SETS`).
-BOTH = ("thesis", "machine")
+BOTH = (THESIS.sensors.name, HYDRAULIC.sensors.name)
 #: Export formats an estimator may declare.
 FORMATS = ("c", "onnx")
 
@@ -81,7 +83,7 @@ class EstimatorTraits:
 _CLASSICAL = "excavator_payload.estimators.classical."
 _DVS = "excavator_payload.estimators.dvs."
 _C_BOTH = {"c": BOTH}
-_NET_EXPORTS = {"c": ("thesis",), "onnx": BOTH}
+_NET_EXPORTS = {"c": (THESIS.sensors.name,), "onnx": BOTH}
 
 #: Every estimator, in the registry's order (``estimator_names``, the CLI help).
 ESTIMATOR_TRAITS: dict[str, EstimatorTraits] = {t.name: t for t in (

@@ -138,11 +138,24 @@ class Platform:
 
         Parameters
         ----------
-        thing : Dataset, SensorSet or object with a ``sensor_set``
-            What to ask about.
+        thing : Dataset, SensorSet, str or object with a ``sensor_set``
+            What to ask about (a string: a sensor set's name, as saved files hold it).
         """
+        if isinstance(thing, str):
+            return thing == self.sensors.name
         sensors = thing if isinstance(thing, SensorSet) else getattr(thing, "sensor_set", None)
         return sensors is not None and sensors.name == self.sensors.name
+
+    def runs(self, estimator: Any) -> bool:
+        """Whether ``estimator`` (a class or an instance) declares this platform's sensor set
+        among those it runs on (its ``SENSOR_SETS``, from its traits).
+
+        Parameters
+        ----------
+        estimator : Estimator class or instance
+            What to ask about.
+        """
+        return self.sensors.name in getattr(estimator, "SENSOR_SETS", ())
 
     # -- noise -------------------------------------------------------------------------------
     def noise(self, preset: Any = None) -> Any:

@@ -5,12 +5,13 @@ read (light to import: no torch, no CasADi, so the CLI's help can list them)."""
 from __future__ import annotations
 
 from excavator_payload.estimators.traits import exportable
+from excavator_payload.platforms import HYDRAULIC, THESIS
 
 #: Estimators with a C export (:mod:`excavator_payload.runtime.export_c`) on the thesis sensor
 #: set, from their traits (as every table here).
-C_EXPORTABLE = exportable("c", "thesis")
+C_EXPORTABLE = exportable("c", THESIS.sensors.name)
 #: Estimators with a C export on the machine sensor set.
-C_EXPORTABLE_MACHINE = exportable("c", "machine")
+C_EXPORTABLE_MACHINE = exportable("c", HYDRAULIC.sensors.name)
 #: Estimators with an ONNX export (:mod:`excavator_payload.runtime.export_onnx`).
 ONNX_EXPORTABLE = exportable("onnx")
 

@@ -57,6 +57,7 @@ def register(app: typer.Typer) -> None:
         (from a dataset, a CAN log or a live bus; on a bus the passes and totals are sent in J1939)."""
         from excavator_payload.data.io import check_output_path
         from excavator_payload.estimators.base import load_estimator
+        from excavator_payload.platforms import HYDRAULIC
         from excavator_payload.runtime.loadout import passes_frame
 
         given = [name for name, v in (("--data", data), ("--log", log), ("--interface", interface)) if v is not None]
@@ -86,7 +87,7 @@ def register(app: typer.Typer) -> None:
             if source is not None and db.exists() and db.resolve() == Path(source).resolve():
                 raise DatasetError(f"--db would overwrite {source}")
         estimator = load_estimator(model)
-        if estimator.sensor_set.name != "machine":
+        if not HYDRAULIC.carries(estimator):
             raise DatasetError(f"loadout weighs the machine sensor set's passes; the model is for the "
                                f"{estimator.sensor_set.name} set")
         if data is not None:
@@ -130,10 +131,11 @@ def show_truck(truck) -> None:
 
 def _from_dataset(estimator, data, db, target, model):
     from excavator_payload.data.io import read_dataset
+    from excavator_payload.platforms import HYDRAULIC
     from excavator_payload.runtime.loadout import ShiftRecord, file_key, run_loadout
 
     dataset = read_dataset(data)
-    if dataset.sensor_set.name != "machine":
+    if not HYDRAULIC.carries(dataset):
         raise DatasetError(f"loadout weighs the machine sensor set's passes; {data} holds the "
                            f"{dataset.sensor_set.name} set")
     record = ShiftRecord(db)

@@ -80,7 +80,7 @@ from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.model.codegen import native
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.model.machine import Machine
-from excavator_payload.simulation.sensors import get_noise_preset
+from excavator_payload.platforms import THESIS
 
 TS = SAMPLE_PERIOD  # s, the thesis' Euler step (appendix A.4)
 N_STATE = 5
@@ -586,7 +586,7 @@ def consistent_tuning(machine: Machine, noise: str, angle_trunc: np.ndarray, rat
         The ``consistent`` tuning.
     """
     try:
-        preset = get_noise_preset(noise)
+        preset = THESIS.noise(noise)
     except ExcavatorPayloadError as exc:
         raise EstimatorError(str(exc)) from None
     std = preset.std

@@ -84,6 +84,7 @@ from excavator_payload.estimators.classical.pressure_regression import ground_ti
 from excavator_payload.model.codegen import native
 from excavator_payload.model.hydraulic import (CYLINDERS, HYDRAULIC_PARAMETER_NAMES, hydraulic_symbolic,
                                                parameter_vector)
+from excavator_payload.platforms import HYDRAULIC
 
 SIGNALS = MACHINE_SENSORS.signals
 T = MACHINE_SENSORS.sample_period
@@ -278,7 +279,7 @@ class MachineTuning:
     def config(self) -> dict:
         """The JSON-able part to save: the scalar covariances and the noise preset, marked as the
         machine sensor set's."""
-        return {"tuning": "consistent", "sensor_set": "machine", "noise": self.noise,
+        return {"tuning": "consistent", "sensor_set": HYDRAULIC.sensors.name, "noise": self.noise,
                 "pressure_std": self.pressure_std, "ripple_fraction": self.ripple_fraction,
                 "payload_walk": self.payload_walk}
 
@@ -327,15 +328,13 @@ def machine_tuning(dataset: Dataset, noise_name: str, payload_walk: float) -> Ma
     payload_walk : float
         Payload random walk, kg/√s.
     """
-    from excavator_payload.simulation.machine_sensors import get_machine_noise
-
     if not noise_name:
         noise_name = dataset.meta.get("noise") or ""
         if not noise_name:
             raise EstimatorError("the machine-set filter needs the sensor noise level: the dataset "
                                  "names no noise preset, pass --noise field|none")
     try:
-        preset = get_machine_noise(noise_name)
+        preset = HYDRAULIC.noise(noise_name)
     except ExcavatorPayloadError as exc:
         raise EstimatorError(str(exc)) from None
     angle = max(preset.angle_noise, STD_FLOOR["angle"])

@@ -57,6 +57,7 @@ from excavator_payload.estimators.classical.inverse_dynamics import (
     torque_jacobian,
 )
 from excavator_payload.model.machine import Machine, load_machine
+from excavator_payload.platforms import HYDRAULIC
 
 #: Judged samples: index ≥ 81 of each experiment (the last second, as the thesis judges).
 FIRST_JUDGED_SAMPLE = 81
@@ -198,7 +199,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
 
     def _fit(self, dataset: Dataset) -> None:
         self.weighing = None  # a refit starts afresh
-        if dataset.sensor_set.name == "machine":
+        if HYDRAULIC.carries(dataset):
             self._fit_machine_calibration(dataset)
             return
         self._set_noise(self._noise_from(dataset))
@@ -276,7 +277,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         """
         from excavator_payload.estimators.classical.machine_calibration.weighing import zero
 
-        if self.weighing is None or dataset.sensor_set.name != "machine":
+        if self.weighing is None or not HYDRAULIC.carries(dataset):
             return zero(self, dataset)  # its one clear line
         warnings = self.weighing.zero(dataset, self.options)
         self._hold(self.weighing)
@@ -290,7 +291,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         return warnings
 
     def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
-        if self.calibration is not None and dataset.sensor_set.name == "machine":
+        if self.calibration is not None and HYDRAULIC.carries(dataset):
             from excavator_payload.estimators.classical.machine_calibration.weighing import (
                 coverage_notes, waiting_notes)
 

@@ -57,6 +57,7 @@ from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
 from excavator_payload.estimators.classical import _kalman as kf
 from excavator_payload.estimators.classical.pressure_regression import judge_frame
+from excavator_payload.platforms import HYDRAULIC
 
 COMMON_OPTIONS = {
     "tuning": Option(str, "consistent", "covariances: 'thesis' (§6.1 Q, R, P0, x0) or 'consistent' "
@@ -117,7 +118,7 @@ class KalmanEstimatorBase(Estimator):
 
     # -- fitting ---------------------------------------------------------------------------
     def _fit(self, dataset: Dataset) -> None:
-        if dataset.sensor_set.name == "machine":
+        if HYDRAULIC.carries(dataset):
             self._fit_machine_set(dataset)
             return
         if self._hydraulic:
@@ -339,7 +340,7 @@ class KalmanEstimatorBase(Estimator):
         return self.tuning.arrays()
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
-        if config.get("sensor_set") == "machine":
+        if HYDRAULIC.carries(config.get("sensor_set")):
             from excavator_payload.estimators.classical import _kalman_machine as km
 
             if not self._hydraulic:

@@ -118,7 +118,7 @@ from excavator_payload.model.dynamics import (
     symbolic,
 )
 from excavator_payload.model.machine import Machine
-from excavator_payload.simulation.sensors import get_noise_preset
+from excavator_payload.platforms import HYDRAULIC, THESIS
 
 #: Kinematic signals, in :data:`SIGNALS` order (the order of the Jacobian's columns).
 KINEMATIC_SIGNALS = SIGNALS[:6]
@@ -369,7 +369,7 @@ def sensor_variances(noise, torque_floor: float = TORQUE_STD_FLOOR) -> np.ndarra
     numpy.ndarray
         The eight variances, :data:`SIGNALS` order (SI units squared).
     """
-    std = get_noise_preset(noise).std_vector(SIGNALS).copy()
+    std = THESIS.noise(noise).std_vector(SIGNALS).copy()
     std[6:] = np.maximum(std[6:], torque_floor)
     return std**2
 
@@ -565,14 +565,14 @@ class InverseDynamicsEstimator(Estimator):
             raise EstimatorError(f"{self.name}: option --half-window must be in 1…100 samples")
         self._pressure = None  # the machine sensor set's kernel, once fitted on such data
         if self._hydraulic:
-            self.noise_name = "field"
+            self.noise_name = HYDRAULIC.default_noise
             self._pressure_noise = (0.0, 0.0)
             self.difference_scale = np.full(15, np.inf)  # the outlier test's scale, from fit data
             self._reset()
             return
         self.theta_empty, self.theta_payload = base_parameters(self.machine)
-        self.variances = sensor_variances("thesis")
-        self.noise_name = "thesis"
+        self.variances = sensor_variances(THESIS.default_noise)
+        self.noise_name = THESIS.default_noise
         self._prepare()
         self._reset()
 
@@ -592,8 +592,6 @@ class InverseDynamicsEstimator(Estimator):
         self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
 
     def _fit_machine_set(self, dataset: Dataset) -> None:
-        from excavator_payload.simulation.machine_sensors import get_machine_noise
-
         from excavator_payload.estimators.classical.pressure_regression import difference_scale
 
         if not self._hydraulic:
@@ -610,7 +608,7 @@ class InverseDynamicsEstimator(Estimator):
             self._pressure_noise = (pressure_noise_from_data(dataset), 0.0)
             self._build_pressure_kernel()
             return
-        preset = get_machine_noise(name)
+        preset = HYDRAULIC.noise(name)
         self.noise_name = preset.name
         self._pressure_noise = (preset.pressure_noise, preset.ripple_fraction)
         self._build_pressure_kernel()
@@ -623,16 +621,16 @@ class InverseDynamicsEstimator(Estimator):
             if name is None:
                 raise EstimatorError(f"{self.name}: the training data names no noise preset; "
                                      "pass --noise thesis|field|none")
-        preset = get_noise_preset(name)
+        preset = THESIS.noise(name)
         return preset
 
     def _set_noise(self, preset) -> None:
         self.variances = sensor_variances(preset)
-        self.noise_name = get_noise_preset(preset).name
+        self.noise_name = THESIS.noise(preset).name
         self._prepare()
 
     def _fit(self, dataset: Dataset) -> None:
-        if dataset.sensor_set.name == "machine":
+        if HYDRAULIC.carries(dataset):
             self._fit_machine_set(dataset)
             return
         if self._hydraulic:

@@ -57,6 +57,7 @@ import numpy as np
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
+from excavator_payload.platforms import HYDRAULIC
 
 DEG = math.pi / 180.0
 #: Calibration lifts whose dipper angles differ by less than this share one map line, rad.
@@ -183,7 +184,7 @@ class QuasiStaticEstimator(Estimator):
 
     def _fit(self, dataset: Dataset) -> None:
         self.boom_areas = None
-        if dataset.sensor_set.name == "machine":
+        if HYDRAULIC.carries(dataset):
             if not self._hydraulic:
                 raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic "
                                      f"machine file, not '{self.machine.name}' (e.g. --machine "

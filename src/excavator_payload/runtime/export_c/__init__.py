@@ -35,6 +35,7 @@ from pathlib import Path
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator
+from excavator_payload.platforms import HYDRAULIC
 from excavator_payload.runtime.export_c.c_text import (
     MATH_FUNCTIONS,
     c_array,
@@ -83,7 +84,7 @@ def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") 
     if not estimator.fitted:
         raise EstimatorError(f"{estimator.name}: nothing to export, the estimator is not fitted")
     builder = builder_for(estimator.name, estimator.sensor_set.name)
-    if builder is None and estimator.sensor_set.name == "machine":
+    if builder is None and HYDRAULIC.carries(estimator):
         raise EstimatorError(f"{estimator.name} on the machine sensor set has no C export; "
                              f"exportable there: {', '.join(C_EXPORTABLE_MACHINE)}")
     if builder is None:

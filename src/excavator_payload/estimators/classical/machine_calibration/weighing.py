@@ -30,6 +30,7 @@ from excavator_payload.estimators.classical.machine_calibration.solver import (
     MachineCalibration, calibrate, cross_validated_model_std, zero_offsets)
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, difference_scale, spike_threshold
 from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.platforms import HYDRAULIC
 
 
 def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str]:
@@ -129,7 +130,7 @@ def machine_arm(name: str, machine) -> HydraulicArmModel:
     machine : Machine or HydraulicMachine
         The machine file the estimator believes in.
     """
-    if getattr(machine, "kind", None) != "hydraulic":
+    if not HYDRAULIC.owns(machine):
         raise EstimatorError(f"{name}: data of the machine sensor set need a hydraulic "
                              f"machine file, not '{machine.name}' (e.g. --machine "
                              "cat345c-hydraulic-3pct)")
@@ -202,15 +203,13 @@ class MachineWeighing:
             ``warnings``, ``refusals`` and ``report``: lines for the estimator's
             ``fit_warnings``, ``fit_refusals`` and ``fit_report``.
         """
-        from excavator_payload.simulation.machine_sensors import get_machine_noise
-
         warnings, refusals, report = [], [], []
         if "payload" not in dataset.frame or not np.all(np.isfinite(dataset.frame["payload"].to_numpy(float))):
             raise EstimatorError(f"{name}: calibration experiments need known payloads")
         noise = options["noise"]
         pressure_std = None
         if noise != "auto":  # a preset named explicitly overrides the noise estimated from the data
-            pressure_std = get_machine_noise(noise).pressure_noise
+            pressure_std = HYDRAULIC.noise(noise).pressure_noise
         prior = options["prior_std"]
         prior = 0.05 if prior == 0.1 else prior  # 0.1 is the thesis set's default
 
@@ -420,7 +419,7 @@ def zero(estimator, dataset: Dataset) -> list[str]:
     if getattr(estimator, "calibration", None) is None:
         raise EstimatorError(f"zero needs a 'calibrated' model fitted on machine-sensor-set data, "
                              f"not a '{estimator.name}' model")
-    if dataset.sensor_set.name != "machine":
+    if not HYDRAULIC.carries(dataset):
         raise EstimatorError(f"zero needs machine-sensor-set data, these are of the "
                              f"{dataset.sensor_set.name} sensor set")
     return estimator.zero(dataset)
