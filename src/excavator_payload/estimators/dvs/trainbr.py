@@ -597,7 +597,7 @@ def train_br(residuals: Residuals, w0: torch.Tensor, *, epochs: int = 1000, mu: 
                          mu_max=mu_max, min_grad=min_grad, validation=validation,
                          progress=progress, description=description, jacobian=jacobian,
                          max_seconds=max_seconds, best_validation=best_validation,
-                         validation_patience=validation_patience, pool=pool)
+                         validation_patience=validation_patience, pool=pool, width=threads)
 
 
 class _no_pool:
@@ -610,9 +610,36 @@ class _no_pool:
         return False
 
 
+class _Done:
+    """A finished result with the interface of a future (no pool: computed here, at once)."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def result(self):
+        return self.value
+
+
+def _submit(pool, fn, *args):
+    return pool.submit(fn, *args) if pool is not None else _Done(fn(*args))
+
+
+def _trial(residuals, w, H, half_grad, alpha, beta, mu):
+    r"""One Levenberg–Marquardt trial at damping ``mu``: ``None`` when the damped matrix is not
+    positive definite, else ``(w_new, e_new, E_D, E_W)``. A pure function of its arguments
+    (single-threaded BLAS), so trials may run side by side."""
+    step = lm_step(H, half_grad, alpha, beta, mu)
+    if step is None:
+        return None
+    w_new = w + torch.from_numpy(step)
+    with torch.no_grad():
+        e_new = residuals(w_new).detach()
+    return w_new, e_new, float(e_new @ e_new), float(w_new @ w_new)
+
+
 def _train_br(residuals, w0, *, epochs, mu, mu_dec, mu_inc, mu_max, min_grad, validation,
               progress, description, jacobian, max_seconds, best_validation, validation_patience,
-              pool):
+              pool, width):
     start = time.perf_counter()
     jac = jacobian if jacobian is not None else (lambda v: jacobian_forward(residuals, v))
     w = w0.detach().to(torch.float64).clone()
@@ -624,6 +651,7 @@ def _train_br(residuals, w0, *, epochs, mu, mu_dec, mu_inc, mu_max, min_grad, va
         raise ValueError("train_br: no residuals (no training targets)")
     log = TrainingLog(n_errors=n_errors, n_parameters=n_params, trainer="trainbr")
     normal_equations = _NormalEquations(jac, n_errors, n_params, pool)
+    width = int(width) if pool is not None else 1  # LM trials side by side: one per thread
 
     alpha, beta = 0.0, 1.0  # MATLAB: plain LM for the first step, then Bayesian updates
     e_d = float(e @ e)
@@ -634,10 +662,30 @@ def _train_br(residuals, w0, *, epochs, mu, mu_dec, mu_inc, mu_max, min_grad, va
     watch.update(0, v, w)
     log.append(0, e_d, e_w, gamma, alpha, beta, mu, v, math.nan)
     stop_reason = f"maximum epochs ({epochs}) reached"
+    # An accepted epoch whose γ is still being computed (on the pool, beside the next epoch's
+    # Jacobian blocks): its log row is written, and α, β re-estimated, once γ is known.
+    pending = None
+
+    def settle():
+        nonlocal pending, gamma, alpha, beta
+        if pending is None:
+            return
+        done_epoch, gamma_job, v_done, mu_done = pending
+        pending = None
+        # Bayesian re-estimation with the Gauss–Newton Hessian of that epoch (α = 0: γ = P)
+        gamma = gamma_job.result()
+        alpha = gamma / (2.0 * e_w) if e_w > 0 else 1.0
+        beta = (n_errors - gamma) / (2.0 * e_d) if e_d > 0 else 1.0
+        if beta <= 0:  # more effective parameters than errors: fall back to LM weighting
+            beta = 1.0
+        log.append(done_epoch, e_d, e_w, gamma, alpha, beta, mu_done, v_done, math.nan)
+        bar.update(task, advance=1, sse=e_d, gamma=gamma, mu=mu)
+
     with _progress(progress) as bar:
         task = bar.add_task(description, total=epochs, sse=e_d, gamma=gamma, mu=mu)
         for epoch in range(1, epochs + 1):
             H, jte = normal_equations(w, e.numpy())
+            settle()  # the previous epoch's γ ran beside these blocks: α, β of this epoch
             # half the gradient of F: g = β Jᵀe + α w
             half_grad = beta * jte + alpha * w.numpy()
             grad_norm = 2.0 * float(np.linalg.norm(half_grad))
@@ -645,40 +693,41 @@ def _train_br(residuals, w0, *, epochs, mu, mu_dec, mu_inc, mu_max, min_grad, va
                 stop_reason = f"minimum gradient reached ({grad_norm:.2e} < {min_grad:g})"
                 log.grad_norm[-1] = grad_norm
                 break
-            # γ of this epoch (its H, the α and β of its step) beside the trials
-            gamma_job = pool.submit(effective_parameters, H, alpha, beta) if pool is not None else None
             cost = beta * e_d + alpha * e_w
-            accepted = False
-            while mu <= mu_max:
-                step = lm_step(H, half_grad, alpha, beta, mu)
-                if step is not None:  # else not positive definite: a failed trial
-                    w_new = w + torch.from_numpy(step)
-                    with torch.no_grad():
-                        e_new = residuals(w_new).detach()
-                    e_d_new = float(e_new @ e_new)
-                    e_w_new = float(w_new @ w_new)
-                    cost_new = beta * e_d_new + alpha * e_w_new
-                    if math.isfinite(cost_new) and cost_new < cost:
-                        accepted = True
-                        break
-                mu *= mu_inc
-            if not accepted:
+            accepted = None
+            while mu <= mu_max and accepted is None:
+                # the next `width` dampings of the sequence μ, μ·μ_inc, … tried at once; the
+                # first that lowers F wins, as if they were tried one after the other (nearly
+                # every epoch takes two trials: μ·μ_dec fails, μ succeeds)
+                mus = [mu]
+                while len(mus) < width and mus[-1] * mu_inc <= mu_max:
+                    mus.append(mus[-1] * mu_inc)
+                jobs = [_submit(pool, _trial, residuals, w, H, half_grad, alpha, beta, m) for m in mus]
+                for m, job in zip(mus, jobs):
+                    mu = m
+                    result = job.result()
+                    if result is not None:  # else not positive definite: a failed trial
+                        cost_new = beta * result[2] + alpha * result[3]
+                        if math.isfinite(cost_new) and cost_new < cost:
+                            accepted = result
+                            break
+                    mu = m * mu_inc
+                for job in jobs:  # the trials after the accepted one are not needed
+                    if hasattr(job, "cancel"):
+                        job.cancel()
+            if accepted is None:
                 stop_reason = f"maximum mu reached (mu > {mu_max:g})"
                 log.grad_norm[-1] = grad_norm
                 break
             mu_used = mu
-            w, e, e_d, e_w = w_new, e_new, e_d_new, e_w_new
+            w, e, e_d, e_w = accepted
             mu *= mu_dec
-            # Bayesian re-estimation with the Gauss–Newton Hessian of this epoch (α = 0: γ = P)
-            gamma = gamma_job.result() if gamma_job is not None else effective_parameters(H, alpha, beta)
-            alpha = gamma / (2.0 * e_w) if e_w > 0 else 1.0
-            beta = (n_errors - gamma) / (2.0 * e_d) if e_d > 0 else 1.0
-            if beta <= 0:  # more effective parameters than errors: fall back to LM weighting
-                beta = 1.0
             log.grad_norm[-1] = grad_norm
+            # γ of this epoch (its H, the α and β of its step), on the pool beside the next
+            # epoch's Jacobian blocks, which do not need it
+            gamma_job = _submit(pool, effective_parameters, H, alpha, beta)
             v = _validation_value(validation, w)
-            log.append(epoch, e_d, e_w, gamma, alpha, beta, mu_used, v, math.nan)
-            bar.update(task, advance=1, sse=e_d, gamma=gamma, mu=mu)
+            pending = (epoch, gamma_job, v, mu_used)
             if watch.update(epoch, v, w):
                 stop_reason = (f"validation SSE not improved for {validation_patience} epochs "
                                f"(best at epoch {watch.best_epoch})")
@@ -686,6 +735,7 @@ def _train_br(residuals, w0, *, epochs, mu, mu_dec, mu_inc, mu_max, min_grad, va
             if max_seconds is not None and time.perf_counter() - start > max_seconds:
                 stop_reason = f"time limit ({max_seconds:g} s) reached"
                 break
+        settle()
     log.stop_reason = stop_reason
     log.seconds = time.perf_counter() - start
     return watch.finish(w, log), log
