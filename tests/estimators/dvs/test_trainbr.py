@@ -422,3 +422,28 @@ def test_default_threads_are_the_cores_the_job_is_given(tmp_path):
     if len(os.sched_getaffinity(0)) >= 2:
         assert two_cores == "2:pool" and told_too_many == "2:pool"  # never more than the cores
     assert run(OMP_NUM_THREADS="1")[2] == "1:here"  # OMP_NUM_THREADS as the job started is a request too
+
+
+def _trials(log, mu_dec):
+    """Levenberg–Marquardt trials of each epoch, read from the damping the log records:
+    an epoch starts at μ_prev·μ_dec and multiplies by μ_inc = 10 per failed trial."""
+    mu = np.asarray(log.mu)
+    start = np.r_[mu[0], mu[1:-1] * mu_dec]
+    return 1 + np.round(np.log10(mu[1:] / start)).astype(int)
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_trials_side_by_side_take_the_damping_one_after_the_other_would(threads):
+    """On a pool the next `threads` dampings are tried at once; the first that lowers F must
+    win, exactly as in one thread, also when an epoch needs more trials than there are threads
+    (a large μ_dec makes the first trials of every epoch fail)."""
+    residuals, x, sizes, w0 = _net_problem(n=250, seed=3)
+    jacobian = _block_jacobian(x, sizes, 60)
+    kwargs = dict(epochs=15, progress=False, jacobian=jacobian, mu=10.0, mu_dec=1e-4)
+    w1, log1 = train_br(residuals, w0, threads=1, **kwargs)
+    trials = _trials(log1, 1e-4)
+    assert trials.max() > threads  # some epoch needed more than one batch of trials
+    assert (trials % threads != 0).any()  # and some accepted a trial inside a batch
+    w, log = train_br(residuals, w0, threads=threads, **kwargs)
+    assert torch.equal(w, w1)
+    pd.testing.assert_frame_equal(log.to_frame(), log1.to_frame(), check_exact=True)
