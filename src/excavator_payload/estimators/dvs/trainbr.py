@@ -36,7 +36,10 @@ One epoch
 
    :math:`\mu \leftarrow \mu\,\mu_{dec}` on success, :math:`\mu \leftarrow \mu\,\mu_{inc}` on
    failure (a matrix that is not numerically positive definite is a failed trial too), up
-   to :math:`\mu_{max}`. One Cholesky factorisation, :math:`P^3/3` flops, per trial.
+   to :math:`\mu_{max}`. One Cholesky factorisation, :math:`P^3/3` flops, per trial. Nearly
+   every epoch takes two trials (:math:`\mu\,\mu_{dec}` fails, :math:`\mu` succeeds), so
+   with more than one thread the next trials of the sequence run side by side, one per
+   thread, and the first that lowers :math:`F` wins, as one after the other.
 3. **Re-estimation** of the hyper-parameters with the effective number of parameters
    :math:`\gamma`, at the epoch's :math:`H` and the :math:`\alpha, \beta` the step used
    (:func:`effective_parameters`), once per accepted step:
@@ -51,7 +54,8 @@ One epoch
    triangular inverse (LAPACK ``potrf`` then ``trtri``, :math:`2P^3/3` flops). This is
    MATLAB's own formula (``gamk = numParameters - alph*trace(inv(beta*jj + ii*alph))``), and
    equals :math:`\sum_i \beta s_i/(\beta s_i + \alpha)` over the eigenvalues :math:`s_i` of
-   :math:`H`. With more than one thread it runs beside the step's trials.
+   :math:`H`. With more than one thread it runs beside the next epoch's Jacobian blocks,
+   which do not need it (its log row is written when it is known).
 
 Training starts as MATLAB does, with :math:`\alpha = 0, \beta = 1` (plain Levenberg–Marquardt
 for the first step, :math:`\gamma = P`), and stops after ``epochs`` epochs, when the gradient
@@ -61,8 +65,8 @@ norm :math:`\|\nabla F\| = 2\|g\|` falls below ``min_grad``, or when :math:`\mu`
 Threads
 -------
 A run uses the cores its job is given (:func:`excavator_payload.execution.job_threads`, or
-``threads``), as its own pool of workers over the blocks of step 1 and beside the trials of
-step 2; inside, torch and every BLAS run single-threaded
+``threads``), as its own pool of workers over the blocks of step 1, the trials of step 2 and
+the trace of step 3; inside, torch and every BLAS run single-threaded
 (:func:`~excavator_payload.execution.numeric_threads`). Coarse blocks, taken by whichever worker is free, degrade gracefully when
 another job holds a core; the libraries' own threads did not: a threaded eigensolver waits for
 every thread many times per call, and took 35× longer on a loaded 2-core machine. Until this
