@@ -286,12 +286,18 @@ class HydraulicSymbolic:
         moving_speed = ca.SX.sym("moving_speed", 3)
 
         # Pressures that produce a cylinder force F = p_h A_h − p_r A_r: the loaded side carries
-        # the force, the other holds the back pressure. Pushing (F > 0): p_r = p_back; pulling:
-        # p_h = p_back. Both satisfy the force balance exactly, so their blend by a smooth step
-        # of F (over ±1 kN) does too, and the pressures stay differentiable where F changes sign.
+        # the force, the other holds the back pressure. Pushing: p_r = p_back; pulling:
+        # p_h = p_back. The two meet where both chambers hold the back pressure, at
+        # F₀ = p_back (A_h − A_r): below it the head side would have to fall under the back
+        # pressure, which the make-up (anti-cavitation) valves do not allow — switching at F = 0
+        # dipped the head pressure to p_back·A_r/A_h for a sample wherever a force crossed zero,
+        # a one-frame spike no machine shows. Both satisfy the force balance exactly, so their
+        # blend by a smooth step of F − F₀ (over ±1 kN) does too, and the pressures stay
+        # differentiable where the loaded side changes.
         force_c = ca.SX.sym("force", 3)
         blend = 1e3
-        pushing = 0.5 * (1 + force_c / ca.sqrt(force_c**2 + blend**2))
+        both_back = P["back_pressure"] * (head - rod)
+        pushing = 0.5 * (1 + (force_c - both_back) / ca.sqrt((force_c - both_back)**2 + blend**2))
         p_back = P["back_pressure"]
         p_head = pushing * (force_c + p_back * rod) / head + (1 - pushing) * p_back
         p_rod = pushing * p_back + (1 - pushing) * (p_back * head - force_c) / rod

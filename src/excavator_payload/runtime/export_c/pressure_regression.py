@@ -53,6 +53,7 @@ def pressure_regression_model(est) -> CModel:
     """
     from excavator_payload.estimators.classical.calibrated_machine import (
         CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
+    from excavator_payload.estimators.classical.machine_calibration.settings import BOOM_READY_WINDOWS
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL)
@@ -138,8 +139,9 @@ def pressure_regression_model(est) -> CModel:
             c_array("EP_COVERAGE_LOW", kernel._raw_low).rstrip(),
             c_array("EP_COVERAGE_HIGH", kernel._raw_high).rstrip(),
             "/* CalibratedKernel.ready (--wait-for-boom): no estimate until the boom joint has been",
-            " * weighed once */",
+            " * weighed in EP_BOOM_READY windows */",
             f"#define EP_WAIT_FOR_BOOM {1 if kernel.wait_for_boom else 0}",
+            f"#define EP_BOOM_READY {BOOM_READY_WINDOWS}",
             "/* CalibratedKernel._accumulate (--new-load): a short memory's estimate leaving the",
             " * whole one by more than EP_NEW_LOAD_MIN kg and EP_NEW_LOAD_SIGMAS of the difference's",
             " * sigma is a new load: the weighing restarts */",
@@ -176,7 +178,7 @@ def pressure_regression_model(est) -> CModel:
         var = lever * lever * EP_LEVER_VAR[j];
 {low_speed}
         if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt = EP_C(0.0);
-        if (j == 0 && wt > EP_C(0.0)) s->boom_weighed = 1;
+        if (j == 0 && wt > EP_C(0.0) && s->boom_windows < EP_BOOM_READY) s->boom_windows += 1;
         d_num += wt * (out[3 + j] * out[j]);
         d_info += wt * (out[3 + j] * out[3 + j]);
     }}"""
@@ -244,7 +246,7 @@ if (1) {
     s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
     s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
     s->changing = 0;
-    if ((!EP_WAIT_FOR_BOOM || s->boom_weighed) && s->info_short > EP_C(0.0) && s->info_short < s->info) {
+    if ((!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY) && s->info_short > EP_C(0.0) && s->info_short < s->info) {
         change = s->num_short / s->info_short - s->num / s->info;
         spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
         if (spread < EP_C(0.0)) spread = EP_C(0.0);
@@ -252,7 +254,7 @@ if (1) {
         if (limit < EP_NEW_LOAD_MIN) limit = EP_NEW_LOAD_MIN;
         if (EP_MATH(fabs)(change) > limit) {  /* a new load: restart the weighing */
             s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
-            s->boom_weighed = 0;
+            s->boom_windows = 0;
         } else {  /* CalibratedKernel.changing: the load is changing (status load_changing) */
             limit = EP_CHANGING_SIGMAS * EP_MATH(sqrt)(spread);
             if (limit < EP_CHANGING_MIN) limit = EP_CHANGING_MIN;
@@ -347,7 +349,7 @@ if (1) {
 {textwrap.indent(new_load, "        ")}
         }}
     }}"""
-    not_ready = " || (EP_WAIT_FOR_BOOM && !s->boom_weighed)" if calibrated else ""
+    not_ready = " || (EP_WAIT_FOR_BOOM && s->boom_windows < EP_BOOM_READY)" if calibrated else ""
     changing_status = "s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" if calibrated else "EP_STATUS_OK"
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
@@ -406,11 +408,11 @@ if (1) {
                "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]
     reset = "    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n    s->ring_filled = 0;"
     if calibrated:
-        fields.append("unsigned char boom_weighed;  /* a window with weight on the boom seen */")
+        fields.append("unsigned int boom_windows;  /* windows with weight on the boom (up to EP_BOOM_READY) */")
         fields += ["ep_real num_short;   /* the new-load test's short memory: sum of w phi r */",
                    "ep_real info_short;  /* ... and of w phi^2 */"]
         fields.append("unsigned char changing;  /* the short memory has left the whole one */")
-        reset += ("\n    s->boom_weighed = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
+        reset += ("\n    s->boom_windows = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
                   "\n    s->changing = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",

@@ -25,7 +25,7 @@ import numpy as np
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import balance_weights
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    BALANCE_HALF_WINDOW, BALANCE_RAMP, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS, NEW_LOAD_MEMORY,
+    BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS, NEW_LOAD_MEMORY,
     NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SIGNALS)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
@@ -142,7 +142,7 @@ class CalibratedKernel(PressureRegression):
         self._terms_used = np.zeros(2 * b, bool)
         self._terms_inside = np.zeros((2 * b, 3), bool)  # each sample's joints inside the coverage
         self._terms_count = 0
-        self.boom_weighed = False  # a window with weight on the boom joint seen (--wait-for-boom)
+        self.boom_windows = 0  # windows with weight on the boom joint seen (--wait-for-boom)
         self.num_short = 0.0  # the short memory of the new-load test (--new-load)
         self.info_short = 0.0
         self.new_loads = 0  # new loads detected since the last reset
@@ -152,8 +152,10 @@ class CalibratedKernel(PressureRegression):
     def ready(self) -> bool:
         """Whether an estimate may be reported (``--wait-for-boom``): while the boom has stood
         still its seals hold an unknown stiction force (≈ 470 kg of payload), so the weighing
-        rests on the dipper and bucket, whose calibration at the poses of a cut is least sure."""
-        return self.boom_weighed or not self.wait_for_boom
+        rests on the dipper and bucket, whose calibration at the poses of a cut is least sure;
+        and the first boom windows, all of one phase of the motion (its start), carry that
+        phase's model error (:data:`BOOM_READY_WINDOWS`)."""
+        return self.boom_windows >= BOOM_READY_WINDOWS or not self.wait_for_boom
 
     def restart_window(self) -> None:
         self._count = 0
@@ -216,7 +218,7 @@ class CalibratedKernel(PressureRegression):
         if self.balance != "momentum":
             residual, phi, lever, speed, stiction = out[0:3], out[3:6], out[6:9], out[9:12], out[12:15]
             wt = np.where(self._used(speed) & self._inside(centre), 1.0 / self._variance(lever, speed, stiction), 0.0)
-            self.boom_weighed = self.boom_weighed or bool(wt[0] > 0.0)
+            self.boom_windows += bool(wt[0] > 0.0)
             self._accumulate(float(wt @ (phi * residual)), float(wt @ (phi * phi)))
             return True
         # momentum: the terms of the differentiator window's centre (its q̈ serves the IMU
@@ -250,7 +252,7 @@ class CalibratedKernel(PressureRegression):
         inside = self._terms_inside[start:start + b].all(axis=0)
         wt = np.where(self._used(slowest) & inside,
                       1.0 / (self._variance(lever, slowest, stiction) + rate_var), 0.0)
-        self.boom_weighed = self.boom_weighed or bool(wt[0] > 0.0)
+        self.boom_windows += bool(wt[0] > 0.0)
         self._accumulate(float(wt @ (phi * residual)), float(wt @ (phi * phi)))
         return True
 
@@ -279,7 +281,7 @@ class CalibratedKernel(PressureRegression):
             spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)
             if abs(change) > max(self._new_load_min, NEW_LOAD_SIGMAS * math.sqrt(spread)):
                 self.num = self.info = self.num_short = self.info_short = 0.0
-                self.boom_weighed = False
+                self.boom_windows = 0
                 self.new_loads += 1
             else:
                 self.changing = abs(change) > max(self._changing_min, CHANGING_SIGMAS * math.sqrt(spread))
