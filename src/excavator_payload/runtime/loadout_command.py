@@ -153,9 +153,18 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
     from excavator_payload.runtime.loadout import ShiftRecord, file_key
     from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, replay_loadout
 
+    from excavator_payload.platforms import HYDRAULIC
+    from excavator_payload.runtime.loadout_bus import check_log_units
+    from excavator_payload.runtime.loadout_guard import UnitGuard
+
     codec = SignalCodec.from_files(estimator.sensor_set, dbc_file, signal_map)
     button = TruckButton.from_signal_map(signal_map, codec.database)
     sensor = PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance)
+
+    def guard():
+        """The decoded signals' units judged (a DBC in bar, degrees or °/s mapped with factor 1)."""
+        return UnitGuard(estimator.sensor_set, codec, getattr(estimator, "machine", None), HYDRAULIC)
+
     truths = None
     if truth is not None:
         from excavator_payload.data.io import read_dataset
@@ -168,25 +177,32 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
         from excavator_payload.runtime.logs import read_frames
 
         next(iter(read_frames(log)), None)  # a missing or unreadable log: one line before the record
+        # a signal in another unit: one line before anything is recorded
+        check_log_units(log, PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance), guard(),
+                        f"CAN log '{log}'")
         record = ShiftRecord(db)
         try:
             bus = BusLoadout(sensor, record, file_key(log), target, button, truths=truths, on_truck=show_truck,
-                             data_name=str(log), model_name=str(model))
+                             data_name=str(log), model_name=str(model), guard=guard(), refuse_units=True)
+            bus.guard_source = f"CAN log '{log}'"
             trucks = replay_loadout(log, bus, progress=True)
         finally:
             record.close()
         c = sensor.counters
         console.print(f"{c['samples']} samples from {c['frames']} frames ({c['ignored']} of other ids, "
                       f"{c['other_senders']} of the sensor PGNs from other source addresses, {c['bad_frames']} bad); "
-                      f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more",
+                      f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more; "
+                      f"units judged on {bus.guard.judged} windows of {bus.guard.size} samples",
                       markup=False, highlight=False)
         return trucks
-    return _live(sensor, button, db, target, model, interface, channel, bitrate, duration)
+    return _live(sensor, button, db, target, model, interface, channel, bitrate, duration, guard())
 
 
-def _live(sensor, button, db, target, model, interface, channel, bitrate, duration):
+def _live(sensor, button, db, target, model, interface, channel, bitrate, duration, guard):
     import datetime
+    import queue
     import signal
+    import sys
     import threading
 
     import can
@@ -194,7 +210,8 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
 
     from excavator_payload.runtime.dbc import CanConfigError
     from excavator_payload.runtime.loadout import ShiftRecord
-    from excavator_payload.runtime.loadout_bus import BusLoadout, live_view, run_live
+    from excavator_payload.runtime.loadout_bus import (
+        COMMAND_HELP, BusLoadout, live_view, read_commands, run_live, terminal_keys)
 
     kwargs = {"bitrate": bitrate} if bitrate else {}
     try:
@@ -211,25 +228,47 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
             handlers[sig] = signal.signal(sig, lambda *_: stop.set())
     timer = threading.Timer(duration, stop.set) if duration else None
     done = []
+    # the operator's commands (t: next truck, q: end the shift) read on their own thread: a
+    # silent keyboard never holds the bus; no stdin (a service, /dev/null) is no commands
+    commands: queue.Queue = queue.Queue()
+    restore = terminal_keys(sys.stdin)
+    reader = None
+    if sys.stdin is not None and not getattr(sys.stdin, "closed", True):
+        def unknown(text):
+            console.print(f"unknown command {text!r}: t = next truck, q = end the shift", markup=False,
+                          highlight=False)
+
+        reader = threading.Thread(target=read_commands, args=(sys.stdin, commands, unknown, restore is not None),
+                                  name="loadout-commands", daemon=True)
+        reader.start()
+    keys = COMMAND_HELP if restore is not None else COMMAND_HELP.replace("t:", "t + Enter:").replace(
+        "q:", "q + Enter:")
+
+    def footer():
+        return keys if reader is not None and reader.is_alive() else "Ctrl-C: stop"
+
     try:
         loadout = BusLoadout(sensor, record, source, target, button, send=True, on_truck=done.append,
-                             data_name=f"{interface}:{channel}", model_name=str(model))
-        console.print(f"loadout on {interface}:{channel}; Ctrl-C stops")
+                             data_name=f"{interface}:{channel}", model_name=str(model), guard=guard)
+        loadout.guard_source = f"bus {interface}:{channel}"
+        console.print(f"loadout on {interface}:{channel}; {footer()}")
         if timer:
             timer.start()
-        with Live(live_view(loadout), console=console, refresh_per_second=4, transient=False) as view:
+        with Live(live_view(loadout, footer()), console=console, refresh_per_second=4, transient=False) as view:
             ticks = [0]
 
             def refresh():
                 ticks[0] += 1
                 if ticks[0] % 25 == 0:  # 4 times a second at 100 Hz
-                    view.update(live_view(loadout))
+                    view.update(live_view(loadout, footer()))
 
-            counters = run_live(bus, loadout, stop, on_tick=refresh)
-            view.update(live_view(loadout))
+            counters = run_live(bus, loadout, stop, on_tick=refresh, commands=commands)
+            view.update(live_view(loadout, footer()))
         if not console.is_terminal:
             console.print()  # the last view has no line end where nothing is redrawn
     finally:
+        if restore is not None:
+            restore()
         if timer:
             timer.cancel()
         for sig, handler in handlers.items():
@@ -238,5 +277,8 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
         record.close()
     for truck in done:
         show_truck(truck)
-    console.print(f"stopped: {counters['published']} frames sent, {counters['bus_errors']} bus errors")
+    console.print(f"stopped: {counters['published']} frames sent, {counters['bus_errors']} bus errors; truck "
+                  f"changes: {loadout.presses} button presses, {loadout.gaps} gaps of 30 s or more, "
+                  f"{counters['truck_commands']} from the terminal; units judged on {guard.judged} windows, "
+                  f"{guard.flagged_windows} wrong", markup=False, highlight=False)
     return loadout.trucks
