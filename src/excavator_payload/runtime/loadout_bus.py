@@ -419,7 +419,7 @@ class BusLoadout:
         samples in the wrong unit, perhaps before the window that showed it)."""
         if self.guard is not None and self.guard.flagged:
             p.time_lock = p.weight = p.sigma = None
-            p.status, p.reason = "not_weighed", "signal units: " + self.guard.findings[0]
+            p.status, p.reason = "not_weighed", "signal units: " + ", ".join(self.guard.short)
         return p
 
     def _note_faults(self) -> None:

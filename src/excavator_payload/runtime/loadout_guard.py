@@ -76,6 +76,8 @@ class UnitGuard:
         self._n = 0
         #: the findings of the last window judged (empty: right, or none judged yet)
         self.findings: list[str] = []
+        #: the same, short (``boom_head_pressure in bar?``): a pass's reason
+        self.short: list[str] = []
         self.judged = 0          # windows judged
         self.moving = 0          # ... of which the arm moved in
         self.flagged_windows = 0  # ... of which had a finding
@@ -135,27 +137,29 @@ class UnitGuard:
         frame.insert(0, "time", block[:, 0])
         frame.insert(0, "experiment", 0)
         moving = self._moving(frame)
-        named: dict[str, str] = {}  # signal -> finding (the first rule that blames it)
+        named: dict[str, tuple[str, str]] = {}  # signal -> finding (the first rule that blames it)
         for rule in (self._magnitudes, self._pressures, self._rates) if moving else (self._magnitudes,):
-            for signal, text in rule(frame):
-                named.setdefault(signal, text)
-        found = list(named.values())
+            for signal, text, unit in rule(frame):
+                named.setdefault(signal, (text, f"{signal} {unit}"))
+        found = [text for text, _ in named.values()]
+        short = [s for _, s in named.values()]
         if moving and not found and self.platform is not None:
             try:
                 self.platform.check_plausible(frame, self.machine, "")
             except DatasetError as exc:
                 # "…: experiment 0: the boom cylinder's net force …": the window has no experiment
                 found.append(re.sub(r"^:?\s*experiment \S+:\s*", "", str(exc)))
+                short.append("head and rod pressures swapped?")
         self.judged += 1
         self.moving += int(moving)
         if found:
             self.flagged_windows += 1
             if not self.findings:
                 self.since = float(block[0, 0])
-            self.findings, self._motion_flag = found, moving
+            self.findings, self.short, self._motion_flag = found, short, moving
         elif moving or not self._motion_flag:
             # an idle window cannot clear what only a moving arm shows
-            self.findings, self.since, self._motion_flag = [], None, False
+            self.findings, self.short, self.since, self._motion_flag = [], [], None, False
 
     def _moving(self, frame: pd.DataFrame) -> bool:
         ranges = [np.nanmax(v) - np.nanmin(v) for c in ("boom_angle", "dipper_angle", "bucket_angle")
@@ -188,7 +192,7 @@ class UnitGuard:
         factor = size if src is None else src.factor * size
         return f"set factor = {factor:.10g} in [signals.{signal}]"
 
-    def _magnitudes(self, frame: pd.DataFrame) -> list[tuple[str, str]]:
+    def _magnitudes(self, frame: pd.DataFrame) -> list[tuple[str, str, str]]:
         found = []
         for c in self.signals:
             values = np.abs(frame[c].to_numpy(dtype=float))
@@ -203,13 +207,13 @@ class UnitGuard:
             if unit.startswith("rad"):
                 degrees = unit.replace("rad", "°")
                 found.append((c, f"{self._where(c)} reaches {peak:.4g}, beyond ±{limit:.3g} {unit}: in {degrees} "
-                             f"instead of {unit}? ({self._factor(c, math.pi / 180)})"))
+                             f"instead of {unit}? ({self._factor(c, math.pi / 180)})", f"in {degrees}?"))
             else:
                 found.append((c, f"{self._where(c)} reaches {peak:.4g}, beyond the ±{limit:g} {unit} the "
-                                 f"{self.sensors.name} sensor set allows: not in {unit}?"))
+                                 f"{self.sensors.name} sensor set allows: not in {unit}?", f"not in {unit}?"))
         return found
 
-    def _pressures(self, frame: pd.DataFrame) -> list[tuple[str, str]]:
+    def _pressures(self, frame: pd.DataFrame) -> list[tuple[str, str, str]]:
         found = []
         for c in self.signals:
             if self.sensors.units[c] != "Pa":
@@ -234,10 +238,10 @@ class UnitGuard:
             factors = " or ".join(f"{size * (1.0 if src is None else src.factor):.10g}" for _, size in units)
             found.append((c, f"{self._where(c)} peaks at {peak:.4g} Pa while the arm works (its lines carry tens "
                              f"of bar, 1 bar = 1e5 Pa): in {names} instead of Pa? (set factor = {factors} in "
-                             f"[signals.{c}])"))
+                             f"[signals.{c}])", f"in {names}?"))
         return found
 
-    def _rates(self, frame: pd.DataFrame) -> list[tuple[str, str]]:
+    def _rates(self, frame: pd.DataFrame) -> list[tuple[str, str, str]]:
         found = []
         for signal, rate, unit, min_change in self.sensors.rate_pairs:
             if signal not in frame or rate not in frame:
@@ -250,10 +254,10 @@ class UnitGuard:
             if abs(ratio) > RATE_RATIO_LIMIT:
                 degrees = unit.replace("rad", "°")
                 found.append((rate, f"{self._where(rate)} integrates to {abs(ratio):.3g} times the change of {signal}: "
-                             f"in {degrees} instead of {unit}? ({self._factor(rate, math.pi / 180)})"))
+                             f"in {degrees} instead of {unit}? ({self._factor(rate, math.pi / 180)})", f"in {degrees}?"))
             else:
                 found.append((signal, f"{self._where(signal)} changes {1 / abs(ratio):.3g} times what {rate} integrates "
-                             f"to: in ° instead of {angle_unit}? ({self._factor(signal, math.pi / 180)})"))
+                             f"to: in ° instead of {angle_unit}? ({self._factor(signal, math.pi / 180)})", "in °?"))
         return found
 
 
