@@ -189,3 +189,23 @@ def test_an_idle_window_does_not_clear_a_pressure_finding():
                 seen.append(guard.flagged)
     assert seen == [True, True, False] and guard.since is None
 
+
+
+@pytest.mark.parametrize("unit", [1.0, 180 / math.pi])
+def test_the_window_rate_ratio_is_the_dataset_checks(unit):
+    """The guard's numpy rate ratio gives the dataset check's (units._rate_ratios) on a window
+    with noise, a NaN and a still stretch; a rate in °/s reads 57.3."""
+    import pandas as pd
+
+    from excavator_payload.data.units import _rate_ratios
+    from excavator_payload.runtime.loadout_guard import rate_ratio
+
+    rng = np.random.default_rng(1)
+    t = np.arange(500) * 0.01
+    angle = 0.4 * np.sin(1.3 * t) * (t > 1.0) + rng.normal(0, 1e-3, t.size)
+    rate = unit * np.gradient(0.4 * np.sin(1.3 * t) * (t > 1.0), t) + rng.normal(0, 5e-3, t.size)
+    angle[321] = np.nan
+    frame = pd.DataFrame({"experiment": 0, "time": t, "a": angle, "r": rate})
+    want = _rate_ratios(frame, "a", "r", 0.01, 0.02)[1]
+    got = rate_ratio(t, angle, rate, 0.01, 0.02)
+    assert got == pytest.approx(want, rel=1e-12) and got == pytest.approx(unit, rel=0.1)
