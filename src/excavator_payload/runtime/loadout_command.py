@@ -28,26 +28,35 @@ def register(app: typer.Typer) -> None:
     def loadout(
         model: Path = typer.Option(..., "--model", help="Saved estimator folder (calibrated and zeroed).",
                                    metavar="DIR"),
-        db: Path = typer.Option(..., "--db", metavar="FILE", help="SQLite shift record to append to (created if missing); "
+        db: Path = typer.Option(..., "--db", metavar="FILE",
+                                help="SQLite shift record to append to (created if missing); "
                                 "rerunning the same data or log replaces its rows, never doubles them."),
-        data: Path = typer.Option(None, "--data", metavar="FILE", help="Dataset of the shift (Parquet): each experiment one "
+        data: Path = typer.Option(None, "--data", metavar="FILE",
+                                  help="Dataset of the shift (Parquet): each experiment one "
                                   "truck, or a log split at gaps of 30 s or more."),
-        log: Path = typer.Option(None, "--log", metavar="FILE", help="CAN log of the shift (.mf4, .blf, .asc, .log / .txt "
+        log: Path = typer.Option(None, "--log", metavar="FILE",
+                                 help="CAN log of the shift (.mf4, .blf, .asc, .log / .txt "
                                  "candump -l or screen format with timestamps, .csv, .trc)."),
-        interface: str = typer.Option(None, "--interface", metavar="NAME", help="Live bus: python-can interface (socketcan, "
+        interface: str = typer.Option(None, "--interface", metavar="NAME",
+                                      help="Live bus: python-can interface (socketcan, "
                                       "pcan, kvaser, vector, virtual, …); with --channel."),
-        channel: str = typer.Option(None, "--channel", metavar="NAME", help="Live bus: the interface's channel, e.g. can0."),
-        dbc_file: Path = typer.Option(None, "--dbc", metavar="FILE", help="The sensors' DBC (log or bus; default: the "
+        channel: str = typer.Option(None, "--channel", metavar="NAME",
+                                    help="Live bus: the interface's channel, e.g. can0."),
+        dbc_file: Path = typer.Option(None, "--dbc", metavar="FILE",
+                                      help="The sensors' DBC (log or bus; default: the "
                                       "generated J1939 DBC). Needs --signal-map."),
         signal_map: Path = typer.Option(None, "--signal-map", metavar="FILE", help="TOML map from our signal "
                                         "names to --dbc's signals with the factor that makes each SI (as "
                                         "can-replay); a [truck_button] table names the operator's new-truck "
                                         "button."),
-        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", metavar="PERIODS", help="Log or bus: a signal older "
+        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", metavar="PERIODS",
+                                              help="Log or bus: a signal older "
                                               "than its message's period times this makes the sample 'stale'."),
-        truth: Path = typer.Option(None, "--truth", metavar="FILE", help="Log only: the dataset the log was recorded from; "
+        truth: Path = typer.Option(None, "--truth", metavar="FILE",
+                                   help="Log only: the dataset the log was recorded from; "
                                    "its experiments' true passes go to the record (truck 1 = experiment 1, …)."),
-        bitrate: int = typer.Option(None, "--bitrate", metavar="BIT/S", help="Live bus: bit rate if the interface needs one."),
+        bitrate: int = typer.Option(None, "--bitrate", metavar="BIT/S",
+                                    help="Live bus: bit rate if the interface needs one."),
         duration: float = typer.Option(None, "--duration", metavar="SECONDS", help="Live bus: stop after this "
                                        "many seconds (default: until the key q, Ctrl-C or SIGTERM)."),
         target: float = typer.Option(None, "--target", metavar="KG",

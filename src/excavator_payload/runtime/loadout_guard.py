@@ -129,7 +129,8 @@ class UnitGuard:
         if not self.findings:
             return ""
         window = self.size * self.sensors.sample_period
-        return f"{source}: {'; '.join(self.findings)} (judged on {window:g} s of decoded samples from {self.since:.1f} s)"
+        return (f"{source}: {'; '.join(self.findings)} (judged on {window:g} s of decoded samples from "
+                f"{self.since:.1f} s)")
 
     # -- the rules ---------------------------------------------------------------------------
     def _judge(self, block: np.ndarray) -> None:
@@ -253,11 +254,13 @@ class UnitGuard:
             angle_unit = self.sensors.units[signal]
             if abs(ratio) > RATE_RATIO_LIMIT:
                 degrees = unit.replace("rad", "°")
-                found.append((rate, f"{self._where(rate)} integrates to {abs(ratio):.3g} times the change of {signal}: "
-                             f"in {degrees} instead of {unit}? ({self._factor(rate, math.pi / 180)})", f"in {degrees}?"))
+                found.append((rate, f"{self._where(rate)} integrates to {abs(ratio):.3g} times the change of "
+                                    f"{signal}: in {degrees} instead of {unit}? "
+                                    f"({self._factor(rate, math.pi / 180)})", f"in {degrees}?"))
             else:
-                found.append((signal, f"{self._where(signal)} changes {1 / abs(ratio):.3g} times what {rate} integrates "
-                             f"to: in ° instead of {angle_unit}? ({self._factor(signal, math.pi / 180)})", "in °?"))
+                found.append((signal, f"{self._where(signal)} changes {1 / abs(ratio):.3g} times what {rate} "
+                                      f"integrates to: in ° instead of {angle_unit}? "
+                                      f"({self._factor(signal, math.pi / 180)})", "in °?"))
         return found
 
 
