@@ -19,7 +19,7 @@ from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, decod
 from excavator_payload.runtime.logs import read_frames
 
 sys.path.insert(0, str(Path(__file__).parent))
-from field_bus import field_shift_log, foreign_frames, make_shift  # noqa: E402
+from field_bus import DROPOUT, field_shift_log, foreign_frames, make_shift  # noqa: E402
 
 
 
@@ -234,6 +234,14 @@ def test_the_operator_closes_a_truck_and_ends_the_shift_from_the_terminal(shift,
     def drained():  # every frame played has been read by the command's bus
         return all(q.empty() for q in channels.get(channel, ()) if q is not feeder.queue)
 
+    closed = [0]  # LoadoutTruck frames the command has sent (at each pass lock and truck change)
+
+    def truck_frames():
+        while (m := feeder.recv(timeout=0)) is not None:
+            decoded = decode_loadout(m)
+            closed[0] += decoded is not None and decoded["message"] == dbc.LOADOUT_TRUCK_MESSAGE
+        return closed[0]
+
     def trucks():
         if not db.exists():
             return []
@@ -248,8 +256,11 @@ def test_the_operator_closes_a_truck_and_ends_the_shift_from_the_terminal(shift,
             feeder.send(f)
         wait(drained, "truck 1's frames")
         wait(lambda: trucks() == [(1, 1)], "truck 1's pass")
+        wait(lambda: truck_frames() == 1, "truck 1's LoadoutTruck at its pass")
         keys.write("t\n")
         keys.flush()
+        # the command taken: truck 1 closed and its total sent before truck 2's frames come
+        wait(lambda: truck_frames() == 2, "truck 1's LoadoutTruck at the command")
         for f in second:
             feeder.send(f)
         wait(drained, "truck 2's frames")
@@ -290,3 +301,23 @@ def test_a_live_run_without_a_terminal_runs_as_before(shift, tmp_path, monkeypat
                  f"loadout-nokeys-{id(tmp_path)}", "--duration", "1", "--db", str(tmp_path / "n.sqlite")])
     out = " ".join(capsys.readouterr().out.split())
     assert code == 0 and "unknown command 'x': t = next truck, q = end the shift" in out
+
+
+def test_a_fault_ended_by_a_silent_bus_ends_on_the_frames_clock(shift, tmp_path):
+    """Live, the receiver's clock (monotonic) is not the frames' (the logger's or the bus's
+    epoch): truck 1's frames up to the middle of its bucket_rod_pressure dropout, received 5000 s
+    "later", then the bus silent for 2 s (a stale tick ends the fault). The fault episodes lie
+    within the truck's own time, not 5000 s after it."""
+    frames = _sensor_frames(shift, tmp_path, 0)
+    last = frames[-1].timestamp
+    frames = [f for f in frames if f.timestamp <= last - 0.5 * sum(DROPOUT)]  # the bus falls silent in it
+    loadout = _loadout(shift, send=True)
+    skew = 5000.0
+    for f in frames:
+        loadout.feed(f, f.timestamp + skew)
+    end = frames[-1].timestamp + skew
+    for k in range(1, 21):
+        loadout.poll(end + 0.1 * k)
+    (truck,) = loadout.finish()
+    length = frames[-1].timestamp - frames[0].timestamp
+    assert truck.faults and all(-1.0 <= f["start"] <= f["end"] <= length + 3.0 for f in truck.faults), truck.faults

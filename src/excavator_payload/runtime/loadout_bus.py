@@ -385,6 +385,10 @@ class BusLoadout:
         return out
 
     def _output(self, output) -> list[can.Message]:
+        if output.values is None and self.last_frame is not None and self.last_received is not None:
+            # a stale tick of a silent bus is timed on the receiver's clock (monotonic), the
+            # faults on the frames' (a fault ended at "24095.8 s" of a 20 s truck): move it over
+            output = replace(output, time=float(output.time) - self.last_received + self.last_frame)
         if output.values is not None and self.guard is not None:
             was = self.guard.flagged
             if self.guard.add(output.time, output.values):
