@@ -321,3 +321,27 @@ def test_a_fault_ended_by_a_silent_bus_ends_on_the_frames_clock(shift, tmp_path)
     (truck,) = loadout.finish()
     length = frames[-1].timestamp - frames[0].timestamp
     assert truck.faults and all(-1.0 <= f["start"] <= f["end"] <= length + 3.0 for f in truck.faults), truck.faults
+
+
+def test_commands_are_read_only_from_a_stream_that_can_give_them():
+    """A pipe or a text stream gives commands; no stdin or a closed one does not (a terminal of a
+    background job neither: reading it would stop the process, and the bus with it)."""
+    import io
+    import os
+    import queue
+
+    from excavator_payload.runtime.loadout_bus import read_commands, readable_commands, terminal_keys
+
+    read_end, write_end = os.pipe()
+    pipe = os.fdopen(read_end)
+    os.close(write_end)
+    assert readable_commands(pipe) and terminal_keys(pipe) is None  # a pipe: lines, no cbreak
+    commands = queue.Queue()
+    read_commands(pipe, commands)  # at its end at once: no command, the end marked
+    assert commands.get_nowait() is None
+    pipe.close()
+    assert not readable_commands(pipe) and not readable_commands(None)
+    commands = queue.Queue()
+    unknown = []
+    read_commands(io.StringIO("T\n\nquit\nx\ntruck\n"), commands, unknown.append)
+    assert [commands.get_nowait() for _ in range(4)] == ["truck", "quit", "truck", None] and unknown == ["x"]

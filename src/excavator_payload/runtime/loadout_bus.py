@@ -716,6 +716,29 @@ def read_commands(stream, commands: queue.Queue, on_unknown=None, keys: bool = F
     commands.put(None)
 
 
+def readable_commands(stream) -> bool:
+    """Whether ``stream`` (``sys.stdin``) can give commands without harm: open, and if a terminal,
+    this process is its foreground job (a background job reading its terminal is stopped by
+    the shell, SIGTTIN: the bus would stop with it).
+
+    Parameters
+    ----------
+    stream : text file or None
+        ``sys.stdin``.
+    """
+    import os
+
+    if stream is None or getattr(stream, "closed", True):
+        return False
+    try:
+        if stream.isatty():
+            fd = stream.fileno()
+            return os.tcgetpgrp(fd) == os.getpgrp()
+    except (OSError, ValueError, AttributeError):  # a fake stdin (tests' capture) or no job control
+        return hasattr(stream, "read")
+    return True
+
+
 def terminal_keys(stream):
     """Put the terminal ``stream`` in cbreak mode (a key is read without Enter and not echoed
     into the live view; Ctrl-C still stops); returns the function that restores it, or None
@@ -730,7 +753,7 @@ def terminal_keys(stream):
         import termios
         import tty
 
-        if stream is None or not stream.isatty():
+        if stream is None or not stream.isatty() or not readable_commands(stream):
             return None
         fd = stream.fileno()
         saved = termios.tcgetattr(fd)

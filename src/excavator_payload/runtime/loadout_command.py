@@ -229,7 +229,7 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
     from excavator_payload.runtime.dbc import CanConfigError
     from excavator_payload.runtime.loadout import ShiftRecord
     from excavator_payload.runtime.loadout_bus import (
-        COMMAND_HELP, BusLoadout, live_view, read_commands, run_live, terminal_keys)
+        COMMAND_HELP, BusLoadout, live_view, read_commands, readable_commands, run_live, terminal_keys)
 
     kwargs = {"bitrate": bitrate} if bitrate else {}
     try:
@@ -247,11 +247,12 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
     timer = threading.Timer(duration, stop.set) if duration else None
     done = []
     # the operator's commands (t: next truck, q: end the shift) read on their own thread: a
-    # silent keyboard never holds the bus; no stdin (a service, /dev/null) is no commands
+    # silent keyboard never holds the bus; no stdin (a service, /dev/null) or a background job's
+    # terminal is no commands
     commands: queue.Queue = queue.Queue()
     restore = terminal_keys(sys.stdin)
     reader = None
-    if sys.stdin is not None and not getattr(sys.stdin, "closed", True):
+    if readable_commands(sys.stdin):
         def unknown(text):
             console.print(f"unknown command {text!r}: t = next truck, q = end the shift", markup=False,
                           highlight=False)
