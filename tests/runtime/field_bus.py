@@ -145,3 +145,20 @@ def make_shift(folder: Path):
     write_dataset(trucks, folder / "shift.parquet")
     dbc_path, map_path = write_field_files(folder)
     return folder, trucks, dbc_path, map_path
+
+
+def rescaled_dbc(text: str, changes: dict) -> str:
+    """``text`` (a DBC) with some signals in another unit: ``{"BoomHeadPressure": (1e-5, "bar")}``
+    multiplies that signal's scale, offset and range by 1e-5 and names its unit "bar" — the same
+    frames then decode in bar, as a user's DBC in bar does (mapped with factor 1)."""
+    import re
+
+    out = text
+    for name, (k, unit) in changes.items():
+        def scaled(m, k=k, unit=unit):
+            scale, offset, low, high = (float(x) * k for x in m.group(2, 3, 4, 5))
+            return f'{m.group(1)}({scale!r},{offset!r}) [{low!r}|{high!r}] "{unit}"'
+
+        out, n = re.subn(rf'( SG_ {name} : \S+ )\(([^,]+),([^)]+)\) \[([^|]+)\|([^\]]+)\] "[^"]*"', scaled, out)
+        assert n == 1, name
+    return out

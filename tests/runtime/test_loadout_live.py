@@ -19,7 +19,7 @@ from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, decod
 from excavator_payload.runtime.logs import read_frames
 
 sys.path.insert(0, str(Path(__file__).parent))
-from field_bus import field_shift_log, foreign_frames, make_shift  # noqa: E402
+from field_bus import DROPOUT, field_shift_log, foreign_frames, make_shift  # noqa: E402
 
 
 
@@ -188,3 +188,160 @@ def test_the_live_command_runs_on_a_virtual_bus_and_stops(shift, tmp_path):
     assert len(runs) == 1 and runs[0][0].startswith(f"live virtual:{channel}") and runs[0][1] is not None
     # no pass in half a second, but the truck that began is recorded, with its start on the bus's clock
     assert trucks == [(1, 0, 8000.0, pytest.approx(frames[0].timestamp, abs=0.05))]
+
+
+def _first_pass(shift, tmp_path, experiment, offset):
+    """The field frames of one truck up to 1 s after its first pass's dump, ``offset`` s later."""
+    frames = _sensor_frames(shift, tmp_path, experiment)
+    start = frames[0].timestamp
+    end = start + shift[1].experiment_meta[experiment]["passes"][0]["release"][1] + 1.0
+    return [can.Message(timestamp=f.timestamp - start + offset, arbitration_id=f.arbitration_id,
+                        is_extended_id=True, data=f.data) for f in frames if f.timestamp <= end]
+
+
+def test_the_operator_closes_a_truck_and_ends_the_shift_from_the_terminal(shift, tmp_path, monkeypatch, capsys):
+    """`loadout --interface virtual …` with its stdin a pipe: truck 1's first pass, then `t` +
+    Enter, truck 2's first pass 5 s later on the bus's clock (no 30 s gap, no button: only the
+    command separates them), then `q` + Enter: two trucks of one pass each, recorded, the run
+    finished long before --duration."""
+    import os
+    import sqlite3
+
+    from can.interfaces.virtual import channels
+
+    from excavator_payload.cli import main
+
+    first = _first_pass(shift, tmp_path, 0, 0.0)
+    second = _first_pass(shift, tmp_path, 1, first[-1].timestamp + 5.0)
+    channel = f"loadout-keys-{id(first)}"
+    feeder = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    read_end, write_end = os.pipe()
+    monkeypatch.setattr(sys, "stdin", os.fdopen(read_end, "r"))
+    keys = os.fdopen(write_end, "w")
+    db = tmp_path / "keys.sqlite"
+    result = {}
+    run = threading.Thread(target=lambda: result.update(code=main([
+        "loadout", "--model", str(shift[0] / "model"), "--interface", "virtual", "--channel", channel,
+        "--dbc", str(shift[2]), "--signal-map", str(shift[3]), "--duration", "300", "--db", str(db),
+        "--target", "8000"])))
+
+    def wait(condition, what):
+        deadline = time.monotonic() + 120
+        while not condition():
+            assert time.monotonic() < deadline and run.is_alive(), f"waited for {what}"
+            time.sleep(0.05)
+
+    def drained():  # every frame played has been read by the command's bus
+        return all(q.empty() for q in channels.get(channel, ()) if q is not feeder.queue)
+
+    closed = [0]  # LoadoutTruck frames the command has sent (at each pass lock and truck change)
+
+    def truck_frames():
+        while (m := feeder.recv(timeout=0)) is not None:
+            decoded = decode_loadout(m)
+            closed[0] += decoded is not None and decoded["message"] == dbc.LOADOUT_TRUCK_MESSAGE
+        return closed[0]
+
+    def trucks():
+        if not db.exists():
+            return []
+        with sqlite3.connect(db) as con:
+            return con.execute("SELECT truck, passes FROM trucks ORDER BY truck").fetchall()
+
+    started = time.monotonic()
+    run.start()
+    try:
+        wait(lambda: len(channels.get(channel, ())) >= 2, "the command's bus")
+        for f in first:
+            feeder.send(f)
+        wait(drained, "truck 1's frames")
+        wait(lambda: trucks() == [(1, 1)], "truck 1's pass")
+        wait(lambda: truck_frames() == 1, "truck 1's LoadoutTruck at its pass")
+        keys.write("t\n")
+        keys.flush()
+        # the command taken: truck 1 closed and its total sent before truck 2's frames come
+        wait(lambda: truck_frames() == 2, "truck 1's LoadoutTruck at the command")
+        for f in second:
+            feeder.send(f)
+        wait(drained, "truck 2's frames")
+        wait(lambda: [t for t, _ in trucks()] == [1, 2] and trucks()[1][1] == 1, "truck 2's pass")
+        keys.write("q\n")
+        keys.flush()
+        run.join(60)
+    finally:
+        keys.close()
+        run.join(60)
+        feeder.shutdown()
+    assert not run.is_alive() and result["code"] == 0 and time.monotonic() - started < 300
+    assert trucks() == [(1, 1), (2, 1)]
+    with sqlite3.connect(db) as con:
+        assert con.execute("SELECT COUNT(*) FROM runs WHERE finished IS NOT NULL").fetchone() == (1,)
+        statuses = con.execute("SELECT status FROM passes").fetchall()
+    assert statuses == [("ok",), ("ok",)]
+    out = " ".join(capsys.readouterr().out.split())
+    assert "t + Enter: next truck · q + Enter: end the shift (recorded)" in out  # the view's footer
+    assert "0 button presses, 0 gaps of 30 s or more, 1 from the terminal" in out
+
+
+def test_a_live_run_without_a_terminal_runs_as_before(shift, tmp_path, monkeypatch, capsys):
+    """stdin at its end (a service, `< /dev/null`): no commands, no error; the view's footer
+    says only Ctrl-C; an unknown line from a pipe is one line of help, not an error."""
+    import io
+
+    from excavator_payload.cli import main
+
+    monkeypatch.setattr(sys, "stdin", io.StringIO(""))
+    code = main(["loadout", "--model", str(shift[0] / "model"), "--interface", "virtual", "--channel",
+                 f"loadout-nokeys-{id(tmp_path)}", "--duration", "1", "--db", str(tmp_path / "n.sqlite")])
+    out = capsys.readouterr().out
+    footers = [line.strip() for line in out.splitlines() if "Ctrl-C" in line]
+    assert code == 0 and footers[-1] == "Ctrl-C: stop", out
+    monkeypatch.setattr(sys, "stdin", io.StringIO("x\n"))
+    code = main(["loadout", "--model", str(shift[0] / "model"), "--interface", "virtual", "--channel",
+                 f"loadout-nokeys-{id(tmp_path)}", "--duration", "1", "--db", str(tmp_path / "n.sqlite")])
+    out = " ".join(capsys.readouterr().out.split())
+    assert code == 0 and "unknown command 'x': t = next truck, q = end the shift" in out
+
+
+def test_a_fault_ended_by_a_silent_bus_ends_on_the_frames_clock(shift, tmp_path):
+    """Live, the receiver's clock (monotonic) is not the frames' (the logger's or the bus's
+    epoch): truck 1's frames up to the middle of its bucket_rod_pressure dropout, received 5000 s
+    "later", then the bus silent for 2 s (a stale tick ends the fault). The fault episodes lie
+    within the truck's own time, not 5000 s after it."""
+    frames = _sensor_frames(shift, tmp_path, 0)
+    last = frames[-1].timestamp
+    frames = [f for f in frames if f.timestamp <= last - 0.5 * sum(DROPOUT)]  # the bus falls silent in it
+    loadout = _loadout(shift, send=True)
+    skew = 5000.0
+    for f in frames:
+        loadout.feed(f, f.timestamp + skew)
+    end = frames[-1].timestamp + skew
+    for k in range(1, 21):
+        loadout.poll(end + 0.1 * k)
+    (truck,) = loadout.finish()
+    length = frames[-1].timestamp - frames[0].timestamp
+    assert truck.faults and all(-1.0 <= f["start"] <= f["end"] <= length + 3.0 for f in truck.faults), truck.faults
+
+
+def test_commands_are_read_only_from_a_stream_that_can_give_them():
+    """A pipe or a text stream gives commands; no stdin or a closed one does not (a terminal of a
+    background job neither: reading it would stop the process, and the bus with it)."""
+    import io
+    import os
+    import queue
+
+    from excavator_payload.runtime.loadout_bus import read_commands, readable_commands, terminal_keys
+
+    read_end, write_end = os.pipe()
+    pipe = os.fdopen(read_end)
+    os.close(write_end)
+    assert readable_commands(pipe) and terminal_keys(pipe) is None  # a pipe: lines, no cbreak
+    commands = queue.Queue()
+    read_commands(pipe, commands)  # at its end at once: no command, the end marked
+    assert commands.get_nowait() is None
+    pipe.close()
+    assert not readable_commands(pipe) and not readable_commands(None)
+    commands = queue.Queue()
+    unknown = []
+    read_commands(io.StringIO("T\n\nquit\nx\ntruck\n"), commands, unknown.append)
+    assert [commands.get_nowait() for _ in range(4)] == ["truck", "quit", "truck", None] and unknown == ["x"]

@@ -565,6 +565,7 @@ def truck_table(truck: Truck):
         The truck shown.
     """
     from rich.table import Table
+    from rich.text import Text
 
     title = f"truck {truck.truck}"
     if truck.target is not None:
@@ -578,7 +579,8 @@ def truck_table(truck: Truck):
         left = "" if truck.target is None else f"{truck.target - running:,.0f}"
         table.add_row(str(p.index), "—" if p.weight is None else f"{p.weight:,.0f}",
                       "—" if p.sigma is None else f"{p.sigma:.1f}",
-                      p.status if not p.reason else f"{p.status}: {p.reason}", f"{running:,.0f}", left)
+                      # a reason quotes "[signals.x]": text, not rich markup
+                      Text(p.status if not p.reason else f"{p.status}: {p.reason}"), f"{running:,.0f}", left)
     return table
 
 

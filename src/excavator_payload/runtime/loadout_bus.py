@@ -22,6 +22,22 @@ Truck changes
 
 The sensor (and its estimator) restarts at each truck, as a dataset's experiment does.
 
+Units
+-----
+With a :class:`~excavator_payload.runtime.loadout_guard.UnitGuard` every few seconds of decoded
+samples are judged for signals in another unit (pressures in bar, angles in degrees, rates in
+°/s: a DBC mapped with the wrong factor). A log is refused with one line
+(:func:`check_log_units` on its first seconds before anything is recorded, then the guard
+throughout, ``refuse_units``); on a live bus, while the guard is flagged no estimate is published
+``ok`` (``out_of_range`` instead) and a pass locked then is ``not_weighed`` with the guard's
+finding as its reason; the live view shows it in red.
+
+Operator commands
+-----------------
+:func:`run_live` takes a queue of commands (:func:`read_commands` fills it from the terminal on
+its own thread, so a silent keyboard never holds the bus): ``truck`` closes the truck being
+loaded (as the button does), ``quit`` ends the shift as Ctrl-C does.
+
 On a live bus (``send=True``) the frames to send are returned: every estimate
 (``PayloadEstimate``, ``VehicleWeight``), a DM1 while a sensor is faulty, and for each locked
 pass ``LoadoutPass`` then ``LoadoutTruck`` (its running total), and ``LoadoutTruck`` again when
@@ -30,9 +46,11 @@ the truck leaves.
 
 from __future__ import annotations
 
+import logging
 import math
+import queue
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import can
 import numpy as np
@@ -48,6 +66,16 @@ EVALUATE_EVERY = 10
 #: A second "pressed" frame within this time (s) is the same press (a panel that sends the
 #: button's state periodically while it is held).
 PRESS_HOLD = 1.0
+#: The status an ``ok`` estimate is published with while the unit guard is flagged.
+GUARDED = "out_of_range"
+#: Windows of a log's first samples :func:`check_log_units` judges at most, waiting for the arm to move.
+PREPASS_WINDOWS = 12
+#: The terminal's commands during a live run (a key; from a pipe, a line: letter or word).
+COMMANDS = {"t": "truck", "truck": "truck", "q": "quit", "quit": "quit"}
+#: The live view's footer while the terminal's commands are read.
+COMMAND_HELP = "t: next truck · q: end the shift (recorded) · Ctrl-C: stop"
+
+_log = logging.getLogger(__name__)
 
 
 # -- the operator's button ---------------------------------------------------------------------
@@ -288,11 +316,16 @@ class BusLoadout:
         ``on_pass(truck, pass)`` after a pass is locked, ``on_truck(truck)`` after a truck left.
     data_name, model_name : str
         What the record's ``runs`` table says was weighed (the log, the bus) and by which model.
+    guard : UnitGuard or None
+        Judges the decoded samples' units (module doc); None: no check.
+    refuse_units : bool
+        A guard finding raises :class:`DatasetError` (a log) instead of flagging (a live bus).
     """
 
     def __init__(self, sensor, record: ShiftRecord | None = None, source: str = "", target: float | None = None,
                  button: TruckButton | None = None, send: bool = False, truths: list | None = None,
-                 on_pass=None, on_truck=None, data_name: str = "", model_name: str = "") -> None:
+                 on_pass=None, on_truck=None, data_name: str = "", model_name: str = "", guard=None,
+                 refuse_units: bool = False) -> None:
         if "bucket_angle" not in sensor.sensor_set.signals or "bucket_rate" not in sensor.sensor_set.signals:
             raise DatasetError(f"loadout reads the bucket's moves: the {sensor.sensor_set.name} sensor set "
                                "has no bucket_angle and bucket_rate")
@@ -310,6 +343,8 @@ class BusLoadout:
         self._episodes = 0
         self.summary = ""  # what a replayed log held (LogSummary.describe)
         self.publisher = _Publisher()
+        self.guard, self.refuse_units = guard, refuse_units
+        self.guard_source = data_name or source  # names the log / bus in the guard's line
         sensor.reset()
         sensor.dm1.reset()
         self.run = (record.start_run(source, data_name, model_name, getattr(sensor.estimator, "rated_payload", None))
@@ -350,6 +385,16 @@ class BusLoadout:
         return out
 
     def _output(self, output) -> list[can.Message]:
+        if output.values is None and self.last_frame is not None and self.last_received is not None:
+            # a stale tick of a silent bus is timed on the receiver's clock (monotonic), the
+            # faults on the frames' (a fault ended at "24095.8 s" of a 20 s truck): move it over
+            output = replace(output, time=float(output.time) - self.last_received + self.last_frame)
+        if output.values is not None and self.guard is not None:
+            was = self.guard.flagged
+            if self.guard.add(output.time, output.values):
+                self._judged(was)
+            if self.guard.flagged and output.status == "ok":
+                output = replace(output, status=GUARDED)  # no weight while a signal's unit is wrong
         out = self.sensor.frames(output) if self.send else []
         if not self.send:
             self.sensor.dm1.update(output.time, output.fault)
@@ -360,8 +405,26 @@ class BusLoadout:
             self.tracker = TruckTracker(len(self.trucks) + 1, self.target, self.sensor.sensor_set.signals)
         self._note_faults()
         for p in self.tracker.add(output):
-            out += self._locked(p)
+            out += self._locked(self._guarded(p))
         return out
+
+    def _judged(self, was: bool) -> None:
+        """The guard judged a window: refuse (a log), or say loudly that the flag rose or fell."""
+        guard = self.guard
+        if guard.flagged and self.refuse_units:
+            raise DatasetError(guard.message(self.guard_source))
+        if guard.flagged and not was:
+            _log.warning("%s; no pass is weighed until the units look right", guard.message(self.guard_source))
+        elif was and not guard.flagged:
+            _log.warning("%s: the signals' units look right again; passes are weighed", self.guard_source)
+
+    def _guarded(self, p: Pass) -> Pass:
+        """A pass locked while the unit guard is flagged is not weighed (its weight came from
+        samples in the wrong unit, perhaps before the window that showed it)."""
+        if self.guard is not None and self.guard.flagged:
+            p.time_lock = p.weight = p.sigma = None
+            p.status, p.reason = "not_weighed", "signal units: " + ", ".join(self.guard.short)
+        return p
 
     def _note_faults(self) -> None:
         """Fault episodes that began since the last sample belong to the current truck."""
@@ -399,7 +462,7 @@ class BusLoadout:
             return out
         truck = tracker.truck
         for p in tracker.close():
-            out += self._locked_closing(truck, p)
+            out += self._locked_closing(truck, self._guarded(p))
         k = len(self.trucks)
         if self.truths is not None and k < len(self.truths) and self.truths[k]:
             truth = self.truths[k]
@@ -558,6 +621,10 @@ def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Tr
         if bar is not None:
             bar.stop()
     sensor = loadout.sensor
+    if loadout.guard is not None:
+        was = loadout.guard.flagged
+        if loadout.guard.finish():  # the log's last seconds
+            loadout._judged(was)
     if loadout.samples == 0:
         raise DatasetError(f"CAN log '{path}': no frame is the sensor messages ({_expected(sensor)}) of "
                            f"the {sensor.sensor_set.name} sensor set{_foreign(sensor)}; the log holds "
@@ -567,9 +634,137 @@ def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Tr
     return trucks
 
 
+def check_log_units(path, sensor, guard, source: str) -> None:
+    """Judge the units of a log's first decoded seconds before anything is recorded: windows
+    of ``guard`` until one in which the arm moves (at most :data:`PREPASS_WINDOWS`), or the
+    log's end.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CAN log.
+    sensor : PayloadSensor
+        A sensor of the log's codec, for this check only (its estimator is reset after).
+    guard : UnitGuard
+        Judges the samples.
+    source : str
+        Names the log in the message.
+
+    Raises
+    ------
+    DatasetError
+        One line naming each signal in another unit, its DBC source and the likely unit.
+    """
+    from excavator_payload.runtime.logs import read_frames
+
+    sensor.reset()
+    try:
+        for message in read_frames(path):
+            spec = sensor.accepts(message)
+            if spec is None or not math.isfinite(float(message.timestamp)):
+                continue
+            for output in sensor.feed(message, spec=spec):
+                if output.values is not None and guard.add(output.time, output.values):
+                    if guard.flagged:
+                        raise DatasetError(guard.message(source))
+                    if guard.moving or guard.judged >= PREPASS_WINDOWS:
+                        return
+        if guard.finish() and guard.flagged:
+            raise DatasetError(guard.message(source))
+    finally:
+        sensor.reset()
+
+
 # -- a live bus --------------------------------------------------------------------------------
+def read_commands(stream, commands: queue.Queue, on_unknown=None, keys: bool = False) -> None:
+    """Read the operator's commands from ``stream`` into ``commands`` until the stream ends or
+    fails (stdin closed, redirected from nothing, not readable: then there are simply no
+    commands). Run it on its own (daemon) thread: a read blocks.
+
+    Parameters
+    ----------
+    stream : text file
+        Where the commands come from (``sys.stdin``).
+    commands : queue.Queue
+        Gets ``"truck"`` or ``"quit"`` per command (:data:`COMMANDS`); ``None`` when the stream ends.
+    on_unknown : callable, optional
+        ``on_unknown(text)`` for a line (or key) that is no command.
+    keys : bool
+        One key is one command (a terminal in cbreak mode, :func:`terminal_keys`); else one
+        line is (a pipe, a terminal in line mode).
+    """
+    import os
+
+    try:
+        if keys:
+            fd = stream.fileno()
+            while key := os.read(fd, 1):
+                word = key.decode("ascii", "replace").lower()
+                if word in COMMANDS:
+                    commands.put(COMMANDS[word])
+                elif word.strip() and on_unknown is not None:
+                    on_unknown(word)
+        else:
+            for line in stream:
+                word = line.strip().lower()
+                if word in COMMANDS:
+                    commands.put(COMMANDS[word])
+                elif word and on_unknown is not None:
+                    on_unknown(line.strip())
+    except (OSError, ValueError, UnicodeDecodeError):  # a closed or unreadable stdin: no commands
+        pass
+    commands.put(None)
+
+
+def readable_commands(stream) -> bool:
+    """Whether ``stream`` (``sys.stdin``) can give commands without harm: open, and if a terminal,
+    this process is its foreground job (a background job reading its terminal is stopped by
+    the shell, SIGTTIN: the bus would stop with it).
+
+    Parameters
+    ----------
+    stream : text file or None
+        ``sys.stdin``.
+    """
+    import os
+
+    if stream is None or getattr(stream, "closed", True):
+        return False
+    try:
+        if stream.isatty():
+            fd = stream.fileno()
+            return os.tcgetpgrp(fd) == os.getpgrp()
+    except (OSError, ValueError, AttributeError):  # a fake stdin (tests' capture) or no job control
+        return hasattr(stream, "read")
+    return True
+
+
+def terminal_keys(stream):
+    """Put the terminal ``stream`` in cbreak mode (a key is read without Enter and not echoed
+    into the live view; Ctrl-C still stops); returns the function that restores it, or None
+    when ``stream`` is no terminal (then commands are lines).
+
+    Parameters
+    ----------
+    stream : text file
+        ``sys.stdin``.
+    """
+    try:
+        import termios
+        import tty
+
+        if stream is None or not stream.isatty() or not readable_commands(stream):
+            return None
+        fd = stream.fileno()
+        saved = termios.tcgetattr(fd)
+        tty.setcbreak(fd)
+    except (ImportError, OSError, ValueError, AttributeError):  # Windows, a closed or fake stdin
+        return None
+    return lambda: termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+
+
 def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, on_tick=None,
-             error_pause: float = 0.1) -> dict:
+             error_pause: float = 0.1, commands: queue.Queue | None = None) -> dict:
     """Read ``bus`` and send what ``loadout`` says until ``stop`` (a ``threading.Event``) is set;
     then the last truck is closed (and its total sent).
 
@@ -587,17 +782,18 @@ def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, 
         Called once per sample period (the live view's refresh).
     error_pause : float
         Pause after a failing receive, s.
+    commands : queue.Queue, optional
+        The operator's commands (:func:`read_commands`), taken without waiting once per sample
+        period: ``"truck"`` closes the truck (:meth:`BusLoadout.new_truck`), ``"quit"`` stops.
 
     Returns
     -------
     dict
-        ``published`` frames and ``bus_errors`` (a failing ``recv`` or ``send``, error frames:
-        logged and counted, never fatal).
+        ``published`` frames, ``bus_errors`` (a failing ``recv`` or ``send``, error frames:
+        logged and counted, never fatal) and ``truck_commands`` (trucks closed by a command).
     """
-    import logging
-
-    log = logging.getLogger(__name__)
-    counters = {"published": 0, "bus_errors": 0}
+    log = _log
+    counters = {"published": 0, "bus_errors": 0, "truck_commands": 0}
     period = loadout.sensor.period
     next_tick = clock() + period
 
@@ -624,6 +820,17 @@ def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, 
                     counters["bus_errors"] += 1
                 else:
                     publish(loadout.feed(message, clock()))
+            while commands is not None:
+                try:
+                    command = commands.get_nowait()
+                except queue.Empty:
+                    break
+                if command == "truck":
+                    before = len(loadout.trucks)
+                    publish(loadout.new_truck())
+                    counters["truck_commands"] += len(loadout.trucks) - before  # none loaded: no truck
+                elif command == "quit":
+                    stop.set()
             now = clock()
             if now >= next_tick:
                 last = loadout.sensor.last_sample_received
@@ -661,15 +868,17 @@ def advice(truck: Truck) -> str:
     return f"{left:,.0f} kg left: about {n} passes of {left / n:,.0f} kg"
 
 
-def live_view(loadout: BusLoadout):
+def live_view(loadout: BusLoadout, footer: str = ""):
     """The cab's view (rich): the truck being loaded (its passes, running total against the
-    target, what the last pass should carry), the current estimate, active sensor faults, the
-    trucks done.
+    target, what the last pass should carry), the current estimate, a unit guard's finding and
+    active sensor faults in red, the trucks done, and ``footer`` (the operator's keys).
 
     Parameters
     ----------
     loadout : BusLoadout
         The shift being followed.
+    footer : str, optional
+        The last line, dimmed (:data:`COMMAND_HELP` while the terminal's commands are read).
     """
     from rich.console import Group
     from rich.text import Text
@@ -679,7 +888,10 @@ def live_view(loadout: BusLoadout):
     parts = []
     truck = loadout.current
     last = loadout.sensor.last_output
-    if last is not None:
+    guard = loadout.guard
+    if guard is not None and guard.flagged:
+        parts.append(Text(f"NOT WEIGHING: {guard.message(loadout.guard_source)}", style="bold red"))
+    elif last is not None:
         parts.append(Text(f"bucket {last.estimate:,.0f} kg ± {last.sigma:.1f} ({last.status})"
                           if math.isfinite(last.estimate) else f"bucket: no estimate ({last.status})"))
     if truck is not None:
@@ -696,4 +908,6 @@ def live_view(loadout: BusLoadout):
         done = loadout.trucks
         parts.append(Text(f"{len(done)} trucks done, {sum(len(t.passes) for t in done)} passes, "
                           f"{sum(t.total for t in done):,.0f} kg"))
+    if footer:
+        parts.append(Text(footer, style="dim"))
     return Group(*parts)

@@ -28,33 +28,51 @@ def register(app: typer.Typer) -> None:
     def loadout(
         model: Path = typer.Option(..., "--model", help="Saved estimator folder (calibrated and zeroed).",
                                    metavar="DIR"),
-        db: Path = typer.Option(..., "--db", help="SQLite shift record to append to (created if missing); "
+        db: Path = typer.Option(..., "--db", metavar="FILE",
+                                help="SQLite shift record to append to (created if missing); "
                                 "rerunning the same data or log replaces its rows, never doubles them."),
-        data: Path = typer.Option(None, "--data", help="Dataset of the shift (Parquet): each experiment one "
+        data: Path = typer.Option(None, "--data", metavar="FILE",
+                                  help="Dataset of the shift (Parquet): each experiment one "
                                   "truck, or a log split at gaps of 30 s or more."),
-        log: Path = typer.Option(None, "--log", help="CAN log of the shift (.mf4, .blf, .asc, .log / .txt "
+        log: Path = typer.Option(None, "--log", metavar="FILE",
+                                 help="CAN log of the shift (.mf4, .blf, .asc, .log / .txt "
                                  "candump -l or screen format with timestamps, .csv, .trc)."),
-        interface: str = typer.Option(None, "--interface", help="Live bus: python-can interface (socketcan, "
+        interface: str = typer.Option(None, "--interface", metavar="NAME",
+                                      help="Live bus: python-can interface (socketcan, "
                                       "pcan, kvaser, vector, virtual, …); with --channel."),
-        channel: str = typer.Option(None, "--channel", help="Live bus: the interface's channel, e.g. can0."),
-        dbc_file: Path = typer.Option(None, "--dbc", help="The sensors' DBC (log or bus; default: the "
+        channel: str = typer.Option(None, "--channel", metavar="NAME",
+                                    help="Live bus: the interface's channel, e.g. can0."),
+        dbc_file: Path = typer.Option(None, "--dbc", metavar="FILE",
+                                      help="The sensors' DBC (log or bus; default: the "
                                       "generated J1939 DBC). Needs --signal-map."),
-        signal_map: Path = typer.Option(None, "--signal-map", help="TOML map from our signal names to "
-                                        "--dbc's signals (as can-replay); a [truck_button] table names the "
-                                        "operator's new-truck button."),
-        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", help="Log or bus: a signal older "
+        signal_map: Path = typer.Option(None, "--signal-map", metavar="FILE", help="TOML map from our signal "
+                                        "names to --dbc's signals with the factor that makes each SI (as "
+                                        "can-replay); a [truck_button] table names the operator's new-truck "
+                                        "button."),
+        stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", metavar="PERIODS",
+                                              help="Log or bus: a signal older "
                                               "than its message's period times this makes the sample 'stale'."),
-        truth: Path = typer.Option(None, "--truth", help="Log only: the dataset the log was recorded from; "
+        truth: Path = typer.Option(None, "--truth", metavar="FILE",
+                                   help="Log only: the dataset the log was recorded from; "
                                    "its experiments' true passes go to the record (truck 1 = experiment 1, …)."),
-        bitrate: int = typer.Option(None, "--bitrate", help="Live bus: bit rate if the interface needs one."),
-        duration: float = typer.Option(None, "--duration", help="Live bus: stop after this many seconds "
-                                       "(default: until Ctrl-C / SIGTERM)."),
+        bitrate: int = typer.Option(None, "--bitrate", metavar="BIT/S",
+                                    help="Live bus: bit rate if the interface needs one."),
+        duration: float = typer.Option(None, "--duration", metavar="SECONDS", help="Live bus: stop after this "
+                                       "many seconds (default: until the key q, Ctrl-C or SIGTERM)."),
         target: float = typer.Option(None, "--target", metavar="KG",
                                      help="Each truck's target load (default: the data's, if it has one)."),
-        out: Path = typer.Option(None, "--out", help="Also write every pass to this Parquet file."),
+        out: Path = typer.Option(None, "--out", metavar="FILE", help="Also write every pass to this Parquet file."),
     ) -> None:
         """Weigh every bucket pass before its dump, total each truck against its target, record the shift
-        (from a dataset, a CAN log or a live bus; on a bus the passes and totals are sent in J1939)."""
+        (from a dataset, a CAN log or a live bus; on a bus the passes and totals are sent in J1939).
+
+        A truck is done at 30 s without the arm's frames, at the operator's button (a DBC message),
+        or on a live bus when the key t is pressed in the terminal (q ends the shift, recorded).
+
+        The decoded signals' units are judged every 5 s (pressures in bar, angles in degrees, rates
+        in °/s from a DBC mapped with factor 1): a log is refused in one line naming the signal and
+        the factor to set; on a live bus no pass is weighed while it lasts.
+        """
         from excavator_payload.data.io import check_output_path
         from excavator_payload.estimators.base import load_estimator
         from excavator_payload.platforms import HYDRAULIC
@@ -153,9 +171,18 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
     from excavator_payload.runtime.loadout import ShiftRecord, file_key
     from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, replay_loadout
 
+    from excavator_payload.platforms import HYDRAULIC
+    from excavator_payload.runtime.loadout_bus import check_log_units
+    from excavator_payload.runtime.loadout_guard import UnitGuard
+
     codec = SignalCodec.from_files(estimator.sensor_set, dbc_file, signal_map)
     button = TruckButton.from_signal_map(signal_map, codec.database)
     sensor = PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance)
+
+    def guard():
+        """The decoded signals' units judged (a DBC in bar, degrees or °/s mapped with factor 1)."""
+        return UnitGuard(estimator.sensor_set, codec, getattr(estimator, "machine", None), HYDRAULIC)
+
     truths = None
     if truth is not None:
         from excavator_payload.data.io import read_dataset
@@ -168,25 +195,32 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
         from excavator_payload.runtime.logs import read_frames
 
         next(iter(read_frames(log)), None)  # a missing or unreadable log: one line before the record
+        # a signal in another unit: one line before anything is recorded
+        check_log_units(log, PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance), guard(),
+                        f"CAN log '{log}'")
         record = ShiftRecord(db)
         try:
             bus = BusLoadout(sensor, record, file_key(log), target, button, truths=truths, on_truck=show_truck,
-                             data_name=str(log), model_name=str(model))
+                             data_name=str(log), model_name=str(model), guard=guard(), refuse_units=True)
+            bus.guard_source = f"CAN log '{log}'"
             trucks = replay_loadout(log, bus, progress=True)
         finally:
             record.close()
         c = sensor.counters
         console.print(f"{c['samples']} samples from {c['frames']} frames ({c['ignored']} of other ids, "
                       f"{c['other_senders']} of the sensor PGNs from other source addresses, {c['bad_frames']} bad); "
-                      f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more",
+                      f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more; "
+                      f"units judged on {bus.guard.judged} windows of {bus.guard.size} samples",
                       markup=False, highlight=False)
         return trucks
-    return _live(sensor, button, db, target, model, interface, channel, bitrate, duration)
+    return _live(sensor, button, db, target, model, interface, channel, bitrate, duration, guard())
 
 
-def _live(sensor, button, db, target, model, interface, channel, bitrate, duration):
+def _live(sensor, button, db, target, model, interface, channel, bitrate, duration, guard):
     import datetime
+    import queue
     import signal
+    import sys
     import threading
 
     import can
@@ -194,7 +228,8 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
 
     from excavator_payload.runtime.dbc import CanConfigError
     from excavator_payload.runtime.loadout import ShiftRecord
-    from excavator_payload.runtime.loadout_bus import BusLoadout, live_view, run_live
+    from excavator_payload.runtime.loadout_bus import (
+        COMMAND_HELP, BusLoadout, live_view, read_commands, readable_commands, run_live, terminal_keys)
 
     kwargs = {"bitrate": bitrate} if bitrate else {}
     try:
@@ -211,25 +246,48 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
             handlers[sig] = signal.signal(sig, lambda *_: stop.set())
     timer = threading.Timer(duration, stop.set) if duration else None
     done = []
+    # the operator's commands (t: next truck, q: end the shift) read on their own thread: a
+    # silent keyboard never holds the bus; no stdin (a service, /dev/null) or a background job's
+    # terminal is no commands
+    commands: queue.Queue = queue.Queue()
+    restore = terminal_keys(sys.stdin)
+    reader = None
+    if readable_commands(sys.stdin):
+        def unknown(text):
+            console.print(f"unknown command {text!r}: t = next truck, q = end the shift", markup=False,
+                          highlight=False)
+
+        reader = threading.Thread(target=read_commands, args=(sys.stdin, commands, unknown, restore is not None),
+                                  name="loadout-commands", daemon=True)
+        reader.start()
+    keys = COMMAND_HELP if restore is not None else COMMAND_HELP.replace("t:", "t + Enter:").replace(
+        "q:", "q + Enter:")
+
+    def footer():
+        return keys if reader is not None and reader.is_alive() else "Ctrl-C: stop"
+
     try:
         loadout = BusLoadout(sensor, record, source, target, button, send=True, on_truck=done.append,
-                             data_name=f"{interface}:{channel}", model_name=str(model))
-        console.print(f"loadout on {interface}:{channel}; Ctrl-C stops")
+                             data_name=f"{interface}:{channel}", model_name=str(model), guard=guard)
+        loadout.guard_source = f"bus {interface}:{channel}"
+        console.print(f"loadout on {interface}:{channel}; {footer()}")
         if timer:
             timer.start()
-        with Live(live_view(loadout), console=console, refresh_per_second=4, transient=False) as view:
+        with Live(live_view(loadout, footer()), console=console, refresh_per_second=4, transient=False) as view:
             ticks = [0]
 
             def refresh():
                 ticks[0] += 1
                 if ticks[0] % 25 == 0:  # 4 times a second at 100 Hz
-                    view.update(live_view(loadout))
+                    view.update(live_view(loadout, footer()))
 
-            counters = run_live(bus, loadout, stop, on_tick=refresh)
-            view.update(live_view(loadout))
+            counters = run_live(bus, loadout, stop, on_tick=refresh, commands=commands)
+            view.update(live_view(loadout, footer()))
         if not console.is_terminal:
             console.print()  # the last view has no line end where nothing is redrawn
     finally:
+        if restore is not None:
+            restore()
         if timer:
             timer.cancel()
         for sig, handler in handlers.items():
@@ -238,5 +296,8 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
         record.close()
     for truck in done:
         show_truck(truck)
-    console.print(f"stopped: {counters['published']} frames sent, {counters['bus_errors']} bus errors")
+    console.print(f"stopped: {counters['published']} frames sent, {counters['bus_errors']} bus errors; truck "
+                  f"changes: {loadout.presses} button presses, {loadout.gaps} gaps of 30 s or more, "
+                  f"{counters['truck_commands']} from the terminal; units judged on {guard.judged} windows, "
+                  f"{guard.flagged_windows} wrong", markup=False, highlight=False)
     return loadout.trucks
