@@ -662,8 +662,10 @@ class InverseDynamicsEstimator(Estimator):
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         if self._pressure is not None:
             self._pressure.judge = self.gating
-            # the joint check (CalibratedKernel, calibrated's --joint-check) runs with the health monitor
-            self._pressure.joint_check = self.health and self.options.get("joint_check", "off") == "on"
+            # the joint check (CalibratedKernel, calibrated's --joint-check) runs with the health
+            # monitor, in the momentum form (the one it was set on)
+            self._pressure.joint_check = (self.health and self.options.get("joint_check", "off") == "on"
+                                          and getattr(self._pressure, "balance", "") == "momentum")
             self._pressure.update(time, values)
             self._info = self._pressure.info
             if self._info <= 0.0 or not getattr(self._pressure, "ready", True):
