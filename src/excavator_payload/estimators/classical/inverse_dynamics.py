@@ -678,7 +678,7 @@ class InverseDynamicsEstimator(Estimator):
             checked = getattr(self._pressure, "joint_checked", True)
             if status is Status.OK and self._pressure.joint_check and not checked:
                 status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
-            fault = getattr(self._pressure, "joint_fault", "")
+            fault = getattr(self._pressure, "joint_fault", "") if self._pressure.joint_check else ""
             if fault and status in (Status.OK, Status.LOAD_CHANGING):
                 # the joints' balances disagree (a cylinder's pressure off, drifting or mis-scaled):
                 # never ok; weighed without the joint named when one stands out, else nothing
