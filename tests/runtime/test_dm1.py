@@ -74,3 +74,13 @@ def test_can_sensor_sends_dm1_while_a_signal_is_stuck():
     assert len(sensor.frames(SensorOutput(1.01, 500.0, "ok", 10.0))) == 3  # the clearing DM1
     assert len(sensor.frames(SensorOutput(1.02, 500.0, "ok", 10.0))) == 2
     assert isinstance(dm1[0], can.Message) and np.isfinite(dm1[0].timestamp)
+
+
+def test_a_joint_balance_fault_is_fmi_13_on_both_pressures_of_the_cylinder():
+    """The calibrated kernel's joint check names a cylinder's head and rod pressures ``balance``:
+    out of calibration (FMI 13), one DTC per pressure, at that signal's SPN."""
+    tx = DM1Transmitter(MACHINE_SENSORS)
+    dtcs = tx.dtcs("boom_head_pressure:balance,boom_rod_pressure:balance")
+    spn = {s.signal: s.spn for m in dbc.sensor_layout(MACHINE_SENSORS) for s in m.signals}
+    assert dtcs == {(spn["boom_head_pressure"], 13): ("boom_head_pressure", "balance"),
+                    (spn["boom_rod_pressure"], 13): ("boom_rod_pressure", "balance")}

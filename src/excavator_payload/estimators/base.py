@@ -548,7 +548,7 @@ class Estimator(ABC):
             return StepResult(result.estimate, Status.REINITIALISED, sigma)
         if gap and result.status is not Status.STATE_RESET:
             return StepResult(result.estimate, Status.GAP, sigma)
-        return self._judged(StepResult(result.estimate, result.status, sigma))
+        return self._judged(StepResult(result.estimate, result.status, sigma, result.fault))
 
     def _judged(self, result: StepResult) -> StepResult:
         """``result``, its ``ok`` turned ``implausible`` when the estimate lies outside

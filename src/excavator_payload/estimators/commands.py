@@ -79,7 +79,8 @@ STATUS_MEANING = {
     "stale": "a signal is older than its period allows (a sensor fell silent); named in stale_signals",
     "load_changing": "the load is changing (a dump or a fill): the estimate is the load before, not now",
     "sensor_fault": "a sensor is stuck, dropped out or disagrees with its redundancy (named in the fault "
-                    "column); sample not used, estimate kept, never ok",
+                    "column); sample not used, estimate kept, never ok (a cylinder's pressures off its "
+                    "joint's balance, 'balance': weighed without that joint, or none)",
 }
 
 

@@ -37,6 +37,12 @@ its joint's motion, the fitting data's noise):
   the least-squares slope of (angle − integrated rate) against the angle exceeds
   :data:`GAIN_LIMIT` (a scale error of either signal; both named).
 
+* ``balance`` (FMI 13) is not this monitor's: the ``calibrated`` estimator's kernel names a
+  cylinder's head and rod pressures when its joint's share of the weighing disagrees with the
+  other joints' (:meth:`~excavator_payload.estimators.classical.machine_calibration.kernel
+  .CalibratedKernel._check_joints`; option ``joint_check``, off by default): a pressure
+  offset, drift or gain error.
+
 A fault stays active until its condition has been clear for :data:`HOLD` (a spike of three
 frames is not half-trusted in between). Thresholds were set on clean simulated data of the
 simulator's own motion families and judged on held-out ones (docs/sensor-health.md).
@@ -109,7 +115,11 @@ EVERY = 5
 #: The kinds in the order of the monitor's arrays.
 KINDS = ("stuck", "dropout", "disagree", "noise", "offset", "gain")
 #: J1939-73 failure mode identifier of each kind.
-FMI = {"stuck": 7, "dropout": 5, "disagree": 2, "noise": 2, "offset": 13, "gain": 13}
+FMI = {"stuck": 7, "dropout": 5, "disagree": 2, "noise": 2, "offset": 13, "gain": 13,
+       # the calibrated kernel's joint check (machine_calibration.kernel.CalibratedKernel
+       # ._check_joints): a cylinder's pressures off its joint's balance, lastingly: a wrong
+       # zero or scale (13 out of calibration), not data that jump about (2 erratic)
+       "balance": 13}
 
 LINKS = ("boom", "dipper", "bucket")
 # kinds after which a link's angle − integrated rate is meaningless: its track starts again

@@ -834,3 +834,60 @@ def test_a_dump_is_load_changing_not_ok_with_the_load_before(cross_checked):
         flagged.append(t[after[0]] - start if len(after) else np.inf)
     assert "load_changing" in set(out["status"])
     assert len(flagged) >= 3 and max(flagged) <= 4.0
+
+
+def _boom_offset(test, bar: float, onset_share: float = 0.4):
+    """The first test swing with its boom head pressure ``bar`` off from ``onset_share`` of it on."""
+    f = test.frame
+    one = f[f["experiment"] == f["experiment"].iloc[0]].reset_index(drop=True)
+    a = int(onset_share * len(one))
+    v = one["boom_head_pressure"].to_numpy(float).copy()
+    v[a:] += bar * 1e5
+    one["boom_head_pressure"] = v
+    return Dataset(one, test.meta), a
+
+
+def test_joint_check_names_a_boom_pressure_offset_and_never_calls_it_ok(momentum, setup):
+    """A boom head pressure 15 bar off biases the boom joint's balance only: the joints' estimates
+    part, the boom cylinder's pressures are named ``balance`` (FMI 13), no ``ok`` after that, the
+    estimate then weighs without the boom; the clean swing raises nothing; streaming gives the
+    same statuses and faults; with ``health`` off (the C export's path) or ``joint_check`` off the
+    check is silent."""
+    from excavator_payload.estimators.health import FMI
+
+    est = copy.deepcopy(momentum)
+    est.options["joint_check"] = "on"  # off by default (false alarms on swings and dumps)
+    clean = est.estimate(setup["test"])
+    assert not clean["fault"].str.contains("balance").any()
+    bad, a = _boom_offset(setup["test"], 15.0)
+    out = est.estimate(bad)
+    named = out["fault"].str.contains("boom_head_pressure:balance", regex=False).to_numpy()
+    assert named.any() and not named[:a].any()
+    first = int(np.flatnonzero(named)[0])
+    assert out["fault"].iloc[first] == "boom_head_pressure:balance,boom_rod_pressure:balance"
+    status = out["status"].to_numpy()
+    assert not (status[first:] == "ok").any()
+    degraded = out["payload_estimate"].to_numpy()[named]
+    truth = bad.frame["payload"].to_numpy()[named]
+    finite = np.isfinite(degraded)
+    assert np.abs(degraded[finite] - truth[finite]).max() < 0.02 * est.rated_payload if finite.any() else True
+    assert FMI["balance"] == 13
+    # streaming: the same statuses and faults
+    f = bad.frame
+    est.reset()
+    streamed = [est.step_values(t, v) for t, v in zip(f["time"].to_numpy(), bad.signals(est.sensor_set.signals))]
+    assert [r.status.value for r in streamed] == list(status)
+    assert [r.fault for r in streamed] == list(out["fault"])
+    est.health = False
+    try:
+        off = est.estimate(bad)
+    finally:
+        est.health = True
+    assert not off["fault"].astype(str).str.contains("balance").any()
+    assert (off["status"].to_numpy()[first:] == "ok").any()  # what the weighing said before the check
+    est.options["joint_check"] = "off"
+    try:
+        unchecked = est.estimate(bad)
+    finally:
+        est.options["joint_check"] = "on"
+    np.testing.assert_array_equal(unchecked["status"].to_numpy(), off["status"].to_numpy())

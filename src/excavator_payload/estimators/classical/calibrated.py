@@ -174,6 +174,13 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
                           BALANCE_CHOICES),
+        "joint_check": Option(str, "off", "machine sensor set, momentum form: name a cylinder whose "
+                              "joint's balance disagrees with the other joints' (a pressure offset, drift or "
+                              "gain error; status sensor_fault, fault 'PRESSURE:balance', DM1 FMI 13), and "
+                              "call no estimate ok before two joints are weighed; runs with the sensor "
+                              "health monitor, which the C export does not have. Off by default: it names "
+                              "sound cylinders on some clean swings and after dumps (docs/sensor-health.md)",
+                              ("on", "off")),
         "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
                             "estimate's sigma: cross (two-fold cross-fit of the calibration "
                             "motions, 95 % of held-out errors within 2 sigma) or none (sensor "

@@ -662,6 +662,10 @@ class InverseDynamicsEstimator(Estimator):
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         if self._pressure is not None:
             self._pressure.judge = self.gating
+            # the joint check (CalibratedKernel, calibrated's --joint-check) runs with the health
+            # monitor, in the momentum form (the one it was set on)
+            self._pressure.joint_check = (self.health and self.options.get("joint_check", "off") == "on"
+                                          and getattr(self._pressure, "balance", "") == "momentum")
             self._pressure.update(time, values)
             self._info = self._pressure.info
             if self._info <= 0.0 or not getattr(self._pressure, "ready", True):
@@ -671,6 +675,16 @@ class InverseDynamicsEstimator(Estimator):
                 status = Status.REJECTED
             elif status is Status.OK and getattr(self._pressure, "changing", False):
                 status = Status.LOAD_CHANGING  # the short memory has left the whole one
+            checked = getattr(self._pressure, "joint_checked", True)
+            if status is Status.OK and self._pressure.joint_check and not checked:
+                status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
+            fault = getattr(self._pressure, "joint_fault", "") if self._pressure.joint_check else ""
+            if fault and status in (Status.OK, Status.LOAD_CHANGING):
+                # the joints' balances disagree (a cylinder's pressure off, drifting or mis-scaled):
+                # never ok; weighed without the joint named when one stands out, else nothing
+                estimate, info = self._pressure.joint_degraded
+                self._info = info
+                return StepResult(estimate, Status.SENSOR_FAULT, fault=fault)
             return StepResult(self._pressure.estimate, status)
         if self._info > 0.0:  # weights use the current estimate, kept physical
             m_w = min(max(self._num / self._info, 0.0), self._max_payload)

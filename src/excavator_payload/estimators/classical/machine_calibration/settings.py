@@ -114,6 +114,29 @@ NEW_LOAD_SIGMAS = 5.0
 #: load before, and calling it ``ok`` reported the old load for the 1-3 s the restart test needs.
 CHANGING_MIN_SHARE = 0.05
 CHANGING_SIGMAS = 5.0
+#: The joint consistency check (a wrong pressure biases only its own joint's balance; set on
+#: clean tuning data of one seed, docs/sensor-health.md): each joint's estimate N_j / I_j is
+#: judged about their weighted mean with variance k / I_j + the calibration's model std² +
+#: (this share of the rated payload)², each joint's own model error ...
+JOINT_MODEL_SHARE = 0.002
+#: ... and 1 / I_j counts as this many times its value: the momentum balance's windows slide by
+#: one sample, so neighbouring windows share their noise and I_j counts it many times over
+#: (clean tuning data: single joints up to 11 σ = I_j^-1/2 off) ...
+JOINT_INFO_INFLATION = 9.0
+#: ... the joints disagree when χ² of their estimates about the mean exceeds this ...
+JOINT_CHI2 = 15.0
+#: ... on this many samples in a row (a window's transient is not a sensor), and the fault
+#: clears after as many in a row below it.
+JOINT_SAMPLES = 10
+#: With the check on, an estimate is ``ok`` only once a second joint is weighed to within this
+#: share of the rated payload (σ = I_j^-1/2): one joint alone cannot be checked (a boom pressure
+#: 10 % off set off a new load, and the boom alone then weighed 1269 kg off, ``ok``).
+JOINT_CHECKED_SHARE = 0.01
+#: The pressures each joint's balance carries (its cylinder's head and rod), named when it
+#: stands out.
+JOINT_PRESSURES = (("boom_head_pressure", "boom_rod_pressure"),
+                   ("dipper_head_pressure", "dipper_rod_pressure"),
+                   ("bucket_head_pressure", "bucket_rod_pressure"))
 #: The covered range of each arm angle: these percentiles of the calibration samples (robust to
 #: a glitch), widened by :data:`COVERAGE_MARGIN` each side (rad).
 COVERAGE_PERCENTILES = (0.5, 99.5)
