@@ -59,7 +59,7 @@ class _TimeDelayGraph(torch.nn.Module):
 
     def __init__(self, est) -> None:
         super().__init__()
-        from excavator_payload.estimators.dvs.common import mlp_layers
+        from excavator_payload.estimators.dvs.mlp import mlp_layers
 
         n_sig = len(est.sensor_set.signals)
         self.window = max(est.delay_list) + 1

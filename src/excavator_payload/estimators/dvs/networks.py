@@ -25,10 +25,11 @@ All three output the payload in kg after undoing the output scaling; the streami
 :meth:`step` runs the network in numpy with pre-extracted matrices.
 
 Training budget: ``--epochs`` defaults to 700, not MATLAB's 1000 (the thesis even set 10¹⁰ and
-let μ saturate). One trainbr epoch of net1 on 100 experiments (9600 targets, 601 weights)
-costs about 0.16 s on one core, dominated by :math:`J^\top J`; 700 epochs train in about two
-minutes and reach RMS errors within 1.2× of the 6-sample Cramér–Rao bound on NMPC data
-(``benchmarks/bench_dvs.py``). Pass ``--epochs 1000`` for MATLAB's default.
+let μ saturate). A trainbr epoch of net1 on 100 experiments (9600 targets, 601 weights) is
+dominated by the normal equations :math:`J^\top J`; what an epoch and the 700 cost, part by
+part, is measured in ``docs/findings/networks.md`` ("Training time"). 700 epochs reach RMS
+errors within 1.2× of the 6-sample Cramér–Rao bound on NMPC data (``benchmarks/bench_dvs.py``).
+Pass ``--epochs 1000`` for MATLAB's default.
 
 On the machine sensor set (15 signals at 100 Hz) one epoch is far dearer: 150 experiments give
 ~2·10⁵ targets and the 15 signals × 6 delays make ~1100 weights, so :math:`J^\top J` alone is
@@ -47,18 +48,18 @@ import torch
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Status, StepResult, register
-from excavator_payload.estimators.dvs.trainbr import BlockJacobian, row_blocks
-from excavator_payload.estimators.dvs.common import (
-    DelayLine,
-    NeuralEstimator,
-    delay_windows,
+from excavator_payload.estimators.dvs.mlp import (
     mlp_forward,
     mlp_forward_numpy,
     mlp_layers,
     mlp_output_jacobian,
     mlp_sizes,
-    neural_options,
+    nguyen_widrow_init,
 )
+from excavator_payload.estimators.dvs.neural import NeuralEstimator
+from excavator_payload.estimators.dvs.options import neural_options
+from excavator_payload.estimators.dvs.trainbr import BlockJacobian, row_blocks
+from excavator_payload.estimators.dvs.windows import DelayLine, delay_windows
 
 _WARMING = StepResult(math.nan, Status.WARMING_UP)
 
@@ -221,8 +222,6 @@ class DistributedDelayNetwork(NeuralEstimator):
         return layers
 
     def _init_weights(self, generator: torch.Generator) -> torch.Tensor:
-        from excavator_payload.estimators.dvs.common import nguyen_widrow_init
-
         # Nguyen–Widrow per layer on its tapped-delay input (every tap is a separate input)
         return torch.cat([nguyen_widrow_init([cols, rows], generator) for rows, cols in self._layer_shapes()])
 

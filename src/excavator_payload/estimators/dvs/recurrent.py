@@ -53,13 +53,10 @@ import torch
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, Status, StepResult, register
+from excavator_payload.estimators.dvs.mlp import nguyen_widrow_init
+from excavator_payload.estimators.dvs.neural import NeuralEstimator
+from excavator_payload.estimators.dvs.options import neural_options, parse_int_list
 from excavator_payload.estimators.dvs.trainbr import GRAM_BLOCK_ROWS, BlockJacobian
-from excavator_payload.estimators.dvs.common import (
-    NeuralEstimator,
-    neural_options,
-    nguyen_widrow_init,
-    parse_int_list,
-)
 
 
 # -- structure ---------------------------------------------------------------------------------

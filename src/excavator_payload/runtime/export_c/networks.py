@@ -57,7 +57,7 @@ def time_delay_model(est) -> CModel:
     est : Estimator
         The fitted estimator.
     """
-    from excavator_payload.estimators.dvs.common import mlp_layers
+    from excavator_payload.estimators.dvs.mlp import mlp_layers
 
     sensors = est.sensor_set
     n_sig = len(sensors.signals)
