@@ -6,13 +6,14 @@ import pytest
 from excavator_payload.estimators.base import create_estimator
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound, machine_bound
+from .._machine_data import swing_test_set
 
 
 @pytest.fixture(scope="module")
 def model_and_test():
     cal = dm.calibration_data(2, seed=21)
     est = create_estimator("calibrated", "cat345c-hydraulic-3pct").fit(cal)
-    return est, dm.test_sets(2, seed=22)["swing"]
+    return est, swing_test_set(2, seed=22)
 
 
 def test_bound_is_positive_falls_with_time_and_nuisances_cost(model_and_test):
