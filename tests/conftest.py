@@ -15,3 +15,17 @@ def mj_dataset():
 def mj_dataset_clean():
     """10 minimum-jerk experiments without noise."""
     return simulate_minimum_jerk(10, seed=12, noise="none", with_truth=True)
+
+
+@pytest.fixture(scope="session")
+def machine_calibration():
+    """3 calibration swings (0, 2500, 5000 kg, session 1, seed 5), an empty swing in session 2
+    (seed 6) and ``calibrated`` (differentiated balance) fitted on the swings, not zeroed;
+    simulated and fitted once for every file that uses them (deep-copy the estimator before
+    changing it)."""
+    from excavator_payload.estimators.base import create_estimator
+    from excavator_payload.evaluation import demo_machine as dm
+
+    cal = dm.calibration_data(3, seed=5)
+    fitted = create_estimator("calibrated", "cat345c-hydraulic-3pct", balance="differentiated").fit(cal)
+    return dict(cal=cal, zero=dm.zero_data(seed=6), fitted=fitted)

@@ -19,14 +19,13 @@ PRIOR = "cat345c-hydraulic-3pct"
 
 
 @pytest.fixture(scope="module")
-def setup():
+def setup(machine_calibration):
     """3 calibration swings (0, 2500, 5000 kg) in session 1, an empty swing and 2 test swings
-    in session 2, and the calibrated + zeroed estimator."""
-    cal = dm.calibration_data(3, seed=5)
-    zero = dm.zero_data(seed=6)
+    in session 2, and the calibrated + zeroed estimator (conftest's machine_calibration)."""
+    cal, zero = machine_calibration["cal"], machine_calibration["zero"]
     test = swing_test_set(2, seed=7)
-    est = create_estimator("calibrated", PRIOR, balance="differentiated").fit(cal)
-    calibrated = copy.deepcopy(est)
+    calibrated = copy.deepcopy(machine_calibration["fitted"])
+    est = copy.deepcopy(machine_calibration["fitted"])
     est.zero(zero)
     return dict(cal=cal, zero=zero, test=test, calibrated=calibrated, zeroed=est)
 
