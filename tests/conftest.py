@@ -29,3 +29,18 @@ def machine_calibration():
     cal = dm.calibration_data(3, seed=5)
     fitted = create_estimator("calibrated", "cat345c-hydraulic-3pct", balance="differentiated").fit(cal)
     return dict(cal=cal, zero=dm.zero_data(seed=6), fitted=fitted)
+
+
+#: The longest test files, started first: with two workers (pytest-xdist, one file per worker at
+#: a time) a long file begun last would leave one worker running it alone at the end.
+LONG_FILES = ("test_hostile_cli.py", "estimators/test_conformance_machine.py",
+              "estimators/classical/test_calibrated_machine.py", "evaluation/test_demo_machine.py",
+              "estimators/test_conformance.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    def rank(item):
+        path = item.nodeid.split("::")[0].removeprefix("tests/")
+        return LONG_FILES.index(path) if path in LONG_FILES else len(LONG_FILES)
+
+    items.sort(key=rank)  # stable: the order within a file and among the others is kept
