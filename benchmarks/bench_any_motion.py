@@ -31,7 +31,6 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from held_out_motions import lever_trajectory  # noqa: E402
 
-from excavator_payload.estimators.classical import calibrated_machine as cm  # noqa: E402
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator  # noqa: E402
 from excavator_payload.evaluation import demo_machine as dm  # noqa: E402
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound  # noqa: E402
@@ -119,7 +118,7 @@ def main() -> None:
         base = CalibratedEstimator("cat345c-hydraulic-3pct").fit(simulate_calibration())
         for zero_name, zero in zero_sets.items():
             est = _copy(base)  # each zero from the same calibration
-            cm.zero(est, zero)
+            est.zero(zero)
             for fam, ds in tests.items():
                 row = {"calibration": cal_name, "zero": zero_name, "family": fam, **judge(est, ds, a.efficiency)}
                 rows.append(row)

@@ -35,7 +35,7 @@ def main() -> None:
             est = CalibratedEstimator("cat345c-hydraulic-3pct", balance=balance).fit(cal)
             fit_wall, fit_cpu = time.perf_counter() - wall, time.process_time() - cpu
             wall, cpu = time.perf_counter(), time.process_time()
-            cm.zero(est, zero)
+            est.zero(zero)
             zero_wall, zero_cpu = time.perf_counter() - wall, time.process_time() - cpu
             z = np.ascontiguousarray(est.calibration.z)
             print(f"{balance:14s} run {run}: calibrate {fit_wall:6.1f} s wall / {fit_cpu:6.1f} s CPU, "

@@ -44,7 +44,6 @@ from held_out_motions import lever_trajectory  # noqa: E402
 from excavator_payload.data.dataset import Dataset  # noqa: E402
 from excavator_payload.data.io import read_dataset, write_dataset  # noqa: E402
 from excavator_payload.estimators.base import load_estimator  # noqa: E402
-from excavator_payload.estimators.classical import calibrated_machine as cm  # noqa: E402
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator  # noqa: E402
 from excavator_payload.evaluation import demo_machine as dm  # noqa: E402
 from excavator_payload.simulation.generate import simulate_dataset  # noqa: E402
@@ -200,7 +199,7 @@ def main() -> None:
         est = load_estimator(model)
     else:
         est = CalibratedEstimator("cat345c-hydraulic-3pct").fit(dm.calibration_data(10, a.seed + 100))
-        cm.zero(est, dm.zero_data(a.seed + 50))
+        est.zero(dm.zero_data(a.seed + 50))
         est.save(model)
     print(f"model fitted and zeroed ({time.time() - t0:.0f} s)", flush=True)
     tests = {}

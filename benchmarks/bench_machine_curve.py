@@ -41,7 +41,7 @@ def uncalibrated(reference: CalibratedEstimator) -> CalibratedEstimator:
     est.calibration.z[:] = 0.0
     est.calibration.covariance = np.diag(est.calibration.prior_std(0.05) ** 2)
     est.calibration.angle_coverage = np.tile([-cm.NO_LIMIT, cm.NO_LIMIT], (3, 1))  # no motions seen
-    cm._install(est, est.calibration)
+    est.use_calibration()
     return est
 
 
@@ -111,7 +111,7 @@ def main() -> None:
                     est = uncalibrated(CalibratedEstimator(PRIOR, balance=form, experiments=1).fit(cal))
                 else:
                     est = CalibratedEstimator(PRIOR, balance=form, experiments=count).fit(cal)
-                cm.zero(est, zero)
+                est.zero(zero)
                 for name, ds in tests.items():
                     row = dm.summary_row(dm.judge(est, ds, est.name, None), dm.RATED_PAYLOAD, None)
                     rows.append({"draw": draw, "balance": form, "calibration_motions": count, "test": name,

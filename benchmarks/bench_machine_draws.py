@@ -57,14 +57,14 @@ def main() -> None:
         # one bound per draw for both forms, from the default form's calibration (as the study
         # does): a form that trusts its calibration less must not get a looser bound for it
         reference = CalibratedEstimator("cat345c-hydraulic-3pct", balance="differentiated").fit(cal)
-        cm.zero(reference, zero)
+        reference.zero(zero)
         bounds = {name: dataset_machine_bound(ds, reference) for name, ds in tests.items()}
         for balance in a.balance or cm.BALANCE_CHOICES:
             if balance == "differentiated":
                 est = reference
             else:
                 est = CalibratedEstimator("cat345c-hydraulic-3pct", balance=balance).fit(cal)
-                cm.zero(est, zero)
+                est.zero(zero)
             for name, ds in tests.items():
                 row = dm.summary_row(dm.judge(est, ds, balance, bounds[name]), dm.RATED_PAYLOAD, None)
                 rows.append({"draw": draw, "calibration_seed": seed, "balance": balance, "test": name, **row})

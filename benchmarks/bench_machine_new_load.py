@@ -16,7 +16,6 @@ import time
 
 import numpy as np
 import pandas as pd
-from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.simulation.generate import simulate_dataset
@@ -29,8 +28,8 @@ n, seed = a.n_test, a.seed
 t0 = time.time()
 cal, zero = dm.calibration_data(10, seed), dm.zero_data(seed + 1)
 est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
-cm.zero(est, zero)
-off = copy.deepcopy(est); off.options["new_load"] = "off"; cm._install(off, off.calibration)
+est.zero(zero)
+off = copy.deepcopy(est); off.options["new_load"] = "off"; off.use_calibration()
 print("fitted", time.time() - t0, "s", flush=True)
 tests = dm.test_sets(n, seed + 2)
 hand = dm.hand_made_trajectory(n, seed + 3)

@@ -55,12 +55,12 @@ def main() -> None:
     ap.add_argument("--calibration-seed", type=int, default=7)
     a = ap.parse_args()
     est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="differentiated").fit(dm.calibration_data(10, a.calibration_seed))
-    cm.zero(est, dm.zero_data(a.calibration_seed + 1))
+    est.zero(dm.zero_data(a.calibration_seed + 1))
     for name, (value, posterior, ratio) in est.calibration.imu_identification().items():
         print(f"{name:38s} {value:+.4f}  posterior std {posterior:.4f} ({ratio:.2f} of the prior's)")
     ignored = copy.deepcopy(est)
     ignored.calibration.z[len(cm.CALIBRATED_PARAMETERS) + len(cm.OFFSET_SIGNALS):] = 0.0
-    cm._install(ignored, ignored.calibration)
+    ignored.use_calibration()
     print(f"{'seed':>4s} {'test':13s} {'IMU dynamics':14s} {'MAX':>6s} {'RMS':>5s} {'≤1 %':>5s} {'bias':>6s}")
     for seed in a.seeds:
         for set_name, ds in test_motions(a.n, seed).items():

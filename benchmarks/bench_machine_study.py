@@ -68,7 +68,7 @@ def main() -> None:
               flush=True)
     # the default, momentum-balance form (no differentiated accelerations)
     momentum = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
-    cm.zero(momentum, zero)
+    momentum.zero(zero)
     fit["fitted"]["calibrated"] = momentum
     bounds = {k: dataset_machine_bound(ds, ref) for k, ds in tests.items()}
     rows = []
@@ -107,7 +107,7 @@ def main() -> None:
     for low in cm.LOW_SPEED_CHOICES:
         est = copy.deepcopy(ref)
         est.options["low_speed"] = low
-        cm._install(est, est.calibration)
+        est.use_calibration()
         for set_name in ("work-cycle", "hand-made trajectory", "nmpc"):
             rows.append({"low_speed": low, "test": set_name,
                          **evaluate(est, tests[set_name], bounds[set_name])})
@@ -127,10 +127,10 @@ def main() -> None:
             est = copy.deepcopy(ref)
             est.calibration.z[:] = 0.0
             est.calibration.covariance = np.diag(est.calibration.prior_std(0.05) ** 2)
-            cm._install(est, est.calibration)
+            est.use_calibration()
         else:
             est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="differentiated", experiments=count).fit(cal)
-        cm.zero(est, zero)
+        est.zero(zero)
         rows.append({"calibration_motions": count, **evaluate(est, tests["nmpc"], bounds["nmpc"])})
         print(rows[-1], flush=True)
     pd.DataFrame(rows).to_csv(a.out / "calibration_curve.csv", index=False)

@@ -11,7 +11,6 @@ import time
 
 import pandas as pd
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound
@@ -32,7 +31,7 @@ for draw in range(5):
     ref = CalibratedEstimator("cat345c-hydraulic-3pct", balance="differentiated").fit(cal)
     for label, z in (("one swing", z1), ("two swings", z2)):
         m, r = copy.deepcopy(mom), copy.deepcopy(ref)
-        cm.zero(m, z); cm.zero(r, z)
+        m.zero(z); r.zero(z)
         bound = dataset_machine_bound(nmpc, r)
         row = dm.summary_row(dm.judge(m, nmpc, m.name, bound), dm.RATED_PAYLOAD, None)
         rows.append({"draw": draw, "zero": label, **row})

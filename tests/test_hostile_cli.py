@@ -753,7 +753,10 @@ def markup_cases() -> list[Case]:
     c.append(Case("markup-ok-output-name", "messages",
                   ["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet", "--out",
                    "{work}/[bucket].parquet"], expect="ok",
-                  check=lambda work, inputs, out, err: ("[bucket]" in out) or pytest.fail(out)))
+                  # rich wraps a long path at the console's width (a longer temporary folder, e.g.
+                  # under pytest-xdist, put the break inside "[bucket]"): judged with the breaks removed
+                  check=lambda work, inputs, out, err: ("[bucket]" in "".join(out.splitlines()))
+                  or pytest.fail(out)))
     c.append(Case("markup-estimator-option", "messages",
                   ["train", "inverse-dynamics", "--data", "{in}/data.parquet", "--out", "{work}/m",
                    "--weighting", "[red]x"], message="[red]x"))

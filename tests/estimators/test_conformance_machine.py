@@ -32,7 +32,6 @@ from excavator_payload.estimators.base import (
     estimator_class,
     load_estimator,
 )
-from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
 from ._conformance import recipes
@@ -64,7 +63,7 @@ def fitted(data):
         est = create_estimator(name, machine, **options)
         est.fit(data["lifts"] if name == "quasi-static" else data["train"])
         if name == "calibrated":
-            cm.zero(est, data["zero"])
+            est.zero(data["zero"])
         out[name] = est
     return out
 

@@ -1,24 +1,23 @@
 """``excavator-payload zero`` refuses an offset built on a signal the sensor health monitor
 flags (one line, exit 2), and zeroes anyway with ``--force``, saying which signal."""
 
+import copy
+
 import numpy as np
 import pytest
 
 from excavator_payload.cli import main
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import write_dataset
-from excavator_payload.estimators.base import create_estimator
 from excavator_payload.estimators.health import flagged_signals
-from excavator_payload.evaluation import demo_machine as dm
 
 
 @pytest.fixture(scope="module")
-def files(tmp_path_factory):
+def files(tmp_path_factory, machine_calibration):
     d = tmp_path_factory.mktemp("zero")
-    est = create_estimator("calibrated", "cat345c-hydraulic-3pct", balance="differentiated").fit(
-        dm.calibration_data(3, seed=5))
+    est = copy.deepcopy(machine_calibration["fitted"])  # calibration_data(3, seed=5), differentiated
     est.save(d / "model")
-    zero = dm.zero_data(seed=6)
+    zero = machine_calibration["zero"]  # zero_data(seed=6)
     write_dataset(zero, d / "clean.parquet")
     frame = zero.frame.copy()
     rate = np.abs(frame["boom_rate"].to_numpy())

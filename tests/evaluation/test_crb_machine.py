@@ -6,13 +6,19 @@ import pytest
 from excavator_payload.estimators.base import create_estimator
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound, machine_bound
+from .._machine_data import swing_test_set
 
 
 @pytest.fixture(scope="module")
-def model_and_test():
-    cal = dm.calibration_data(2, seed=21)
+def calibration_swings():
+    return dm.calibration_data(2, seed=21)
+
+
+@pytest.fixture(scope="module")
+def model_and_test(calibration_swings):
+    cal = calibration_swings
     est = create_estimator("calibrated", "cat345c-hydraulic-3pct").fit(cal)
-    return est, dm.test_sets(2, seed=22)["swing"]
+    return est, swing_test_set(2, seed=22)
 
 
 def test_bound_is_positive_falls_with_time_and_nuisances_cost(model_and_test):
@@ -75,14 +81,14 @@ def test_episodes_make_a_slow_start_harder_to_weigh(model_and_test):
     assert np.median(episodes[early] / independent[early]) > 1.5
 
 
-def test_procedure_bound_counts_what_calibration_leaves_unknown(model_and_test):
+def test_procedure_bound_counts_what_calibration_leaves_unknown(model_and_test, calibration_swings):
     """The whole procedure's bound (every calibrated parameter unknown, learnt from the
     calibration motions) only grows when the calibration data shrink, and falls with time."""
     from excavator_payload.data.dataset import Dataset
     from excavator_payload.evaluation.crb_machine import procedure_bound
 
     est, test = model_and_test
-    cal = dm.calibration_data(2, seed=21)
+    cal = calibration_swings  # dm.calibration_data(2, seed=21), the model's own
     full = procedure_bound(test, est.calibration, cal)
     f = cal.frame
     half = Dataset(f[f["experiment"] == f["experiment"].iloc[0]].reset_index(drop=True), cal.meta)

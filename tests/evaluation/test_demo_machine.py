@@ -4,13 +4,14 @@ from excavator_payload.cli import main
 from excavator_payload.data.io import write_dataset
 from excavator_payload.estimators.base import load_estimator
 from excavator_payload.evaluation import demo_machine as dm
+from .._machine_data import swing_test_set
 
 
 def test_train_zero_evaluate_from_the_cli(tmp_path, capsys):
     cal, zero, test = tmp_path / "cal.parquet", tmp_path / "zero.parquet", tmp_path / "test.parquet"
     write_dataset(dm.calibration_data(2, seed=31), cal)
     write_dataset(dm.zero_data(seed=32), zero)
-    write_dataset(dm.test_sets(1, seed=33)["swing"], test)
+    write_dataset(swing_test_set(1, seed=33), test)
     model, zeroed = tmp_path / "model", tmp_path / "zeroed"
     assert main(["train", "calibrated", "--data", str(cal), "--machine", "cat345c-hydraulic-3pct",
                  "--out", str(model)]) == 0

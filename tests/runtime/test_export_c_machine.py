@@ -118,7 +118,7 @@ def test_physics_is_generated_with_the_fitted_parameters(machine_models, tmp_pat
     assert np.any(est.calibration.offset_vector() != 0)
     other = copy.deepcopy(est)
     other.calibration.z[len(cm.CALIBRATED_PARAMETERS)] += 1e5  # the boom head pressure's offset
-    cm._install(other, other.calibration)
+    other.use_calibration()
     other_kernel = re.search(r"static int ep_pressure_regression\(.*?\n}",
                              export_c(other, tmp_path / "b")[1].read_text(), re.S).group(0)
     assert other_kernel != kernel
@@ -168,10 +168,10 @@ def test_c_equals_python_outside_the_calibrated_range(name, machine_models, mach
     bucket = machine_faulty.frame["bucket_angle"].to_numpy(float)
     middle = float(np.nanmedian(bucket[np.abs(bucket) < 10]))
     est.calibration.angle_coverage[2] = (middle - 0.15, middle + 0.15)
-    cm._install(est, est.calibration)
+    est.use_calibration()
     wide = copy.deepcopy(machine_models[name])
     wide.options["outside_calibration"] = "use"
-    cm._install(wide, wide.calibration)
+    wide.use_calibration()
     narrow_py = est.estimate(machine_faulty)["payload_estimate"].to_numpy(float)
     wide_py = wide.estimate(machine_faulty)["payload_estimate"].to_numpy(float)
     both = np.isfinite(narrow_py) & np.isfinite(wide_py)
@@ -197,7 +197,7 @@ def test_c_equals_python_where_a_new_load_is_detected(machine_models, tmp_path):
     assert est._pressure.new_load
     off = copy.deepcopy(est)
     off.options["new_load"] = "off"
-    cm._install(off, off.calibration)
+    off.use_calibration()
     detect_py = est.estimate(stream)["payload_estimate"].to_numpy(float)
     off_py = off.estimate(stream)["payload_estimate"].to_numpy(float)
     assert abs(detect_py[-1] - 4500.0) < 0.5 * abs(off_py[-1] - 4500.0)

@@ -13,20 +13,20 @@ from excavator_payload.estimators.classical.pressure_regression import LOOK_AHEA
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.model.hydraulic import HydraulicArmModel
 from excavator_payload.model.machine import load_machine
+from ..._machine_data import swing_test_set
 
 PRIOR = "cat345c-hydraulic-3pct"
 
 
 @pytest.fixture(scope="module")
-def setup():
+def setup(machine_calibration):
     """3 calibration swings (0, 2500, 5000 kg) in session 1, an empty swing and 2 test swings
-    in session 2, and the calibrated + zeroed estimator."""
-    cal = dm.calibration_data(3, seed=5)
-    zero = dm.zero_data(seed=6)
-    test = dm.test_sets(2, seed=7)["swing"]
-    est = create_estimator("calibrated", PRIOR, balance="differentiated").fit(cal)
-    calibrated = copy.deepcopy(est)
-    cm.zero(est, zero)
+    in session 2, and the calibrated + zeroed estimator (conftest's machine_calibration)."""
+    cal, zero = machine_calibration["cal"], machine_calibration["zero"]
+    test = swing_test_set(2, seed=7)
+    calibrated = copy.deepcopy(machine_calibration["fitted"])
+    est = copy.deepcopy(machine_calibration["fitted"])
+    est.zero(zero)
     return dict(cal=cal, zero=zero, test=test, calibrated=calibrated, zeroed=est)
 
 
@@ -50,7 +50,7 @@ def test_calibration_fits_the_machine_better_than_the_file(setup):
     # and weighs the calibration session's motions better than the file as it is
     uncalibrated = copy.deepcopy(est)
     uncalibrated.calibration.z[:] = 0.0
-    cm._install(uncalibrated, uncalibrated.calibration)
+    uncalibrated.use_calibration()
     assert mean_abs_error(est, setup["cal"]) < 0.5 * mean_abs_error(uncalibrated, setup["cal"])
 
 
@@ -78,7 +78,7 @@ def test_zero_removes_the_session_offsets(setup):
 def test_zero_refuses_a_loaded_bucket_and_other_models(setup):
     loaded = setup["cal"].subset([1])
     with pytest.raises(EstimatorError, match="empty bucket"):
-        cm.zero(copy.deepcopy(setup["zeroed"]), loaded)
+        copy.deepcopy(setup["zeroed"]).zero(loaded)
     other = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(setup["zero"])
     with pytest.raises(EstimatorError, match="calibrated"):
         cm.zero(other, setup["zero"])
@@ -128,7 +128,7 @@ def test_low_speed_choices_differ_and_bad_ones_are_refused(setup):
     for low in cm.LOW_SPEED_CHOICES:
         est = copy.deepcopy(setup["zeroed"])
         est.options["low_speed"] = low
-        cm._install(est, est.calibration)
+        est.use_calibration()
         results[low] = mean_abs_error(est, setup["test"])
     assert len(set(np.round(list(results.values()), 6))) == 3
     with pytest.raises(EstimatorError, match="low-speed"):
@@ -247,7 +247,7 @@ def test_a_step_is_not_a_glitch(setup):
 @pytest.fixture(scope="module")
 def momentum(setup):
     est = create_estimator("calibrated", PRIOR, balance="momentum").fit(setup["cal"])
-    cm.zero(est, setup["zero"])
+    est.zero(setup["zero"])
     return est
 
 
@@ -275,7 +275,7 @@ def test_momentum_balance_weighs_and_streams_as_it_estimates(momentum, setup, tm
     batch = est.estimate(test)["payload_estimate"].to_numpy()
     uncalibrated = copy.deepcopy(est)
     uncalibrated.calibration.z[:len(cm.CALIBRATED_PARAMETERS)] = 0.0
-    cm._install(uncalibrated, uncalibrated.calibration)
+    uncalibrated.use_calibration()
     assert mean_abs_error(est, test) < mean_abs_error(uncalibrated, test)
     f = test.frame
     first = f["experiment"].to_numpy() == f["experiment"].iloc[0]
@@ -528,10 +528,10 @@ def test_zero_says_how_many_samples_it_could_not_use(setup):
     """The zero check drops samples it cannot use (a non-finite signal) and says so; clean data
     raise no warning."""
     est = copy.deepcopy(setup["calibrated"])
-    assert cm.zero(est, setup["zero"]) == []
+    assert est.zero(setup["zero"]) == []
     frame = setup["zero"].frame.copy()
     frame.loc[frame.index[[40, 90]], "dipper_head_pressure"] = float("1e400")
-    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), Dataset(frame, setup["zero"].meta))
+    warnings = copy.deepcopy(setup["calibrated"]).zero(Dataset(frame, setup["zero"].meta))
     assert len(warnings) == 1 and f"2 of {len(frame)} samples not used" in warnings[0]
 
 
@@ -550,7 +550,7 @@ def test_a_bad_rate_at_an_experiments_edge_is_a_bad_sample(setup, row):
     assert 1 <= touched.sum() <= 11 and touched[row]
     np.testing.assert_array_equal(slopes[~touched], clean[~touched])
     np.testing.assert_array_equal(slopes[:, 1:], clean[:, 1:])
-    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), dirty)
+    warnings = copy.deepcopy(setup["calibrated"]).zero(dirty)
     assert len(warnings) == 1 and "samples not used" in warnings[0]
     fit = Dataset(setup["cal"].frame.assign(dipper_rate=lambda f: f["dipper_rate"].where(f.index != 1)),
                   setup["cal"].meta)
@@ -561,10 +561,10 @@ def test_zero_with_a_stuck_sensor_warns_of_its_offsets(setup):
     """A boom head pressure stuck at its first value in the zero swing moved the zeroed angle
     offsets by degrees (house pitch -8°) without a word; zero names the offsets beyond any
     working session's. The clean zero check says nothing."""
-    assert cm.zero(copy.deepcopy(setup["calibrated"]), setup["zero"]) == []
+    assert copy.deepcopy(setup["calibrated"]).zero(setup["zero"]) == []
     frame = setup["zero"].frame.copy()
     frame["boom_head_pressure"] = frame["boom_head_pressure"].iloc[0]
-    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), Dataset(frame, setup["zero"].meta))
+    warnings = copy.deepcopy(setup["calibrated"]).zero(Dataset(frame, setup["zero"].meta))
     far = [w for w in warnings if "far beyond a working session's" in w]
     assert len(far) == 1 and "°" in far[0]
 
@@ -574,7 +574,7 @@ def test_zero_of_nothing_but_nan_says_so(setup):
     frame = setup["zero"].frame.copy()
     frame[[c for c in cm.SIGNALS]] = np.nan
     with pytest.raises(EstimatorError, match="at least 50 valid samples"):
-        cm.zero(copy.deepcopy(setup["calibrated"]), Dataset(frame, setup["zero"].meta))
+        copy.deepcopy(setup["calibrated"]).zero(Dataset(frame, setup["zero"].meta))
 
 
 def test_zero_says_which_cylinders_it_could_not_check(setup):
@@ -583,7 +583,7 @@ def test_zero_says_which_cylinders_it_could_not_check(setup):
     table = dm.motion_trajectory(1, 6, (0.0,))
     table["dipper_angle"] = table["dipper_angle"].iloc[0]
     still_dipper = dm.simulate_trajectory(table, 6, dm.SESSION_WORK)
-    warnings = cm.zero(copy.deepcopy(setup["calibrated"]), still_dipper)
+    warnings = copy.deepcopy(setup["calibrated"]).zero(still_dipper)
     assert len(warnings) == 1 and "hardly moved: dipper (" in warnings[0]
     assert "boom (" not in warnings[0] and "bucket (" not in warnings[0]
 
@@ -605,7 +605,7 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     narrow = copy.deepcopy(momentum)
     bucket = test.frame["bucket_angle"].to_numpy(float)
     narrow.calibration.angle_coverage[2] = (np.median(bucket), cov[2, 1])
-    cm._install(narrow, narrow.calibration)
+    narrow.use_calibration()
     a = momentum.estimate(test)["payload_estimate"].to_numpy()
     b = narrow.estimate(test)["payload_estimate"].to_numpy()
     ok = np.isfinite(a) & np.isfinite(b)
@@ -613,7 +613,7 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     def unlimited(est):  # --outside-calibration use: every angle weighed
         est = copy.deepcopy(est)
         est.options["outside_calibration"] = "use"
-        cm._install(est, est.calibration)
+        est.use_calibration()
         return est.estimate(test)["payload_estimate"].to_numpy()
 
     everywhere = unlimited(momentum)
@@ -654,7 +654,7 @@ def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):
     waiting = momentum.estimate(test)
     at_once = copy.deepcopy(momentum)
     at_once.options["wait_for_boom"] = "no"
-    cm._install(at_once, at_once.calibration)
+    at_once.use_calibration()
     eager = at_once.estimate(test)
     w, e = waiting["payload_estimate"].to_numpy(), eager["payload_estimate"].to_numpy()
     assert np.isfinite(e).sum() > np.isfinite(w).sum()  # it waited somewhere
@@ -781,7 +781,7 @@ def test_imu_leak_of_a_joint_that_never_moved_stays_at_its_prior(setup):
 def cross_checked():
     """Four calibration swings (the fewest the two-fold cross-check takes), default form, zeroed."""
     est = create_estimator("calibrated", PRIOR).fit(dm.calibration_data(4, seed=15))
-    cm.zero(est, dm.zero_data(seed=16))
+    est.zero(dm.zero_data(seed=16))
     return est
 
 

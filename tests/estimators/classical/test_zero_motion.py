@@ -35,14 +35,14 @@ def test_a_zero_motion_that_leaves_cylinders_still_is_refused_by_name(setup):
     1), the refusal names both and says how to move them, and the predicted error is beyond 1 %
     of rated; the empty swing determines every cylinder (posterior / prior std below 0.2)."""
     est = copy.deepcopy(setup["calibrated"])
-    cm.zero(est, setup["boom_only"])
+    est.zero(setup["boom_only"])
     determined = est.zero_quality.determined
     assert determined[0] < 0.2 and np.all(determined[1:] > 0.9)
     reasons = " ".join(est.zero_refusals)
     assert "dipper and bucket" in reasons and "up and down" in reasons
     assert est.zero_quality.predicted_error > 50.0
     good = copy.deepcopy(setup["calibrated"])
-    cm.zero(good, setup["swing"])
+    good.zero(setup["swing"])
     assert np.all(good.zero_quality.determined < 0.2)
     assert "predicted weighing error" in good.zero_report[0]
 
@@ -54,7 +54,7 @@ def test_the_predicted_error_covers_what_the_offsets_do_to_the_weighing(setup):
     (the zero's noise) is smaller than its total."""
     est = copy.deepcopy(setup["calibrated"])
     before = est.calibration.offsets.copy()
-    cm.zero(est, setup["swing"])
+    est.zero(setup["swing"])
     noise = get_machine_noise("field")
     drift = np.array([session_offsets(dm.SESSION_WORK, noise)[s] - session_offsets(dm.SESSION_CALIBRATION, noise)[s]
                       for s in cm.OFFSET_SIGNALS])
