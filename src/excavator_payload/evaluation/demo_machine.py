@@ -457,7 +457,7 @@ def effect_variants(estimator, test: Dataset) -> dict[str, tuple]:
         est = copy.deepcopy(estimator)
         if edit_z is not None:
             edit_z(est.calibration.z)
-            cm._install(est, est.calibration)
+            est.use_calibration()
         data = test
         if columns:
             frame = test.frame.copy()
