@@ -193,8 +193,8 @@ def neural_options(hidden: str = "10,10,10", delays: str = "0:5", **extra: Optio
         "smoothing": Option(float, 0.0, "time constant of a first-order low-pass on the "
                             "network's estimate, seconds (a payload is constant while carried; "
                             "0: none, the thesis nets)"),
-        "epochs": Option(int, 700, "maximum training epochs (MATLAB: 1000; capped so that net1 on "
-                                   "100 experiments trains in about 2 minutes)"),
+        "epochs": Option(int, 700, "maximum training epochs (MATLAB: 1000; capped to keep net1 on "
+                                   "100 experiments near 70 s of CPU on a 2-core machine)"),
         "max_time": Option(float, 0.0, "stop training after this many seconds (0: no limit)"),
         "learning_rate": Option(float, 1e-3, "Adam learning rate (trainer adam only)"),
         "seed": Option(int, 0, "seed of the initial weights"),
