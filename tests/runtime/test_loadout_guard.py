@@ -124,9 +124,10 @@ def _live_statuses(shift, dbc_path, guarded):
 
 
 def test_a_live_bus_in_kpa_sends_no_ok_weight_and_warns_once(shift, tmp_path, caplog):
-    """A bucket rod line in kPa (mapped with factor 1) passes the sensor's own checks: weighed
-    ``ok`` up to 3.7 t off without the guard. With it, as on a live bus: one warning naming the
-    signal, no PayloadEstimate ``ok`` after the first window, the pass not weighed with the
+    """A bucket rod line in kPa (mapped with factor 1): without the guard it is weighed ``ok``
+    (up to 3.7 t off on the data the guard was written on) or blamed on a sensor (the health
+    monitor's ``sensor_fault``), never on its unit. With it, as on a live bus: one warning naming
+    the signal, no PayloadEstimate ``ok`` after the first window, the pass not weighed with the
     finding as its reason, the live view says it in red (and shows the operator's keys)."""
     bad = _dbc(shift, tmp_path, {"BucketRodPressure": (1e-3, "kPa")})
     _, unguarded, _ = _live_statuses(shift, bad, guarded=False)
@@ -136,9 +137,13 @@ def test_a_live_bus_in_kpa_sends_no_ok_weight_and_warns_once(shift, tmp_path, ca
     warnings = [r.getMessage() for r in caplog.records if "bucket_rod_pressure" in r.getMessage()]
     assert len(warnings) == 1 and "in kPa instead of Pa" in warnings[0] and "no pass is weighed" in warnings[0]
     first_flag = guard.since + guard.size * loadout.sensor.sensor_set.sample_period
-    assert "ok" in [s for t, s in unguarded if t >= first_flag - 1e-9]  # the mistake the guard stops
+    unguarded_after = [s for t, s in unguarded if t >= first_flag - 1e-9]
+    # the mistake the guard names: weighed as if right, or blamed on a sensor
+    assert "ok" in unguarded_after or "sensor_fault" in unguarded_after
     after = [s for t, s in statuses if t >= first_flag - 1e-9]
-    assert after and "ok" not in after and GUARDED in after
+    # what would have gone out ok goes out as the guard's status; a sensor fault stays one
+    assert after and "ok" not in after
+    assert GUARDED in after or "ok" not in unguarded_after
     assert "NOT WEIGHING: bus virtual:test: bucket_rod_pressure" in view and "t: next truck" in view
     passes = loadout.trucks[0].passes
     assert passes and all(p.status == "not_weighed" and p.weight is None
