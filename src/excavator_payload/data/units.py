@@ -234,43 +234,78 @@ def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rat
         _check_rates(frame, sensors, source)
 
 
+def window_ratios(time: np.ndarray, signal: np.ndarray, rate: np.ndarray, period: float,
+                  min_change: float) -> np.ndarray:
+    """How many times its signal's change a rate's integral is, per moving window of one run.
+
+    The run is cut into windows of :data:`RATE_WINDOW` (the last one may be shorter); over a
+    window where the signal changes by more than ``min_change`` (a moving one) and which has at
+    least two samples, no NaN and no time gap, the ratio is (integral of the rate, trapezoidal)
+    / (last - first value of the signal): 1 if both are in the same unit, whatever the noise,
+    offsets or an IMU lag (both lag alike).
+
+    Parameters
+    ----------
+    time, signal, rate : numpy.ndarray
+        s, the signal and its rate, one value per sample of one run (an experiment, a window).
+    period : float
+        s, the sample period.
+    min_change : float
+        The signal's change over a window that makes it moving.
+
+    Returns
+    -------
+    numpy.ndarray
+        The moving windows' ratios, in order.
+    """
+    width = max(2, int(round(RATE_WINDOW / period)))
+    t, x, r = (np.asarray(a, dtype=float) for a in (time, signal, rate))
+    n = len(t)
+    if n < 2:
+        return np.zeros(0)
+    starts = np.arange(0, n, width)
+    step = np.diff(t)
+    with np.errstate(all="ignore"):
+        increment = 0.5 * (r[1:] + r[:-1]) * step
+        # a step belongs to the window of its later sample, never across a window's start
+        inner = np.ones(n - 1, dtype=bool)
+        inner[starts[1:] - 1] = False
+        bad_step = inner & ((step > 2.5 * period) | ~np.isfinite(increment))
+        bad_sample = ~np.isfinite(x) | ~np.isfinite(r)
+        integral = np.add.reduceat(np.r_[0.0, np.where(inner & ~bad_step, increment, 0.0)], starts)
+        bad = np.logical_or.reduceat(bad_sample, starts) | np.logical_or.reduceat(np.r_[False, bad_step], starts)
+        ends = np.r_[starts[1:], n] - 1
+        change = x[ends] - x[starts]
+        moving = ~bad & (ends > starts) & (np.abs(change) > min_change)
+        return integral[moving] / change[moving]
+
+
 def _rate_ratios(frame: pd.DataFrame, signal: str, rate: str, period: float,
                  min_change: float) -> tuple[pd.Series, float]:
-    """How many times its signal's change each rate's integral is, per experiment.
+    """How many times its signal's change each rate's integral is, per experiment
+    (:func:`window_ratios` of each experiment).
 
-    Each experiment is cut into windows of :data:`RATE_WINDOW`; over a window where the signal
-    changes by more than ``min_change`` (a moving one) and which has no NaN and no time gap,
-    the ratio is (integral of the rate, trapezoidal) / (last - first value of the signal): 1 if
-    both are in the same unit, whatever the noise, offsets or an IMU lag (both lag alike).
     Returns the median ratio of every experiment with :data:`RATE_MIN_WINDOWS` moving windows
     or more, and the median of all moving windows of the file (NaN if fewer): a still
     experiment cannot be judged and is not.
     """
-    width = max(2, int(round(RATE_WINDOW / period)))
-    codes = pd.factorize(frame["experiment"].to_numpy())[0]
-    t = frame["time"].to_numpy(dtype=float)
-    x = frame[signal].to_numpy(dtype=float)
-    r = frame[rate].to_numpy(dtype=float)
-    window = pd.Series(codes).groupby(codes).cumcount().to_numpy() // width
-    first = np.ones(len(t), dtype=bool)
-    first[1:] = (codes[1:] != codes[:-1]) | (window[1:] != window[:-1])
-    step = np.zeros(len(t))
-    step[1:] = np.diff(t)
-    increment = np.zeros(len(t))
-    increment[1:] = 0.5 * (r[1:] + r[:-1]) * step[1:]
-    increment[first] = 0.0
-    bad = ~np.isfinite(x) | ~np.isfinite(r) | (~first & ((step > 2.5 * period) | ~np.isfinite(increment)))
-    windows = pd.DataFrame({"e": codes, "w": window, "i": np.where(bad, 0.0, increment), "x": x,
-                            "bad": bad}).groupby(["e", "w"], sort=False).agg(
-        integral=("i", "sum"), x0=("x", "first"), x1=("x", "last"), bad=("bad", "any"), n=("x", "size"))
-    change = windows["x1"] - windows["x0"]
-    moving = ~windows["bad"] & (windows["n"] >= 2) & (change.abs() > min_change)
-    ratio = (windows["integral"] / change)[moving]
-    by_experiment = ratio.groupby(level="e")
-    judged = by_experiment.median()[by_experiment.size() >= RATE_MIN_WINDOWS]
-    judged.index = pd.unique(frame["experiment"].to_numpy())[judged.index.to_numpy()]
-    pooled = float(ratio.median()) if ratio.size >= RATE_MIN_WINDOWS else math.nan
-    return judged, pooled
+    codes, ids = pd.factorize(frame["experiment"].to_numpy())
+    order = np.argsort(codes, kind="stable")  # each experiment's samples together, in their order
+    codes = codes[order]
+    t = frame["time"].to_numpy(dtype=float)[order]
+    x = frame[signal].to_numpy(dtype=float)[order]
+    r = frame[rate].to_numpy(dtype=float)[order]
+    bounds = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1], True])
+    judged, every = {}, []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        ratios = window_ratios(t[a:b], x[a:b], r[a:b], period, min_change)
+        every.append(ratios)
+        if len(ratios) >= RATE_MIN_WINDOWS:
+            experiment = ids[codes[a]]
+            judged[experiment] = float(np.median(ratios))
+    every = np.concatenate(every) if every else np.zeros(0)
+    pooled = float(np.median(every)) if every.size >= RATE_MIN_WINDOWS else math.nan
+    return pd.Series(judged, dtype=float), pooled
 
 
 def _check_rates(frame: pd.DataFrame, sensors: SensorSet, source: str) -> None:

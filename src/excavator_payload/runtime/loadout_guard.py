@@ -34,7 +34,7 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.units import (
-    HOUSE_TILT_LIMIT, MIN_PEAK_PRESSURE, PRESSURE_UNITS, RATE_MIN_WINDOWS, RATE_RATIO_LIMIT, RATE_WINDOW)
+    HOUSE_TILT_LIMIT, MIN_PEAK_PRESSURE, PRESSURE_UNITS, RATE_MIN_WINDOWS, RATE_RATIO_LIMIT, window_ratios)
 from excavator_payload.errors import DatasetError
 
 #: Length of the windows the guard judges, s (the first of a log before anything is recorded).
@@ -265,11 +265,10 @@ class UnitGuard:
 
 
 def rate_ratio(time: np.ndarray, angle: np.ndarray, rate: np.ndarray, period: float, min_change: float) -> float:
-    """How many times its angle's change a rate's integral is over one window: the median over
-    its sub-windows of :data:`~excavator_payload.data.units.RATE_WINDOW` s in which the angle
-    moves more than ``min_change`` (no NaN, no time gap); NaN with fewer than
-    :data:`~excavator_payload.data.units.RATE_MIN_WINDOWS` of them. The dataset check's rule
-    (``units._rate_ratios``) for one window, in numpy: the pandas one cost ~0.1 s a window.
+    """How many times its angle's change a rate's integral is over one window: the median of
+    its moving sub-windows' ratios (:func:`~excavator_payload.data.units.window_ratios`, the
+    dataset check's rule); NaN with fewer than
+    :data:`~excavator_payload.data.units.RATE_MIN_WINDOWS` of them.
 
     Parameters
     ----------
@@ -280,18 +279,5 @@ def rate_ratio(time: np.ndarray, angle: np.ndarray, rate: np.ndarray, period: fl
     min_change : float
         The angle's change over a sub-window that makes it moving.
     """
-    width = max(2, int(round(RATE_WINDOW / period)))
-    k = len(time) // width
-    if k < RATE_MIN_WINDOWS:
-        return math.nan
-    t, x, r = (np.asarray(a[:k * width], dtype=float).reshape(k, width) for a in (time, angle, rate))
-    step = np.diff(t, axis=1)
-    with np.errstate(all="ignore"):
-        integral = np.sum(0.5 * (r[:, 1:] + r[:, :-1]) * step, axis=1)
-        change = x[:, -1] - x[:, 0]
-        bad = (~np.isfinite(x).all(axis=1) | ~np.isfinite(r).all(axis=1) | (step > 2.5 * period).any(axis=1)
-               | ~np.isfinite(integral))
-        moving = ~bad & (np.abs(change) > min_change)
-        if np.count_nonzero(moving) < RATE_MIN_WINDOWS:
-            return math.nan
-        return float(np.median(integral[moving] / change[moving]))
+    ratios = window_ratios(time, angle, rate, period, min_change)
+    return float(np.median(ratios)) if len(ratios) >= RATE_MIN_WINDOWS else math.nan
