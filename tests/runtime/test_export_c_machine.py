@@ -208,3 +208,27 @@ def test_c_equals_python_where_a_new_load_is_detected(machine_models, tmp_path):
     assert "#define EP_NEW_LOAD 1" in source.read_text() or "#define EP_NEW_LOAD 1" in (tmp_path / "export").joinpath(source.stem + ".h").read_text()
     for single in (False, True):
         _assert_c_equals_python(est, source, stream, tmp_path / "build", single)
+
+
+def test_c_equals_python_where_a_load_change_settles(machine_models, tmp_path):
+    """A truck loaded pass after pass (the load enters the bucket while it curls, leaves on the
+    dump): the new-load test restarts on each change, sometimes while the bucket still fills, and
+    a ``load_changing`` episode of ``SETTLE_WINDOWS`` or more that ends without a new load sets
+    the whole memory to the short one (``CalibratedKernel._settle``; what it buys on held-out
+    shifts is measured in docs/loadout.md). The C export settles on the same samples."""
+    truck = simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
+    est = machine_models["calibrated-momentum"]
+    est.reset()
+    f = truck.frame
+    kernel, seen = None, 0
+    for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
+        est.step_values(t, row)
+        kernel = est._pressure
+        if kernel.settles > seen:  # this window settled: the whole memory is the short one
+            seen = kernel.settles
+            assert (kernel.num, kernel.info) == (kernel.num_short, kernel.info_short)
+            assert not kernel.changing and kernel.changing_windows == 0
+    assert seen >= 1
+    source = export_c(est, tmp_path / "export")[1]
+    for single in (False, True):
+        _assert_c_equals_python(est, source, truck, tmp_path / "build", single)

@@ -53,7 +53,7 @@ def pressure_regression_model(est) -> CModel:
     """
     from excavator_payload.estimators.classical.calibrated_machine import (
         CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
-    from excavator_payload.estimators.classical.machine_calibration.settings import BOOM_READY_WINDOWS
+    from excavator_payload.estimators.classical.machine_calibration.settings import BOOM_READY_WINDOWS, SETTLE_WINDOWS
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL)
@@ -151,6 +151,9 @@ def pressure_regression_model(est) -> CModel:
             f"#define EP_NEW_LOAD_SIGMAS {c_number(NEW_LOAD_SIGMAS)}",
             f"#define EP_CHANGING_MIN {c_number(kernel._changing_min)}  /* ... load_changing before it */",
             f"#define EP_CHANGING_SIGMAS {c_number(CHANGING_SIGMAS)}",
+            "/* CalibratedKernel._settle: a load_changing episode of EP_SETTLE_WINDOWS windows or more",
+            " * that ends without a new load sets the whole memory to the short one */",
+            f"#define EP_SETTLE_WINDOWS {SETTLE_WINDOWS}",
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -243,6 +246,7 @@ def pressure_regression_model(est) -> CModel:
         new_load = """#if EP_NEW_LOAD
 if (1) {
     ep_real change, spread, limit;
+    unsigned char was_changing = s->changing, restarted = 0;
     s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
     s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
     s->changing = 0;
@@ -255,10 +259,23 @@ if (1) {
         if (EP_MATH(fabs)(change) > limit) {  /* a new load: restart the weighing */
             s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
             s->boom_windows = 0;
+            s->changing_windows = 0;
+            restarted = 1;
         } else {  /* CalibratedKernel.changing: the load is changing (status load_changing) */
             limit = EP_CHANGING_SIGMAS * EP_MATH(sqrt)(spread);
             if (limit < EP_CHANGING_MIN) limit = EP_CHANGING_MIN;
             s->changing = EP_MATH(fabs)(change) > limit;
+        }
+    }
+    if (!restarted) {
+        if (s->changing) {
+            if (s->changing_windows < EP_SETTLE_WINDOWS) ++s->changing_windows;
+        } else if (was_changing) {  /* CalibratedKernel._settle: the change has settled */
+            if (s->changing_windows >= EP_SETTLE_WINDOWS) {
+                s->num = s->num_short;
+                s->info = s->info_short;
+            }
+            s->changing_windows = 0;
         }
     }
 }
@@ -412,8 +429,9 @@ if (1) {
         fields += ["ep_real num_short;   /* the new-load test's short memory: sum of w phi r */",
                    "ep_real info_short;  /* ... and of w phi^2 */"]
         fields.append("unsigned char changing;  /* the short memory has left the whole one */")
+        fields.append("unsigned int changing_windows;  /* windows of the load_changing episode (up to EP_SETTLE_WINDOWS) */")
         reset += ("\n    s->boom_windows = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
-                  "\n    s->changing = 0;")
+                  "\n    s->changing = 0;\n    s->changing_windows = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
                "#define EP_RING (EP_WINDOW + 2)  /* the window and the two newest, unjudged samples */"]

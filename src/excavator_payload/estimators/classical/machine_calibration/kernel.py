@@ -28,8 +28,7 @@ from excavator_payload.estimators.classical.machine_calibration.data import bala
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
     JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MODEL_SHARE, JOINT_PRESSURES, JOINT_SAMPLES,
-    NEW_LOAD_MEMORY,
-    NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SIGNALS)
+    NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
 
@@ -153,6 +152,10 @@ class CalibratedKernel(PressureRegression):
         self.info_joint = [0.0, 0.0, 0.0]
         self.num_short = 0.0  # the short memory of the new-load test (--new-load)
         self.info_short = 0.0
+        self.num_joint_short = [0.0, 0.0, 0.0]  # its joints' shares (the joint check's, after a settle)
+        self.info_joint_short = [0.0, 0.0, 0.0]
+        self.changing_windows = 0  # windows of the current load_changing episode
+        self.settles = 0  # changing episodes that ended with the whole memory set to the short one
         self.new_loads = 0  # new loads detected since the last reset
         self.changing = False  # the short memory has left the whole one (status load_changing)
         self.joint_fault = ""  # "signal:balance,..." while the joint check fails (see _check_joints)
@@ -382,16 +385,41 @@ class CalibratedKernel(PressureRegression):
             ij[j] = lam * ij[j] + d_info_joint[j]
         if not self.new_load:
             return
-        self.num_short = self._short_forgetting * self.num_short + d_num
-        self.info_short = self._short_forgetting * self.info_short + d_info
-        self.changing = False
+        mu = self._short_forgetting
+        self.num_short = mu * self.num_short + d_num
+        self.info_short = mu * self.info_short + d_info
+        if self.joint_check:
+            ns, is_ = self.num_joint_short, self.info_joint_short
+            for j in range(3):
+                ns[j] = mu * ns[j] + d_num_joint[j]
+                is_[j] = mu * is_[j] + d_info_joint[j]
+        was_changing, self.changing = self.changing, False
         if self.ready and 0.0 < self.info_short < self.info:
             change = self.num_short / self.info_short - self.num / self.info
             spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)
             if abs(change) > max(self._new_load_min, NEW_LOAD_SIGMAS * math.sqrt(spread)):
                 self.num = self.info = self.num_short = self.info_short = 0.0
                 self.num_joint, self.info_joint = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+                self.num_joint_short, self.info_joint_short = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
                 self.boom_windows = 0
                 self.new_loads += 1
-            else:
-                self.changing = abs(change) > max(self._changing_min, CHANGING_SIGMAS * math.sqrt(spread))
+                self.changing_windows = 0
+                return
+            self.changing = abs(change) > max(self._changing_min, CHANGING_SIGMAS * math.sqrt(spread))
+        if self.changing:
+            self.changing_windows += 1
+        elif was_changing:
+            if self.changing_windows >= SETTLE_WINDOWS:
+                self._settle()
+            self.changing_windows = 0
+
+    def _settle(self) -> None:
+        """A load change smaller than a new load's (or one that began before a restart's wait
+        ended: the bucket still filling) has settled: the whole memory still holds the windows
+        of the change and would take seconds to forget them (a pass locked 144 kg under its
+        load), so it takes the short memory's sums, whose windows of the change have faded
+        (:data:`SETTLE_WINDOWS`)."""
+        self.num, self.info = self.num_short, self.info_short
+        if self.joint_check:
+            self.num_joint, self.info_joint = list(self.num_joint_short), list(self.info_joint_short)
+        self.settles += 1

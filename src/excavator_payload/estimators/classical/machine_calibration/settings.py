@@ -114,6 +114,11 @@ NEW_LOAD_SIGMAS = 5.0
 #: load before, and calling it ``ok`` reported the old load for the 1-3 s the restart test needs.
 CHANGING_MIN_SHARE = 0.05
 CHANGING_SIGMAS = 5.0
+#: A ``load_changing`` episode of at least this many windows that ends without a new load
+#: (the two memories agree again) sets the whole memory to the short one: a restart while the
+#: bucket still fills, or a change too small for a new load, leaves the change's windows in
+#: the whole memory, where they stay for seconds (a pass locked at 3310 kg for 3454 kg).
+SETTLE_WINDOWS = 25
 #: The joint consistency check (a wrong pressure biases only its own joint's balance; set on
 #: clean tuning data of one seed, docs/sensor-health.md): each joint's estimate N_j / I_j is
 #: judged about their weighted mean with variance k / I_j + the calibration's model std² +
