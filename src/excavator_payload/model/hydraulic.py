@@ -181,6 +181,8 @@ class HydraulicSymbolic:
             return ca.vertcat(xz[0], 0, xz[1])
 
         tip = in_plane(2, P["bucket_length"], 0)
+        tip_jacobian = ca.jacobian(tip, q)[:, :3]
+        tip_force = ca.SX.sym("tip_force", 2)  # on the teeth, in the arm plane [x, z], N
         payload_point = in_plane(2, P["payload_u"], P["payload_w"])
 
         # -- energies ------------------------------------------------------------------------
@@ -337,6 +339,12 @@ class HydraulicSymbolic:
             "house_inclination": F_("hyd_house_inclination", [q, tilt], [ca.vertcat(house_pitch, house_roll)],
                                     ["q", "tilt"], ["pitch_roll"]),
             "tip_position": F_("hyd_tip_position", [q, p], [tip], ["q", "p"], ["tip"]),
+            # the teeth's in-plane velocity and the arm torques of a force on them (the soil's
+            # on a dig): J = ∂tip/∂q over boom, dipper, bucket; τ = Jᵀ f
+            "tip_velocity": F_("hyd_tip_velocity", [q, qd, p], [ca.mtimes(tip_jacobian, qd[:3])],
+                               ["q", "qd", "p"], ["v"]),
+            "tip_torque": F_("hyd_tip_torque", [q, tip_force, p], [ca.mtimes(tip_jacobian.T, tip_force)],
+                             ["q", "force", "p"], ["tau"]),
             "linkage_reach": F_("hyd_linkage_reach", [q, p], [a**2 - along**2], ["q", "p"], ["margin"]),
         }
         # The simulator's two calls per experiment, each one pass over the samples (compiled to
@@ -756,6 +764,30 @@ class HydraulicArmModel:
             Joint angles [boom, dipper, bucket, slew], rad.
         """
         return self._call("tip_position", [q])
+
+    def tip_velocity(self, q, qd):
+        """Velocity of the bucket teeth in the arm plane [x, z] of the house frame, m/s.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        qd : array_like, shape (..., 4)
+            Joint rates, rad/s.
+        """
+        return self._call("tip_velocity", [q, qd])
+
+    def tip_torque(self, q, force):
+        """Torques at the boom, dipper and bucket joints (N·m, (..., 3)) of a force on the teeth.
+
+        Parameters
+        ----------
+        q : array_like, shape (..., 4)
+            Joint angles [boom, dipper, bucket, slew], rad.
+        force : array_like, shape (..., 2)
+            Force on the teeth in the arm plane [x, z] of the house frame, N.
+        """
+        return self._call("tip_torque", [q, force])
 
     def motion_signals(self, q, qd, qdd, tilt, payload) -> dict[str, np.ndarray]:
         """Everything the simulator needs from the rigid body and the cylinder kinematics in one

@@ -149,6 +149,29 @@ class Motion:
     #: each; the mass enters linearly over its fill and leaves over its release. Overrides
     #: ``payload`` / ``release`` in :meth:`payload_at`.
     loads: list[tuple[float, float, float, float, float]] | None = None
+    #: the soil's resistance on the teeth while the bucket cuts (a shift's digs): (cut start,
+    #: cut end, N) each; see :meth:`soil_force`
+    soil: list[tuple[float, float, float]] | None = None
+
+    def soil_force(self, time: np.ndarray, tip_velocity: np.ndarray) -> np.ndarray:
+        """Force of the soil on the teeth, N, in the arm plane [x, z], shape (n, 2): over each
+        cut a resistance against the teeth's motion, R·sin²(π (t − a)/(b − a)) (the teeth enter
+        and leave the cut), along −v/max(|v|, :data:`SOIL_SPEED`) so that it fades where they stop.
+
+        Parameters
+        ----------
+        time : numpy.ndarray
+            Sample times, s, shape (n,).
+        tip_velocity : numpy.ndarray
+            The teeth's in-plane velocity, m/s, shape (n, 2).
+        """
+        force = np.zeros((len(time), 2))
+        speed = np.maximum(np.linalg.norm(tip_velocity, axis=1), SOIL_SPEED)
+        for a, b, resistance in self.soil or ():
+            inside = (time >= a) & (time <= b)
+            size = resistance * np.sin(np.pi * (time[inside] - a) / (b - a)) ** 2
+            force[inside] = -(size / speed[inside])[:, None] * tip_velocity[inside]
+        return force
 
     def stretched(self, factor: float) -> "Motion":
         """The same motion ``factor`` times slower.
@@ -163,8 +186,9 @@ class Motion:
         release = None if self.release is None else (self.release[0] * factor, self.release[1] * factor)
         loads = None if self.loads is None else [
             (a * factor, b * factor, c * factor, d * factor, m) for a, b, c, d, m in self.loads]
+        soil = None if self.soil is None else [(a * factor, b * factor, r) for a, b, r in self.soil]
         return Motion(self.initial.copy(), steps, self.duration * factor, self.tilt.copy(),
-                      self.payload, release, dict(self.info), loads)
+                      self.payload, release, dict(self.info), loads, soil)
 
     def sample(self, time: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(q, q̇, q̈) at ``time``, each (n, 4).
@@ -469,6 +493,11 @@ def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
     return _clip_to_ranges(motion, machine)
 
 
+#: The soil's resistance on the teeth over a shift's cut, N (drawn per pass): a 45 t machine's
+#: bucket breaks out at about 250 kN; filling through a cut takes a share of it.
+SOIL_RESISTANCE = (20e3, 60e3)
+#: Below this teeth speed (m/s) the soil's resistance fades with it (no force without motion).
+SOIL_SPEED = 0.05
 #: Passes per truck in a shift (the issue: 2-6).
 SHIFT_PASSES = (2, 6)
 
@@ -554,8 +583,14 @@ def shift_motion(rng, arm: HydraulicArmModel, truck_target: float) -> Motion:
         q, _, _ = cycle.sample(np.array([cycle.duration]))
         pose = q[0]
         end = offset + cycle.duration
+    # the soil's resistance on each cut, drawn after the motion so that it leaves the motion's
+    # draws as they were
+    soil = []
+    for p in passes:
+        p["soil_resistance"] = _uniform(rng, *SOIL_RESISTANCE)
+        soil.append((*p["fill"], p["soil_resistance"]))
     return Motion(initial, steps, end, payload=float(sum(fills)), loads=loads,
-                  info={"truck_target": float(truck_target), "passes": passes})
+                  info={"truck_target": float(truck_target), "passes": passes}, soil=soil)
 
 
 def _paced_step(rng, arm, joint, begin, start_angle, delta, share) -> Step:

@@ -175,7 +175,8 @@ def rest_friction(speed: np.ndarray, breakaway: np.ndarray, rest_speed: np.ndarr
 
 def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: np.ndarray,
                    qdd: np.ndarray, tilt: np.ndarray, payload: np.ndarray,
-                   friction_initial: np.ndarray, rng: np.random.Generator | None = None) -> dict[str, np.ndarray]:
+                   friction_initial: np.ndarray, rng: np.random.Generator | None = None,
+                   tip_force: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """True signals of a motion: torques, cylinder forces, friction, pressures, house inclination.
 
     ``rng`` draws how each valve closed where a rod stops (:func:`rest_friction`); without it the
@@ -198,6 +199,9 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
         Presliding state of each cylinder at the start, in [-1, 1], shape (3,).
     rng : numpy.random.Generator, optional
         Stream of the valve-closing draws.
+    tip_force : numpy.ndarray, optional
+        A force on the teeth (the soil's on a dig), N, in the arm plane [x, z], shape (n, 2):
+        the cylinders hold its torques too.
 
     Returns
     -------
@@ -208,6 +212,12 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
     """
     tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
     sig = arm.motion_signals(q, qd, qdd, tilt, payload)
+    if tip_force is not None and np.any(tip_force):
+        # M q̈ + c + g = τ + Jᵀf: the cylinders give τ = τ_free − Jᵀf
+        soil = arm.tip_torque(q, tip_force)
+        sig["tau"] = sig["tau"].copy()
+        sig["tau"][:, :3] -= soil
+        sig["load"] = sig["load"] - arm.load_force(q, soil)
     cylinders = arm.machine.cylinders
     presliding = np.array([c.presliding for c in cylinders])
     # breakaway of the load force (Stribeck peak at rest), per sample and cylinder

@@ -6,7 +6,8 @@ Every experiment is a motion (an NMPC swing, :mod:`.hydraulic_nmpc`; planned in
 :mod:`excavator_payload.model.hydraulic`:
 
 1. inverse dynamics gives the joint torques (and the slew torque) of the motion, with the
-   house slewing on tilted ground and the payload in the bucket;
+   house slewing on tilted ground and the payload in the bucket (on a shift's cuts, plus the
+   torques Jᵀf of the soil's force on the teeth, :meth:`~.machine_motions.Motion.soil_force`);
 2. each cylinder's load force is its joint torque over its moment arm (÷ count);
 3. seal friction (Coulomb + load-dependent + Stribeck + viscous, with a presliding state
    while the rod slides) is added: the pressures must overcome it. Where a rod stands still
@@ -175,7 +176,9 @@ def _within_relief(arm: HydraulicArmModel, draw, motion_rng: np.random.Generator
         time = sample_times(plan.duration)
         q, qd, qdd = plan.sample(time)
         friction0 = motion_rng.uniform(-1, 1, 3)
-        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, plan.payload_at(time), friction0, valves)
+        soil = plan.soil_force(time, arm.tip_velocity(q, qd)) if plan.soil else None
+        physics = motion_physics(arm, time, q, qd, qdd, plan.tilt, plan.payload_at(time), friction0, valves,
+                                 tip_force=soil)
         peak = float(max(physics["head"].max(), physics["rod"].max()))
         if peak <= relief or any_peak:
             return plan, time, (q, qd, qdd), physics, peak, attempt
@@ -269,7 +272,8 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
     The dataset schema keeps ``payload`` constant within an experiment, so the ``payload``
     column (and the metadata's ``payload``) is the truck's true load; the mass in the bucket
     over time is in the metadata's ``passes``: each pass's true fill (kg) and times (s),
-    ``fill`` (the load enters, linearly) and ``release`` (it leaves, linearly).
+    ``fill`` (the load enters, linearly, while the teeth cut against the soil's
+    ``soil_resistance``, N) and ``release`` (it leaves, linearly).
 
     Parameters
     ----------
@@ -308,7 +312,8 @@ def simulate_shift_experiment(k: int, seed: int, arm: HydraulicArmModel, noise: 
     stretch = float(plan.info["time_stretch"])
     passes = [{"pass": p["pass"], "payload": float(p["payload"]),
                **{key: [stretch * v for v in p[key]] for key in ("fill", "release")},
-               "start": stretch * p["start"], "end": stretch * p["end"]} for p in plan.info["passes"]]
+               "start": stretch * p["start"], "end": stretch * p["end"],
+               "soil_resistance": float(p["soil_resistance"])} for p in plan.info["passes"]]
     meta = {"experiment": int(k), "seed": int(seed), "payload": float(plan.payload), "motion": "shift",
             "truck": int(k), "truck_target": float(truck_target), "passes": passes,
             "tilt": [float(v) for v in plan.tilt], "duration": float(time[-1]),
