@@ -94,7 +94,7 @@ def field_shift_log(dataset, out: Path, dbc_path: Path, map_path: Path, jitter: 
     button pressed 2 s after each experiment's last frame (experiments are 5 s apart)."""
     import can
 
-    from excavator_payload.runtime.dbc import SignalCodec
+    from excavator_payload.runtime.codec import SignalCodec
     from excavator_payload.runtime.loadout_bus import TruckButton
     from excavator_payload.runtime.logs import read_frames
     from excavator_payload.runtime.record import record_dataset

@@ -19,7 +19,7 @@ from field_bus import write_field_files  # noqa: E402
 
 from excavator_payload.estimators.base import create_estimator  # noqa: E402
 from excavator_payload.runtime.can_sensor import PayloadSensor  # noqa: E402
-from excavator_payload.runtime.dbc import SignalCodec  # noqa: E402
+from excavator_payload.runtime.codec import SignalCodec  # noqa: E402
 from excavator_payload.runtime.record import record_dataset  # noqa: E402
 from excavator_payload.runtime.replay import replay_log  # noqa: E402
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset  # noqa: E402

@@ -21,7 +21,7 @@ import numpy as np
 from excavator_payload.estimators.base import load_estimator
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
-from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.codec import SignalCodec
 from excavator_payload.runtime.loadout import read_record
 from excavator_payload.runtime.loadout_bus import BusLoadout, decode_loadout, run_live
 from excavator_payload.runtime.logs import read_frames

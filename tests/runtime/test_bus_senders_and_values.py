@@ -10,7 +10,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.estimators.base import PLAUSIBLE_PAYLOAD, Status, create_estimator
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import EstimateEncoder, PayloadSensor, SensorOutput
-from excavator_payload.runtime.dbc import MessageOptions, SignalCodec
+from excavator_payload.runtime.codec import MessageOptions, SignalCodec
 from excavator_payload.runtime.record import record_dataset
 from excavator_payload.runtime.replay import replay_log
 from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
@@ -95,7 +95,8 @@ def test_a_generic_dbc_locks_onto_the_first_sender(swings, estimator):
 
 
 def test_signal_map_message_table_is_checked(tmp_path, swings):
-    from excavator_payload.runtime.dbc import CanConfigError, read_message_map
+    from excavator_payload.runtime.dbc import CanConfigError
+    from excavator_payload.runtime.codec import read_message_map
 
     path = tmp_path / "map.toml"
     path.write_text('[messages.Inclinometer]\nsource_address = 0x21\nperiod = 0.1\n')

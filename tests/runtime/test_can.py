@@ -16,7 +16,7 @@ from excavator_payload.estimators.base import Status, create_estimator
 from excavator_payload.estimators.commands import STATUS_MEANING
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import EstimateEncoder, PayloadSensor, run_bus
-from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.codec import MessageOptions, SignalCodec
 from excavator_payload.runtime.record import record_dataset
 from excavator_payload.runtime.replay import replay_log
 from excavator_payload.simulation.minimum_jerk import simulate_minimum_jerk
@@ -135,7 +135,7 @@ def test_source_address_is_the_dbcs(swings, estimator):
     sensor = PayloadSensor(estimator)
     assert [o for f in moved for o in sensor.feed(f)] == []
     assert sensor.counters["other_senders"] == 4
-    options = {m: dbc.MessageOptions(source_address=0x42) for m in codec.message_names}
+    options = {m: MessageOptions(source_address=0x42) for m in codec.message_names}
     there = SignalCodec(codec.sensor_set, codec.database, codec.sources, options)
     sensor = PayloadSensor(estimator, there)
     outputs = [o for f in moved for o in sensor.feed(f)]

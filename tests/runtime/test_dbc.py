@@ -8,7 +8,7 @@ import pytest
 from excavator_payload.data.schema import MACHINE_SENSORS, SENSOR_SETS, THESIS_SENSORS
 from excavator_payload.estimators.base import Status
 from excavator_payload.runtime import dbc
-from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.codec import SignalCodec, read_signal_map
 
 
 @pytest.mark.parametrize("name", list(SENSOR_SETS))
@@ -95,7 +95,7 @@ def test_signal_map_errors(tmp_path):
     bad = tmp_path / "map.toml"
     bad.write_text("[signals.boom_angle]\nmessage = 'X'\n")
     with pytest.raises(dbc.CanConfigError, match="needs 'message' and 'signal'"):
-        dbc.read_signal_map(bad)
+        read_signal_map(bad)
     with pytest.raises(dbc.CanConfigError, match="does not exist"):
         dbc.load_dbc(tmp_path / "none.dbc")
     junk = tmp_path / "junk.dbc"

@@ -56,7 +56,7 @@ def test_mixed_rate_jittered_log_weighs_as_the_lock_step_one(files, suffix):
 
 def test_a_silent_inclinometer_is_stale_by_name(files, machine_data, tmp_path):
     folder, data, dbc_path, map_path = files
-    from excavator_payload.runtime.dbc import SignalCodec
+    from excavator_payload.runtime.codec import SignalCodec
     from excavator_payload.runtime.record import record_dataset
 
     import can

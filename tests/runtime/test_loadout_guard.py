@@ -17,7 +17,7 @@ from excavator_payload.cli import main
 from excavator_payload.data.schema import get_sensor_set
 from excavator_payload.estimators.base import load_estimator
 from excavator_payload.runtime.can_sensor import PayloadSensor
-from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.codec import SignalCodec
 from excavator_payload.runtime.loadout_bus import GUARDED, BusLoadout, replay_loadout
 from excavator_payload.runtime.loadout_guard import UnitGuard
 from excavator_payload.runtime.logs import read_frames

@@ -1,7 +1,7 @@
 """The payload virtual sensor on a CAN bus: frames in, samples to an estimator, estimates out.
 
 :class:`PayloadSensor` wraps any fitted :class:`~excavator_payload.estimators.base.Estimator`.
-Its sensor set says which signals it needs; a :class:`~excavator_payload.runtime.dbc.SignalCodec`
+Its sensor set says which signals it needs; a :class:`~excavator_payload.runtime.codec.SignalCodec`
 says in which frames they arrive. The messages may come at their own rates (pressures at 100 Hz,
 an inclinometer at 10 Hz) with jitter: a :class:`~excavator_payload.data.assembly.SampleAssembler`
 holds each signal with its timestamp and makes one sample per model period from the latest
@@ -44,7 +44,7 @@ import numpy as np
 from excavator_payload.estimators.base import Estimator
 from excavator_payload.runtime import dbc
 from excavator_payload.data.assembly import STALE_TOLERANCE, Sample, SampleAssembler
-from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.codec import SignalCodec
 
 log = logging.getLogger(__name__)
 

@@ -23,7 +23,7 @@ MAP_HELP = ("TOML map from our signal names to (message, signal, factor, offset)
 
 
 def _codec(estimator, dbc_file, signal_map):
-    from excavator_payload.runtime.dbc import SignalCodec
+    from excavator_payload.runtime.codec import SignalCodec
 
     return SignalCodec.from_files(estimator.sensor_set, dbc_file, signal_map)
 
@@ -79,7 +79,7 @@ def register(app: typer.Typer) -> None:
         """Turn a dataset into a CAN log (every sample as its sensor frames, experiments apart; each
         message at its DBC period, GenMsgCycleTime, where it has one)."""
         from excavator_payload.data.io import read_dataset
-        from excavator_payload.runtime.dbc import SignalCodec
+        from excavator_payload.runtime.codec import SignalCodec
         from excavator_payload.runtime.record import record_dataset
 
         from excavator_payload.data.io import check_output_path

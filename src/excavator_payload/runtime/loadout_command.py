@@ -167,7 +167,7 @@ def _from_dataset(estimator, data, db, target, model):
 def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, signal_map, stale_tolerance,
               truth, bitrate, duration):
     from excavator_payload.runtime.can_sensor import PayloadSensor
-    from excavator_payload.runtime.dbc import SignalCodec
+    from excavator_payload.runtime.codec import SignalCodec
     from excavator_payload.runtime.loadout import ShiftRecord, file_key
     from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, replay_loadout
 

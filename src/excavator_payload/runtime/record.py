@@ -25,7 +25,7 @@ import numpy as np
 
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import DatasetError
-from excavator_payload.runtime.dbc import SignalCodec
+from excavator_payload.runtime.codec import SignalCodec
 from excavator_payload.runtime.logs import check_suffix
 
 #: Silence between two experiments in a recorded log, s.

@@ -136,6 +136,9 @@ class Motion:
     loads : list of tuple, optional
         Loads one after another (a shift): ``(fill start, fill end, release start, release
         end, kg)`` each, times in s; overrides ``payload`` / ``release`` in :meth:`payload_at`.
+    soil : list of tuple, optional
+        The soil's resistance on the teeth over each cut: ``(cut start, cut end, N)``, times in
+        s (:meth:`soil_force`).
     """
 
     initial: np.ndarray  # (4,) rad
