@@ -21,7 +21,6 @@ thesis) and ``tiny`` (seconds; for the test suite).
 from __future__ import annotations
 
 import hashlib
-import inspect
 import json
 import os
 import shutil
