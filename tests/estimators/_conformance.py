@@ -60,6 +60,9 @@ class Stage:
         mid-motion); else against the clean run's final error.
     warm_up : int
         Samples stepped before the state is poisoned.
+    poisoned_ends_as_clean : bool
+        After a poisoned state the stream ends with the clean run's status and finiteness (as the
+        thesis suite held it); else it only has to weigh again where the clean run does.
     in_range_after : int
         Samples stepped before an implausible sample is given.
     implausible : tuple of dict
@@ -87,6 +90,7 @@ class Stage:
     glitch_unit: Callable[[Any], dict] = dict
     fresh_start_recovery: bool = False
     warm_up: int = 40
+    poisoned_ends_as_clean: bool = True
     in_range_after: int = 60
     implausible: tuple[dict, ...] = ()
     restart_starts: tuple[int, ...] = ()
@@ -175,7 +179,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           bursts=(1, 5), glitch_bursts=(1, 1), gap=0.03,
           # glitch sizes in units of the signal's sample-to-sample change
           glitch_unit=_sample_to_sample, fresh_start_recovery=True,
-          warm_up=300, in_range_after=400,
+          warm_up=300, poisoned_ends_as_clean=False, in_range_after=400,
           implausible=({"boom_angle": 2.5}, {"bucket_angle": 3.5}, {"boom_head_pressure": 2e9}),
           restart_starts=(160, 250), frame_outlier_test=True),
 )}
