@@ -33,9 +33,8 @@ def machine_calibration():
 
 #: The longest test files, started first: with two workers (pytest-xdist, one file per worker at
 #: a time) a long file begun last would leave one worker running it alone at the end.
-LONG_FILES = ("test_hostile_cli.py", "estimators/test_conformance_machine.py",
-              "estimators/classical/test_calibrated_machine.py", "evaluation/test_demo_machine.py",
-              "estimators/test_conformance.py")
+LONG_FILES = ("estimators/test_conformance.py", "test_hostile_cli.py",
+              "estimators/classical/test_calibrated_machine.py", "evaluation/test_demo_machine.py")
 
 
 def pytest_collection_modifyitems(config, items):

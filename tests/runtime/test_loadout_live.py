@@ -345,3 +345,21 @@ def test_commands_are_read_only_from_a_stream_that_can_give_them():
     unknown = []
     read_commands(io.StringIO("T\n\nquit\nx\ntruck\n"), commands, unknown.append)
     assert [commands.get_nowait() for _ in range(4)] == ["truck", "quit", "truck", None] and unknown == ["x"]
+
+
+def test_one_key_is_one_command():
+    """In cbreak mode (``keys``) every key is a command, read from the file descriptor as it is
+    pressed: case does not matter, a space or Enter is nothing, any other key is unknown."""
+    import os
+    import queue
+
+    from excavator_payload.runtime.loadout_bus import read_commands
+
+    read_end, write_end = os.pipe()
+    os.write(write_end, b"tQX \nT\xff")
+    os.close(write_end)
+    commands, unknown = queue.Queue(), []
+    with os.fdopen(read_end) as pipe:
+        read_commands(pipe, commands, unknown.append, keys=True)
+    assert [commands.get_nowait() for _ in range(4)] == ["truck", "quit", "truck", None]
+    assert unknown == ["x", "\ufffd"] and commands.empty()

@@ -9,7 +9,6 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.schema import (
-    SIGNALS,
     THESIS_SENSORS,
     SensorSet,
     detect_sensor_set,

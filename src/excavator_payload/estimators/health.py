@@ -147,7 +147,6 @@ class HealthMonitor:
     def __init__(self, signals, period: float, resolution, reference=None) -> None:
         self.signals = tuple(signals)
         self.period = float(period)
-        n = len(self.signals)
         idx = {s: i for i, s in enumerate(self.signals)}
         self.quantum = np.array([STUCK_QUANTA * resolution[s] for s in self.signals])
         samples = lambda seconds: max(2, int(round(seconds / self.period)) + 1)  # noqa: E731

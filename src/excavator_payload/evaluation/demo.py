@@ -21,7 +21,6 @@ thesis) and ``tiny`` (seconds; for the test suite).
 from __future__ import annotations
 
 import hashlib
-import inspect
 import json
 import os
 import shutil
@@ -213,7 +212,7 @@ def simulate(n: int, first: int, seed: int, motion: str, execution: Execution) -
                             first_experiment=first, execution=execution)
 
 
-def simulate_lift_data(n: int, seed: int, workers: int | None) -> Dataset:
+def simulate_lift_data(n: int, seed: int) -> Dataset:
     """Calibration lifts for the quasi-static map (``simulation.lifts.simulate_lifts``).
 
     Parameters
@@ -222,8 +221,6 @@ def simulate_lift_data(n: int, seed: int, workers: int | None) -> Dataset:
         Number of lifts.
     seed : int
         Seed of the lifts.
-    workers : int or None
-        Not used: the lifts are simulated in this process.
     """
     return simulate_lifts(n, seed, TRUE_MACHINE, NOISE, with_truth=True)
 
@@ -317,7 +314,7 @@ class Demo:
             except ExcavatorPayloadError:
                 path.unlink()
         self.console.print(f"  simulating {self.scale.lifts} calibration lifts")
-        ds = simulate_lift_data(self.scale.lifts, self.seed + 1, self.workers)
+        ds = simulate_lift_data(self.scale.lifts, self.seed + 1)  # simulated in this process
         write_dataset(ds, path)
         return ds
 

@@ -273,7 +273,7 @@ NEEDS_TRAINING_SET = tuple(n for n, t in ESTIMATOR_TRAITS.items() if t.needs_tra
 
 
 def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="cat345c-hydraulic-3pct",
-                   progress: bool = True, options: dict | None = None, lifts: Dataset | None = None) -> dict:
+                   options: dict | None = None, lifts: Dataset | None = None) -> dict:
     """Fit every estimator in ``names`` on the calibration data (``calibrated`` also zeroed;
     the quasi-static map on ``lifts``).
 
@@ -287,8 +287,6 @@ def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="ca
         Registry names of the estimators; networks are listed as not fitted.
     prior_machine : HydraulicMachine or str
         The roughly right machine file the estimators that need a machine start from.
-    progress : bool
-        Not used (kept for callers).
     options : dict, optional
         Estimator name -> its keyword options.
     lifts : Dataset, optional

@@ -38,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import ESTIMATE_COLUMNS, MACHINE_SENSORS, THESIS_SENSORS
+from excavator_payload.data.schema import ESTIMATE_COLUMNS
 from excavator_payload.errors import DatasetError
 from excavator_payload.estimators.traits import ESTIMATOR_TRAITS
 from excavator_payload.platforms import THESIS, platform_for

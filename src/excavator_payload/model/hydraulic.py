@@ -58,14 +58,16 @@ displacement and *stays where it was* when the cylinder stops: stiction holds th
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 
 from excavator_payload.errors import MachineError
 
-# HydraulicMachine (model/hydraulic_machine.py) is named in annotations only: that module checks a
-# machine file's geometry with this model, so this one does not import it back.
+if TYPE_CHECKING:  # annotations only: that module checks a machine file's geometry with this
+    # model, so this one does not import it back at run time
+    from excavator_payload.model.hydraulic_machine import HydraulicMachine
 
 LINKS = ("boom", "dipper", "bucket")
 CYLINDERS = ("boom_cylinder", "dipper_cylinder", "bucket_cylinder")

@@ -693,27 +693,26 @@ def read_commands(stream, commands: queue.Queue, on_unknown=None, keys: bool = F
         One key is one command (a terminal in cbreak mode, :func:`terminal_keys`); else one
         line is (a pipe, a terminal in line mode).
     """
-    import os
-
     try:
-        if keys:
-            fd = stream.fileno()
-            while key := os.read(fd, 1):
-                word = key.decode("ascii", "replace").lower()
-                if word in COMMANDS:
-                    commands.put(COMMANDS[word])
-                elif word.strip() and on_unknown is not None:
-                    on_unknown(word)
-        else:
-            for line in stream:
-                word = line.strip().lower()
-                if word in COMMANDS:
-                    commands.put(COMMANDS[word])
-                elif word and on_unknown is not None:
-                    on_unknown(line.strip())
+        for piece in (_key_presses(stream) if keys else stream):
+            text = piece.strip()
+            if text.lower() in COMMANDS:
+                commands.put(COMMANDS[text.lower()])
+            elif text and on_unknown is not None:
+                on_unknown(text)
     except (OSError, ValueError, UnicodeDecodeError):  # a closed or unreadable stdin: no commands
         pass
     commands.put(None)
+
+
+def _key_presses(stream):
+    """One lower-case character per key pressed on ``stream`` (a terminal in cbreak mode), read
+    unbuffered from its file descriptor: a buffered read would wait for a whole line."""
+    import os
+
+    fd = stream.fileno()
+    while key := os.read(fd, 1):
+        yield key.decode("ascii", "replace").lower()
 
 
 def readable_commands(stream) -> bool:

@@ -58,7 +58,7 @@ from excavator_payload.execution import Execution
 from excavator_payload.model.machine import Machine, load_machine
 from excavator_payload.platforms import HYDRAULIC, THESIS, platform_for
 from excavator_payload.platforms.base import Motion, cheap_chunk_size, nmpc_chunk_size  # noqa: F401
-from excavator_payload.simulation.experiment import RunSpec, experiment_frame, noise_rng
+from excavator_payload.simulation.experiment import RunSpec, experiment_frame
 from excavator_payload.simulation.scenario import experiment_rngs, sample_scenario
 from excavator_payload.simulation.sensors import NoisePreset
 

@@ -114,7 +114,7 @@ from excavator_payload.model.dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
     ArmModel,
-    base_regressor,
+    base_regressor,  # noqa: F401 (re-exported: calibrated.py and the tests import it from here)
     symbolic,
 )
 from excavator_payload.model.machine import Machine

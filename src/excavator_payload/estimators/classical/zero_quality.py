@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from excavator_payload.estimators.classical.machine_calibration.settings import 
     CALIBRATED_PARAMETERS, CALIBRATION_HALF_WINDOW, HELD_IN_MOMENTUM, MIN_ZERO_MOVING_SAMPLES,
     OFFSET_PRIOR_STD, OFFSET_SIGNALS)
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, PRESSURES
+
+if TYPE_CHECKING:  # annotations only: the solver (and its kernel) is not needed at run time
+    from excavator_payload.estimators.classical.machine_calibration.solver import MachineCalibration
 
 #: Arm-angle grid points per joint (boom × dipper × bucket) inside the calibration's coverage at
 #: which the weighing's sensitivity to the offsets is evaluated.

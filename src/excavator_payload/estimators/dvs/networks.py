@@ -352,13 +352,10 @@ class DistributedDelayNetwork(NeuralEstimator):
         window = self._lines[0].push(self._scale_input(values))
         if window is None:
             return _WARMING
-        n_layers = len(self._layers)
-        for i, (W, b) in enumerate(self._layers):
-            if i > 0:
-                window = self._lines[i].push(a)
-            z = W @ window + b
-            a = np.tanh(z) if i < n_layers - 1 else z
-        return StepResult(self._unscale_output(a[0]), Status.OK)
+        *hidden, (W_out, b_out) = self._layers
+        for i, (W, b) in enumerate(hidden):
+            window = self._lines[i + 1].push(np.tanh(W @ window + b))  # the next layer's delay line
+        return StepResult(self._unscale_output((W_out @ window + b_out)[0]), Status.OK)
 
     def predict_windows(self, inputs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Batch outputs (kg) per experiment from RAW inputs, NaN where no estimate.

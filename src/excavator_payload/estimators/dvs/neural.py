@@ -223,9 +223,11 @@ class NeuralEstimator(Estimator):
             v_inputs, v_targets = self._scaled(val)
             v_residuals, _ = self._training_problem(v_inputs, v_targets)
 
-            def validation(w):
+            def validation_error(w):
                 e = v_residuals(w)
                 return float(e @ e)
+
+            validation = validation_error
 
         generator = torch.Generator().manual_seed(int(o["seed"]))
         w0 = self._init_weights(generator)

@@ -303,8 +303,8 @@ def rollout(w: torch.Tensor, u: torch.Tensor, structure: RecurrentStructure,
             z = z + fb @ W1_fb.T
         for i in range(n_hidden):
             W, b = layers[i]
-            if i > 0:
-                z = a @ W[:, :structure.hidden[i - 1]].T + b  # noqa: F821 (a from layer i-1)
+            if i > 0:  # layer i - 1's output at this step
+                z = a_hist[i - 1][j] @ W[:, :structure.hidden[i - 1]].T + b
             if i in rec:
                 n_ff = W.shape[1] - structure.hidden[i] * len(structure.layer_delays)
                 past = torch.cat([a_hist[i][j - r] if j - r >= 0 else zero_states[i]

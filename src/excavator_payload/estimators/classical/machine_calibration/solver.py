@@ -470,7 +470,7 @@ class MachineCalibration:
 
 
 def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
-              low_speed: str = "downweight", half_window: int = 5,
+              low_speed: str = "downweight",
               pressure_std: float | None = None, balance: str = "differentiated",
               imu_leak: str = "auto") -> MachineCalibration:
     """Identify parameters, offsets and pressure noise from known-payload data (module doc).
@@ -489,9 +489,6 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         Prior std of each parameter as a share of its file value.
     low_speed : str
         One of :data:`LOW_SPEED_CHOICES`.
-    half_window : int
-        Samples each side of the differentiator (not used: calibration uses
-        :data:`CALIBRATION_HALF_WINDOW`).
     pressure_std : float or None
         Pressure noise, Pa (None: from the data).
     balance : str
@@ -564,7 +561,7 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
 
 
 def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "downweight",
-                 half_window: int = 5, drift_std: np.ndarray = OFFSET_PRIOR_STD) -> tuple[int, np.ndarray]:
+                 drift_std: np.ndarray = OFFSET_PRIOR_STD) -> tuple[int, np.ndarray]:
     """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc).
     Returns how many samples it used (the valid ones: finite, angles within range) and, per
     arm cylinder, how many of them it moved on (a still cylinder's offsets are not checked).
@@ -577,8 +574,6 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
         Empty-bucket data (payload 0).
     low_speed : str
         One of :data:`LOW_SPEED_CHOICES`.
-    half_window : int
-        Samples each side of the differentiator (not used: :data:`CALIBRATION_HALF_WINDOW`).
     drift_std : numpy.ndarray
         Prior std of each offset's change, Pa or rad.
 

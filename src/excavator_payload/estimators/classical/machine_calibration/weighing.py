@@ -216,8 +216,8 @@ class MachineWeighing:
         def calibrate_on(subset: Dataset) -> MachineCalibration:
             """The calibration of ``subset`` with the estimator's options, and the angles it covers
             (all the motions, and each half of them for the cross-check)."""
-            fitted = calibrate(arm, subset, prior, options["low_speed"], options["half_window"],
-                               pressure_std, options["balance"], options["imu_leak"])
+            fitted = calibrate(arm, subset, prior, options["low_speed"], pressure_std, options["balance"],
+                               options["imu_leak"])
             fitted.angle_coverage = angle_coverage(subset, fitted.offset_vector())
             return fitted
 
@@ -284,7 +284,7 @@ class MachineWeighing:
         """
         from excavator_payload.estimators.classical.zero_quality import zero_quality
 
-        used, moving = zero_offsets(self.calibration, dataset, options["low_speed"], options["half_window"])
+        used, moving = zero_offsets(self.calibration, dataset, options["low_speed"])
         #: the zero's predicted weighing error and its reasons not to weigh with it
         self.zero_quality = zero_quality(self.calibration, dataset, moving)
         n = len(dataset.frame)
