@@ -122,7 +122,9 @@ def test_physics_is_generated_with_the_fitted_parameters(machine_models, tmp_pat
 
 
 def test_machine_set_export_errors_and_cli(machine_models, machine_swings, tmp_path):
-    other = create_estimator("quasi-static", machine="cat345c-hydraulic").fit(machine_swings)
+    # an estimator of the machine set without a C export (the quasi-static map, from lifts)
+    lifts = simulate_machine_dataset(4, seed=1, noise="none", motion="lifts")
+    other = create_estimator("quasi-static", machine="cat345c-hydraulic").fit(lifts)
     with pytest.raises(EstimatorError, match="machine sensor set has no C export"):
         export_c(other, tmp_path)
     model = tmp_path / "model"
