@@ -3,7 +3,7 @@ against Python's ``step()``; and the CAN replay throughput.
 
     python benchmarks/bench_export.py                  # all C-exportable models, 20 experiments
     python benchmarks/bench_export.py --experiments 50 --repetitions 400
-    python benchmarks/bench_export.py --models machine:inverse-dynamics,machine:calibrated,machine:ekf
+    python benchmarks/bench_export.py --models machine:inverse-dynamics,machine:calibrated
 
 Protocol: simulate ``--experiments`` NMPC experiments (thesis noise), fit each estimator
 (networks: a few epochs only: the cost of a step does not depend on the weights' values),
@@ -48,7 +48,6 @@ MODELS = {
     "machine:inverse-dynamics": {"machine": "cat345c-hydraulic"},
     "machine:calibrated": {"machine": "cat345c-hydraulic-3pct"},
     "machine:calibrated-momentum": {"machine": "cat345c-hydraulic-3pct", "balance": "momentum"},
-    "machine:ekf": {"machine": "cat345c-hydraulic"},
 }
 
 

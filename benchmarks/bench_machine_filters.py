@@ -24,7 +24,7 @@ trained model);
         --seed 5000 --out fit_work.parquet
     excavator-payload simulate --machine cat345c-hydraulic --motion lifts --session 1 -n 10 \\
         --seed 3000 --out lifts.parquet
-    python benchmarks/bench_machine_filters.py ekf fit_swing.parquet,fit_work.parquet 50
+    python benchmarks/bench_machine_filters.py inverse-dynamics fit_swing.parquet,fit_work.parquet 50
     python benchmarks/bench_machine_filters.py quasi-static lifts.parquet 50
 """
 

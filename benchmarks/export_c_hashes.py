@@ -51,7 +51,6 @@ def models():
         "calibrated", machine=HYD + "-3pct", balance="differentiated").fit(machine)
     yield "machine/calibrated-new-load", create_estimator(
         "calibrated", machine=HYD + "-3pct", balance="differentiated", new_load="detect").fit(machine)
-    yield "machine/ekf", create_estimator("ekf", machine=HYD).fit(machine)
 
 
 def hashes() -> dict[str, str]:

@@ -8,7 +8,7 @@ rejections on the clean data (false alarms).
 
 Usage::
 
-    python benchmarks/glitch_machine.py [--test 200] [--seed 11] [--estimator ekf]
+    python benchmarks/glitch_machine.py [--test 200] [--seed 11] [--estimator inverse-dynamics]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--test", type=int, default=200)
     ap.add_argument("--seed", type=int, default=11)
-    ap.add_argument("--estimator", default="calibrated", choices=["calibrated", "inverse-dynamics", "ekf", "ukf"],
+    ap.add_argument("--estimator", default="calibrated", choices=["calibrated", "inverse-dynamics"],
                     help="fitted as demo --machine fits it (the 3 %% file)")
     a = ap.parse_args()
     cal, zero = dm.calibration_data(10, a.seed), dm.zero_data(a.seed + 1)

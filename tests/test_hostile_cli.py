@@ -616,11 +616,21 @@ def hydraulic_machine_cases() -> list[Case]:
                               None, outputs))
 
     # a hydraulic machine file with thesis-set data (calibrated crashed: AttributeError)
-    for estimator in ("calibrated", "inverse-dynamics", "ekf", "quasi-static"):
+    for estimator in ("calibrated", "inverse-dynamics", "quasi-static"):
         cases.append(Case(f"hydraulic-machine-thesis-data-train-{estimator}", "bad machine file",
                           ["train", estimator, "--machine", "cat345c-hydraulic", "--data", "{in}/data.parquet",
                            "--out", "{work}/m"], "error", "machine-sensor-set data",
                           outputs=["{work}/m/estimator.json"]))
+
+    # issue 28: the Kalman filters left the machine sensor set; asked for there, in one line,
+    # why and what to use instead (with the dataset's hydraulic machine, or a thesis machine file)
+    for estimator in ("ekf", "ukf"):
+        cases.append(Case(f"machine-set-train-{estimator}", "bad machine file",
+                          ["train", estimator, "--data", "{in}/machine.parquet", "--out", "{work}/m"],
+                          "error", "use 'calibrated'", outputs=["{work}/m/estimator.json"]))
+        cases.append(Case(f"machine-set-thesis-file-train-{estimator}", "bad machine file",
+                          ["train", estimator, "--machine", "cat345c", "--data", "{in}/machine.parquet",
+                           "--out", "{work}/m"], "error", "use 'calibrated'", outputs=["{work}/m/estimator.json"]))
 
     def ten_percent_off(work, inputs):
         from excavator_payload.model.hydraulic_machine import off_by

@@ -58,8 +58,10 @@ def test_platform_for_resolves_every_handle(platform, sensors, preset, other, ra
 def test_runs_reads_the_estimators_declared_sensor_sets():
     from excavator_payload.estimators.registry import estimator_class
 
-    ekf = estimator_class("ekf")
-    assert THESIS.runs(ekf) and HYDRAULIC.runs(ekf) and HYDRAULIC.runs(ekf("cat345c-hydraulic"))
+    calibrated = estimator_class("calibrated")
+    assert THESIS.runs(calibrated) and HYDRAULIC.runs(calibrated) and HYDRAULIC.runs(calibrated("cat345c-hydraulic"))
+    ekf = estimator_class("ekf")  # issue 28: the Kalman filters left the machine set
+    assert THESIS.runs(ekf) and not HYDRAULIC.runs(ekf)
 
     class ThesisOnly:
         SENSOR_SETS = ("thesis",)

@@ -203,8 +203,8 @@ def test_cli_simulates_replays_and_plots(tmp_path):
 def test_thesis_estimators_refuse_the_machine_set_in_one_line(tmp_path, capsys):
     data = tmp_path / "lifts.parquet"
     simulate_machine_to_file(data, 1, motion="lifts", workers=1, progress=False)
-    # issue 12 (mfilt): ekf, ukf, quasi-static and the networks run on the machine set now; the
-    # estimators that still do not must refuse it in one line.
+    # the estimators whose traits do not declare the machine set (ekf and ukf since issue 28)
+    # must refuse it in one line.
     from excavator_payload.estimators.base import estimator_class, estimator_names
 
     thesis_only = [n for n in estimator_names() if "machine" not in estimator_class(n).SENSOR_SETS]

@@ -199,7 +199,8 @@ class Estimator(ABC):
         if HYDRAULIC.owns(self.machine) and not HYDRAULIC.runs(self):
             # issue 11: a hydraulic machine file only serves estimators of the machine sensor set
             raise EstimatorError(f"{self.name} does not run on the hydraulic machine "
-                                 f"'{self.machine.name}' (it runs on: {', '.join(self.SENSOR_SETS)})")
+                                 f"'{self.machine.name}' (it runs on: {', '.join(self.SENSOR_SETS)})"
+                                 f"{self._refusal(HYDRAULIC.sensors.name)}")
         #: The sensor set of the data it was fitted on (the thesis set until then).
         self.sensor_set: SensorSet = THESIS_SENSORS
         self.fitted = False
@@ -391,12 +392,16 @@ class Estimator(ABC):
         sentinel.reset()
         self._sentinel = sentinel
 
+    def _refusal(self, sensor_set: str) -> str:
+        """Why its traits say it does not run on ``sensor_set``, and what to use (or nothing)."""
+        return self.TRAITS.refusal(sensor_set) if self.TRAITS is not None else ""
+
     def _check_sensor_set(self, dataset: Dataset) -> SensorSet:
         """The dataset's sensor set, if this estimator runs on it (one clear line otherwise)."""
         sensors = dataset.sensor_set
         if sensors.name not in self.SENSOR_SETS:
             raise EstimatorError(f"{self.name} does not run on the {sensors.name} sensor set "
-                                 f"(it runs on: {', '.join(self.SENSOR_SETS)})")
+                                 f"(it runs on: {', '.join(self.SENSOR_SETS)}){self._refusal(sensors.name)}")
         if not HYDRAULIC.carries(sensors) and HYDRAULIC.owns(self.machine):
             # calibrated fitted the thesis set's parameters of a hydraulic file: an AttributeError
             raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes with "

@@ -80,6 +80,11 @@ def load_estimator(directory: str | Path, expected: type | None = None):
     klass = estimator_class(name)
     if expected is not None and not issubclass(klass, expected):
         raise EstimatorError(f"'{directory}' holds a {klass.name} estimator, not {expected.name}")
+    saved_on = config.get("sensor_set")
+    if isinstance(saved_on, str) and klass.TRAITS is not None and klass.TRAITS.refusal(saved_on):
+        # a model of a sensor set the estimator left (ekf and ukf on the machine set, issue 28)
+        raise EstimatorError(f"'{directory}' holds {klass.name} fitted on the {saved_on} sensor set, which it no "
+                             f"longer runs on{klass.TRAITS.refusal(saved_on)}")
     arrays_path = directory / ARRAYS_FILE
     if not arrays_path.is_file():
         raise EstimatorError(f"'{arrays_path}' is missing (incomplete model folder)")

@@ -700,7 +700,7 @@ def payload_bounds(machine: Machine) -> tuple[float, float]:
     return -0.5 * machine.bucket_mass, 20.0 * max(machine.max_payload, machine.rated_payload)
 
 
-# -- sigma-point helpers (the UKF and the machine set's unscented update) -------------------
+# -- sigma-point helpers (the UKF) ------------------------------------------------------------
 
 def covariance_sqrt(P: np.ndarray) -> np.ndarray:
     """Lower Cholesky factor of P, repairing P first if rounding left it indefinite.

@@ -37,12 +37,11 @@ while the payload's posterior standard deviation exceeds ``converged_std`` kg. A
 result is not finite is discarded (state kept) and reported ``invalid_input``. A time gap up
 to ``max_gap`` seconds keeps the payload estimate (see :meth:`KalmanEstimatorBase._on_gap`).
 
-On the machine sensor set (a hydraulic machine; pressures and IMUs, no torques, no
-accelerations) the filter is :class:`~excavator_payload.estimators.classical._kalman_machine.
-MachineKalman`: angles, rates and accelerations are states of a white-jerk model, the piston
-forces are measurements through the symbolic hydraulic model (``--tuning consistent`` only, from
-the machine noise preset and the training data's jerk). :attr:`KalmanEstimatorBase.payload_std`
-is the payload's posterior standard deviation on both sets.
+The filters run on the thesis sensor set only. On the machine sensor set (pressures and IMUs)
+they weighed far outside 1 % of rated with a σ that did not cover their error, so they were
+taken out of that set's roster (issue 28, docs/findings/machine-filters.md); ``calibrated`` is
+the estimator there. :attr:`KalmanEstimatorBase.payload_std` is the payload's posterior
+standard deviation.
 """
 
 from __future__ import annotations
@@ -56,8 +55,6 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
 from excavator_payload.estimators.classical import _kalman as kf
-from excavator_payload.estimators.classical.pressure_regression import judge_frame
-from excavator_payload.platforms import HYDRAULIC
 
 COMMON_OPTIONS = {
     "tuning": Option(str, "consistent", "covariances: 'thesis' (§6.1 Q, R, P0, x0) or 'consistent' "
@@ -69,10 +66,10 @@ COMMON_OPTIONS = {
     "warmup_samples": Option(int, 5, "samples reported as warming_up after a (re)start"),
     "converged_std": Option(float, 50.0, "consistent: warming_up until the payload's posterior "
                             "standard deviation is below this, kg"),
-    "low_speed": Option(str, "skip", "machine sensor set: a cylinder near standstill, where "
-                        "stiction holds an unknown force, is skipped once the payload is known to "
-                        "--converged-std (before: down-weighted), or always down-weighted",
-                        ("skip", "downweight")),
+    # the machine sensor set's low-speed rule; no effect since the filters left that set
+    # (issue 28), kept so that the models saved with it load
+    "low_speed": Option(str, "skip", "no effect (it served the machine sensor set, which the Kalman "
+                        "filters no longer run on)", ("skip", "downweight")),
     "max_gap": Option(float, 1.0, "a time gap up to this long (s) keeps the payload estimate "
                       "(angles and rates restart from the new sample); a longer one restarts the filter"),
 }
@@ -91,9 +88,7 @@ class KalmanEstimatorBase(Estimator):
 
     OPTIONS = COMMON_OPTIONS
     NEEDS_MACHINE = True
-    #: On the machine sensor set (a hydraulic machine) the kernel is
-    #: :class:`~excavator_payload.estimators.classical._kalman_machine.MachineKalman`.
-    # SENSOR_SETS: from its traits (estimators/traits.py)
+    # SENSOR_SETS: from its traits (estimators/traits.py): the thesis set only
 
     def __init__(self, machine=None, **options):
         super().__init__(machine, **options)
@@ -108,22 +103,10 @@ class KalmanEstimatorBase(Estimator):
         self._P: np.ndarray | None = None
         self._n_filtered = 0
         self._posterior_std = math.nan
-        self._machine_filter = None  # the machine sensor set's kernel, once fitted on such data
-        self._recent: list[np.ndarray] = []
-        self._undo = None
-        self.glitches = 0
-        if not self._hydraulic:
-            self._bounds = kf.payload_bounds(self.machine)
-
+        self._bounds = kf.payload_bounds(self.machine)
 
     # -- fitting ---------------------------------------------------------------------------
     def _fit(self, dataset: Dataset) -> None:
-        if HYDRAULIC.carries(dataset):
-            self._fit_machine_set(dataset)
-            return
-        if self._hydraulic:
-            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
-                                 "with machine-sensor-set data")
         if self.options["tuning"] == "thesis":
             self.tuning = kf.thesis_tuning(self.machine)
         else:
@@ -133,98 +116,11 @@ class KalmanEstimatorBase(Estimator):
                                                self.options["payload_walk"])
         self._build_gate()
 
-    # -- machine sensor set ----------------------------------------------------------------
-    def _fit_machine_set(self, dataset: Dataset) -> None:
-        from excavator_payload.estimators.classical import _kalman_machine as km
-        from excavator_payload.estimators.classical.pressure_regression import difference_scale, spike_threshold
-
-        if not self._hydraulic:
-            raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
-                                 f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
-        if self.options["tuning"] != "consistent":
-            raise EstimatorError(f"{self.name}: the thesis tuning belongs to the thesis sensor set; "
-                                 "use --tuning consistent on machine-sensor-set data")
-        tuning = km.machine_tuning(dataset, self.options["noise"], self.options["payload_walk"])
-        self._machine_filter = self._make_machine_filter(tuning)
-        # the one-frame glitch test's thresholds from the training data's sample-to-sample
-        # changes, as the pressure kernels judge theirs
-        tuning.spike_threshold = spike_threshold(difference_scale(dataset))
-
-    def _make_machine_filter(self, tuning):
-        from excavator_payload.estimators.classical import _kalman_machine as km
-
-        return km.MachineKalman(self.machine, tuning, unscented=False, low_speed=self.options["low_speed"],
-                                skip_std=self.options["converged_std"])
-
-    def _machine_step(self, values: np.ndarray) -> StepResult:
-        """One sample of the machine-set kernel, with the same status rules as the thesis set.
-
-        The machine-set filters have no usable chi-square gate: their models do not describe
-        clean data to the sensors' noise (the IMUs' lag and leak, stiction, jerks beyond the
-        white-jerk density: on ten clean NMPC swings the normalised innovation's 99.9th
-        percentile was ≈ 1200 against a quantile of 24; a gate rejected 3 % of the samples and
-        restarted the filter 12 times, work cycles 150 → 2537 kg mean MAX). A glitched frame
-        is judged instead as the pressure kernels judge theirs, between its two neighbours
-        (:meth:`~.pressure_regression.PressureRegression._spike`, thresholds from the training
-        data), without delaying the estimate: when this sample shows the one before it was a
-        glitch, the filter goes back to its state before that sample and predicts over its
-        slot. A sample that jumps from the one before it is used, but its own estimate (and
-        sigma) is the last one held, so a glitch is never reported. Without this one boom-rate
-        frame of 30 rad/s left the UKF 3163 kg off at the end of a swing, sigma 2.3 kg.
-        """
-        mk = self._machine_filter
-        undone = self._judge_previous(values)
-        self._undo = (mk.x, mk.P, getattr(mk, "posterior", None), self._n_filtered) if mk.x is not None else None
-        # a sample that jumps from the one before it may be a glitch the next sample reveals:
-        # its own estimate is held (the last one) so a glitch is never reported, not even once
-        hold = (self.gating and self._undo is not None and bool(self._recent)
-                and math.isfinite(self._last_estimate)
-                and bool((np.abs(values - self._recent[-1]) > mk.tuning.spike_threshold).any()))
-        self._recent.append(values.copy())
-        del self._recent[:-3]
-        held_std = self._posterior_std
-        if not mk.step(values):
-            return StepResult(self._last_estimate, Status.INVALID)
-        self._n_filtered += 1
-        self._posterior_std = held_std if hold else mk.payload_std
-        estimate = self._last_estimate if hold else mk.estimate
-        if (self._n_filtered <= self.options["warmup_samples"]
-                or self._posterior_std > self.options["converged_std"]):
-            return StepResult(estimate, Status.WARMING_UP)
-        # the sample before this one was a one-frame glitch (as the pressure kernels report it)
-        return StepResult(estimate, Status.REJECTED if undone else Status.OK)
-
-
-    def _judge_previous(self, values: np.ndarray) -> bool:
-        """Undo the sample before ``values`` if it stood out between its neighbours (a sharp turn
-        or a glitch, :func:`~.pressure_regression.judge_frame`; :meth:`_machine_step`); whether it
-        was a glitch (reported). ``Estimator.gating = False`` turns the test off."""
-        mk = self._machine_filter
-        if not self.gating or len(self._recent) < 2 or self._undo is None:
-            return False
-        before2 = self._recent[-3] if len(self._recent) == 3 else None
-        before, mid = self._recent[-2:]
-        stands_out, glitch = judge_frame(before, mid, values, mk.tuning.spike_threshold, before2)
-        if not stands_out:
-            return False
-        mk.x, mk.P, posterior, self._n_filtered = self._undo
-        if posterior is not None:
-            mk.posterior = posterior
-        mk.predict()
-        self._recent[-1] = 0.5 * (before + values)  # the repaired slot, as the next neighbour
-        self.glitches += glitch
-        return glitch
-
     def _reset(self) -> None:
-        self._recent: list[np.ndarray] = []  # the last three samples the machine-set filter used
-        self._undo = None
-        self.glitches = 0  # one-frame glitches undone since the last reset (machine set)
         self._x = None
         self._P = None
         self._n_filtered = 0  # samples since the filter (re)started (a gap restarts it too)
         self._posterior_std = math.nan
-        if self._machine_filter is not None:
-            self._machine_filter.reset()
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Bridge a short gap (missing or rejected samples); restart after a long one.
@@ -235,13 +131,6 @@ class KalmanEstimatorBase(Estimator):
         the random walk over the gap, :math:`P_{mm} \\mathrel{+}= \\sigma_w^2 \\Delta t`.
         """
         dt = time - self._last_time if self._last_time is not None else math.inf
-        if self._machine_filter is not None:
-            if self._machine_filter.x is None or not 0.0 < dt <= self.options["max_gap"]:
-                self._reset()
-            else:
-                self._machine_filter.restart_kinematics(values, dt)
-                self._recent, self._undo = [], None  # no neighbours across a gap
-            return
         if self._x is None or not 0.0 < dt <= self.options["max_gap"]:
             self._reset()
             return
@@ -330,23 +219,12 @@ class KalmanEstimatorBase(Estimator):
         self._gate_y = np.array(kf.MEASURED + kf.TORQUES if tuning.torque_channel else kf.MEASURED)
 
     def _config(self) -> dict:
-        if self._machine_filter is not None:
-            return self._machine_filter.tuning.config()
         return self.tuning.config()
 
     def _arrays(self) -> dict[str, np.ndarray]:
-        if self._machine_filter is not None:
-            return self._machine_filter.tuning.arrays()
         return self.tuning.arrays()
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
-        if HYDRAULIC.carries(config.get("sensor_set")):
-            from excavator_payload.estimators.classical import _kalman_machine as km
-
-            if not self._hydraulic:
-                raise EstimatorError(f"saved {self.name} of the machine sensor set has no hydraulic machine")
-            self._machine_filter = self._make_machine_filter(km.MachineTuning.restore(config, arrays))
-            return
         self.tuning = kf.Tuning.restore(config, arrays)
         if self.tuning.name != self.options["tuning"]:
             raise EstimatorError(f"saved {self.name} is inconsistent: option --tuning "
@@ -379,8 +257,7 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
         super()._restore(config, arrays)
-        if self._machine_filter is None:
-            self._build_runtime()
+        self._build_runtime()
 
     def _build_runtime(self) -> None:
         tuning = self.tuning
@@ -399,8 +276,6 @@ class ExtendedKalmanFilter(KalmanEstimatorBase):
     _NEXT_DIAG = _POST_DIAG + 30
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
-        if self._machine_filter is not None:
-            return self._machine_step(values)
         if self._x is None:
             self._x, self._P = kf.initial_state(self.tuning, values)
         packed = self._step_function.evaluate(self._x, self._P, values[self._y_index],

@@ -235,7 +235,7 @@ def judge_frame(before: np.ndarray, sample: np.ndarray, after: np.ndarray, thres
     stands off, in that direction and by more than the threshold, the straight line through
     each side's two samples (where the second neighbours are given): the corner of a
     piecewise-linear signal lies on one of them, so a sharp turn of a pressure is not reported
-    (module doc). Shared by the pressure kernels and the machine-set Kalman filters.
+    (module doc). Used by the pressure kernels.
 
     Parameters
     ----------

@@ -25,7 +25,7 @@ The rooms of this package:
 * :mod:`.template`: :func:`render`, the interface and ``Estimator.step_values``' status logic;
 * :mod:`.registry`: the builders, registered against the estimator and sensor set they export;
 * one builder per kernel: :mod:`.inverse_dynamics`, :mod:`.ekf`, :mod:`.networks` (thesis
-  sensor set), :mod:`.pressure_regression`, :mod:`.machine_ekf` (machine sensor set).
+  sensor set), :mod:`.pressure_regression` (machine sensor set).
 """
 
 from __future__ import annotations
@@ -47,7 +47,6 @@ from excavator_payload.runtime.export_c.cmodel import BorrowedGate, CModel
 # the builders register themselves (registry.c_builder) when their modules are imported
 from excavator_payload.runtime.export_c import (  # noqa: F401
     inverse_dynamics,
-    machine_ekf,
     networks,
     pressure_regression,
 )
