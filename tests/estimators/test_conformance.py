@@ -303,18 +303,8 @@ def test_no_lock_out_after_a_burst(pair, bench):
     assert tail[-1] is clean_results[-1].status
 
 
-#: Restarted mid-motion the machine-set Kalman filters converge biased and overconfident: their
-#: acceleration states start at 0 ± 1 rad/s² while the arm moves, the first force updates put
-#: the inertia error into the payload, and the slow payload walk keeps it (+147 / +163 kg with
-#: sigma 6-7 kg at 1.6 / 2.5 s on this swing; from rest +11 kg). Known, not fixed.
-RESTART_BIASED = {("hydraulic", "ekf"), ("hydraulic", "ukf")}
-
-
-@pytest.mark.parametrize("pair", [
-    pytest.param(p, id=pair_id(p), marks=pytest.mark.xfail(
-        strict=True, reason="machine-set Kalman filters restarted mid-motion converge biased"))
-    if (p[0].name, p[1]) in RESTART_BIASED else pytest.param(p, id=pair_id(p))
-    for p in pairs(lambda stage: bool(stage.restart_starts))])
+@pytest.mark.parametrize("pair", [pytest.param(p, id=pair_id(p))
+                                  for p in pairs(lambda stage: bool(stage.restart_starts))])
 def test_restart_mid_motion(pair, bench):
     """Restarted while the arm moves (after a gap, a time jump, a reset by its host), the
     estimator weighs the rest of the swing within its normal accuracy."""
