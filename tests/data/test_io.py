@@ -262,3 +262,20 @@ def test_an_implausible_pressure_is_not_asked_about_degrees(machine_frame):
     with pytest.raises(DatasetError, match="boom_head_pressure") as info:
         validate_frame(frame, sensor_set="machine")
     assert "degrees" not in str(info.value) and "Pa" in str(info.value)
+
+
+def test_an_angle_beyond_any_degrees_is_a_glitch_not_a_unit(machine_frame):
+    """Six samples of a bucket angle at 1e300 were asked whether the file was in degrees; no angle
+    in degrees reaches that. A whole column in degrees is still asked about degrees; both say how
+    many samples are beyond."""
+    from excavator_payload.data.io import validate_frame
+
+    frame = machine_frame.copy()
+    frame.loc[frame.index[100:106], "bucket_angle"] = 1e300
+    with pytest.raises(DatasetError, match="bucket_angle") as info:
+        validate_frame(frame, sensor_set="machine")
+    assert "degrees" not in str(info.value) and "glitch" in str(info.value)
+    assert f"6 of {len(frame)} samples beyond" in str(info.value)
+    degrees = machine_frame.assign(bucket_angle=np.degrees(machine_frame["bucket_angle"]))
+    with pytest.raises(DatasetError, match="degrees instead of SI"):
+        validate_frame(degrees, sensor_set="machine")

@@ -193,13 +193,16 @@ def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rat
         if np.any(values > sensors.plausible_abs[c]):
             top = int(np.nanargmax(values))
             unit = sensors.units[c]
-            # a pressure of 5e8 Pa was asked whether it was in degrees
-            hint = ("are the units degrees instead of SI?" if unit.startswith("rad")
+            beyond = int(np.sum(values > sensors.plausible_abs[c]))
+            # a pressure of 5e8 Pa was asked whether it was in degrees, and so was an angle of
+            # 1e300 rad, which no angle in degrees reaches
+            in_degrees = unit.startswith("rad") and values[top] <= 1.05 * math.degrees(sensors.plausible_abs[c])
+            hint = ("are the units degrees instead of SI?" if in_degrees
                     else f"a glitch, or not in {unit}?")
             raise DatasetError(
                 f"{source}: column '{c}' reaches {values[top]:.4g} (experiment "
-                f"{frame['experiment'].iloc[top]:.0f}), implausible in {unit} ({hint}); "
-                f"the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
+                f"{frame['experiment'].iloc[top]:.0f}; {beyond} of {len(values)} samples beyond), "
+                f"implausible in {unit} ({hint}); the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
             )
     # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
     for c in ("house_pitch", "house_roll"):
