@@ -23,7 +23,8 @@ from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
 from excavator_payload.runtime.codec import SignalCodec
 from excavator_payload.runtime.loadout import read_record
-from excavator_payload.runtime.loadout_bus import BusLoadout, decode_loadout, run_live
+from excavator_payload.runtime.loadout_bus import BusLoadout, decode_loadout
+from excavator_payload.runtime.loadout_live import run_live
 from excavator_payload.runtime.logs import read_frames
 
 

@@ -100,7 +100,7 @@ def _live_statuses(shift, dbc_path, guarded):
     (``send``): the loadout, the statuses of the PayloadEstimate frames sent, the live view."""
     from rich.console import Console
 
-    from excavator_payload.runtime.loadout_bus import live_view
+    from excavator_payload.runtime.loadout_live import live_view
 
     folder, _, _, map_path = shift
     estimator = load_estimator(folder / "model")

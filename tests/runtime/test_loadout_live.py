@@ -15,7 +15,8 @@ from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
 from excavator_payload.runtime.codec import SignalCodec
 from excavator_payload.runtime.loadout import _truth_match
-from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, decode_loadout, run_live
+from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, decode_loadout
+from excavator_payload.runtime.loadout_live import run_live
 from excavator_payload.runtime.logs import read_frames
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -330,7 +331,7 @@ def test_commands_are_read_only_from_a_stream_that_can_give_them():
     import os
     import queue
 
-    from excavator_payload.runtime.loadout_bus import read_commands, readable_commands, terminal_keys
+    from excavator_payload.runtime.loadout_live import read_commands, readable_commands, terminal_keys
 
     read_end, write_end = os.pipe()
     pipe = os.fdopen(read_end)
@@ -353,7 +354,7 @@ def test_one_key_is_one_command():
     import os
     import queue
 
-    from excavator_payload.runtime.loadout_bus import read_commands
+    from excavator_payload.runtime.loadout_live import read_commands
 
     read_end, write_end = os.pipe()
     os.write(write_end, b"tQX \nT\xff")

@@ -228,8 +228,8 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
 
     from excavator_payload.runtime.dbc import CanConfigError
     from excavator_payload.runtime.loadout import ShiftRecord
-    from excavator_payload.runtime.loadout_bus import (
-        COMMAND_HELP, BusLoadout, live_view, read_commands, readable_commands, run_live, terminal_keys)
+    from excavator_payload.runtime.loadout_bus import BusLoadout
+    from excavator_payload.runtime.loadout_live import COMMAND_HELP, live_view, read_commands, readable_commands, run_live, terminal_keys
 
     kwargs = {"bitrate": bitrate} if bitrate else {}
     try:
