@@ -58,16 +58,11 @@ displacement and *stays where it was* when the cylinder stops: stiction holds th
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
 
 from excavator_payload.errors import MachineError
-
-if TYPE_CHECKING:  # annotations only: that module checks a machine file's geometry with this
-    # model, so this one does not import it back at run time
-    from excavator_payload.model.hydraulic_machine import HydraulicMachine
 
 LINKS = ("boom", "dipper", "bucket")
 CYLINDERS = ("boom_cylinder", "dipper_cylinder", "bucket_cylinder")
@@ -95,7 +90,7 @@ HYDRAULIC_PARAMETER_NAMES: tuple[str, ...] = (
 )
 
 
-def parameter_vector(machine: HydraulicMachine) -> np.ndarray:
+def parameter_vector(machine) -> np.ndarray:  # a HydraulicMachine (not imported: it imports this)
     """The machine's parameters in the order of :data:`HYDRAULIC_PARAMETER_NAMES`.
 
     Parameters
@@ -462,7 +457,7 @@ class HydraulicArmModel:
         :func:`compiled_function`) instead of CasADi's interpreted ones.
     """
 
-    def __init__(self, machine: HydraulicMachine, compiled: bool = True):
+    def __init__(self, machine, compiled: bool = True):  # a HydraulicMachine (not imported: it imports this)
         if not hasattr(machine, "cylinders"):  # a 2-link arm, or a name not loaded
             raise MachineError(f"machine '{getattr(machine, 'name', machine)}' is not a hydraulic machine")
         self.machine = machine
