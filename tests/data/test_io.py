@@ -275,7 +275,7 @@ def test_an_angle_beyond_any_degrees_is_a_glitch_not_a_unit(machine_frame):
     with pytest.raises(DatasetError, match="bucket_angle") as info:
         validate_frame(frame, sensor_set="machine")
     assert "degrees" not in str(info.value) and "glitch" in str(info.value)
-    assert f"6 of {len(frame)} samples beyond" in str(info.value)
+    assert f"6 of {len(frame)} samples beyond" in str(info.value) and "(experiment 0)" in str(info.value)
     degrees = machine_frame.assign(bucket_angle=np.degrees(machine_frame["bucket_angle"]))
     with pytest.raises(DatasetError, match="degrees instead of SI"):
         validate_frame(degrees, sensor_set="machine")

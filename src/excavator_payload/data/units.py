@@ -201,8 +201,8 @@ def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rat
                     else f"a glitch, or not in {unit}?")
             raise DatasetError(
                 f"{source}: column '{c}' reaches {values[top]:.4g} (experiment "
-                f"{frame['experiment'].iloc[top]:.0f}; {beyond} of {len(values)} samples beyond), "
-                f"implausible in {unit} ({hint}); the sensor set allows ±{sensors.plausible_abs[c]:g} {unit}"
+                f"{frame['experiment'].iloc[top]:.0f}), implausible in {unit} ({hint}); {beyond} of "
+                f"{len(values)} samples beyond the sensor set's ±{sensors.plausible_abs[c]:g} {unit}"
             )
     # A house tilt in degrees passes the 1 rad limit up to 1°: 0.8° read as 46° weighed ~200 kg off.
     for c in ("house_pitch", "house_roll"):
