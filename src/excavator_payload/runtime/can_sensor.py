@@ -401,6 +401,59 @@ class PayloadSensor:
         return self.encoder.frames(output) + self.dm1.update(output.time, output.fault)
 
 
+def send_counted(bus: can.BusABC, frame: can.Message, counters: dict, logger: logging.Logger) -> None:
+    """Send ``frame``; a failed send is counted in ``counters["bus_errors"]`` and logged, never
+    raised (a live run outlasts a full transmit queue), a sent one in ``counters["published"]``.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The bus.
+    frame : can.Message
+        The frame to send.
+    counters : dict
+        The run's counters (``published``, ``bus_errors``).
+    logger : logging.Logger
+        Where a failure is logged.
+    """
+    try:
+        bus.send(frame)
+        counters["published"] += 1
+    except can.CanError as exc:
+        counters["bus_errors"] += 1
+        logger.warning("CAN send failed: %s", exc)
+
+
+def receive_counted(bus: can.BusABC, timeout: float, counters: dict, stop: threading.Event,
+                    error_pause: float, logger: logging.Logger) -> can.Message | None:
+    """The next frame within ``timeout`` s, or None; a failed receive is counted in
+    ``counters["bus_errors"]``, logged, and followed by ``error_pause`` s (or until ``stop``)
+    so that a dead interface does not spin.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The bus.
+    timeout : float
+        s to wait for a frame.
+    counters : dict
+        The run's counters (``bus_errors``).
+    stop : threading.Event
+        Ends the pause early.
+    error_pause : float
+        s to wait after a failed receive.
+    logger : logging.Logger
+        Where a failure is logged.
+    """
+    try:
+        return bus.recv(timeout=timeout)
+    except can.CanError as exc:
+        counters["bus_errors"] += 1
+        logger.warning("CAN receive failed: %s", exc)
+        stop.wait(error_pause)
+        return None
+
+
 def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
             clock=_time.time, error_pause: float = 0.1) -> dict:
     """Read frames from ``bus`` and publish estimates until ``stop`` is set.
@@ -434,22 +487,11 @@ def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
     def publish(outputs):
         for output in outputs:
             for frame in sensor.frames(output):
-                try:
-                    bus.send(frame)
-                    counters["published"] += 1
-                except can.CanError as exc:
-                    counters["bus_errors"] += 1
-                    log.warning("CAN send failed: %s", exc)
+                send_counted(bus, frame, counters, log)
 
     while not stop.is_set():
         timeout = max(0.0, min(next_tick - clock(), sensor.period))
-        try:
-            message = bus.recv(timeout=timeout)
-        except can.CanError as exc:
-            counters["bus_errors"] += 1
-            log.warning("CAN receive failed: %s", exc)
-            stop.wait(error_pause)
-            message = None
+        message = receive_counted(bus, timeout, counters, stop, error_pause, log)
         if message is not None:
             if message.is_error_frame:
                 counters["bus_errors"] += 1

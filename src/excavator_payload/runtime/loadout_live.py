@@ -16,6 +16,7 @@ import time as _time
 
 import can
 
+from excavator_payload.runtime.can_sensor import receive_counted, send_counted
 from excavator_payload.runtime.loadout import Truck
 from excavator_payload.runtime.loadout_bus import BusLoadout
 
@@ -149,22 +150,12 @@ def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, 
 
     def publish(frames):
         for frame in frames:
-            try:
-                bus.send(frame)
-                counters["published"] += 1
-            except can.CanError as exc:
-                counters["bus_errors"] += 1
-                log.warning("CAN send failed: %s", exc)
+            send_counted(bus, frame, counters, log)
 
     try:
         while not stop.is_set():
-            try:
-                message = bus.recv(timeout=max(0.0, min(next_tick - clock(), period)))
-            except can.CanError as exc:
-                counters["bus_errors"] += 1
-                log.warning("CAN receive failed: %s", exc)
-                stop.wait(error_pause)
-                message = None
+            message = receive_counted(bus, max(0.0, min(next_tick - clock(), period)), counters, stop,
+                                      error_pause, log)
             if message is not None:
                 if message.is_error_frame:
                     counters["bus_errors"] += 1
