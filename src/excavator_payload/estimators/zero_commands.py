@@ -52,6 +52,7 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
     model, out = Path(model), Path(out)
     check_zero_output(model, data, out)
     estimator = load_estimator(model)
+    offset_table(estimator)  # a model zero can check, before the data are read
     dataset = read_dataset(data, machine=estimator.machine)
     if "payload" not in dataset.frame.columns:
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
@@ -64,7 +65,10 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
     else:
         # every signal feeds the offsets (the rates and angles say which cylinder moved)
         health.refuse_flagged(estimator, dataset, dataset.sensor_set.signals, "zero")
-    estimator.zero_warnings = calibrated_machine.zero(estimator, dataset) + notes
+    if getattr(estimator, "calibration", None) is not None:
+        estimator.zero_warnings = calibrated_machine.zero(estimator, dataset) + notes
+    else:  # a learned model (balance-net) re-estimates its own offsets
+        estimator.zero_warnings = estimator.zero(dataset) + notes
     if estimator.zero_refusals and not force:
         reasons = "; ".join(r[len("zero: "):] for r in estimator.zero_refusals)
         raise EstimatorError(f"zero refused, not saved: {reasons} "
@@ -107,7 +111,7 @@ def register(app: typer.Typer) -> None:
     @app.command("zero")
     def zero(
         model: Path = typer.Option(..., "--model", help="Calibrated model folder (train calibrated "
-                                   "on machine-sensor-set lifts)."),
+                                   "on machine-sensor-set lifts), or a balance-net model."),
         data: Path = typer.Option(..., "--data", help="Parquet of a short empty-bucket motion."),
         out: Path = typer.Option(..., "--out", help="New model folder for the zeroed model "
                                  "(not --model: the calibrated model is kept)."),
@@ -117,41 +121,47 @@ def register(app: typer.Typer) -> None:
                                    "cylinder's offsets (the reasons become warnings)."),
     ) -> None:
         """Check zero: re-estimate the sensor offsets from an empty-bucket motion, keep the rest."""
-        from excavator_payload.estimators.classical.calibrated_machine import OFFSET_SIGNALS
-
         check_zero_output(model, data, out)  # before anything is loaded
         before = load_offsets(model)
         estimator = zero_model(model, data, out, force=force)
-        after = estimator.calibration.offsets
+        after = offset_table(estimator)
         for warning in estimator.zero_warnings + [f"{r} (saved: --force)" for r in estimator.zero_refusals]:
             typer.echo(f"warning: {warning}", err=True)
         for line in estimator.zero_report:
             typer.echo(line)
-        for name, a, b in zip(OFFSET_SIGNALS, before, after):
+        for (name, a), (_, b) in zip(before, after):
             unit, scale = ("kPa", 1e-3) if name.endswith("pressure") else ("°", 57.29577951308232)
             typer.echo(f"{name:22s} {a * scale:+9.3f} → {b * scale:+9.3f} {unit}")
         typer.echo(f"zeroed model: {out}")
 
 
-def load_offsets(model: Path):
-    """A copy of the sensor offsets of the calibrated model saved in folder ``model``, in
-    ``calibrated_machine.OFFSET_SIGNALS`` order (Pa for pressures, rad for angles);
-    :class:`EstimatorError` when it is not a ``calibrated`` model of the machine sensor set.
+def offset_table(estimator) -> list[tuple[str, float]]:
+    """``(signal, offset)`` pairs of a model that ``zero`` can check (Pa for pressures, rad for
+    angles); :class:`EstimatorError` for any other model.
+
+    Parameters
+    ----------
+    estimator : Estimator
+        A ``calibrated`` model of the machine sensor set, or a ``balance-net`` model.
+    """
+    if getattr(estimator, "calibration", None) is not None:
+        from excavator_payload.estimators.classical.calibrated_machine import OFFSET_SIGNALS
+
+        return list(zip(OFFSET_SIGNALS, estimator.calibration.offsets.copy()))
+    if callable(getattr(estimator, "offset_table", None)):
+        return estimator.offset_table()
+    raise EstimatorError(f"zero needs a 'calibrated' model fitted on machine-sensor-set data or a "
+                         f"'balance-net' model, this is a '{estimator.name}' model")
+
+
+def load_offsets(model: Path) -> list[tuple[str, float]]:
+    """:func:`offset_table` of the model saved in folder ``model``.
 
     Parameters
     ----------
     model : Path
-        Folder of a saved ``calibrated`` model.
-
-    Returns
-    -------
-    numpy.ndarray
-        The offsets, Pa or rad.
+        Folder of a saved ``calibrated`` or ``balance-net`` model.
     """
     from excavator_payload.estimators.base import load_estimator
 
-    estimator = load_estimator(model)
-    if getattr(estimator, "calibration", None) is None:
-        raise EstimatorError(f"zero needs a 'calibrated' model fitted on machine-sensor-set data, "
-                             f"'{model}' holds a '{estimator.name}' model")
-    return estimator.calibration.offsets.copy()
+    return offset_table(load_estimator(model))

@@ -1,0 +1,1 @@
+"""Estimators learned from recorded data with known loads, with no machine file."""

@@ -1,0 +1,391 @@
+r"""``balance-net``: a payload sensor learned from logs with known loads, shaped by the balance.
+
+Nothing of a machine file is read (``--machine`` is refused): the learned balance of
+:mod:`.balance_model` (the basis forces of any planar arm on a slewing house, :mod:`.chain`, a
+payload point and per-cylinder pressure maps, every constant fitted to the logs) gives per
+window of samples the residual :math:`r_j` at an empty bucket and the payload's regressor
+:math:`\varphi_j` of each channel, and the payload is weighed over its whole history,
+
+.. math:: \hat m = \frac{\sum w_j \varphi_j r_j}{\sum w_j \varphi_j^2}, \qquad
+          \sigma = \kappa \Big/ \sqrt{\textstyle\sum w_j \varphi_j^2},
+
+:math:`w_j` the inverse of the channel's residual variance in training, :math:`\kappa` the RMS
+of the training experiments' final errors in units of their nominal σ (windows overlap, so the
+nominal σ is too small by that factor). Streaming computes each sample's four parts of the
+balance once (one compiled CasADi call, the same expression the C export compiles) and sums
+each window from a ring: batch and stream are one computation.
+
+* A channel's window whose residual at the current estimate lies beyond ``--gate`` σ is not
+  used (a regime training never saw: the model says nothing there); when every channel
+  disagrees for ``--new-load`` seconds the load has changed and the weighing starts again.
+* ``ok`` once σ is within ``--ready`` of the training's largest payload (before: the estimate,
+  ``warming_up``).
+* The machine set's frames are judged between their neighbours (a one-frame glitch is replaced
+  by its neighbours' mean, as in ``calibrated``); the thesis set's samples by the base class's
+  gate on the balance's residual.
+* Plausibility limits are the training data's envelope (widened), not a machine's.
+* ``zero`` re-estimates the sensors' offsets from an empty-bucket motion
+  (:meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import numpy as np
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
+from excavator_payload.estimators.checks import gate_threshold
+from excavator_payload.estimators.learned.balance_model import BalanceModel, Layout, Samples, experiment_samples
+
+#: Angles' plausibility: the training range widened by this share of its span plus ANGLE_MARGIN.
+ANGLE_WIDEN, ANGLE_MARGIN = 0.25, math.radians(5.0)
+#: Every other signal: the training range widened by this share of its span.
+SIGNAL_WIDEN = 1.0
+
+
+class _Columns:
+    """``x[..., i]`` of a list of CasADi symbols (the model indexes samples' columns so)."""
+
+    def __init__(self, items) -> None:
+        self.items = list(items)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def __getitem__(self, key):
+        return self.items[key[-1] if isinstance(key, tuple) else key]
+
+
+def sample_function(model: BalanceModel):
+    """The CasADi function ``(signals, offsets) -> [r_plain, r_momentum, φ_plain, φ_momentum]``
+    (one value per channel each) of one sample: the fitted constants are numbers in it."""
+    import casadi as ca
+
+    L = model.layout
+    x = ca.SX.sym("x", len(L.signals))
+    off = ca.SX.sym("offsets", model.offset_count())
+    cols = lambda idx: _Columns([x[i] for i in idx])  # noqa: E731
+    s = Samples(q=cols(L.q), qd=cols(L.v), qdd=cols(L.a) if not L.differentiate else None,
+                slew=x[L.slew] if L.slew is not None else None, tilt=cols(L.tilt) if L.tilt else None,
+                head=cols(L.head if L.pressure else L.torque), rod=cols(L.rod) if L.pressure else None)
+    saved = model.offsets
+    model.offsets = _Columns([off[i] for i in range(model.offset_count())])
+    try:
+        blocks = model.design(s, ops=ca)
+    finally:
+        model.offsets = saved
+    from excavator_payload.estimators.learned.balance_model import BLOCKS, MASS_SCALE
+
+    n = L.n
+    parts = [[ca.SX(0.0)] * n for _ in range(4)]
+    i = 0
+    c = model.coef
+    for name, sign in BLOCKS:
+        payload = name == "payload"
+        for plain, mom in blocks[name]:
+            k = 2 if payload else 0
+            scale = -sign * MASS_SCALE if payload else sign
+            if c[i] != 0.0:
+                for j in range(n):
+                    parts[k][j] = parts[k][j] + scale * c[i] * plain[j]
+                    if mom is not None:
+                        parts[k + 1][j] = parts[k + 1][j] + scale * c[i] * mom[j]
+            i += 1
+    out = ca.vertcat(*[ca.vertcat(*p) for p in parts])
+    return ca.Function("balance_net_sample", [x, off], [out], ["x", "offsets"], ["terms"])
+
+
+@register
+class BalanceNet(Estimator):
+    """The learned balance of the arm, weighed over the load's history (module doc)."""
+
+    name = "balance-net"
+    NEEDS_MACHINE = False
+    OPTIONS = {
+        "order": Option(int, 6, "Chebyshev polynomials per pressure map of a joint's angle"),
+        "still_rate": Option(float, 0.05, "rad/s below which a cylinder's channel says nothing "
+                             "(its seals' force at rest is unknown)"),
+        "half_window": Option(int, 25, "samples each side of a balance window's centre (machine set)"),
+        "ramp": Option(int, 10, "sample intervals over which a window's weight rises and falls"),
+        "every": Option(int, 5, "train on every K-th window (neighbours share most samples)"),
+        "gate": Option(float, 4.0, "a channel's window further than this many sigma from the "
+                       "estimate is not used"),
+        "new_load": Option(float, 1.0, "seconds of every channel disagreeing after which the load "
+                           "counts as new and the weighing restarts"),
+        "ready": Option(float, 0.0025, "ok once sigma is within this share of the training's "
+                        "largest payload"),
+    }
+
+    def __init__(self, machine=None, **options: Any) -> None:
+        if machine is not None:
+            raise EstimatorError("balance-net learns from recorded data with known loads alone: it "
+                                 "takes no --machine (drop the option)")
+        super().__init__(None, **options)
+        o = self.options
+        if not 1 <= int(o["order"]) <= 12:
+            raise EstimatorError(f"{self.name}: --order must be 1 … 12")
+        if not 1 <= int(o["half_window"]) <= 500 or not 1 <= int(o["ramp"]) <= int(o["half_window"]):
+            raise EstimatorError(f"{self.name}: --half-window must be 1 … 500 and --ramp 1 … --half-window")
+        if not 1 <= int(o["every"]) <= 1000:
+            raise EstimatorError(f"{self.name}: --every must be 1 … 1000")
+        for key in ("still_rate", "gate", "new_load", "ready"):
+            if not float(o[key]) > 0:
+                raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be > 0")
+        self.model: BalanceModel | None = None
+        self.kappa = 1.0
+        self.payload_scale = 1.0
+        self.spike_threshold: np.ndarray | None = None
+        self.training: dict = {}
+        self._fn = None
+        self._reset()
+
+    # -- fitting --------------------------------------------------------------------------
+    def _new_model(self, signals) -> BalanceModel:
+        o = self.options
+        return BalanceModel(tuple(signals), order=int(o["order"]), still_rate=float(o["still_rate"]),
+                            half_window=int(o["half_window"]), ramp=int(o["ramp"]),
+                            period=float(self.sensor_set.sample_period))
+
+    def experiments(self, dataset: Dataset, payload: bool = True) -> list[Samples]:
+        """The dataset's experiments as :class:`Samples` (with their payloads)."""
+        layout = self.model.layout if self.model is not None else Layout(self.sensor_set.signals)
+        values = dataset.signals(self.sensor_set.signals)
+        exp = dataset.frame["experiment"].to_numpy()
+        pay = dataset.frame["payload"].to_numpy(float) if payload and dataset.has_payload else None
+        cuts = np.flatnonzero(exp[1:] != exp[:-1]) + 1
+        out = []
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(exp)]):
+            out.append(experiment_samples(layout, values[a:b], None if pay is None else pay[a:b]))
+        return out
+
+    def _fit(self, dataset: Dataset) -> None:
+        import time as _time
+
+        if not dataset.has_payload:
+            raise EstimatorError(f"{self.name}: training needs the known payload of every experiment "
+                                 "(a 'payload' column)")
+        values = dataset.signals(self.sensor_set.signals)
+        payload = dataset.frame["payload"].to_numpy(float)
+        if not (np.all(np.isfinite(values)) and np.all(np.isfinite(payload))):
+            raise EstimatorError(f"{self.name}: training data contain NaN or infinite values; clean them first")
+        if np.ptp(dataset.payloads) <= 0:
+            raise EstimatorError(f"{self.name}: the payload's balance is learned from how it changes with "
+                                 "the load: give experiments with at least two different known payloads")
+        started = _time.perf_counter()
+        self.model = self._new_model(self.sensor_set.signals)
+        experiments = self.experiments(dataset)
+        summary = self.model.fit(experiments, every=int(self.options["every"]))
+        self.payload_scale = float(max(np.max(np.abs(payload)), 1.0))
+        self._fn = None
+        # σ's scale: the training experiments' final errors in units of their nominal σ
+        z = []
+        for e in experiments:
+            _, r, phi, w = self.model.terms(e)
+            info = float(np.sum(w * phi * phi))
+            if info > 0 and e.m is not None and np.ptp(e.m) == 0:
+                z.append((np.sum(w * phi * r) / info - e.m[0]) * math.sqrt(info))
+        self.kappa = float(max(np.sqrt(np.mean(np.square(z))), 1.0)) if z else 1.0
+        if self.model.layout.differentiate:
+            from excavator_payload.estimators.classical.pressure_regression import difference_scale, spike_threshold
+
+            self.spike_threshold = spike_threshold(difference_scale(dataset))
+        lo, hi = values.min(0), values.max(0)
+        span = hi - lo
+        widen = SIGNAL_WIDEN * span
+        angles = [i for i, s in enumerate(self.sensor_set.signals) if s.endswith("_angle") or s.startswith("house_")]
+        widen[angles] = ANGLE_WIDEN * span[angles] + ANGLE_MARGIN
+        widen = np.maximum(widen, 1e-6 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-9)
+        limit = np.array([float(self.sensor_set.plausible_abs[s]) for s in self.sensor_set.signals])
+        self._limits = (np.maximum(lo - widen, -limit), np.minimum(hi + widen, limit))
+        self.training = {**summary, "experiments": len(experiments), "kappa": self.kappa,
+                         "seconds": round(_time.perf_counter() - started, 2)}
+        self.fit_report = [f"{self.name}: learned from {len(experiments)} experiments in "
+                           f"{self.training['seconds']:.1f} s; payload point {np.round(self.model.point, 3).tolist()}; "
+                           f"sigma scale {self.kappa:.2f}"]
+
+    def fit(self, dataset: Dataset) -> "BalanceNet":
+        """Learn from ``dataset`` (experiments with known payloads; no machine file is read)."""
+        super().fit(dataset)
+        # no machine: the limits are the training data's envelope, and no rated payload
+        self.plausible_low, self.plausible_high = self._limits
+        self.rated_payload = None
+        self.reset()
+        return self
+
+    # -- zero -----------------------------------------------------------------------------
+    def zero(self, dataset: Dataset) -> list[str]:
+        """The zero check: re-estimate the sensors' offsets from a motion of known payload (an
+        empty bucket when the data carry none); returns warnings."""
+        if not self.fitted or self.model is None:
+            raise EstimatorError(f"{self.name}: zero needs a trained model")
+        sensors = self._check_sensor_set(dataset)
+        if sensors.name != self.sensor_set.name:
+            raise EstimatorError(f"{self.name} was trained on the {self.sensor_set.name} sensor set, "
+                                 f"not {sensors.name}")
+        experiments = self.experiments(dataset.until_dump(), payload=dataset.has_payload)
+        if sum(len(e) for e in experiments) < self.model.width:
+            raise EstimatorError(f"{self.name}: the zero motion is shorter than one balance window")
+        self.model.zero(experiments)
+        self._fn = None
+        self.reset()
+        self.zero_refusals, self.zero_report = [], []
+        used = sum(int(np.sum(self.model.terms(e)[3] > 0)) for e in experiments)
+        if used < 100:
+            return [f"{self.name}: the zero motion gave {used} usable windows (joints moving inside "
+                    "the trained range); its offsets rest mostly on their prior"]
+        return []
+
+    def offset_table(self) -> list[tuple[str, float]]:
+        """``(signal, offset)`` of every offset ``zero`` estimates (SI units)."""
+        return list(zip(self.offset_names(), np.asarray(self.model.offsets, float).tolist()))
+
+    def offset_names(self) -> list[str]:
+        """The signals whose offsets ``zero`` estimates, in the model's order."""
+        L, s = self.model.layout, self.sensor_set.signals
+        names = [s[i] for i in L.q] + ([s[L.tilt[0]]] if L.tilt else [])
+        return names + [s[i] for i in (L.head + L.rod if L.pressure else L.torque)]
+
+    # -- streaming ------------------------------------------------------------------------
+    def _terms_of(self, values: np.ndarray) -> np.ndarray:
+        if self._fn is None:
+            self._fn = sample_function(self.model)
+            self._offsets = np.asarray(self.model.offsets, float)
+        return np.asarray(self._fn(values, self._offsets), float).reshape(-1)
+
+    def _reset(self) -> None:
+        self.num = 0.0
+        self.info = 0.0
+        self._ring: list = []  # (terms, used) of the window's samples
+        self._frames: list = []  # machine set: the newest frames, not yet judged
+        self._disagree = 0
+
+    def _on_gap(self, time: float, values: np.ndarray) -> None:
+        self._reset()
+
+    def _state_finite(self) -> bool:
+        return math.isfinite(self.num) and math.isfinite(self.info)
+
+    def _estimate_sigma(self) -> float:
+        return self.kappa / math.sqrt(self.info) if self.info > 0 else math.nan
+
+    def _result(self) -> StepResult:
+        if self.info <= 0:
+            return StepResult(math.nan, Status.WARMING_UP)
+        estimate = self.num / self.info
+        ready = self.kappa / math.sqrt(self.info) <= float(self.options["ready"]) * self.payload_scale
+        return StepResult(estimate, Status.OK if ready else Status.WARMING_UP)
+
+    def _used(self, values: np.ndarray) -> np.ndarray:
+        m = self.model
+        q = values[m.layout.q]
+        inside = np.all((q >= m.lo) & (q <= m.hi))
+        moving = np.abs(values[m.layout.v]) >= (m.still_rate if m.layout.pressure else 0.0)
+        return moving & inside
+
+    def _innovation(self, time: float, values: np.ndarray):
+        """Thesis set (one sample per window): the sample's balance residual at the estimate."""
+        m = self.model
+        if m is None or m.layout.differentiate or self.info <= 0:
+            return None
+        t = self._terms_of(values)
+        n = m.layout.n
+        r, phi = t[:n], t[2 * n:3 * n]
+        w = self._used(values) / m.channel_var
+        est = self.num / self.info
+        var = 1.0 / np.maximum(w, 1e-300) + phi * phi * self.kappa**2 / self.info
+        return float(np.sum(np.where(w > 0, (r - est * phi) ** 2 / var, 0.0))) / self.kappa**2, n
+
+    def _step(self, time: float, values: np.ndarray) -> StepResult:
+        m = self.model
+        if m.layout.differentiate:
+            from excavator_payload.estimators.classical.pressure_regression import one_frame_glitch
+
+            # judge the frame before this one between its neighbours; a glitch takes their mean
+            self._frames.append(values)
+            if len(self._frames) < 3:
+                if len(self._frames) == 1:
+                    return self._result()
+                values = self._frames[0]
+            else:
+                before, mid, after = self._frames[-3:]
+                self._frames = self._frames[-2:]
+                if self.gating and one_frame_glitch(before, mid, after, self.spike_threshold):
+                    mid = 0.5 * (before + after)
+                    self._frames[0] = mid
+                values = mid
+        self._ring.append((self._terms_of(values), self._used(values)))
+        if len(self._ring) > m.width:
+            self._ring.pop(0)
+        if len(self._ring) < m.width:
+            return self._result()
+        n = m.layout.n
+        terms = np.array([t for t, _ in self._ring])
+        used = np.all([u for _, u in self._ring], axis=0)
+        r = (m._w @ terms[:, :n] + m._u @ terms[:, n:2 * n] / m.period) / m._span
+        phi = (m._w @ terms[:, 2 * n:3 * n] + m._u @ terms[:, 3 * n:] / m.period) / m._span
+        w = used / m.channel_var
+        if self.gating and self.info > 0 and self.kappa / math.sqrt(self.info) <= 0.05 * self.payload_scale:
+            est = self.num / self.info
+            spread = np.sqrt(1.0 / np.maximum(w, 1e-300) + phi * phi * self.kappa**2 / self.info)
+            agree = np.abs(r - est * phi) <= float(self.options["gate"]) * self.kappa * spread
+            if np.any(w > 0) and not np.any(agree & (w > 0)):
+                self._disagree += 1
+                if self._disagree * m.period >= float(self.options["new_load"]):
+                    self.num = self.info = 0.0  # the load changed: weigh again
+                    self._disagree = 0
+                return self._result()
+            self._disagree = 0
+            w = np.where(agree, w, 0.0)
+        self.num += float(np.sum(w * phi * r))
+        self.info += float(np.sum(w * phi * phi))
+        return self._result()
+
+    # -- persistence ------------------------------------------------------------------------
+    def _config(self) -> dict:
+        return {"kappa": self.kappa, "payload_scale": self.payload_scale, "training": self.training,
+                "period": self.model.period if self.model is not None else None}
+
+    def _arrays(self) -> dict[str, np.ndarray]:
+        m = self.model
+        out = {"coef": m.coef, "lo": m.lo, "hi": m.hi, "channel_var": m.channel_var,
+               "offsets": np.asarray(m.offsets, float), "point": m.point,
+               "plausible_low": self.plausible_low, "plausible_high": self.plausible_high}
+        if self.spike_threshold is not None:
+            out["spike_threshold"] = self.spike_threshold
+        return out
+
+    def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
+        try:
+            self.model = self._new_model(self.sensor_set.signals)
+            self.model.period = float(config["period"])
+            for key in ("coef", "lo", "hi", "channel_var", "offsets", "point"):
+                setattr(self.model, key, np.asarray(arrays[key], float))
+            self.kappa = float(config["kappa"])
+            self.payload_scale = float(config["payload_scale"])
+            self.training = dict(config.get("training") or {})
+            self._limits = (np.asarray(arrays["plausible_low"], float), np.asarray(arrays["plausible_high"], float))
+            self.spike_threshold = (np.asarray(arrays["spike_threshold"], float)
+                                    if "spike_threshold" in arrays else None)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise EstimatorError(f"{self.name}: saved model incomplete ({exc})") from None
+        n_cols = sum(self.model.block_sizes().values())
+        m = self.model
+        if (m.coef.shape != (n_cols,) or m.lo.shape != (m.layout.n,) or m.channel_var.shape != (m.layout.n,)
+                or m.offsets.shape != (m.offset_count(),) or not np.all(m.channel_var > 0)
+                or not np.all(np.isfinite(m.coef)) or not self.kappa > 0):
+            raise EstimatorError(f"{self.name}: saved arrays do not match the options (corrupt model folder)")
+        self.plausible_low, self.plausible_high = self._limits
+        self.rated_payload = None
+        self._fn = None
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_fn"] = None  # a CasADi function is rebuilt, not pickled
+        return state
+
+
+__all__ = ["BalanceNet", "sample_function"]
