@@ -110,8 +110,11 @@ class Stage:
 
     def options(self, name: str) -> dict:
         """The cheap options estimator ``name`` is made with here."""
+        from excavator_payload.estimators.base import estimator_class
+
+        known = estimator_class(name).OPTIONS
         net = self.tiny_net if ESTIMATOR_TRAITS[name].needs_training_set else {}
-        return {**net, **self.overrides.get(name, {})}
+        return {**{k: v for k, v in net.items() if k in known}, **self.overrides.get(name, {})}
 
     def machine_for(self, klass) -> str | None:
         return self.machines.get(klass.name, self.machine) if klass.NEEDS_MACHINE else None
@@ -133,7 +136,17 @@ def _thesis_data() -> dict:
 def _machine_data() -> dict:
     from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
-    return {"train": simulate_machine_dataset(4, seed=41, session=1),
+    import pandas as pd
+
+    from excavator_payload.data.dataset import Dataset
+
+    train = simulate_machine_dataset(4, seed=41, session=1)
+    cycles = simulate_machine_dataset(10, seed=45, session=1, motion="work-cycle").until_dump()
+    frame = cycles.frame.copy()
+    frame["experiment"] += int(train.frame["experiment"].max()) + 1
+    # a learned balance weighs only the poses it was taught: swings and work cycles
+    wide = Dataset(pd.concat([train.frame, frame], ignore_index=True), train.meta)
+    return {"train": train, "wide": wide,
             "lifts": simulate_machine_dataset(6, seed=42, session=1, motion="lifts"),
             "zero": simulate_machine_dataset(1, seed=43, session=2, payload=0.0),
             "test": simulate_machine_dataset(2, seed=44, session=2, motion="nmpc")}
@@ -154,7 +167,7 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
     Stage(THESIS, _thesis_data,
           tiny_net={"epochs": 3, "hidden": "4", "train_experiments": 8, "validation_experiments": 2,
                     "progress": False},
-          overrides={"calibrated": {"experiments": 6}},
+          overrides={"calibrated": {"experiments": 6}, "balance-net": {"order": 2}},
           # the quasi-static map calibrates on lifts and weighs only during a steady lift
           calibrates_on={"quasi-static": "lifts"}, judged_on_calibration=True,
           hostile_examples=25, positions=(5, THESIS_SAMPLES - RECOVERY_SAMPLES - 5),
@@ -166,9 +179,10 @@ STAGES: dict[str, Stage] = {s.name: s for s in (
           tiny_net={"epochs": 2, "hidden": "3", "train_experiments": 3, "validation_experiments": 1,
                     "progress": False, "decimation": 5},
           machine="cat345c-hydraulic",
+          overrides={"balance-net": {"order": 2, "half_window": 10, "ramp": 4, "every": 1}},
           # the calibrated form fits away a 3 % model error (momentum balance, every rule on)
           machines={"calibrated": "cat345c-hydraulic-3pct"},
-          calibrates_on={"quasi-static": "lifts"},
+          calibrates_on={"quasi-static": "lifts", "balance-net": "wide"},
           # events in the first 2 s of a 10 s NMPC swing: what follows is enough for any
           # estimator to restart, wait for the boom and weigh again
           positions=(20, 200),

@@ -41,7 +41,7 @@ def test_the_exports_declared_are_the_builders_registered():
 def test_derived_lists():
     assert estimator_names() == list(ESTIMATOR_TRAITS)
     assert machine_estimators() == [n for n in ESTIMATOR_TRAITS if "machine" in estimator_class(n).SENSOR_SETS]
-    assert set(NEEDS_TRAINING_SET) == {"net1", "net2", "ffnn", "dtdnn", "lrn"}
+    assert set(NEEDS_TRAINING_SET) == {"net1", "net2", "ffnn", "dtdnn", "lrn", "balance-net"}
     assert bound_window("net1") == 6 and bound_window("ffnn") == 1 and bound_window("ekf") is None
     assert bound_window("net1", {"delays": 9}) == 10
     assert (display_label("net1"), display_label("net2"), display_label("ekf")) == ("Net1", "Net2", "EKF_tuned")

@@ -158,6 +158,8 @@ class BalanceModel:
         Chebyshev polynomials per map of a joint's angle.
     still_rate : float
         rad/s: below it a cylinder's channel is not used (its seals' force is unknown).
+    margin : float
+        Share of a joint's trained span it may go beyond and still be weighed at.
     half_window, ramp : int
         Momentum form (accelerations not measured): samples each side of a window's centre,
         and the sample intervals over which its weight rises and falls.
@@ -169,6 +171,7 @@ class BalanceModel:
     half_window: int = 25
     ramp: int = 10
     period: float = 0.01
+    margin: float = 0.1
     lo: np.ndarray = field(default_factory=lambda: np.zeros(0))
     hi: np.ndarray = field(default_factory=lambda: np.zeros(0))
     coef: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -282,9 +285,16 @@ class BalanceModel:
     def sample_used(self, s: Samples) -> np.ndarray:
         """``(N, channels)``: the sample can serve the channel (its cylinder moves; every joint
         inside its trained range)."""
-        inside = np.all((s.q >= self.lo) & (s.q <= self.hi), axis=1)
+        low, high = self.limits()
+        inside = np.all((s.q >= low) & (s.q <= high), axis=1)
         moving = np.abs(s.qd) >= (self.still_rate if self.layout.pressure else 0.0)
         return moving & inside[:, None]
+
+    def limits(self) -> tuple[np.ndarray, np.ndarray]:
+        """The joint angles the model weighs at: the trained range widened by ``margin`` of its
+        span each side (its polynomials turn gently there; far out they run away)."""
+        span = self.hi - self.lo
+        return self.lo - self.margin * span, self.hi + self.margin * span
 
     def window(self, plain: np.ndarray, momentum: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """The balance of the windows starting at ``rows`` (default all), averaged over their

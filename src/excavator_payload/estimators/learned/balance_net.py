@@ -45,6 +45,8 @@ from excavator_payload.estimators.learned.balance_model import BalanceModel, Lay
 ANGLE_WIDEN, ANGLE_MARGIN = 0.25, math.radians(5.0)
 #: Every other signal: the training range widened by this share of its span.
 SIGNAL_WIDEN = 1.0
+#: s: a gap in the samples up to this long keeps the weighing's sums.
+MAX_BRIDGED_GAP = 1.0
 
 
 class _Columns:
@@ -111,6 +113,8 @@ class BalanceNet(Estimator):
                              "(its seals' force at rest is unknown)"),
         "half_window": Option(int, 25, "samples each side of a balance window's centre (machine set)"),
         "ramp": Option(int, 10, "sample intervals over which a window's weight rises and falls"),
+        "margin": Option(float, 0.1, "share of a joint's trained span it may go beyond and still "
+                         "be weighed at"),
         "every": Option(int, 5, "train on every K-th window (neighbours share most samples)"),
         "gate": Option(float, 4.0, "a channel's window further than this many sigma from the "
                        "estimate is not used"),
@@ -132,6 +136,8 @@ class BalanceNet(Estimator):
             raise EstimatorError(f"{self.name}: --half-window must be 1 … 500 and --ramp 1 … --half-window")
         if not 1 <= int(o["every"]) <= 1000:
             raise EstimatorError(f"{self.name}: --every must be 1 … 1000")
+        if not 0.0 <= float(o["margin"]) <= 1.0:
+            raise EstimatorError(f"{self.name}: --margin must be 0 … 1")
         for key in ("still_rate", "gate", "new_load", "ready"):
             if not float(o[key]) > 0:
                 raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be > 0")
@@ -147,7 +153,7 @@ class BalanceNet(Estimator):
     def _new_model(self, signals) -> BalanceModel:
         o = self.options
         return BalanceModel(tuple(signals), order=int(o["order"]), still_rate=float(o["still_rate"]),
-                            half_window=int(o["half_window"]), ramp=int(o["ramp"]),
+                            half_window=int(o["half_window"]), ramp=int(o["ramp"]), margin=float(o["margin"]),
                             period=float(self.sensor_set.sample_period))
 
     def experiments(self, dataset: Dataset, payload: bool = True) -> list[Samples]:
@@ -264,7 +270,17 @@ class BalanceNet(Estimator):
         self._disagree = 0
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
-        self._reset()
+        """A gap of up to :data:`MAX_BRIDGED_GAP` keeps the sums (the load is the same; each
+        window is its own equation) and starts the window again; a longer one, or time going
+        back, starts the weighing again."""
+        if self._last_time is None or not 0.0 < time - self._last_time <= MAX_BRIDGED_GAP:
+            self._reset()
+        else:
+            self._ring, self._frames = [], []
+
+    def _on_skip(self, time: float, values: np.ndarray) -> None:
+        """After samples the gate rejected: a window must not span the hole, the sums stay."""
+        self._ring, self._frames = [], []
 
     def _state_finite(self) -> bool:
         return math.isfinite(self.num) and math.isfinite(self.info)
@@ -282,7 +298,8 @@ class BalanceNet(Estimator):
     def _used(self, values: np.ndarray) -> np.ndarray:
         m = self.model
         q = values[m.layout.q]
-        inside = np.all((q >= m.lo) & (q <= m.hi))
+        low, high = m.limits()
+        inside = np.all((q >= low) & (q <= high))
         moving = np.abs(values[m.layout.v]) >= (m.still_rate if m.layout.pressure else 0.0)
         return moving & inside
 
@@ -294,10 +311,10 @@ class BalanceNet(Estimator):
         t = self._terms_of(values)
         n = m.layout.n
         r, phi = t[:n], t[2 * n:3 * n]
-        w = self._used(values) / m.channel_var
+        used = self._used(values)
         est = self.num / self.info
-        var = 1.0 / np.maximum(w, 1e-300) + phi * phi * self.kappa**2 / self.info
-        return float(np.sum(np.where(w > 0, (r - est * phi) ** 2 / var, 0.0))) / self.kappa**2, n
+        var = m.channel_var + phi * phi * self.kappa**2 / self.info
+        return float(np.sum(np.where(used, (r - est * phi) ** 2 / var, 0.0))), max(int(used.sum()), 1)
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         m = self.model
