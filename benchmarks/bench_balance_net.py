@@ -1,0 +1,94 @@
+"""balance-net on the machine set: learned from ≤ 100 logged experiments with known loads (no
+machine file), zeroed on an empty swing of the weighing session, judged on motion families.
+
+Training: swings, work cycles (up to the dump) and lifts of session 1 (``--n-train`` in all, in
+the ratio 2:2:1). Zero: one empty swing of session 2 (as ``calibrated``'s README flow). Judged on
+session-2 families of ``bench_any_motion`` (``nmpc``, ``work-cycle``, ``operator``, and the
+held-out operator model ``lever`` / ``lever-slope5`` that nothing in ``src/`` is tuned on) and on
+the simulator's 5° ``slopes``: share within 1 % / 0.25 % of rated (MAX over ``ok`` samples
+after 1 s), mean MAX, false alarms, σ coverage, and optionally the efficiency against the
+Cramér–Rao bound of the true machine's model.
+
+Usage::
+
+    PYTHONPATH=src python benchmarks/bench_balance_net.py --n-test 20 --out balance-net
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_any_motion import RATED, families, judge  # noqa: E402
+
+from excavator_payload.data.dataset import Dataset  # noqa: E402
+from excavator_payload.estimators.base import create_estimator  # noqa: E402
+from excavator_payload.evaluation import demo_machine as dm  # noqa: E402
+from excavator_payload.simulation.generate import simulate_dataset  # noqa: E402
+
+MACHINE = "cat345c-hydraulic"
+
+
+def joined(parts: list[Dataset]) -> Dataset:
+    """The experiments of ``parts`` numbered one after another."""
+    frames, k = [], 0
+    for d in parts:
+        f = d.frame.copy()
+        f["experiment"] = f["experiment"] - f["experiment"].min() + k
+        k = int(f["experiment"].max()) + 1
+        frames.append(f)
+    return Dataset(pd.concat(frames, ignore_index=True), parts[0].meta)
+
+
+def training_data(n: int, seed: int) -> Dataset:
+    common = dict(machine=MACHINE, session=dm.SESSION_CALIBRATION, with_truth=True, workers=1, progress=False)
+    k = max(n // 5, 1)
+    return joined([simulate_dataset(2 * k, seed=seed, motion="swing", **common),
+                   simulate_dataset(2 * k, seed=seed + 1, motion="work-cycle", **common).until_dump(),
+                   simulate_dataset(n - 4 * k, seed=seed + 2, motion="lifts", **common)])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n-train", type=int, default=100)
+    ap.add_argument("--n-test", type=int, default=20)
+    ap.add_argument("--seed", type=int, default=9100)
+    ap.add_argument("--train-seed", type=int, default=500)
+    ap.add_argument("--out", type=Path, default=Path("balance-net"))
+    ap.add_argument("--option", action="append", default=[], help="KEY=VALUE estimator option")
+    a = ap.parse_args()
+    a.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    train = training_data(a.n_train, a.train_seed)
+    tests = families(a.n_test, a.seed)
+    tests["slopes"] = simulate_dataset(a.n_test, seed=a.seed + 5, motion="slopes", machine=MACHINE,
+                                       session=dm.SESSION_WORK, with_truth=True, workers=1, progress=False)
+    zero = dm.zero_data(a.seed + 50)
+    print(f"data simulated ({time.time() - t0:.0f} s)", flush=True)
+    options = dict(kv.split("=", 1) for kv in a.option)
+    est = create_estimator("balance-net", None, **options)
+    t1 = time.time()
+    est.fit(train)
+    print(f"trained on {train.n_experiments} experiments in {time.time() - t1:.1f} s", flush=True)
+    rows = []
+    for zeroed in (False, True):
+        if zeroed:
+            est.zero(zero)
+        for fam, ds in tests.items():
+            row = {"zero": zeroed, "family": fam, **judge(est, ds)}
+            rows.append(row)
+            print(f"zero {str(zeroed):5s} {fam:13s} ≤1 % {row['within_1pct']:4.0%}  "
+                  f"≤0.25 % {row['within_0.25pct']:4.0%}  MAX {row['mean_max_kg']:7.1f} kg  "
+                  f"alarms {row['false_alarms']:.2%}  σ covers {row['sigma_covers']:.0%}  "
+                  f"({time.time() - t0:.0f} s)", flush=True)
+    pd.DataFrame(rows).to_csv(a.out / "balance_net.csv", index=False)
+    print(f"rated {RATED:.0f} kg; total {time.time() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,145 @@
+"""balance-net: the learned balance's structure against the project's own physics, the fit, the
+zero and the command line (the protocol's checks are in the conformance suite)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.base import create_estimator, load_estimator
+from excavator_payload.estimators.learned.balance_model import BalanceModel, experiment_samples
+from excavator_payload.estimators.learned.chain import chain_forces, payload_features, up_from_inclination
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.model.machine import load_machine
+
+
+def _payload_force(K, S, G, point, foot):
+    """Σ over the payload's columns of its coefficients (the model's payload_shape) × columns."""
+    model = BalanceModel(tuple(MACHINE_SENSORS.signals))
+    h = model.payload_shape(np.r_[point, foot])
+    cols = payload_features(K, S, G)
+    assert len(cols) == len(h)
+    n = len(G[0])
+    out = [0.0] * n
+    for coef, (plain, _) in zip(h, cols):
+        out = [o + coef * p for o, p in zip(out, plain)]
+    return np.array(out)
+
+
+def _point_of(machine):
+    """The payload point on the basis (l₁ e(φ₁) + l₂ e(φ₂) + u e(φ₃) + w e⊥(φ₃)) and the foot."""
+    u, w = machine.payload.position
+    return np.array([machine.boom.length, 0.0, machine.dipper.length, 0.0, u, w]), machine.house.boom_foot[0]
+
+
+def test_the_payload_point_of_the_basis_is_the_machine_models_payload():
+    """With the machine file's lengths, the payload's generalised force built from the basis
+    forces (no machine file inside) equals the symbolic model's ∂τ/∂m on the arm's joints, with
+    slewing, tilt and every kind of motion: the learned structure can hold the truth exactly."""
+    machine = load_machine("cat345c-hydraulic")
+    arm = HydraulicArmModel(machine)
+    rng = np.random.default_rng(3)
+    n = 50
+    q = np.c_[rng.uniform(-0.5, 0.9, n), rng.uniform(-2.2, -0.6, n), rng.uniform(-1.8, 0.2, n), rng.uniform(-3, 3, n)]
+    qd, qdd = rng.normal(0, 0.6, (n, 4)), rng.normal(0, 1.5, (n, 4))
+    tilt = rng.normal(0, 0.08, (n, 2))
+    truth = arm.payload_regressor(q, qd, qdd, tilt)[:, :3]
+    pitch, roll = arm.house_inclination(q, tilt).T
+    up = up_from_inclination(np, pitch, roll)
+    K, S, G = chain_forces(np, [q[:, i] for i in range(3)], [qd[:, i] for i in range(3)],
+                           [qdd[:, i] for i in range(3)], qd[:, 3], up)
+    point, foot = _point_of(machine)
+    got = _payload_force(K, S, G, point, foot).T
+    np.testing.assert_allclose(got, truth, rtol=1e-9, atol=1e-9 * np.abs(truth).max())
+
+
+def test_the_momentum_form_is_the_acceleration_form():
+    """K_ab = d/dt P_ab − R_ab: along a smooth motion the momentum form's parts, differentiated,
+    give the acceleration form's basis forces (central differences, h = 1e-5 s)."""
+    def motion(t):
+        q = [0.3 * np.sin(1.3 * t), -1.2 + 0.4 * np.cos(0.7 * t), -0.8 + 0.5 * np.sin(2.1 * t)]
+        qd = [0.39 * np.cos(1.3 * t), -0.28 * np.sin(0.7 * t), 1.05 * np.cos(2.1 * t)]
+        qdd = [-0.507 * np.sin(1.3 * t), -0.196 * np.cos(0.7 * t), -2.205 * np.sin(2.1 * t)]
+        return q, qd, qdd
+
+    t, h = np.linspace(0.0, 5.0, 7), 1e-5
+    q, qd, qdd = motion(t)
+    Kacc, _, _ = chain_forces(np, q, qd, qdd)
+    Kmom, _, _ = chain_forces(np, q, qd, None)
+    Kplus, _, _ = chain_forces(np, *motion(t + h)[:2], None)
+    Kminus, _, _ = chain_forces(np, *motion(t - h)[:2], None)
+    for key, (acc, _) in Kacc.items():
+        plain = np.array(Kmom[key][0])
+        dP = (np.array(Kplus[key][1]) - np.array(Kminus[key][1])) / (2 * h)
+        np.testing.assert_allclose(dP + plain, np.array(acc), atol=1e-7)
+
+
+@pytest.fixture(scope="module")
+def machine_data():
+    from tests.estimators._conformance import _machine_data
+
+    return _machine_data()
+
+
+@pytest.fixture(scope="module")
+def fitted(machine_data):
+    est = create_estimator("balance-net", None, order=2, half_window=10, ramp=4, every=1)
+    return est.fit(machine_data["wide"])
+
+
+def test_learns_in_seconds_without_a_machine(fitted, machine_data):
+    """No machine file anywhere: none is taken, none is saved, and what it learned weighs the
+    training motions (the payload point's lengths come out near the arm's)."""
+    assert fitted.machine is None and fitted.rated_payload is None
+    assert fitted.training["seconds"] < 60
+    point = fitted.model.point
+    assert 4.0 < abs(point[0]) < 9.0 and 2.0 < abs(point[2]) < 4.5  # boom and dipper, m
+    with pytest.raises(EstimatorError, match="takes no --machine"):
+        create_estimator("balance-net", "cat345c-hydraulic")
+
+
+def test_zero_recovers_the_weighing_sessions_offsets(fitted, machine_data, tmp_path):
+    """The zero on an empty motion of another session moves the offsets, and the model saved
+    afterwards weighs the same as the zeroed one."""
+    est = load_estimator(fitted.save(tmp_path / "m"))
+    before = np.array([v for _, v in est.offset_table()])
+    est.zero(machine_data["zero"])
+    after = np.array([v for _, v in est.offset_table()])
+    assert np.any(after != before)
+    again = load_estimator(est.save(tmp_path / "z"))
+    a = est.estimate(machine_data["test"])
+    b = again.estimate(machine_data["test"])
+    np.testing.assert_array_equal(a["payload_estimate"].to_numpy(), b["payload_estimate"].to_numpy())
+
+
+def test_training_needs_loads_that_differ(machine_data):
+    data = machine_data["train"]
+    one = data.subset([data.experiment_ids[0]])
+    with pytest.raises(EstimatorError, match="two different known payloads"):
+        create_estimator("balance-net", None).fit(one)
+
+
+def test_samples_of_an_experiment_keep_the_signals(machine_data):
+    ds = machine_data["test"]
+    model = BalanceModel(tuple(MACHINE_SENSORS.signals))
+    s = experiment_samples(model.layout, ds.signals(MACHINE_SENSORS.signals), ds.frame["payload"].to_numpy())
+    assert s.qdd is None and s.head.shape[1] == 3 and s.rod.shape[1] == 3 and s.tilt.shape[1] == 2
+
+
+def test_command_line_train_and_zero(machine_data, tmp_path, capsys):
+    """``train balance-net`` without ``--machine``, then ``zero``, as a user runs them."""
+    from excavator_payload.cli import main
+    from excavator_payload.data.io import write_dataset
+
+    write_dataset(machine_data["wide"], tmp_path / "train.parquet")
+    write_dataset(machine_data["zero"], tmp_path / "zero.parquet")
+    train = ["train", "balance-net", "--data", str(tmp_path / "train.parquet"), "--order", "2", "--every", "1"]
+    assert main(train + ["--out", str(tmp_path / "m")]) == 0
+    assert "learned from" in capsys.readouterr().out
+    assert main(train + ["--out", str(tmp_path / "m2"), "--machine", "cat345c-hydraulic"]) == 2
+    assert "no --machine" in capsys.readouterr().err
+    assert main(["zero", "--model", str(tmp_path / "m"), "--data", str(tmp_path / "zero.parquet"),
+                 "--out", str(tmp_path / "z")]) == 0
+    assert "boom_head_pressure" in capsys.readouterr().out and (tmp_path / "z").is_dir()
