@@ -66,8 +66,9 @@ def main() -> None:
     t0 = time.time()
     train = training_data(a.n_train, a.train_seed)
     tests = families(a.n_test, a.seed)
-    tests["slopes"] = simulate_dataset(a.n_test, seed=a.seed + 5, motion="slopes", machine=MACHINE,
-                                       session=dm.SESSION_WORK, with_truth=True, workers=1, progress=False)
+    tests["slopes"] = dm.before_release(simulate_dataset(  # work cycles on 5° slopes, up to the dump
+        a.n_test, seed=a.seed + 5, motion="slopes", machine=MACHINE, session=dm.SESSION_WORK,
+        with_truth=True, workers=1, progress=False))
     zero = dm.zero_data(a.seed + 50)
     print(f"data simulated ({time.time() - t0:.0f} s)", flush=True)
     options = dict(kv.split("=", 1) for kv in a.option)

@@ -178,6 +178,7 @@ class BalanceModel:
     channel_var: np.ndarray = field(default_factory=lambda: np.ones(0))
     offsets: np.ndarray = field(default_factory=lambda: np.zeros(0))
     point: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    zero_std: float = 0.0
 
     def __post_init__(self) -> None:
         self.layout = Layout(self.signals)
@@ -568,4 +569,15 @@ class BalanceModel:
             g += (J[:, j] * w[:, j:j + 1]).T @ r0[:, j]
         delta = np.linalg.solve(A, -g)
         self.offsets = base + delta
+        # how the offsets' remaining uncertainty (the posterior's covariance A⁻¹) weighs on a
+        # weighing of motions like this one: σ² = sᵀA⁻¹s, s = ∂m̂/∂offsets
+        _, phi, _ = self._zero_phi(experiments)
+        info = float(np.sum(w * phi * phi))
+        sens = np.einsum("nj,nj,njk->k", w, phi, J) / info if info > 0 else np.zeros(n_off)
+        self.zero_std = float(np.sqrt(max(sens @ np.linalg.solve(A, sens), 0.0)))
         return delta
+
+    def _zero_phi(self, experiments: list[Samples]):
+        out = [self.terms(e) for e in experiments]
+        return (np.concatenate([o[1] for o in out]), np.concatenate([o[2] for o in out]),
+                np.concatenate([o[3] for o in out]))

@@ -45,6 +45,8 @@ from excavator_payload.estimators.learned.balance_model import BalanceModel, Lay
 ANGLE_WIDEN, ANGLE_MARGIN = 0.25, math.radians(5.0)
 #: Every other signal: the training range widened by this share of its span.
 SIGNAL_WIDEN = 1.0
+#: Every this-many-th training experiment is held out once to measure σ's model floor.
+HELD_OUT_EVERY = 5
 #: s: a gap in the samples up to this long keeps the weighing's sums.
 MAX_BRIDGED_GAP = 1.0
 
@@ -120,8 +122,8 @@ class BalanceNet(Estimator):
                        "estimate is not used"),
         "new_load": Option(float, 1.0, "seconds of every channel disagreeing after which the load "
                            "counts as new and the weighing restarts"),
-        "ready": Option(float, 0.0025, "ok once sigma is within this share of the training's "
-                        "largest payload"),
+        "ready": Option(float, 0.0007, "ok once the weighing's noise sigma is within this share of "
+                        "the training's largest payload"),
     }
 
     def __init__(self, machine=None, **options: Any) -> None:
@@ -143,6 +145,7 @@ class BalanceNet(Estimator):
                 raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be > 0")
         self.model: BalanceModel | None = None
         self.kappa = 1.0
+        self.model_std = 0.0
         self.payload_scale = 1.0
         self.spike_threshold: np.ndarray | None = None
         self.training: dict = {}
@@ -168,6 +171,24 @@ class BalanceNet(Estimator):
             out.append(experiment_samples(layout, values[a:b], None if pay is None else pay[a:b]))
         return out
 
+    def _final_errors(self, experiments: list[Samples]) -> list[tuple[float, float]]:
+        """(error, nominal σ with κ = :attr:`kappa`) of each experiment's whole-history weighing
+        (one payload each), kg."""
+        out = []
+        for e in experiments:
+            _, r, phi, w = self.model.terms(e)
+            info = float(np.sum(w * phi * phi))
+            if info > 0 and e.m is not None and np.ptp(e.m) == 0:
+                out.append((float(np.sum(w * phi * r) / info - e.m[0]), self.kappa / math.sqrt(info)))
+        return out
+
+    def _kappa(self, experiments: list[Samples]) -> float:
+        """σ's scale: the experiments' final errors in units of their nominal σ (the windows
+        overlap: their noise is not independent), at least 1."""
+        self.kappa = 1.0
+        z = [err / sigma for err, sigma in self._final_errors(experiments)]
+        return float(max(np.sqrt(np.mean(np.square(z))), 1.0)) if z else 1.0
+
     def _fit(self, dataset: Dataset) -> None:
         import time as _time
 
@@ -182,19 +203,26 @@ class BalanceNet(Estimator):
             raise EstimatorError(f"{self.name}: the payload's balance is learned from how it changes with "
                                  "the load: give experiments with at least two different known payloads")
         started = _time.perf_counter()
-        self.model = self._new_model(self.sensor_set.signals)
         experiments = self.experiments(dataset)
-        summary = self.model.fit(experiments, every=int(self.options["every"]))
+        every = int(self.options["every"])
+        # σ's model floor from experiments the fit did not see: every fifth held out, the rest
+        # fitted, then everything fitted again
+        self.model_std = 0.0
+        if len(experiments) >= HELD_OUT_EVERY * 2:
+            held = experiments[HELD_OUT_EVERY - 1::HELD_OUT_EVERY]
+            rest = [e for i, e in enumerate(experiments) if (i + 1) % HELD_OUT_EVERY]
+            self.model = self._new_model(self.sensor_set.signals)
+            self.model.fit(rest, every=every)
+            self.kappa = self._kappa(rest)
+            errors = [err for err, _ in self._final_errors(held)]
+            nominal = [sigma for _, sigma in self._final_errors(held)]
+            if errors:
+                self.model_std = float(np.sqrt(max(np.mean(np.square(errors)) - np.mean(np.square(nominal)), 0.0)))
+        self.model = self._new_model(self.sensor_set.signals)
+        summary = self.model.fit(experiments, every=every)
         self.payload_scale = float(max(np.max(np.abs(payload)), 1.0))
         self._fn = None
-        # σ's scale: the training experiments' final errors in units of their nominal σ
-        z = []
-        for e in experiments:
-            _, r, phi, w = self.model.terms(e)
-            info = float(np.sum(w * phi * phi))
-            if info > 0 and e.m is not None and np.ptp(e.m) == 0:
-                z.append((np.sum(w * phi * r) / info - e.m[0]) * math.sqrt(info))
-        self.kappa = float(max(np.sqrt(np.mean(np.square(z))), 1.0)) if z else 1.0
+        self.kappa = self._kappa(experiments)
         if self.model.layout.differentiate:
             from excavator_payload.estimators.classical.pressure_regression import difference_scale, spike_threshold
 
@@ -202,16 +230,23 @@ class BalanceNet(Estimator):
         lo, hi = values.min(0), values.max(0)
         span = hi - lo
         widen = SIGNAL_WIDEN * span
-        angles = [i for i, s in enumerate(self.sensor_set.signals) if s.endswith("_angle") or s.startswith("house_")]
+        angles = [i for i, s in enumerate(self.sensor_set.signals) if s.endswith("_angle")]
         widen[angles] = ANGLE_WIDEN * span[angles] + ANGLE_MARGIN
         widen = np.maximum(widen, 1e-6 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-9)
         limit = np.array([float(self.sensor_set.plausible_abs[s]) for s in self.sensor_set.signals])
+        # gravity's direction enters the balance exactly (the house frame's "up"): a slope never
+        # seen in training is no extrapolation, so the house's inclination keeps the sensor
+        # set's own limits
+        tilt = [i for i, s in enumerate(self.sensor_set.signals) if s.startswith("house_")]
+        widen[tilt] = np.inf
         self._limits = (np.maximum(lo - widen, -limit), np.minimum(hi + widen, limit))
         self.training = {**summary, "experiments": len(experiments), "kappa": self.kappa,
+                         "model_std": self.model_std,
                          "seconds": round(_time.perf_counter() - started, 2)}
         self.fit_report = [f"{self.name}: learned from {len(experiments)} experiments in "
                            f"{self.training['seconds']:.1f} s; payload point {np.round(self.model.point, 3).tolist()}; "
-                           f"sigma scale {self.kappa:.2f}"]
+                           f"sigma scale {self.kappa:.2f}, model floor {self.model_std:.1f} kg "
+                           "(experiments held out)"]
 
     def fit(self, dataset: Dataset) -> "BalanceNet":
         """Learn from ``dataset`` (experiments with known payloads; no machine file is read)."""
@@ -286,7 +321,11 @@ class BalanceNet(Estimator):
         return math.isfinite(self.num) and math.isfinite(self.info)
 
     def _estimate_sigma(self) -> float:
-        return self.kappa / math.sqrt(self.info) if self.info > 0 else math.nan
+        """κ/√I, the model's floor (measured on held-out training experiments) and the zero's
+        (its offsets' uncertainty, :meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`)."""
+        if self.info <= 0:
+            return math.nan
+        return math.sqrt(self.kappa**2 / self.info + self.model_std**2 + self.model.zero_std**2)
 
     def _result(self) -> StepResult:
         if self.info <= 0:
@@ -363,7 +402,7 @@ class BalanceNet(Estimator):
 
     # -- persistence ------------------------------------------------------------------------
     def _config(self) -> dict:
-        return {"kappa": self.kappa, "payload_scale": self.payload_scale, "training": self.training,
+        return {"kappa": self.kappa, "model_std": self.model_std, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
                 "period": self.model.period if self.model is not None else None}
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -382,6 +421,8 @@ class BalanceNet(Estimator):
             for key in ("coef", "lo", "hi", "channel_var", "offsets", "point"):
                 setattr(self.model, key, np.asarray(arrays[key], float))
             self.kappa = float(config["kappa"])
+            self.model_std = float(config.get("model_std", 0.0))
+            self.model.zero_std = float(config.get("zero_std", 0.0))
             self.payload_scale = float(config["payload_scale"])
             self.training = dict(config.get("training") or {})
             self._limits = (np.asarray(arrays["plausible_low"], float), np.asarray(arrays["plausible_high"], float))
