@@ -288,7 +288,7 @@ class BalanceModel:
         inside its trained range)."""
         low, high = self.limits()
         inside = np.all((s.q >= low) & (s.q <= high), axis=1)
-        moving = np.abs(s.qd) >= (self.still_rate if self.layout.pressure else 0.0)
+        moving = np.abs(s.qd) >= (self.still_rate if self.layout.pressure else 0.0)  # seals: cylinders only
         return moving & inside[:, None]
 
     def limits(self) -> tuple[np.ndarray, np.ndarray]:
@@ -482,6 +482,7 @@ class BalanceModel:
         self.hi = self.lo + np.maximum(self.hi - self.lo, 1e-3)
         self.offsets = np.zeros(self.offset_count())
         k = self._split()
+        every = max(1, min(every, self.width))  # windows of one sample share nothing
         grams, counts = None, np.zeros(L.n)
         for i, e in enumerate(experiments):
             _, X, used, m = self.windowed(e, every)
@@ -496,7 +497,7 @@ class BalanceModel:
                 counts[j] += len(Xj)
             if progress is not None:
                 progress(i + 1, len(experiments))
-        if grams is None or np.any(counts < 10 * grams.shape[1] / L.n):
+        if grams is None or np.any(counts < 2 * grams.shape[1] / L.n):
             raise EstimatorError("balance-net: too few moving samples with a known payload to learn from "
                                  f"({int(counts.min())} windows of the least moving joint)")
         n_cols = grams.shape[1]

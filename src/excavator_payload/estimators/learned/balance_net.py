@@ -18,8 +18,9 @@ each window from a ring: batch and stream are one computation.
 * A channel's window whose residual at the current estimate lies beyond ``--gate`` σ is not
   used (a regime training never saw: the model says nothing there); when every channel
   disagrees for ``--new-load`` seconds the load has changed and the weighing starts again.
-* ``ok`` once σ is within ``--ready`` of the training's largest payload (before: the estimate,
-  ``warming_up``).
+* ``ok`` once the weighing holds ``--ready`` of the information a median training motion gives
+  (before: no estimate, ``warming_up``): the first windows, all of one phase of a motion,
+  carry that phase's model error.
 * The machine set's frames are judged between their neighbours (a one-frame glitch is replaced
   by its neighbours' mean, as in ``calibrated``); the thesis set's samples by the base class's
   gate on the balance's residual.
@@ -122,8 +123,8 @@ class BalanceNet(Estimator):
                        "estimate is not used"),
         "new_load": Option(float, 1.0, "seconds of every channel disagreeing after which the load "
                            "counts as new and the weighing restarts"),
-        "ready": Option(float, 0.0007, "ok once the weighing's noise sigma is within this share of "
-                        "the training's largest payload"),
+        "ready": Option(float, 0.3, "ok once the weighing holds this share of the information a "
+                        "median training motion gives"),
     }
 
     def __init__(self, machine=None, **options: Any) -> None:
@@ -146,6 +147,7 @@ class BalanceNet(Estimator):
         self.model: BalanceModel | None = None
         self.kappa = 1.0
         self.model_std = 0.0
+        self.typical_info = 0.0
         self.payload_scale = 1.0
         self.spike_threshold: np.ndarray | None = None
         self.training: dict = {}
@@ -223,6 +225,8 @@ class BalanceNet(Estimator):
         self.payload_scale = float(max(np.max(np.abs(payload)), 1.0))
         self._fn = None
         self.kappa = self._kappa(experiments)
+        infos = [float(np.sum(w * phi * phi)) for _, _, phi, w in (self.model.terms(e) for e in experiments)]
+        self.typical_info = float(np.median(infos)) if infos else 0.0
         if self.model.layout.differentiate:
             from excavator_payload.estimators.classical.pressure_regression import difference_scale, spike_threshold
 
@@ -328,11 +332,16 @@ class BalanceNet(Estimator):
         return math.sqrt(self.kappa**2 / self.info + self.model_std**2 + self.model.zero_std**2)
 
     def _result(self) -> StepResult:
-        if self.info <= 0:
+        """The weight once :attr:`ready`; before, none (``warming_up``): an early estimate rests
+        on one phase of the motion and is no weight to show."""
+        if not self.ready:
             return StepResult(math.nan, Status.WARMING_UP)
-        estimate = self.num / self.info
-        ready = self.kappa / math.sqrt(self.info) <= float(self.options["ready"]) * self.payload_scale
-        return StepResult(estimate, Status.OK if ready else Status.WARMING_UP)
+        return StepResult(self.num / self.info, Status.OK)
+
+    @property
+    def ready(self) -> bool:
+        """The weighing holds ``--ready`` of the information a median training motion gives."""
+        return self.info > 0 and self.info >= float(self.options["ready"]) * self.typical_info
 
     def _used(self, values: np.ndarray) -> np.ndarray:
         m = self.model
@@ -402,7 +411,7 @@ class BalanceNet(Estimator):
 
     # -- persistence ------------------------------------------------------------------------
     def _config(self) -> dict:
-        return {"kappa": self.kappa, "model_std": self.model_std, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
+        return {"kappa": self.kappa, "model_std": self.model_std, "typical_info": self.typical_info, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
                 "period": self.model.period if self.model is not None else None}
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -422,6 +431,7 @@ class BalanceNet(Estimator):
                 setattr(self.model, key, np.asarray(arrays[key], float))
             self.kappa = float(config["kappa"])
             self.model_std = float(config.get("model_std", 0.0))
+            self.typical_info = float(config["typical_info"])
             self.model.zero_std = float(config.get("zero_std", 0.0))
             self.payload_scale = float(config["payload_scale"])
             self.training = dict(config.get("training") or {})
