@@ -26,6 +26,8 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_any_motion import RATED, families, judge  # noqa: E402
 
+from excavator_payload.evaluation.crb_machine import dataset_machine_bound  # noqa: E402
+
 from excavator_payload.data.dataset import Dataset  # noqa: E402
 from excavator_payload.estimators.base import create_estimator  # noqa: E402
 from excavator_payload.evaluation import demo_machine as dm  # noqa: E402
@@ -61,6 +63,10 @@ def main() -> None:
     ap.add_argument("--train-seed", type=int, default=500)
     ap.add_argument("--out", type=Path, default=Path("balance-net"))
     ap.add_argument("--option", action="append", default=[], help="KEY=VALUE estimator option")
+    ap.add_argument("--efficiency", action="store_true",
+                    help="also the efficiency: RMS error over the Cramér–Rao bound of the machine's "
+                         "model (calibrated from the true machine file on 10 of the training swings "
+                         "and zeroed alike: the information a model-based sensor has)")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
@@ -76,17 +82,26 @@ def main() -> None:
     t1 = time.time()
     est.fit(train)
     print(f"trained on {train.n_experiments} experiments in {time.time() - t1:.1f} s", flush=True)
+    reference = None
+    if a.efficiency:
+        from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
+
+        reference = CalibratedEstimator(MACHINE).fit(train.subset(train.experiment_ids[:10]))
+        reference.zero(zero)
     rows = []
     for zeroed in (False, True):
         if zeroed:
             est.zero(zero)
         for fam, ds in tests.items():
             row = {"zero": zeroed, "family": fam, **judge(est, ds)}
+            if reference is not None and zeroed:
+                bound = dataset_machine_bound(ds, reference)
+                row["efficiency"] = dm.summary_row(dm.judge(est, ds, "m", bound), RATED)["efficiency"]
             rows.append(row)
             print(f"zero {str(zeroed):5s} {fam:13s} ≤1 % {row['within_1pct']:4.0%}  "
                   f"≤0.25 % {row['within_0.25pct']:4.0%}  MAX {row['mean_max_kg']:7.1f} kg  "
                   f"alarms {row['false_alarms']:.2%}  σ covers {row['sigma_covers']:.0%}  "
-                  f"({time.time() - t0:.0f} s)", flush=True)
+                  f"efficiency {row.get('efficiency', float('nan')):.2f}  ({time.time() - t0:.0f} s)", flush=True)
     pd.DataFrame(rows).to_csv(a.out / "balance_net.csv", index=False)
     print(f"rated {RATED:.0f} kg; total {time.time() - t0:.0f} s")
 

@@ -16,15 +16,18 @@ balance once (one compiled CasADi call, the same expression the C export compile
 each window from a ring: batch and stream are one computation.
 
 * A channel's window whose residual at the current estimate lies beyond ``--gate`` σ is not
-  used (a regime training never saw: the model says nothing there); when every channel
-  disagrees for ``--new-load`` seconds the load has changed and the weighing starts again.
+  used (a regime training never saw: the model says nothing there). When every channel
+  disagrees for ``--new-load`` seconds and those windows, weighed on their own, give a load
+  more than :data:`NEW_LOAD_SHARE` of the largest trained payload away, that is the new load.
 * ``ok`` once the weighing holds ``--ready`` of the information a median training motion gives
   (before: no estimate, ``warming_up``): the first windows, all of one phase of a motion,
   carry that phase's model error.
 * The machine set's frames are judged between their neighbours (a one-frame glitch is replaced
   by its neighbours' mean, as in ``calibrated``); the thesis set's samples by the base class's
   gate on the balance's residual.
-* Plausibility limits are the training data's envelope (widened), not a machine's.
+* Plausibility limits: the joint angles' trained range (widened), ten times the largest
+  trained magnitude of the other signals, the sensor set's own for the house's inclination;
+  not a machine's.
 * ``zero`` re-estimates the sensors' offsets from an empty-bucket motion
   (:meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`).
 """
@@ -44,8 +47,12 @@ from excavator_payload.estimators.learned.balance_model import BalanceModel, Lay
 
 #: Angles' plausibility: the training range widened by this share of its span plus ANGLE_MARGIN.
 ANGLE_WIDEN, ANGLE_MARGIN = 0.25, math.radians(5.0)
-#: Every other signal: the training range widened by this share of its span.
-SIGNAL_WIDEN = 1.0
+#: Every other signal (but the house's inclination): at most this many times its largest
+#: trained magnitude (and within the sensor set's limits).
+SIGNAL_SCALE = 10.0
+#: A load that differs from the one weighed by more than this share of the largest trained
+#: payload is a new one (a dump, a fill); a smaller disagreement is the model's, not the load's.
+NEW_LOAD_SHARE = 0.1
 #: Every this-many-th training experiment is held out once to measure σ's model floor.
 HELD_OUT_EVERY = 5
 #: s: a gap in the samples up to this long keeps the weighing's sums.
@@ -121,8 +128,9 @@ class BalanceNet(Estimator):
         "every": Option(int, 5, "train on every K-th window (neighbours share most samples)"),
         "gate": Option(float, 4.0, "a channel's window further than this many sigma from the "
                        "estimate is not used"),
-        "new_load": Option(float, 1.0, "seconds of every channel disagreeing after which the load "
-                           "counts as new and the weighing restarts"),
+        "new_load": Option(float, 1.0, "seconds of every channel disagreeing with the weighed load "
+                           "after which a load weighed 10 % of the largest trained payload away "
+                           "replaces it"),
         "ready": Option(float, 0.3, "ok once the weighing holds this share of the information a "
                         "median training motion gives"),
     }
@@ -233,16 +241,17 @@ class BalanceNet(Estimator):
             self.spike_threshold = spike_threshold(difference_scale(dataset))
         lo, hi = values.min(0), values.max(0)
         span = hi - lo
-        widen = SIGNAL_WIDEN * span
+        # the joint angles' maps are polynomials fitted over the trained poses: beyond them
+        # they run away; pressures, torques and rates enter the balance by physics (linearly or
+        # as products), so they are only held to SIGNAL_SCALE times their trained size, and
+        # gravity's direction enters exactly: a slope never trained is no extrapolation
+        limit = np.array([float(self.sensor_set.plausible_abs[s]) for s in self.sensor_set.signals])
+        limit = np.minimum(limit, SIGNAL_SCALE * np.maximum(np.abs(lo), np.abs(hi)) + 1e-9)
+        widen = np.full(len(lo), np.inf)
         angles = [i for i, s in enumerate(self.sensor_set.signals) if s.endswith("_angle")]
         widen[angles] = ANGLE_WIDEN * span[angles] + ANGLE_MARGIN
-        widen = np.maximum(widen, 1e-6 * np.maximum(np.abs(lo), np.abs(hi)) + 1e-9)
-        limit = np.array([float(self.sensor_set.plausible_abs[s]) for s in self.sensor_set.signals])
-        # gravity's direction enters the balance exactly (the house frame's "up"): a slope never
-        # seen in training is no extrapolation, so the house's inclination keeps the sensor
-        # set's own limits
         tilt = [i for i, s in enumerate(self.sensor_set.signals) if s.startswith("house_")]
-        widen[tilt] = np.inf
+        limit[tilt] = [float(self.sensor_set.plausible_abs[self.sensor_set.signals[i]]) for i in tilt]
         self._limits = (np.maximum(lo - widen, -limit), np.minimum(hi + widen, limit))
         self.training = {**summary, "experiments": len(experiments), "kappa": self.kappa,
                          "model_std": self.model_std,
@@ -307,6 +316,8 @@ class BalanceNet(Estimator):
         self._ring: list = []  # (terms, used) of the window's samples
         self._frames: list = []  # machine set: the newest frames, not yet judged
         self._disagree = 0
+        self._num_new = 0.0  # the windows no channel of the weighed load explains
+        self._info_new = 0.0
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """A gap of up to :data:`MAX_BRIDGED_GAP` keeps the sums (the load is the same; each
@@ -398,12 +409,20 @@ class BalanceNet(Estimator):
             spread = np.sqrt(1.0 / np.maximum(w, 1e-300) + phi * phi * self.kappa**2 / self.info)
             agree = np.abs(r - est * phi) <= float(self.options["gate"]) * self.kappa * spread
             if np.any(w > 0) and not np.any(agree & (w > 0)):
+                # the load weighed so far explains no channel: a new load, or a regime the
+                # model never saw; the windows are weighed on their own meanwhile
+                self._num_new += float(np.sum(w * phi * r))
+                self._info_new += float(np.sum(w * phi * phi))
                 self._disagree += 1
                 if self._disagree * m.period >= float(self.options["new_load"]):
-                    self.num = self.info = 0.0  # the load changed: weigh again
+                    if (self._info_new > 0 and abs(self._num_new / self._info_new - est)
+                            > NEW_LOAD_SHARE * self.payload_scale):
+                        self.num, self.info = self._num_new, self._info_new  # a new load
+                    self._num_new = self._info_new = 0.0
                     self._disagree = 0
                 return self._result()
             self._disagree = 0
+            self._num_new = self._info_new = 0.0
             w = np.where(agree, w, 0.0)
         self.num += float(np.sum(w * phi * r))
         self.info += float(np.sum(w * phi * phi))
