@@ -304,8 +304,8 @@ def fit_estimators(calibration: Dataset, zero: Dataset, names, prior_machine="ca
     for name in names:
         klass = estimator_class(name)
         if name in NEEDS_TRAINING_SET:
-            failures[name] = ("not fitted: a network needs a training set of hundreds of motions and "
-                              "long training on this sensor set (see the README)")
+            failures[name] = ("not fitted: it learns from a training set of logged motions with known "
+                              "loads, which this demo does not simulate (see the README)")
             continue
         try:
             est = klass(prior_machine if klass.NEEDS_MACHINE else None, **(options or {}).get(name, {}))
