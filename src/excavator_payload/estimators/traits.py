@@ -127,7 +127,8 @@ ESTIMATOR_TRAITS: dict[str, EstimatorTraits] = {t.name: t for t in (
     EstimatorTraits("dtdnn", _DVS + "networks", bound_window=6, needs_training_set=True),
     EstimatorTraits("lrn", _DVS + "recurrent", needs_training_set=True),
     # learned from logs with known loads, no machine file: weighs over the load's whole history
-    EstimatorTraits("balance-net", "excavator_payload.estimators.learned.balance_net", exports=_C_BOTH,
+    EstimatorTraits("balance-net", "excavator_payload.estimators.learned.balance_net",
+                    exports={"c": BOTH, "onnx": BOTH},
                     needs_training_set=True),
 )}
 

@@ -174,6 +174,10 @@ def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
 
     if not est.fitted:
         raise EstimatorError(f"{est.name}: nothing to export, the estimator is not fitted")
+    if est.name == "balance-net":  # a step with explicit state, not a window (its own module)
+        from excavator_payload.runtime.export_onnx_balance import export_balance_onnx
+
+        return export_balance_onnx(est, out)
     graph = onnx_graph(est)
     sensors = est.sensor_set
     window = torch.zeros(1, graph.window, len(sensors.signals))
@@ -210,3 +214,7 @@ def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
     onnx.save(model, str(tmp))
     os.replace(tmp, path)
     return [path]
+
+
+# balance-net's step graph registers itself (onnx_graph_for) when its module is imported
+from excavator_payload.runtime import export_onnx_balance  # noqa: E402,F401
