@@ -16,6 +16,9 @@ Metadata: ``signals``, ``window``, ``estimator``, ``sensor_set``, ``sample_rate`
 (samples after a reset before the first estimate; call the graph from sample ``warmup`` on,
 0-based), and for ``net2`` ``feedback_initial`` and ``feedback_delays``. The graph computes in
 float32 (what edge runtimes support everywhere).
+
+``balance-net`` exports one step of its weighing instead (float64, explicit state):
+:mod:`excavator_payload.runtime.export_onnx_balance`.
 """
 
 from __future__ import annotations
