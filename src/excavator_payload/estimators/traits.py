@@ -127,7 +127,9 @@ ESTIMATOR_TRAITS: dict[str, EstimatorTraits] = {t.name: t for t in (
     EstimatorTraits("dtdnn", _DVS + "networks", bound_window=6, needs_training_set=True),
     EstimatorTraits("lrn", _DVS + "recurrent", needs_training_set=True),
     # learned from logs with known loads, no machine file: weighs over the load's whole history
-    EstimatorTraits("balance-net", "excavator_payload.estimators.learned.balance_net", needs_training_set=True),
+    EstimatorTraits("balance-net", "excavator_payload.estimators.learned.balance_net",
+                    exports={"c": BOTH, "onnx": BOTH},
+                    needs_training_set=True),
 )}
 
 

@@ -16,6 +16,9 @@ Metadata: ``signals``, ``window``, ``estimator``, ``sensor_set``, ``sample_rate`
 (samples after a reset before the first estimate; call the graph from sample ``warmup`` on,
 0-based), and for ``net2`` ``feedback_initial`` and ``feedback_delays``. The graph computes in
 float32 (what edge runtimes support everywhere).
+
+``balance-net`` exports one step of its weighing instead (float64, explicit state):
+:mod:`excavator_payload.runtime.export_onnx_balance`.
 """
 
 from __future__ import annotations
@@ -174,6 +177,10 @@ def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
 
     if not est.fitted:
         raise EstimatorError(f"{est.name}: nothing to export, the estimator is not fitted")
+    if est.name == "balance-net":  # a step with explicit state, not a window (its own module)
+        from excavator_payload.runtime.export_onnx_balance import export_balance_onnx
+
+        return export_balance_onnx(est, out)
     graph = onnx_graph(est)
     sensors = est.sensor_set
     window = torch.zeros(1, graph.window, len(sensors.signals))
@@ -210,3 +217,7 @@ def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
     onnx.save(model, str(tmp))
     os.replace(tmp, path)
     return [path]
+
+
+# balance-net's step graph registers itself (onnx_graph_for) when its module is imported
+from excavator_payload.runtime import export_onnx_balance  # noqa: E402,F401

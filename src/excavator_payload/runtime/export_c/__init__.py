@@ -46,6 +46,7 @@ from excavator_payload.runtime.export_c.casadi_code import casadi_c_code, casadi
 from excavator_payload.runtime.export_c.cmodel import BorrowedGate, CModel
 # the builders register themselves (registry.c_builder) when their modules are imported
 from excavator_payload.runtime.export_c import (  # noqa: F401
+    balance_net,
     inverse_dynamics,
     networks,
     pressure_regression,
