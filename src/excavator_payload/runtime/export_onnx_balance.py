@@ -9,7 +9,7 @@ balance_net.BalanceNet._step>` with selects instead of branches: the machine set
 of the frame before the newest, the ring of the window's terms (oldest first, shifted by one
 per sample), the window sums, the per-channel gate, the new-load restart, the recursive sums.
 
-Inputs ``signals`` ``[n_signals]`` and the state ``num``, ``info``, ``disagree`` ``[1]``,
+Inputs ``signals`` ``[n_signals]`` and the state ``num``, ``info``, ``disagree``, ``num_new``, ``info_new`` ``[1]``,
 ``terms`` ``[width, 4·channels]``, ``used`` ``[width, channels]``, ``filled``, ``frames``
 ``[2, n_signals]``, ``n_frames`` ``[1]`` (all zeros after a reset); outputs ``estimate``,
 ``status`` (0 ok, 1 warming up, as ``Status``), ``sigma`` and the state after the step (same
@@ -33,7 +33,7 @@ import torch
 from excavator_payload.errors import EstimatorError
 from excavator_payload.runtime.export_onnx import OPSET, onnx_graph_for
 
-STATE = ("num", "info", "disagree", "terms", "used", "filled", "frames", "n_frames")
+STATE = ("num", "info", "disagree", "num_new", "info_new", "terms", "used", "filled", "frames", "n_frames")
 
 
 def _casadi_torch(fn, inputs: list[torch.Tensor]) -> torch.Tensor:
@@ -73,7 +73,7 @@ class BalanceStepGraph(torch.nn.Module):
 
     def __init__(self, est) -> None:
         super().__init__()
-        from excavator_payload.estimators.learned.balance_net import sample_function
+        from excavator_payload.estimators.learned.balance_net import NEW_LOAD_SHARE, sample_function
 
         m = est.model
         L = m.layout
@@ -96,7 +96,9 @@ class BalanceStepGraph(torch.nn.Module):
         self.span, self.period = float(m._span), float(m.period)
         self.still = float(m.still_rate if L.pressure else 0.0)
         self.kappa, self.kappa_sq = float(est.kappa), float(est.kappa ** 2)
-        self.ready_sigma = float(est.options["ready"]) * est.payload_scale
+        self.ready_info = float(est.options["ready"]) * est.typical_info
+        self.floor_sq = float(est.model_std ** 2 + m.zero_std ** 2)
+        self.new_load_kg = NEW_LOAD_SHARE * est.payload_scale
         self.gate_sigma = 0.05 * est.payload_scale
         self.channel_gate = float(est.options["gate"]) * est.kappa
         self.new_load = float(est.options["new_load"])
@@ -106,6 +108,7 @@ class BalanceStepGraph(torch.nn.Module):
         """The state after a reset."""
         n, W, N = self.n, self.width, self.n_signals
         return {"num": np.zeros(1), "info": np.zeros(1), "disagree": np.zeros(1),
+                "num_new": np.zeros(1), "info_new": np.zeros(1),
                 "terms": np.zeros((W, 4 * n)), "used": np.zeros((W, n)), "filled": np.zeros(1),
                 "frames": np.zeros((2, N)), "n_frames": np.zeros(1)}
 
@@ -114,7 +117,7 @@ class BalanceStepGraph(torch.nn.Module):
         inside = torch.all((q >= self.q_low) & (q <= self.q_high))
         return (torch.abs(x[self.v_idx]) >= self.still) & inside
 
-    def forward(self, signals, num, info, disagree, terms, used, filled, frames, n_frames):
+    def forward(self, signals, num, info, disagree, num_new, info_new, terms, used, filled, frames, n_frames):
         n, one, zero = self.n, torch.ones(1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
         nan = torch.full((1,), math.nan, dtype=torch.float64)
         if self.machine:  # judge the frame before this one between its neighbours
@@ -151,18 +154,27 @@ class BalanceStepGraph(torch.nn.Module):
         any_agree = torch.any(agree & (wch > 0))
         all_disagree = full & cond & any_w & ~any_agree
         counted = disagree + 1.0
-        restart = all_disagree & (counted * self.period >= self.new_load)
-        disagree_out = torch.where(all_disagree, torch.where(restart, zero, counted),
-                                   torch.where(full & cond, zero, disagree))
+        # windows no channel of the weighed load explains are weighed on their own; after
+        # --new-load seconds they are the new load if they weigh NEW_LOAD_SHARE away
+        own_num = num_new + torch.sum(wch * phi * r)
+        own_info = info_new + torch.sum(wch * phi * phi)
+        decide = all_disagree & (counted * self.period >= self.new_load)
+        replace = decide & (own_info > 0) & (torch.abs(own_num / own_info - est) > self.new_load_kg)
+        settled = full & cond & ~all_disagree
+        disagree_out = torch.where(all_disagree, torch.where(decide, zero, counted),
+                                   torch.where(settled, zero, disagree))
+        num_new_out = torch.where(all_disagree, torch.where(decide, zero, own_num),
+                                  torch.where(settled, zero, num_new))
+        info_new_out = torch.where(all_disagree, torch.where(decide, zero, own_info),
+                                   torch.where(settled, zero, info_new))
         w = torch.where(cond, torch.where(agree, wch, torch.zeros_like(wch)), wch)
         add = full & ~all_disagree
-        num_out = torch.where(restart, zero, torch.where(add, num + torch.sum(w * phi * r), num))
-        info_out = torch.where(restart, zero, torch.where(add, info + torch.sum(w * phi * phi), info))
-        has = info_out > 0
-        estimate = torch.where(has, num_out / info_out, nan)
-        sigma_now = self.kappa / torch.sqrt(info_out)
-        status = torch.where(has & (sigma_now <= self.ready_sigma), zero, one)
-        sigma = torch.where(has, sigma_now, nan)
+        num_out = torch.where(replace, own_num, torch.where(add, num + torch.sum(w * phi * r), num))
+        info_out = torch.where(replace, own_info, torch.where(add, info + torch.sum(w * phi * phi), info))
+        ready = (info_out > 0) & (info_out >= self.ready_info)  # no weight before it is ready
+        estimate = torch.where(ready, num_out / info_out, nan)
+        status = torch.where(ready, zero, one)
+        sigma = torch.where(ready, torch.sqrt(self.kappa_sq / info_out + self.floor_sq), nan)
         # the base class's gate (thesis set): the innovation of the signals at the input state
         # (the machine set has none: its frames are judged between their neighbours)
         if self.machine:
@@ -174,7 +186,8 @@ class BalanceStepGraph(torch.nn.Module):
             nis = torch.sum(torch.where(u0, e * e / var, torch.zeros_like(var)))
             nis = torch.where(info > 0, nis, nan)
             dof = torch.clamp(torch.sum(u0.to(torch.float64)), min=1.0)[None]
-        return (estimate, status, sigma, num_out, info_out, disagree_out, terms_out, used_out, filled_out,
+        return (estimate, status, sigma, num_out, info_out, disagree_out, num_new_out, info_new_out,
+                terms_out, used_out, filled_out,
                 frames_out, n_frames_out, nis, dof)
 
 

@@ -40,7 +40,7 @@ def balance_net_model(est) -> CModel:
     est : Estimator
         The fitted :class:`~excavator_payload.estimators.learned.balance_net.BalanceNet`.
     """
-    from excavator_payload.estimators.learned.balance_net import MAX_BRIDGED_GAP, sample_function
+    from excavator_payload.estimators.learned.balance_net import MAX_BRIDGED_GAP, NEW_LOAD_SHARE, sample_function
 
     m = est.model
     if m is None:
@@ -74,7 +74,9 @@ def balance_net_model(est) -> CModel:
         f"#define EP_STILL_RATE {c_number(m.still_rate if L.pressure else 0.0)}  /* rad/s */",
         f"#define EP_KAPPA {c_number(est.kappa)}",
         f"#define EP_KAPPA_SQ {c_number(est.kappa ** 2)}",
-        f"#define EP_READY_SIGMA {c_number(float(opts['ready']) * est.payload_scale)}  /* ok below, kg */",
+        f"#define EP_READY_INFO {c_number(float(opts['ready']) * est.typical_info)}  /* ok from this information */",
+        f"#define EP_SIGMA_FLOOR_SQ {c_number(est.model_std ** 2 + m.zero_std ** 2)}  /* model and zero, kg^2 */",
+        f"#define EP_NEW_LOAD_KG {c_number(NEW_LOAD_SHARE * est.payload_scale)}  /* a new load differs more */",
         f"#define EP_GATE_SIGMA {c_number(0.05 * est.payload_scale)}  /* the channel gate from here, kg */",
         f"#define EP_CHANNEL_GATE {c_number(float(opts['gate']) * est.kappa)}  /* gate sigmas x kappa */",
         f"#define EP_NEW_LOAD {c_number(float(opts['new_load']))}  /* s of disagreement: a new load */",
@@ -102,12 +104,12 @@ def balance_net_model(est) -> CModel:
         "/* BalanceNet._result */",
         "static int ep_bn_result(const ep_state *s, ep_real *estimate)",
         "{",
-        "    if (s->info <= EP_C(0.0)) {",
+        "    if (!(s->info > EP_C(0.0) && s->info >= EP_READY_INFO)) {  /* no weight before it is ready */",
         "        *estimate = EP_NAN;",
         "        return EP_STATUS_WARMING_UP;",
         "    }",
         "    *estimate = s->num / s->info;",
-        "    return EP_KAPPA / EP_MATH(sqrt)(s->info) <= EP_READY_SIGMA ? EP_STATUS_OK : EP_STATUS_WARMING_UP;",
+        "    return EP_STATUS_OK;",
         "}",
     ]
     call = casadi_call("ep_bn_terms", fn, ["x", "EP_OFFSETS"], ["t"], code)
@@ -189,14 +191,25 @@ def balance_net_model(est) -> CModel:
             }}
         }}
         if (any_w && !any_agree) {{
+            /* the load weighed explains no channel: these windows are weighed on their own, and
+             * after --new-load seconds they are the new load if they weigh EP_NEW_LOAD_KG away */
+            for (j = 0; j < EP_N_CHANNELS; ++j) {{
+                s->num_new += w[j] * phi[j] * r[j];
+                s->info_new += w[j] * phi[j] * phi[j];
+            }}
             s->disagree += 1;
             if ((ep_real)s->disagree * EP_PERIOD >= EP_NEW_LOAD) {{
-                s->num = s->info = EP_C(0.0);
+                if (s->info_new > EP_C(0.0) && EP_MATH(fabs)(s->num_new / s->info_new - est) > EP_NEW_LOAD_KG) {{
+                    s->num = s->num_new;
+                    s->info = s->info_new;
+                }}
+                s->num_new = s->info_new = EP_C(0.0);
                 s->disagree = 0;
             }}
             return ep_bn_result(s, estimate);
         }}
         s->disagree = 0;
+        s->num_new = s->info_new = EP_C(0.0);
         for (j = 0; j < EP_N_CHANNELS; ++j) if (!agree[j]) w[j] = EP_C(0.0);
     }}
 #endif
@@ -213,9 +226,11 @@ def balance_net_model(est) -> CModel:
               "unsigned char used[EP_WIDTH * EP_N_CHANNELS];  /* ... whether each serves each channel */",
               "int ring_next;    /* slot of the next terms (the oldest once full) */",
               "int ring_filled;  /* terms in the ring (saturates at EP_WIDTH) */",
-              "long disagree;    /* windows in a row on which every channel disagreed */"]
+              "long disagree;    /* windows in a row on which every channel disagreed */",
+              "ep_real num_new;  /* ... and their own sums */",
+              "ep_real info_new;"]
     reset = ("    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n"
-             "    s->ring_filled = 0;\n    s->disagree = 0;")
+             "    s->ring_filled = 0;\n    s->disagree = 0;\n    s->num_new = EP_C(0.0);\n    s->info_new = EP_C(0.0);")
     clear = "s->ring_next = 0; s->ring_filled = 0;"
     if machine:
         fields += ["ep_real frames[2 * EP_N_SIGNALS];  /* the two newest frames, the older not yet judged */",
@@ -261,6 +276,6 @@ def balance_net_model(est) -> CModel:
         on_gap=on_gap, on_skip=on_skip,
         header_defines=[f"#define EP_N_CHANNELS {n}  /* measured channels (joints) */",
                         f"#define EP_WIDTH {width}  /* samples of one balance window */"],
-        sigma="    return s->info > EP_C(0.0) ? EP_KAPPA / EP_MATH(sqrt)(s->info) : EP_NAN;",
+        sigma="    return s->info > EP_C(0.0) ? EP_MATH(sqrt)(EP_KAPPA_SQ / s->info + EP_SIGMA_FLOOR_SQ) : EP_NAN;",
         state_finite="    return isfinite(s->num) && isfinite(s->info);",
         innovation=innovation, gate_dof=2 if innovation else 0)
