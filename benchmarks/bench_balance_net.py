@@ -63,6 +63,8 @@ def main() -> None:
     ap.add_argument("--train-seed", type=int, default=500)
     ap.add_argument("--out", type=Path, default=Path("balance-net"))
     ap.add_argument("--option", action="append", default=[], help="KEY=VALUE estimator option")
+    ap.add_argument("--figure", type=Path, default=None,
+                    help="also a figure of every judged experiment's error over time (after the zero)")
     ap.add_argument("--efficiency", action="store_true",
                     help="also the efficiency: RMS error over the Cramér–Rao bound of the machine's "
                          "model (calibrated from the true machine file on 10 of the training swings "
@@ -103,7 +105,38 @@ def main() -> None:
                   f"alarms {row['false_alarms']:.2%}  σ covers {row['sigma_covers']:.0%}  "
                   f"efficiency {row.get('efficiency', float('nan')):.2f}  ({time.time() - t0:.0f} s)", flush=True)
     pd.DataFrame(rows).to_csv(a.out / "balance_net.csv", index=False)
+    if a.figure is not None:
+        figure(est, tests, a.figure)
     print(f"rated {RATED:.0f} kg; total {time.time() - t0:.0f} s")
+
+
+def figure(est, tests: dict, path: Path) -> None:
+    """Each family's experiments: the error of every ``ok`` weight over time, ±1 % of rated."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, (len(tests) + 1) // 2, figsize=(13, 6.5), sharey=True)
+    for ax, (fam, ds) in zip(axes.ravel(), tests.items()):
+        e = est.estimate(ds)
+        f = ds.frame
+        ok = e["status"].astype(str).to_numpy() == "ok"
+        err = e["payload_estimate"].to_numpy(float) - f["payload"].to_numpy(float)
+        for x in f["experiment"].unique():
+            sel = (f["experiment"].to_numpy() == x) & ok
+            t = f["time"].to_numpy(float)[sel]
+            ax.plot(t - f["time"][f["experiment"] == x].min(), err[sel], lw=0.7, alpha=0.7)
+        for y in (-0.01 * RATED, 0.01 * RATED):
+            ax.axhline(y, color="k", ls="--", lw=0.8)
+        ax.set_title(fam)
+        ax.set_xlabel("time (s)")
+        ax.set_ylim(-1.6 * 0.01 * RATED, 1.6 * 0.01 * RATED)
+    axes.ravel()[0].set_ylabel("error of the weight shown (kg)")
+    fig.suptitle("balance-net, learned from 100 logged motions (no machine file), after the zero; "
+                 "dashed: ±1 % of rated")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 if __name__ == "__main__":

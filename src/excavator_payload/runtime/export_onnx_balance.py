@@ -69,7 +69,13 @@ def _casadi_torch(fn, inputs: list[torch.Tensor]) -> torch.Tensor:
 
 @onnx_graph_for("balance-net")
 class BalanceStepGraph(torch.nn.Module):
-    """One step of ``balance-net`` (module doc), float64."""
+    """One step of ``balance-net`` (module doc), float64.
+
+    Parameters
+    ----------
+    est : BalanceNet
+        The fitted estimator.
+    """
 
     def __init__(self, est) -> None:
         super().__init__()
@@ -118,6 +124,15 @@ class BalanceStepGraph(torch.nn.Module):
         return (torch.abs(x[self.v_idx]) >= self.still) & inside
 
     def forward(self, signals, num, info, disagree, num_new, info_new, terms, used, filled, frames, n_frames):
+        """One sample through the step (module doc).
+
+        Parameters
+        ----------
+        signals : torch.Tensor
+            ``[n_signals]`` the sample, SI units.
+        num, info, disagree, num_new, info_new, terms, used, filled, frames, n_frames : torch.Tensor
+            The state (:meth:`initial_state` after a reset).
+        """
         n, one, zero = self.n, torch.ones(1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
         nan = torch.full((1,), math.nan, dtype=torch.float64)
         if self.machine:  # judge the frame before this one between its neighbours
@@ -195,7 +210,15 @@ OUTPUTS = ("estimate", "status", "sigma", *(s + "_out" for s in STATE), "nis", "
 
 
 def export_balance_onnx(est, out: str | Path) -> list[Path]:
-    """Write ``balance-net.onnx`` (the step graph, metadata for the host loop) into ``out``."""
+    """Write ``balance-net.onnx`` (the step graph, metadata for the host loop) into ``out``.
+
+    Parameters
+    ----------
+    est : BalanceNet
+        The fitted estimator.
+    out : str or Path
+        The output folder.
+    """
     import onnx
 
     from excavator_payload.estimators.base import gate_threshold, max_consecutive_rejections
@@ -282,7 +305,15 @@ class OnnxBalanceNet:
             self.state[k] = self._initial[k].copy()
 
     def step_values(self, time: float, values: np.ndarray) -> tuple[float, str, float]:
-        """``(estimate, status, sigma)`` of one sample, as ``Estimator.step_values``."""
+        """``(estimate, status, sigma)`` of one sample, as ``Estimator.step_values``.
+
+        Parameters
+        ----------
+        time : float
+            Sample time, s.
+        values : numpy.ndarray
+            One value per signal, SI units.
+        """
         values = np.asarray(values, float)
         if not (math.isfinite(time) and np.all(np.isfinite(values))):
             return self.last[0], "invalid_input", self.last[1]

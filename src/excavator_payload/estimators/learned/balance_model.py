@@ -68,7 +68,13 @@ ZERO_PRIOR = {"pressure": 5e5, "angle": math.radians(0.5), "torque": 2e3}
 
 class Layout:
     """Which signals of a sensor set are the joints' angles, rates, accelerations, the house's
-    slew rate and inclination, and the measured forces (found by the signals' names)."""
+    slew rate and inclination, and the measured forces (found by the signals' names).
+
+    Parameters
+    ----------
+    signals : sequence of str
+        The sensor set's signals, in their order.
+    """
 
     def __init__(self, signals) -> None:
         signals = tuple(signals)
@@ -100,8 +106,25 @@ BLOCKS = (("measured", 1.0), ("friction", -1.0), ("empty", -1.0), ("payload", -1
 
 @dataclass
 class Samples:
-    """The signals of one experiment's consecutive samples, SI units (``qdd`` None: the
-    accelerations are not measured; ``m`` the known payload per sample, NaN where unknown)."""
+    """The signals of one experiment's consecutive samples, SI units.
+
+    Parameters
+    ----------
+    q, qd : numpy.ndarray
+        ``(N, n)`` joint angles and rates.
+    qdd : numpy.ndarray or None
+        ``(N, n)`` measured joint accelerations; None where they are not measured.
+    slew : numpy.ndarray or None
+        ``(N,)`` slew rate (None on a fixed base).
+    tilt : numpy.ndarray or None
+        ``(N, 2)`` house pitch and roll.
+    head : numpy.ndarray
+        ``(N, n)`` joint torques, or the cylinders' head pressures.
+    rod : numpy.ndarray or None
+        ``(N, n)`` rod pressures (None with torques).
+    m : numpy.ndarray or None
+        ``(N,)`` known payload, kg (NaN where unknown).
+    """
 
     q: np.ndarray            # (N, n) joint angles
     qd: np.ndarray           # (N, n) joint rates
@@ -117,7 +140,17 @@ class Samples:
 
 
 def experiment_samples(layout: Layout, values: np.ndarray, payload: np.ndarray | None = None) -> Samples:
-    """:class:`Samples` of one experiment from its signal rows (``layout.signals`` order)."""
+    """:class:`Samples` of one experiment from its signal rows.
+
+    Parameters
+    ----------
+    layout : Layout
+        Where each quantity is among the signals.
+    values : numpy.ndarray
+        ``(N, signals)`` rows in ``layout.signals`` order, SI units.
+    payload : numpy.ndarray, optional
+        ``(N,)`` known payload, kg.
+    """
     L = layout
     return Samples(q=values[:, L.q], qd=values[:, L.v], qdd=None if L.differentiate else values[:, L.a],
                    slew=values[:, L.slew] if L.slew is not None else None,
@@ -127,7 +160,7 @@ def experiment_samples(layout: Layout, values: np.ndarray, payload: np.ndarray |
                    m=None if payload is None else np.asarray(payload, float))
 
 
-def chebyshev(ops, x, order: int) -> list:
+def _chebyshev(ops, x, order: int) -> list:
     """:math:`T_0 … T_{order-1}` at ``x`` (numpy arrays or CasADi symbols)."""
     out = [1.0 + 0.0 * x, x]
     while len(out) < order:
@@ -163,6 +196,20 @@ class BalanceModel:
     half_window, ramp : int
         Momentum form (accelerations not measured): samples each side of a window's centre,
         and the sample intervals over which its weight rises and falls.
+    period : float
+        Sample period, s.
+    lo, hi : numpy.ndarray
+        Fitted: each joint's trained angle range, rad.
+    coef : numpy.ndarray
+        Fitted: the design's coefficients (:meth:`block_sizes` order).
+    channel_var : numpy.ndarray
+        Fitted: each channel's residual variance in training.
+    offsets : numpy.ndarray
+        The sensors' offsets the zero estimated (:meth:`offset_count` of them).
+    point : numpy.ndarray
+        Fitted: the payload point on the basis (and the boom foot's x offset).
+    zero_std : float
+        kg: what the zero's remaining offset uncertainty weighs (:meth:`zero`).
     """
 
     signals: tuple
@@ -201,7 +248,7 @@ class BalanceModel:
         L = self.layout
         return L.n + (1 if L.tilt else 0) + (2 if L.pressure else 1) * L.n
 
-    def corrected(self, s: Samples, ops=np) -> tuple:
+    def _corrected(self, s: Samples, ops=np) -> tuple:
         """The signals with the zero's offsets removed: ``(q, qd, qdd, slew, up, head, rod)``."""
         L = self.layout
         off = self.offsets if len(self.offsets) else np.zeros(self.offset_count())
@@ -220,12 +267,20 @@ class BalanceModel:
         """The design's blocks per sample: per block a list of columns ``(plain, momentum)``,
         each a list over channels (momentum None: none); the balance of a window is
         ``Σ w·plain + Σ u·momentum / Δt`` (module doc), and the model says
-        ``measured − friction − empty − m·payload = 0`` there."""
+        ``measured − friction − empty − m·payload = 0`` there.
+
+        Parameters
+        ----------
+        s : Samples
+            The samples (arrays), or one sample's CasADi symbols.
+        ops : module
+            :mod:`numpy` or :mod:`casadi`.
+        """
         L, K = self.layout, self._map_order()
-        q, qd, qdd, slew, up, head, rod = self.corrected(s, ops)
+        q, qd, qdd, slew, up, head, rod = self._corrected(s, ops)
         n = L.n
         x = [2.0 * (q[j] - self.lo[j]) / (self.hi[j] - self.lo[j]) - 1.0 for j in range(n)]
-        T = [chebyshev(ops, x[j], K) for j in range(n)]
+        T = [_chebyshev(ops, x[j], K) for j in range(n)]
 
         def only(j, value):
             col = [0.0] * n
@@ -263,7 +318,7 @@ class BalanceModel:
             sizes["payload"] += (nb + 1) * nb
         return sizes
 
-    def sample_arrays(self, s: Samples) -> tuple[np.ndarray, np.ndarray]:
+    def _sample_arrays(self, s: Samples) -> tuple[np.ndarray, np.ndarray]:
         """The design per sample as two arrays ``(N, channels, columns)``: the plain parts and
         the momenta, with each block's sign of the balance (the payload's per unit mass)."""
         N, n = len(s), self.layout.n
@@ -283,7 +338,7 @@ class BalanceModel:
                 c += 1
         return P, M
 
-    def sample_used(self, s: Samples) -> np.ndarray:
+    def _sample_used(self, s: Samples) -> np.ndarray:
         """``(N, channels)``: the sample can serve the channel (its cylinder moves; every joint
         inside its trained range)."""
         low, high = self.limits()
@@ -297,7 +352,7 @@ class BalanceModel:
         span = self.hi - self.lo
         return self.lo - self.margin * span, self.hi + self.margin * span
 
-    def window(self, plain: np.ndarray, momentum: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    def _window(self, plain: np.ndarray, momentum: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """The balance of the windows starting at ``rows`` (default all), averaged over their
         span: a sparse band of the samples' weights, so that only the windows asked for cost."""
         from scipy.sparse import csr_matrix
@@ -320,18 +375,18 @@ class BalanceModel:
             out[:, moving] += band(self._u / self.period) @ flat(momentum)[:, moving]
         return (out / self._span).reshape((len(rows),) + plain.shape[1:])
 
-    def window_used(self, used: np.ndarray) -> np.ndarray:
+    def _window_used(self, used: np.ndarray) -> np.ndarray:
         """A window serves a channel if every one of its samples does."""
         return _correlate(1.0 - used.astype(float), np.ones(self.width)) == 0.0
 
-    def windowed(self, s: Samples, every: int = 1):
+    def _windowed(self, s: Samples, every: int = 1):
         """``(first rows, X, used, m)`` of the windows of one experiment (every ``every``-th):
         X ``(W, channels, columns)`` with the payload's columns per unit mass; ``m`` the payload
         if the same all through the window, else NaN."""
-        P, M = self.sample_arrays(s)
+        P, M = self._sample_arrays(s)
         rows = np.arange(0, max(len(s) - self.width + 1, 0), every)
-        X = self.window(P, M, rows)
-        used = self.window_used(self.sample_used(s))[rows]
+        X = self._window(P, M, rows)
+        used = self._window_used(self._sample_used(s))[rows]
         m = np.full(len(rows), np.nan)
         if s.m is not None and len(rows):
             from numpy.lib.stride_tricks import sliding_window_view
@@ -345,24 +400,30 @@ class BalanceModel:
         sizes = self.block_sizes()
         return sizes["measured"] + sizes["friction"] + sizes["empty"]
 
-    def sample_terms(self, s: Samples) -> tuple:
+    def _sample_terms(self, s: Samples) -> tuple:
         """Per sample and channel the balance's parts with the fitted constants: ``(r_plain,
         r_momentum, φ_plain, φ_momentum, used)``; a window's residual and regressor are their
-        window sums (:meth:`window`), as the streaming sensor sums them sample by sample."""
-        P, M = self.sample_arrays(s)
+        window sums (:meth:`_window`), as the streaming sensor sums them sample by sample."""
+        P, M = self._sample_arrays(s)
         k = self._split()
         c = self.coef
         # the payload's columns carry the balance's minus sign: φ is the force per kg
         return (P[..., :k] @ c[:k], M[..., :k] @ c[:k], -(P[..., k:] @ c[k:]) * MASS_SCALE,
-                -(M[..., k:] @ c[k:]) * MASS_SCALE, self.sample_used(s))
+                -(M[..., k:] @ c[k:]) * MASS_SCALE, self._sample_used(s))
 
     def terms(self, s: Samples) -> tuple:
         """``(first rows, r, φ, weight)`` of every window of one experiment: the balance's
         residual at an empty bucket, the payload's regressor (``m = r/φ`` in kg) and the
-        weight (0: not used)."""
-        rp, rm, fp, fm, used = self.sample_terms(s)
-        r, phi = self.window(rp, rm), self.window(fp, fm)
-        w = self.window_used(used) / self.channel_var
+        weight (0: not used).
+
+        Parameters
+        ----------
+        s : Samples
+            One experiment's samples.
+        """
+        rp, rm, fp, fm, used = self._sample_terms(s)
+        r, phi = self._window(rp, rm), self._window(fp, fm)
+        w = self._window_used(used) / self.channel_var
         return np.arange(len(r)), r, phi, w
 
     # -- fitting ------------------------------------------------------------------------------
@@ -408,7 +469,13 @@ class BalanceModel:
         r"""The payload columns' coefficients of a point mass at ``point`` = (its coefficients
         :math:`c_a` on the basis, then the boom foot's x offset): :math:`c_a c_b` for the
         :math:`K_{ab}` and :math:`S_{ab}`, foot·:math:`c_b` for :math:`S_{fb}`, :math:`c_a`
-        for the :math:`G_a` (the order of :meth:`design`)."""
+        for the :math:`G_a` (the order of :meth:`design`).
+
+        Parameters
+        ----------
+        point : numpy.ndarray
+            The point's coefficients on the basis, then the boom foot's x offset (slewing only).
+        """
         m = 2 * self.layout.n
         c, foot = point[:m], point[m] if len(point) > m else 0.0
         parts = [np.outer(c, c).ravel()]
@@ -473,7 +540,17 @@ class BalanceModel:
         """Fit every constant to ``experiments`` (their known payloads); returns a summary.
 
         The windows' per-channel Gram matrices are summed experiment by experiment (every
-        ``every``-th window: neighbours share most samples), so memory stays small."""
+        ``every``-th window: neighbours share most samples), so memory stays small.
+
+        Parameters
+        ----------
+        experiments : list of Samples
+            The training experiments, each with its known payload ``m``.
+        every : int
+            Train on every ``every``-th window.
+        progress : callable, optional
+            ``progress(done, total)`` after each experiment.
+        """
         L = self.layout
         if not experiments or any(e.m is None for e in experiments):
             raise EstimatorError("balance-net: training needs the known payload of every sample")
@@ -485,7 +562,7 @@ class BalanceModel:
         every = max(1, min(every, self.width))  # windows of one sample share nothing
         grams, counts = None, np.zeros(L.n)
         for i, e in enumerate(experiments):
-            _, X, used, m = self.windowed(e, every)
+            _, X, used, m = self._windowed(e, every)
             ok = np.isfinite(m)
             X, used, m = X[ok], used[ok], m[ok]
             X[..., k:] *= (m * MASS_SCALE)[:, None, None]
@@ -528,7 +605,13 @@ class BalanceModel:
     def zero(self, experiments: list[Samples]) -> np.ndarray:
         """Re-estimate the sensors' offsets from motions of known payload (``m``; an empty
         bucket when None): the maximum a-posteriori offsets under :data:`ZERO_PRIOR`, from the
-        balance linearised in them. Returns the change of the offsets."""
+        balance linearised in them. Returns the change of the offsets.
+
+        Parameters
+        ----------
+        experiments : list of Samples
+            The zero motion(s); their payload ``m`` (None: an empty bucket).
+        """
         L = self.layout
         n_off = self.offset_count()
         base = self.offsets.copy()

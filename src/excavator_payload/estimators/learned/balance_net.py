@@ -74,7 +74,13 @@ class _Columns:
 
 def sample_function(model: BalanceModel):
     """The CasADi function ``(signals, offsets) -> [r_plain, r_momentum, φ_plain, φ_momentum]``
-    (one value per channel each) of one sample: the fitted constants are numbers in it."""
+    (one value per channel each) of one sample: the fitted constants are numbers in it.
+
+    Parameters
+    ----------
+    model : BalanceModel
+        The fitted model.
+    """
     import casadi as ca
 
     L = model.layout
@@ -113,7 +119,15 @@ def sample_function(model: BalanceModel):
 
 @register
 class BalanceNet(Estimator):
-    """The learned balance of the arm, weighed over the load's history (module doc)."""
+    """The learned balance of the arm, weighed over the load's history (module doc).
+
+    Parameters
+    ----------
+    machine : None
+        Refused: it learns from recorded data alone.
+    **options
+        See ``OPTIONS`` (``excavator-payload estimators balance-net``).
+    """
 
     name = "balance-net"
     NEEDS_MACHINE = False
@@ -170,7 +184,15 @@ class BalanceNet(Estimator):
                             period=float(self.sensor_set.sample_period))
 
     def experiments(self, dataset: Dataset, payload: bool = True) -> list[Samples]:
-        """The dataset's experiments as :class:`Samples` (with their payloads)."""
+        """The dataset's experiments as :class:`Samples`.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Data of the sensor set it was fitted on.
+        payload : bool
+            Carry the known payloads (where the data have them).
+        """
         layout = self.model.layout if self.model is not None else Layout(self.sensor_set.signals)
         values = dataset.signals(self.sensor_set.signals)
         exp = dataset.frame["experiment"].to_numpy()
@@ -262,7 +284,13 @@ class BalanceNet(Estimator):
                            "(experiments held out)"]
 
     def fit(self, dataset: Dataset) -> "BalanceNet":
-        """Learn from ``dataset`` (experiments with known payloads; no machine file is read)."""
+        """Learn from ``dataset`` (experiments with known payloads; no machine file is read).
+
+        Parameters
+        ----------
+        dataset : Dataset
+            Logged experiments with their known payloads.
+        """
         super().fit(dataset)
         # no machine: the limits are the training data's envelope, and no rated payload
         self.plausible_low, self.plausible_high = self._limits
@@ -273,7 +301,13 @@ class BalanceNet(Estimator):
     # -- zero -----------------------------------------------------------------------------
     def zero(self, dataset: Dataset) -> list[str]:
         """The zero check: re-estimate the sensors' offsets from a motion of known payload (an
-        empty bucket when the data carry none); returns warnings."""
+        empty bucket when the data carry none); returns warnings.
+
+        Parameters
+        ----------
+        dataset : Dataset
+            The zero motion, of the sensor set it was fitted on.
+        """
         if not self.fitted or self.model is None:
             raise EstimatorError(f"{self.name}: zero needs a trained model")
         sensors = self._check_sensor_set(dataset)

@@ -145,7 +145,13 @@ def _add(u, v):
 def empty_arm_features(K, S, G):
     """The rigid links' features as ``(plain, momentum)`` columns (lists over joints; momentum
     None when there is none): symmetric pairs of the basis Lagrangians (a rigid body's
-    Lagrangian is symmetric in them)."""
+    Lagrangian is symmetric in them).
+
+    Parameters
+    ----------
+    K, S, G : dict
+        The basis forces of :func:`chain_forces`.
+    """
     feats = []
     m = len(G)
     for a in range(m):
@@ -171,7 +177,13 @@ def empty_arm_features(K, S, G):
 def payload_features(K, S, G):
     """The payload point's features as ``(plain, momentum)`` columns: every ordered pair
     :math:`K_{ab}`, then :math:`S_{fb}` and :math:`S_{ab}`, then :math:`g\\,G_a` (the order of
-    :meth:`~.balance_model.BalanceModel.payload_shape`)."""
+    :meth:`~.balance_model.BalanceModel.payload_shape`).
+
+    Parameters
+    ----------
+    K, S, G : dict
+        The basis forces of :func:`chain_forces`.
+    """
     m = len(G)
     cols = [K[(a, b)] for a in range(m) for b in range(m)]
     if S:
@@ -182,6 +194,14 @@ def payload_features(K, S, G):
 
 def up_from_inclination(ops, house_pitch, house_roll):
     """The house frame's unit "up" in the arm's plane from the house IMU's pitch and roll (the
-    angles of its x and y axes above the horizontal): ``(sin pitch, √(1 − sin² pitch − sin² roll))``."""
+    angles of its x and y axes above the horizontal): ``(sin pitch, √(1 − sin² pitch − sin² roll))``.
+
+    Parameters
+    ----------
+    ops : module
+        :mod:`numpy` or :mod:`casadi`.
+    house_pitch, house_roll : array or symbol
+        The house IMU's pitch and roll, rad.
+    """
     sp, sr = ops.sin(house_pitch), ops.sin(house_roll)
     return sp, ops.sqrt(ops.fmax(1.0 - sp * sp - sr * sr, 0.0))
