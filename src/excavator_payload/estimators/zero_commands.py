@@ -1,4 +1,5 @@
-"""``excavator-payload zero``: the commercial "check zero" of a calibrated machine-set model.
+"""``excavator-payload zero``: the commercial "check zero" of a calibrated machine-set model
+(or of a ``balance-net`` model, which estimates its own offsets the same way).
 
 A short empty-bucket motion re-estimates the sensor offsets that drifted since calibration
 (:func:`excavator_payload.estimators.classical.calibrated_machine.zero_offsets`); everything
@@ -130,7 +131,8 @@ def register(app: typer.Typer) -> None:
         for line in estimator.zero_report:
             typer.echo(line)
         for (name, a), (_, b) in zip(before, after):
-            unit, scale = ("kPa", 1e-3) if name.endswith("pressure") else ("°", 57.29577951308232)
+            unit, scale = (("kPa", 1e-3) if name.endswith("pressure") else ("N·m", 1.0)
+                           if name.endswith("torque") else ("°", 57.29577951308232))
             typer.echo(f"{name:22s} {a * scale:+9.3f} → {b * scale:+9.3f} {unit}")
         typer.echo(f"zeroed model: {out}")
 

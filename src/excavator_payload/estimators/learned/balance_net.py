@@ -53,6 +53,9 @@ SIGNAL_SCALE = 10.0
 #: A load that differs from the one weighed by more than this share of the largest trained
 #: payload is a new one (a dump, a fill); a smaller disagreement is the model's, not the load's.
 NEW_LOAD_SHARE = 0.1
+#: A zero whose offsets' remaining uncertainty weighs more than this share of the largest
+#: trained payload is refused (``zero --force`` keeps it): it would weigh worse than 1 %.
+ZERO_REFUSE_SHARE = 0.01
 #: Every this-many-th training experiment is held out once to measure σ's model floor.
 HELD_OUT_EVERY = 5
 #: s: a gap in the samples up to this long keeps the weighing's sums.
@@ -321,6 +324,13 @@ class BalanceNet(Estimator):
         self._fn = None
         self.reset()
         self.zero_refusals, self.zero_report = [], []
+        share = self.model.zero_std / self.payload_scale
+        self.zero_report.append(f"zero: the offsets' remaining uncertainty weighs {self.model.zero_std:.1f} kg "
+                                f"({100 * share:.2f} % of the largest trained payload) on motions like this one")
+        if share > ZERO_REFUSE_SHARE:
+            self.zero_refusals.append(f"zero: the offsets it leaves uncertain weigh {self.model.zero_std:.0f} kg, "
+                                      f"more than {100 * ZERO_REFUSE_SHARE:.0f} % of the largest trained payload: "
+                                      "make the zero motion move every joint, within the trained poses")
         used = sum(int(np.sum(self.model.terms(e)[3] > 0)) for e in experiments)
         if used < 100:
             return [f"{self.name}: the zero motion gave {used} usable windows (joints moving inside "
