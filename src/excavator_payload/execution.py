@@ -427,8 +427,11 @@ def start_local_cluster(workers: int):
         share = str(worker_threads(workers))
         env = {THREADS_ENV: share, "OMP_NUM_THREADS": share, "MKL_NUM_THREADS": share,
                "OPENBLAS_NUM_THREADS": share}
+        # Workers' own logs stay quiet up to CRITICAL: a task's error reaches the client as its
+        # exception, and what a worker logs when Ctrl-C tears the cluster down under it (a lost
+        # heartbeat, with its traceback) is noise to the user (seen once in CI).
         return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                            silence_logs=logging.ERROR, preload=[__name__], env=env)
+                            silence_logs=logging.CRITICAL, preload=[__name__], env=env)
 
 
 @contextmanager
