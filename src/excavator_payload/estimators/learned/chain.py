@@ -44,8 +44,6 @@ that one piece of code serves both.
 
 from __future__ import annotations
 
-import math
-
 #: Standard gravity, m/s² (a constant of nature, not of a machine).
 GRAVITY = 9.81
 

@@ -12,9 +12,6 @@ are :meth:`BalanceNet._step` and friends, line by line.
 
 from __future__ import annotations
 
-import math
-
-import casadi as ca
 import numpy as np
 
 from excavator_payload.errors import EstimatorError
