@@ -536,7 +536,7 @@ class BalanceModel:
         x = self._ridge_solve(Gr, br)
         return point, np.concatenate([x[:n_rest], x[n_rest] * h])
 
-    def fit(self, experiments: list[Samples], every: int = 5, progress=None) -> dict:
+    def fit(self, experiments: list[Samples], every: int = 5) -> dict:
         """Fit every constant to ``experiments`` (their known payloads); returns a summary.
 
         The windows' per-channel Gram matrices are summed experiment by experiment (every
@@ -548,8 +548,6 @@ class BalanceModel:
             The training experiments, each with its known payload ``m``.
         every : int
             Train on every ``every``-th window.
-        progress : callable, optional
-            ``progress(done, total)`` after each experiment.
         """
         L = self.layout
         if not experiments or any(e.m is None for e in experiments):
@@ -561,7 +559,7 @@ class BalanceModel:
         k = self._split()
         every = max(1, min(every, self.width))  # windows of one sample share nothing
         grams, counts = None, np.zeros(L.n)
-        for i, e in enumerate(experiments):
+        for e in experiments:
             _, X, used, m = self._windowed(e, every)
             ok = np.isfinite(m)
             X, used, m = X[ok], used[ok], m[ok]
@@ -572,8 +570,6 @@ class BalanceModel:
                 Xj = X[used[:, j], j]
                 grams[j] += Xj.T @ Xj
                 counts[j] += len(Xj)
-            if progress is not None:
-                progress(i + 1, len(experiments))
         if grams is None or np.any(counts < 2 * grams.shape[1] / L.n):
             raise EstimatorError("balance-net: too few moving samples with a known payload to learn from "
                                  f"({int(counts.min())} windows of the least moving joint)")
@@ -626,16 +622,17 @@ class BalanceModel:
 
         def residual(off):
             self.offsets = off
-            out, weights = [], []
+            out, regressors, weights = [], [], []
             for e in experiments:
                 _, r, phi, w = self.terms(e)
                 m = np.zeros(len(r)) if e.m is None else e.m[:len(r)]
                 out.append(r - np.nan_to_num(m)[:, None] * phi)
+                regressors.append(phi)
                 weights.append(w)
-            return np.concatenate(out), np.concatenate(weights)
+            return np.concatenate(out), np.concatenate(regressors), np.concatenate(weights)
 
         try:
-            r0, w = residual(base)
+            r0, phi, w = residual(base)
             J = []
             for i in range(n_off):
                 off = base.copy()
@@ -655,13 +652,8 @@ class BalanceModel:
         self.offsets = base + delta
         # how the offsets' remaining uncertainty (the posterior's covariance A⁻¹) weighs on a
         # weighing of motions like this one: σ² = sᵀA⁻¹s, s = ∂m̂/∂offsets
-        _, phi, _ = self._zero_phi(experiments)
         info = float(np.sum(w * phi * phi))
         sens = np.einsum("nj,nj,njk->k", w, phi, J) / info if info > 0 else np.zeros(n_off)
         self.zero_std = float(np.sqrt(max(sens @ np.linalg.solve(A, sens), 0.0)))
         return delta
 
-    def _zero_phi(self, experiments: list[Samples]):
-        out = [self.terms(e) for e in experiments]
-        return (np.concatenate([o[1] for o in out]), np.concatenate([o[2] for o in out]),
-                np.concatenate([o[3] for o in out]))
