@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from excavator_payload.model.codegen import native
+from excavator_payload.model.codegen import BufferedCall, native
 from excavator_payload.model.hydraulic import HydraulicArmModel
 
 
@@ -305,6 +305,8 @@ class HydraulicNMPC:
         nlp = {"x": w, "p": params, "f": cost, "g": g}
         self._sqp = ca.nlpsol("hyd_nmpc", "sqpmethod", nlp, {**opts, "max_iter": s.sqp_iterations})
         self._sqp_cold = ca.nlpsol("hyd_nmpc_cold", "sqpmethod", nlp, {**opts, "max_iter": s.cold_iterations})
+        # called through numpy buffers: no DM conversions, the same numbers
+        self._warm_call, self._cold_call = BufferedCall(self._sqp), BufferedCall(self._sqp_cold)
         self._n_x, self._n_g = nx * (N + 1), g.shape[0]
         self._n_eq = nx * (N + 1)
         self._lbg = self._ubg = np.zeros(self._n_eq)
@@ -384,18 +386,19 @@ class HydraulicNMPC:
         w0 = self._w.copy()
         w0[:self.nx] = self._scaled(state)
         params = np.concatenate([state, self._target, self._u, self._tilt, [self._payload]])
-        solver = self._sqp_cold if self._cold else self._sqp
+        solver = self._cold_call if self._cold else self._warm_call
         for retry in (False, True):
             sol = solver(x0=w0, p=params, lbx=self._lbx, ubx=self._ubx, lbg=self._lbg, ubg=self._ubg,
                          lam_x0=self._lam_x, lam_g0=self._lam_g)
-            status = str(solver.stats().get("return_status", ""))
-            w = np.asarray(sol["x"]).ravel()
-            ok = solver.stats().get("success", False) or status == "Maximum_Iterations_Exceeded"
+            stats = solver.stats()
+            status = str(stats.get("return_status", ""))
+            w = sol["x"]
+            ok = stats.get("success", False) or status == "Maximum_Iterations_Exceeded"
             if ok and np.all(np.isfinite(w)):
                 break
             # Retry once from the previous plan with the cold solver (iterates to convergence)
             # and no multipliers; a second failure skips the experiment.
-            solver, self._lam_x, self._lam_g = self._sqp_cold, np.zeros_like(self._lam_x), np.zeros(self._n_g)
+            solver, self._lam_x, self._lam_g = self._cold_call, np.zeros_like(self._lam_x), np.zeros(self._n_g)
             self.retries += 1
         else:
             # As a real-time controller does: follow the previous plan (already shifted by one

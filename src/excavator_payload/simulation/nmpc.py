@@ -65,7 +65,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-from excavator_payload.model.codegen import native
+from excavator_payload.model.codegen import BufferedCall, native
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.simulation.plant import rk4_interval
 
@@ -234,6 +234,8 @@ class NMPCController:
         # The first step of an experiment has no previous plan: iterate to convergence.
         self._sqp_cold = ca.nlpsol("nmpc_sqp_cold", "sqpmethod", nlp,
                                    {**sqp_opts, "max_iter": s.cold_iterations})
+        # the SQP solvers are called through numpy buffers (no DM conversions, same numbers)
+        self._buffered = {f.name(): BufferedCall(f) for f in (self._sqp, self._sqp_cold)}
         # Fallback: interior point with the same Gauss–Newton Hessian (IPOPT takes the upper
         # triangle), cold-started.
         hess_lag_triu = ca.Function("nmpc_gauss_newton_triu", [w_sx, p_sx, lam_f, lam_g],
@@ -281,10 +283,12 @@ class NMPCController:
         return np.concatenate([state, self._target, self._u_applied, [self._payload]])
 
     def _solve(self, solver: ca.Function, state: np.ndarray, w0, lam_x0, lam_g0):
-        sol = solver(x0=w0, p=self._params(state), lbx=self._lbx, ubx=self._ubx,
-                     lbg=0.0, ubg=0.0, lam_x0=lam_x0, lam_g0=lam_g0)
-        stats = solver.stats()
-        return sol, stats
+        args = dict(x0=w0, p=self._params(state), lbx=self._lbx, ubx=self._ubx,
+                    lbg=0.0, ubg=0.0, lam_x0=lam_x0, lam_g0=lam_g0)
+        call = self._buffered.get(solver.name())
+        if call is None:  # the IPOPT fallback, rare: called as it is
+            return solver(**args), solver.stats()
+        return call(**args), call.stats()
 
     def control(self, state: np.ndarray) -> np.ndarray:
         """The torques (N·m) to apply for the next control period from ``state``.
@@ -451,17 +455,20 @@ class NMPCSimulator:
         states = np.empty((n_samples, 4))
         torques = np.empty((n_samples, 2))
         accels = np.empty((n_samples, 2))
-        torque = np.zeros(2)
-        for i in range(n_samples):
-            if i % self.samples_per_control == 0:
-                torque = ctl.control(state)
-            states[i] = state
-            torques[i] = torque
-            accels[i] = self.plant.acceleration(state, torque, payload)
-            if i + 1 < n_samples:
-                state = self.plant.step(state, torque, payload)
-                if not np.all(np.isfinite(state)):
-                    raise ControlFailure(f"plant state became non-finite at t = {time[i + 1]:.2f} s")
+        k = self.samples_per_control
+        for i in range(0, n_samples, k):
+            torque = ctl.control(state)
+            # the plant over one control period, torque held: the states at its sample instants
+            block, accel, after = self.plant.hold(state, torque, payload, k)
+            rows = slice(i, min(i + k, n_samples))
+            m = rows.stop - rows.start
+            states[rows], accels[rows], torques[rows] = block[:m], accel[:m], torque
+            reached = np.vstack([block[1:], after]) if i + k < n_samples else block[1:m]
+            bad = ~np.isfinite(reached).all(axis=1)
+            if np.any(bad):
+                raise ControlFailure(f"plant state became non-finite at t = "
+                                     f"{time[i + 1 + int(np.argmax(bad))]:.2f} s")
+            state = after
         q, qd = states[:, :2], states[:, 2:]
         info = self._summary(time, q, qd, target)
         solve = np.array([r.seconds for r in ctl.records])

