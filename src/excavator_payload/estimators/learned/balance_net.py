@@ -57,6 +57,11 @@ NEW_LOAD_SHARE = 0.1
 ZERO_REFUSE_SHARE = 0.01
 #: Every this-many-th training experiment is held out once to measure σ's model floor.
 HELD_OUT_EVERY = 5
+#: The lightest held-out experiments serve, one at a time, as the zero motion for the others:
+#: the floor then carries what a zero on one motion leaves wrong on another, as in use (a zero
+#: is made with an empty bucket; one made with a full one carries the model's error at that
+#: load into the offsets).
+CROSS_ZEROS = 4
 #: s: a gap in the samples up to this long keeps the weighing's sums.
 MAX_BRIDGED_GAP = 1.0
 
@@ -216,6 +221,26 @@ class BalanceNet(Estimator):
                 out.append((float(np.sum(w * phi * r) / info - e.m[0]), self.kappa / math.sqrt(info)))
         return out
 
+    def _cross_zero_errors(self, held: list[Samples]) -> list[tuple[float, float]]:
+        """(error, nominal σ) of the held-out experiments' weighings, each after a zero on another
+        held-out experiment (with its known payload; the :data:`CROSS_ZEROS` lightest); without
+        enough held-out experiments, the weighings without a zero."""
+        plain = self._final_errors(held)
+        if len(held) < 2:
+            return plain
+        offsets, zero_std = self.model.offsets.copy(), self.model.zero_std
+        out = []
+        lightest = np.argsort([abs(float(e.m[0])) if e.m is not None else 0.0 for e in held], kind="stable")
+        for i in lightest[:CROSS_ZEROS]:
+            try:
+                self.model.zero([held[i]])
+                out += self._final_errors([e for k, e in enumerate(held) if k != i])
+            except EstimatorError:  # this one never moved inside the trained range
+                pass
+            finally:
+                self.model.offsets, self.model.zero_std = offsets.copy(), zero_std
+        return out or plain
+
     def _kappa(self, experiments: list[Samples]) -> float:
         """σ's scale: the experiments' final errors in units of their nominal σ (the windows
         overlap: their noise is not independent), at least 1."""
@@ -252,9 +277,9 @@ class BalanceNet(Estimator):
                 self.fit_warnings.append(f"{self.name}: no model floor in sigma ({exc})")
             else:
                 self.kappa = self._kappa(rest)
-                errors = [err for err, _ in self._final_errors(held)]
-                nominal = [sigma for _, sigma in self._final_errors(held)]
-                if errors:
+                pairs = self._cross_zero_errors(held)
+                if pairs:
+                    errors, nominal = np.array(pairs).T
                     self.model_std = float(np.sqrt(max(np.mean(np.square(errors)) - np.mean(np.square(nominal)), 0.0)))
         self.model = self._new_model(self.sensor_set.signals)
         summary = self.model.fit(experiments, every=every)
