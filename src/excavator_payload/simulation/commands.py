@@ -104,7 +104,8 @@ def register(app: typer.Typer) -> None:
                                               "rerun the same command to resume"), soft_wrap=True)
             raise typer.Exit(130) from None
         info = summary(dataset, time.perf_counter() - start)
-        typer.echo(f"wrote {info['written']} experiments to {out} ({motion}, noise={noise}, seed={seed})")
+        typer.echo(f"wrote {info['written']} experiment{'' if info['written'] == 1 else 's'} to {out} "
+                   f"({motion}, noise={noise}, seed={seed})")
         skipped = info["skipped"]
         if skipped:
             typer.echo(f"skipped {len(skipped)} experiment(s):")
@@ -130,4 +131,5 @@ def register(app: typer.Typer) -> None:
 
         dataset = read_dataset(data)
         write_mat(dataset, out)
-        typer.echo(f"wrote {dataset.n_experiments} experiments to {out} (variable 'dataset')")
+        typer.echo(f"wrote {dataset.n_experiments} experiment{'' if dataset.n_experiments == 1 else 's'} to {out} "
+                   "(variable 'dataset')")
