@@ -599,6 +599,10 @@ class BusLink:
         self.lost_reason = reason
         self._recv_run = None
         self.counters["bus_lost"] += 1
+        if self._bus_off:  # bus-off ends in the outage: its time so far counts
+            self.counters["bus_off_seconds"] += self.monotonic() - self._send_run[0]
+            self._bus_off = False
+        self._send_run = None
         self.log.warning("CAN bus lost on %s (%s); waiting", self.name, reason)
         self._close()
         self._attempts = 0
@@ -666,7 +670,9 @@ class BusLink:
             self.counters["bus_errors"] += 1
             first, count, _ = self._send_run or (now, 0, _reason(exc))
             self._send_run = (first, count + 1, _reason(exc))
-            if not self._bus_off and count + 1 >= LOST_FAILURES and now - first >= LOST_AFTER:
+            # sends failing while receives fail too are the bus lost, not bus-off
+            if (not self._bus_off and self._recv_run is None and not self.lost
+                    and count + 1 >= LOST_FAILURES and now - first >= LOST_AFTER):
                 self._bus_off = True
                 self.counters["bus_off"] += 1
                 self.log.warning("CAN sends failing on %s for %.1f s (%s): bus-off? estimates are "
