@@ -254,3 +254,34 @@ def test_stop_ends_the_wait_for_a_reopen(estimator):
     bus.shutdown()
     assert time.monotonic() - stopped < 0.3
     assert done["bus_lost"] == 1 and 1.4 <= done["bus_lost_seconds"] <= 2.0
+
+
+def test_short_failures_and_error_frames_are_one_line_each(estimator, caplog):
+    """0.2 s of failing receives is not an outage, and 50 error frames are not 50 warnings: one
+    line each, every one counted."""
+    channel = f"recovery-short-{time.monotonic_ns()}"
+    WINDOWS[channel] = {"recv": (0.3, 0.5)}
+    bus = can.Bus(interface="failing-virtual", channel=channel)
+    machine = can.Bus(interface="virtual", channel=channel)
+    caplog.set_level(logging.DEBUG, logger=LOGGER)
+    stop = threading.Event()
+    done = {}
+    thread = threading.Thread(target=lambda: done.update(run_bus(
+        bus, PayloadSensor(estimator), stop, bus_factory=lambda: pytest.fail("reopened"), name="x:y")))
+    thread.start()
+    try:
+        time.sleep(0.7)
+        for _ in range(50):
+            machine.send(can.Message(is_error_frame=True, timestamp=time.time()))
+        time.sleep(0.5)
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        bus.shutdown()
+        machine.shutdown()
+    lines = [r.getMessage() for r in caplog.records if r.name == LOGGER and r.levelno >= logging.WARNING]
+    assert len(lines) == 2, lines
+    assert re.fullmatch(r"CAN receive failed on x:y: Error receiving: Network is down \[Error Code 100\] "
+                        r"\(\d time\(s\) in a row\); receiving again", lines[0])
+    assert lines[1].startswith("CAN error frame on x:y at ")
+    assert done["bus_lost"] == 0 and done["bus_errors"] >= 50 + 2

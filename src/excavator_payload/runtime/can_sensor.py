@@ -485,7 +485,8 @@ class BusLink:
       run goes on receiving and estimating, each publication is tried and lost, and one line
       says when sends work again. Recovering from bus-off is the controller's (socketcan:
       ``ip link set can0 type can restart-ms 100``). Counted: ``bus_off``, ``bus_off_seconds``.
-    * Shorter failures: one line when they end, at most one per :data:`LOG_EVERY` s.
+    * Shorter failures: one line when they end, and error frames: one line, at most one per
+      :data:`LOG_EVERY` s each (with the number not logged since).
 
     Parameters
     ----------
@@ -497,8 +498,8 @@ class BusLink:
     stop : threading.Event
         Ends a wait (a pause after a failure, the wait before a reopen).
     factory : callable, optional
-        Opens the bus again (``can.Bus(interface=..., channel=..., ...)``); without one a lost
-        bus is not reopened (its failures are only counted).
+        Opens the bus again (``can.Bus(interface=..., channel=..., ...)``); without one the
+        same bus is tried again on the same schedule.
     name : str, optional
         What the log lines call the bus (``IFACE:CHANNEL``).
     error_pause : float, optional
@@ -535,8 +536,8 @@ class BusLink:
         # send side
         self._send_run: tuple[float, int, str] | None = None
         self._bus_off = False
-        self._last_log = {"recv": -math.inf, "send": -math.inf}
-        self._quiet = {"recv": 0, "send": 0}  # failures not logged (rate limit)
+        self._last_log = {"recv": -math.inf, "send": -math.inf, "error": -math.inf}
+        self._quiet = {"recv": 0, "send": 0, "error": 0}  # failures not logged (rate limit)
 
     @property
     def lost(self) -> bool:
@@ -694,6 +695,17 @@ class BusLink:
                                    "frame(s)); sending again", count)
         return True
 
+    def error_frame(self, message: can.Message) -> None:
+        """Count an error frame (``bus_errors``); at most one line per :data:`LOG_EVERY` s.
+
+        Parameters
+        ----------
+        message : can.Message
+            The received error frame.
+        """
+        self.counters["bus_errors"] += 1
+        self._rate_limited("error", f"CAN error frame on {self.name} at {message.timestamp:.3f}", 1)
+
     def _rate_limited(self, side: str, text: str, count: int) -> None:
         now = self.monotonic()
         if now - self._last_log[side] >= LOG_EVERY:
@@ -781,8 +793,7 @@ def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
                 continue
             if message is not None:
                 if message.is_error_frame:
-                    counters["bus_errors"] += 1
-                    log.debug("CAN error frame at %.3f", message.timestamp)
+                    link.error_frame(message)
                 publish(sensor.feed(message, clock()))
             now = clock()
             if now >= next_tick:
