@@ -235,6 +235,8 @@ int main(int argc, char **argv)
         ++n;
     }
     if (n == 0) return 3;
+    /* stdio's buffer is allocated at the first line: before the soak, not inside it */
+    printf("# %ld samples read, RSS %ld kB\n", n, rss_kb());
     ep_reset(&s);
     while (k < total) {
         long begin = k, end = k + block < total ? k + block : total, differing = 0;
@@ -287,6 +289,8 @@ def soak_c(estimator, log: Log, samples: int, block: int, folder: Path) -> list[
                          check=True, capture_output=True, text=True).stdout
     blocks = []
     for line in out.splitlines():
+        if line.startswith("#"):
+            continue
         k, rss, ns, differing, worst = line.split()
         blocks.append(Block(int(k), float(rss), float(ns) / 1000, int(differing), float(worst)))
     return blocks

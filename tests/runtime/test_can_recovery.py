@@ -151,7 +151,8 @@ def _quantised(dataset, codec):
 def test_vanished_interface_is_lost_once_reopened_and_back(swings, estimator, caplog):
     """The interface is gone from 1 s to 3 s of a 5 s swing: one 'lost' line, one 'back' line,
     nothing published while lost, and the estimates after it are the gap rule's: equal to the
-    same frames without a bus, and to batch ``estimate`` of the samples after the outage."""
+    same frames without a bus, and to batch ``estimate`` of the samples after the outage
+    (inverse dynamics bridges a hole of up to 1 s and restarts after a longer one)."""
     caplog.set_level(logging.DEBUG, logger=LOGGER)
     channel, counters, published, one, codec = _live(
         swings, estimator, {"recv": (1.0, 3.0), "send": (1.0, 3.0), "open": (1.0, 3.0)})
