@@ -173,10 +173,12 @@ def test_vanished_interface_is_lost_once_reopened_and_back(swings, estimator, ca
     # nothing published while lost: no frame sent between the two halves
     sent_at = np.array([m.timestamp for m in SENT[channel]])
     assert not ((sent_at > stamps[hole] + 0.6) & (sent_at < stamps[hole + 1] - 0.1)).any()
-    # the same frames without a bus: the same estimates, sample by sample
-    reference = _offline(estimator, frames)
-    assert len(live) == len(reference) > 40
-    assert [p[1:] for p in live] == [p[1:] for p in reference]
+    # the same frames without a bus: the same estimates, sample by sample; missing only the
+    # one or two made from the last frames before the outage, whose sends failed with it
+    reference = {p[0]: p[1:] for p in _offline(estimator, frames)}
+    assert len(reference) > 40 and all(reference[p[0]] == p[1:] for p in live)
+    missing = sorted(set(reference) - {p[0] for p in live})
+    assert len(missing) <= 2 and all(stamps[hole] - 0.11 < t <= stamps[hole] + 1e-6 for t in missing)
     # the gap rule (inverse dynamics restarts): the samples after the outage are a new experiment
     times = one.frame["time"].to_numpy()
     t0 = stamps[0] - times[0]
