@@ -12,6 +12,7 @@ sensor, the estimator, the frames on the bus) is the real code.
 """
 
 import logging
+from pathlib import Path
 import re
 import threading
 import time
@@ -288,3 +289,49 @@ def test_short_failures_and_error_frames_are_one_line_each(estimator, caplog):
                         r"\(\d time\(s\) in a row\); receiving again", lines[0])
     assert lines[1].startswith("CAN error frame on x:y at ")
     assert done["bus_lost"] == 0 and done["bus_errors"] >= 50 + 2
+
+
+def test_ctrl_c_while_waiting_for_a_reopen(tmp_path, estimator):
+    """SIGINT to a ``can-run`` process whose bus is lost ends it at once: exit 0 and the
+    counters, not a traceback, and not after the next reopen attempt."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    model = tmp_path / "model"
+    estimator.save(model)
+    here = Path(__file__).resolve().parent
+    script = f"""
+import sys
+sys.path.insert(0, {str(here)!r})
+import can
+import test_can_recovery as t
+can.interfaces.BACKENDS["failing-virtual"] = ("test_can_recovery", "FailingVirtualBus")
+can.util.VALID_INTERFACES = can.util.VALID_INTERFACES | {{"failing-virtual"}}
+t.WINDOWS["can0"] = {{w: (0.3, float("inf")) for w in ("recv", "send", "open")}}
+from excavator_payload.cli import main
+sys.exit(main(["can-run", "--interface", "failing-virtual", "--channel", "can0", "--model", {str(model)!r}]))
+"""
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "COLUMNS": "200"})
+    try:
+        for line in proc.stderr:  # wait for the loss (the imports take seconds on a loaded machine)
+            if "CAN bus lost on failing-virtual:can0" in line:
+                break
+        time.sleep(1.3)  # lost at 0.8 s; the first reopen failed at 1.8 s, the next at 2.8 s
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        out = ""
+        for line in proc.stdout:  # the counters' line is printed when the run has stopped
+            out += line
+            if line.startswith("stopped: "):
+                break
+        took = time.monotonic() - sent  # (the interpreter's exit after it is not the run's)
+        rest, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert took < 0.5 and "Traceback" not in err
+    counters = dict(re.findall(r"(\w+) ([0-9.]+)", (out + rest).split("stopped: ")[1]))
+    assert counters["bus_lost"] == "1" and 1.5 <= float(counters["bus_lost_seconds"]) <= 2.5
