@@ -182,6 +182,10 @@ def register(app: typer.Typer) -> None:
         logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(message)s")
         est = load_estimator(model)
         sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map), stale_after)
+        # the first sample's gate imports scipy.stats (5 s on a loaded machine): before the bus
+        # is open, not while the first frames queue up
+        import scipy.stats  # noqa: F401
+
         kwargs = {"bitrate": bitrate} if bitrate else {}
 
         def open_bus():  # also reopens a lost bus (an unplugged adapter, a vanished interface)
