@@ -454,54 +454,354 @@ def receive_counted(bus: can.BusABC, timeout: float, counters: dict, stop: threa
         return None
 
 
-def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
-            clock=_time.time, error_pause: float = 0.1) -> dict:
-    """Read frames from ``bus`` and publish estimates until ``stop`` is set.
+#: s of nothing but failing receives (and at least :data:`LOST_FAILURES` of them) after which
+#: the bus is lost: a burst of instant failures (a driver's queue overflowing) is not an outage,
+#: nor is one slow failing call.
+LOST_AFTER = 0.5
+LOST_FAILURES = 3
+#: s between attempts to reopen a lost bus (the last one repeats).
+REOPEN_DELAYS = (1.0, 1.0, 2.0, 4.0, 5.0)
+#: s a reopened bus must receive without an error to be back when no frame arrives (the bus is
+#: there but the sensors are silent: it goes on publishing ``stale``).
+QUIET_BACK = 1.0
+#: s between two log lines of failures that did not lose the bus.
+LOG_EVERY = 10.0
 
-    Publishes each estimate as it completes (at the sensor rate); while the sensors are silent
-    it publishes ``stale`` at the sample rate. Bus errors (error frames, a failing ``recv`` or
-    ``send``) are logged and counted, never fatal. ``clock`` is the receiver's clock.
+
+class BusLink:
+    """The live bus of a run: every failing receive or send is counted, never raised, and
+    reported once per outage, not once per failure.
+
+    * **Lost** (a vanished interface, "Network is down", an unplugged adapter): after
+      :data:`LOST_AFTER` s of nothing but failing receives the bus is *lost* (one warning:
+      ``CAN bus lost on IFACE:CHANNEL (reason); waiting``), shut down, and reopened with
+      ``factory`` after 1, 1, 2, 4, then every 5 s (:data:`REOPEN_DELAYS`). A reopened bus is
+      *back* (``CAN bus back on ... after X s``) when a frame arrives, or after
+      :data:`QUIET_BACK` s of error-free silence; a receive failing before that is the same
+      outage. Counted: ``bus_lost`` (outages), ``bus_lost_seconds`` (from the first failure to
+      back, or to the end of the run).
+    * **Bus-off** (the controller stops transmitting: sends fail with ENOBUFS while frames
+      still arrive): after :data:`LOST_AFTER` s of nothing but failing sends, one warning; the
+      run goes on receiving and estimating, each publication is tried and lost, and one line
+      says when sends work again. Recovering from bus-off is the controller's (socketcan:
+      ``ip link set can0 type can restart-ms 100``). Counted: ``bus_off``, ``bus_off_seconds``.
+    * Shorter failures: one line when they end, and error frames: one line, at most one per
+      :data:`LOG_EVERY` s each (with the number not logged since).
 
     Parameters
     ----------
     bus : can.BusABC
-        The open bus, read and written.
+        The open bus.
+    counters : dict
+        The run's counters; ``published``, ``bus_errors``, ``bus_lost``, ``bus_lost_seconds``,
+        ``bus_off`` and ``bus_off_seconds`` are added.
+    stop : threading.Event
+        Ends a wait (a pause after a failure, the wait before a reopen).
+    factory : callable, optional
+        Opens the bus again (``can.Bus(interface=..., channel=..., ...)``); without one the
+        same bus is tried again on the same schedule.
+    name : str, optional
+        What the log lines call the bus (``IFACE:CHANNEL``).
+    error_pause : float, optional
+        s to wait after a failed receive (a dead interface must not spin).
+    monotonic : callable, optional
+        The clock of the outages, s.
+    logger : logging.Logger, optional
+        Where the lines go.
+    """
+
+    def __init__(self, bus: can.BusABC, counters: dict, stop: threading.Event, factory=None,
+                 name: str = "", error_pause: float = 0.1, monotonic=_time.monotonic,
+                 logger: logging.Logger = log) -> None:
+        self.bus: can.BusABC | None = bus
+        self.own_bus = False  # whether self.bus was opened here (then closed here)
+        self.counters = counters
+        for key in ("published", "bus_errors", "bus_lost", "bus_off"):
+            counters.setdefault(key, 0)
+        for key in ("bus_lost_seconds", "bus_off_seconds"):
+            counters.setdefault(key, 0.0)
+        self.stop = stop
+        self.factory = factory
+        self.name = name or str(getattr(bus, "channel_info", "CAN bus"))
+        self.error_pause = error_pause
+        self.monotonic = monotonic
+        self.log = logger
+        # receive side: a run of failures, the outage, a reopened bus on probation
+        self._recv_run: tuple[float, int, str] | None = None  # (first failure, count, reason)
+        self.lost_since: float | None = None  # the first failure of the outage going on
+        self.lost_reason = ""  # why the bus is lost (the last failure, or the failed reopen)
+        self._attempts = 0
+        self._next_open = 0.0
+        self._probation: float | None = None  # when the reopened bus was opened
+        # send side
+        self._send_run: tuple[float, int, str] | None = None
+        self._bus_off = False
+        self._last_log = {"recv": -math.inf, "send": -math.inf, "error": -math.inf}
+        self._quiet = {"recv": 0, "send": 0, "error": 0}  # failures not logged (rate limit)
+
+    @property
+    def lost(self) -> bool:
+        """Whether the bus is lost (no estimates are published until it is back)."""
+        return self.lost_since is not None
+
+    # -- receive ------------------------------------------------------------------------------
+    def recv(self, timeout: float) -> can.Message | None:
+        """The next frame within ``timeout`` s, or None (also while the bus is lost: then this
+        waits for the next reopen, at most ``timeout`` s; ``stop`` ends the wait).
+
+        Parameters
+        ----------
+        timeout : float
+            s to wait.
+        """
+        if self.lost and self._probation is None:
+            self._reopen(timeout)
+            if self._probation is None:
+                return None
+        try:
+            message = self.bus.recv(timeout=timeout)
+        except Exception as exc:  # noqa: BLE001 - a driver may raise anything; the run survives
+            self._recv_failed(exc)
+            return None
+        self._recv_ok(message)
+        return message
+
+    def _recv_failed(self, exc: BaseException) -> None:
+        now = self.monotonic()
+        self.counters["bus_errors"] += 1
+        reason = _reason(exc)
+        if self.lost:  # a reopened bus fails again: the same outage goes on
+            self._close()
+            self._probation = None
+            self._schedule(now)
+            return
+        first, count, _ = self._recv_run or (now, 0, reason)
+        self._recv_run = (first, count + 1, reason)
+        if count + 1 >= LOST_FAILURES and now - first >= LOST_AFTER:
+            self._declare_lost(first, reason)
+        else:
+            self.stop.wait(self.error_pause)
+
+    def _recv_ok(self, message: can.Message | None) -> None:
+        if self._recv_run is not None:
+            first, count, reason = self._recv_run
+            self._recv_run = None
+            self._rate_limited("recv", f"CAN receive failed on {self.name}: {reason} ({count} time(s) "
+                               "in a row); receiving again", count)
+        if self._probation is not None:
+            now = self.monotonic()
+            if message is not None:
+                self._back(now, "")
+            elif now - self._probation >= QUIET_BACK:
+                self._back(now, " (no frames yet)")
+
+    def _declare_lost(self, first: float, reason: str) -> None:
+        self.lost_since = first
+        self.lost_reason = reason
+        self._recv_run = None
+        self.counters["bus_lost"] += 1
+        if self._bus_off:  # bus-off ends in the outage: its time so far counts
+            self.counters["bus_off_seconds"] += self.monotonic() - self._send_run[0]
+            self._bus_off = False
+        self._send_run = None
+        self.log.warning("CAN bus lost on %s (%s); waiting", self.name, reason)
+        self._close()
+        self._attempts = 0
+        self._schedule(self.monotonic())
+
+    def _schedule(self, now: float) -> None:
+        if self.factory is None:  # nothing to reopen with: keep trying the same bus
+            self._next_open = now + REOPEN_DELAYS[0]
+            return
+        self._next_open = now + REOPEN_DELAYS[min(self._attempts, len(REOPEN_DELAYS) - 1)]
+        self._attempts += 1
+
+    def _reopen(self, timeout: float) -> None:
+        wait = self._next_open - self.monotonic()
+        if wait > 0:
+            self.stop.wait(min(wait, max(timeout, 0.01)))
+            if self.stop.is_set() or self._next_open > self.monotonic():
+                return
+        if self.factory is not None:
+            try:
+                self.bus = self.factory()
+            except Exception as exc:  # noqa: BLE001 - the interface is still gone
+                self.log.debug("reopening CAN bus %s failed: %s", self.name, _reason(exc))
+                self.lost_reason = _reason(exc)
+                self._schedule(self.monotonic())
+                return
+            self.own_bus = True
+        self._probation = self.monotonic()  # without a factory: try the same bus again
+
+    def _back(self, now: float, note: str) -> None:
+        seconds = now - self.lost_since
+        self.counters["bus_lost_seconds"] += seconds
+        self.lost_since = None
+        self._probation = None
+        self.log.warning("CAN bus back on %s after %.1f s%s", self.name, seconds, note)
+
+    def _close(self) -> None:
+        bus, self.bus = self.bus, None
+        if bus is None:
+            return
+        if self.factory is None:  # cannot open another: keep this one and retry it
+            self.bus = bus
+            return
+        try:
+            bus.shutdown()
+        except Exception as exc:  # noqa: BLE001 - a vanished interface may fail to close too
+            self.log.debug("closing CAN bus %s: %s", self.name, _reason(exc))
+
+    # -- send ---------------------------------------------------------------------------------
+    def send(self, frame: can.Message) -> bool:
+        """Send ``frame``; False when it could not be (counted in ``bus_errors``, reported as
+        the class says).
+
+        Parameters
+        ----------
+        frame : can.Message
+            The frame.
+        """
+        if self.bus is None:
+            return False
+        try:
+            self.bus.send(frame)
+        except Exception as exc:  # noqa: BLE001 - a full queue, bus-off, a vanished interface
+            now = self.monotonic()
+            self.counters["bus_errors"] += 1
+            first, count, _ = self._send_run or (now, 0, _reason(exc))
+            self._send_run = (first, count + 1, _reason(exc))
+            # sends failing while receives fail too are the bus lost, not bus-off
+            if (not self._bus_off and self._recv_run is None and not self.lost
+                    and count + 1 >= LOST_FAILURES and now - first >= LOST_AFTER):
+                self._bus_off = True
+                self.counters["bus_off"] += 1
+                self.log.warning("CAN sends failing on %s for %.1f s (%s): bus-off? estimates are "
+                                 "not published until sends work again", self.name, now - first,
+                                 _reason(exc))
+            return False
+        self.counters["published"] += 1
+        if self._send_run is not None:
+            first, count, reason = self._send_run
+            self._send_run = None
+            if self._bus_off:
+                self._bus_off = False
+                seconds = self.monotonic() - first
+                self.counters["bus_off_seconds"] += seconds
+                self.log.warning("CAN sends work again on %s after %.1f s (%d frames not sent)",
+                                 self.name, seconds, count)
+            else:
+                self._rate_limited("send", f"CAN send failed on {self.name}: {reason} ({count} "
+                                   "frame(s)); sending again", count)
+        return True
+
+    def error_frame(self, message: can.Message) -> None:
+        """Count an error frame (``bus_errors``); at most one line per :data:`LOG_EVERY` s.
+
+        Parameters
+        ----------
+        message : can.Message
+            The received error frame.
+        """
+        self.counters["bus_errors"] += 1
+        self._rate_limited("error", f"CAN error frame on {self.name} at {message.timestamp:.3f}", 1)
+
+    def _rate_limited(self, side: str, text: str, count: int) -> None:
+        now = self.monotonic()
+        if now - self._last_log[side] >= LOG_EVERY:
+            quiet, self._quiet[side] = self._quiet[side], 0
+            self.log.warning("%s%s", text, f"; {quiet} more failure(s) not logged" if quiet else "")
+            self._last_log[side] = now
+        else:
+            self._quiet[side] += count
+
+    # -- end ----------------------------------------------------------------------------------
+    def close(self) -> None:
+        """End of the run: an outage still going on counts to its end; a bus opened here is
+        shut down (the one given is the caller's)."""
+        now = self.monotonic()
+        if self.lost_since is not None:
+            self.counters["bus_lost_seconds"] += now - self.lost_since
+        if self._bus_off and self._send_run is not None:
+            self.counters["bus_off_seconds"] += now - self._send_run[0]
+        for key in ("bus_lost_seconds", "bus_off_seconds"):
+            self.counters[key] = round(self.counters[key], 1)
+        if self.own_bus and self.bus is not None:
+            try:
+                self.bus.shutdown()
+            except Exception as exc:  # noqa: BLE001
+                self.log.debug("closing CAN bus %s: %s", self.name, _reason(exc))
+        self.bus = None
+
+
+def _reason(exc: BaseException) -> str:
+    return str(exc) or type(exc).__name__
+
+
+def run_bus(bus: can.BusABC, sensor: PayloadSensor, stop: threading.Event,
+            clock=_time.time, error_pause: float = 0.1, bus_factory=None, name: str = "") -> dict:
+    """Read frames from ``bus`` and publish estimates until ``stop`` is set.
+
+    Publishes each estimate as it completes (at the sensor rate); while the sensors are silent
+    it publishes ``stale`` at the sample rate. Bus errors (error frames, a failing ``recv`` or
+    ``send``) are counted, never fatal; a lost bus is reopened with ``bus_factory`` and bus-off
+    waited out (:class:`BusLink`). While the bus is lost nothing is published and the
+    estimator is not stepped: its state is kept, and the first sample after the outage is a
+    hole in time like any other (the estimator's gap rule: a restart, or the filters' payload
+    belief kept). ``clock`` is the receiver's clock.
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The open bus, read and written (the caller shuts it down).
     sensor : PayloadSensor
         The virtual sensor the frames feed.
     stop : threading.Event
-        Set to end the loop.
+        Set to end the loop (also ends a wait for a reopen).
     clock : callable, optional
         Returns the receiver's clock, s (default :func:`time.time`).
     error_pause : float, optional
         s, wait after a failing ``recv`` before trying again.
+    bus_factory : callable, optional
+        Opens the bus again after it was lost (default: none; the same bus is retried).
+    name : str, optional
+        The bus in log lines (``IFACE:CHANNEL``).
 
     Returns
     -------
     dict
-        Counters: frames, ignored, samples, bad_frames, stale, published, bus_errors.
+        Counters: frames, ignored, samples, bad_frames, stale, duplicates, other_senders,
+        published, bus_errors, bus_lost, bus_lost_seconds, bus_off, bus_off_seconds.
     """
     counters = sensor.counters
-    counters.update(published=0, bus_errors=0)
+    counters.update(published=0, bus_errors=0, bus_lost=0, bus_lost_seconds=0.0, bus_off=0,
+                    bus_off_seconds=0.0)
+    link = BusLink(bus, counters, stop, bus_factory, name, error_pause)
     next_tick = clock() + sensor.period
 
     def publish(outputs):
         for output in outputs:
             for frame in sensor.frames(output):
-                send_counted(bus, frame, counters, log)
+                link.send(frame)
 
-    while not stop.is_set():
-        timeout = max(0.0, min(next_tick - clock(), sensor.period))
-        message = receive_counted(bus, timeout, counters, stop, error_pause, log)
-        if message is not None:
-            if message.is_error_frame:
-                counters["bus_errors"] += 1
-                log.warning("CAN error frame at %.3f", message.timestamp)
-            publish(sensor.feed(message, clock()))
-        now = clock()
-        if now >= next_tick:
-            # silent sensors: stale at the sample rate; a partial sample times out
-            last = sensor.last_sample_received
-            if last is None or now - last > sensor.period:
-                publish(sensor.poll(now))
-            next_tick = max(next_tick + sensor.period, now)
+    try:
+        while not stop.is_set():
+            timeout = max(0.0, min(next_tick - clock(), sensor.period))
+            message = link.recv(timeout)
+            if link.lost:  # nothing is published, nothing is stepped, until it is back
+                next_tick = clock() + sensor.period
+                continue
+            if message is not None:
+                if message.is_error_frame:
+                    link.error_frame(message)
+                publish(sensor.feed(message, clock()))
+            now = clock()
+            if now >= next_tick:
+                # silent sensors: stale at the sample rate; a partial sample times out
+                last = sensor.last_sample_received
+                if last is None or now - last > sensor.period:
+                    publish(sensor.poll(now))
+                next_tick = max(next_tick + sensor.period, now)
+    finally:
+        link.close()
     return dict(counters)

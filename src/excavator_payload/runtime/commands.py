@@ -171,7 +171,8 @@ def register(app: typer.Typer) -> None:
                                        "(default: run until SIGINT/SIGTERM)."),
     ) -> None:
         """Run the payload sensor on a CAN bus: read sensor frames, publish PayloadEstimate and
-        VehicleWeight at the sensor rate, until stopped (Ctrl-C / SIGTERM)."""
+        VehicleWeight at the sensor rate, until stopped (Ctrl-C / SIGTERM). A lost bus (the
+        interface gone) is reopened every 1-5 s and bus-off waited out; each is said once."""
         import can
 
         from excavator_payload.estimators.base import load_estimator
@@ -181,9 +182,17 @@ def register(app: typer.Typer) -> None:
         logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(message)s")
         est = load_estimator(model)
         sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map), stale_after)
+        # the first sample's gate imports scipy.stats (5 s on a loaded machine): before the bus
+        # is open, not while the first frames queue up
+        import scipy.stats  # noqa: F401
+
         kwargs = {"bitrate": bitrate} if bitrate else {}
+
+        def open_bus():  # also reopens a lost bus (an unplugged adapter, a vanished interface)
+            return can.Bus(interface=interface, channel=channel, **kwargs)
+
         try:
-            bus = can.Bus(interface=interface, channel=channel, **kwargs)
+            bus = open_bus()
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
             raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: "
                                  f"{exc}") from None
@@ -198,14 +207,16 @@ def register(app: typer.Typer) -> None:
         console.print(f"{est.name} on {interface}:{channel} ({est.sensor_set.name} sensors, "
                       f"{est.sensor_set.sample_rate:g} Hz); Ctrl-C stops")
         try:
-            counters = run_bus(bus, sensor, stop)
+            counters = run_bus(bus, sensor, stop, bus_factory=open_bus, name=f"{interface}:{channel}")
         finally:
             if timer:
                 timer.cancel()
             for sig, handler in handlers.items():
                 signal.signal(sig, handler)
             bus.shutdown()
-        console.print("stopped: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
+        # counters are printed as they are (bus_lost_seconds: s, to 0.1 s)
+        console.print("stopped: " + ", ".join(f"{k} {v}" for k, v in counters.items()), markup=False,
+                      highlight=False)
 
     @app.command("export")
     def export(
