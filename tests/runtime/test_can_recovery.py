@@ -335,3 +335,4 @@ sys.exit(main(["can-run", "--interface", "failing-virtual", "--channel", "can0",
     assert took < 0.5 and "Traceback" not in err
     counters = dict(re.findall(r"(\w+) ([0-9.]+)", (out + rest).split("stopped: ")[1]))
     assert counters["bus_lost"] == "1" and 1.5 <= float(counters["bus_lost_seconds"]) <= 2.5
+

@@ -364,3 +364,34 @@ def test_one_key_is_one_command():
         read_commands(pipe, commands, unknown.append, keys=True)
     assert [commands.get_nowait() for _ in range(4)] == ["truck", "quit", "truck", None]
     assert unknown == ["x", "\ufffd"] and commands.empty()
+
+
+def test_live_loadout_bus_lost_and_back(shift, caplog):
+    """``loadout --interface`` runs on the same link as can-run: an interface gone for 1.5 s is
+    one "lost" and one "back" line, counted, and nothing is sent while it is lost (the failing
+    bus of ``test_can_recovery``: python-can's virtual bus raising what socketcan raises)."""
+    import logging
+
+    from tests.runtime.test_can_recovery import SENT, WINDOWS, FailingVirtualBus
+
+    channel = f"recovery-loadout-{time.monotonic_ns()}"
+    WINDOWS[channel] = {"recv": (0.0, 1.5), "open": (0.1, 1.5)}
+    bus = FailingVirtualBus(channel=channel)
+    loadout = _loadout(shift, send=True)
+    stop = threading.Event()
+    caplog.set_level(logging.WARNING)
+    timer = threading.Timer(3.5, stop.set)
+    timer.start()
+    try:
+        counters = run_live(bus, loadout, stop, bus_factory=lambda: FailingVirtualBus(channel=channel),
+                            name=f"virtual:{channel}")
+    finally:
+        timer.cancel()
+        bus.shutdown()
+    lines = [r.getMessage() for r in caplog.records
+             if r.levelno >= logging.WARNING and channel in r.getMessage()]
+    assert len(lines) == 2 and "lost" in lines[0] and "back" in lines[1]
+    assert counters["bus_lost"] == 1 and 1.0 <= counters["bus_lost_seconds"] <= 3.0
+    # stale estimates at the sample rate while the bus was up (≤ 2 s of 3.5 s), none while lost
+    rate = loadout.sensor.estimator.sensor_set.sample_rate
+    assert 0 < len(SENT.get(channel, [])) <= 2 * 2.0 * rate

@@ -281,7 +281,9 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
                 if ticks[0] % 25 == 0:  # 4 times a second at 100 Hz
                     view.update(live_view(loadout, footer()))
 
-            counters = run_live(bus, loadout, stop, on_tick=refresh, commands=commands)
+            counters = run_live(bus, loadout, stop, on_tick=refresh, commands=commands,
+                                bus_factory=lambda: can.Bus(interface=interface, channel=channel, **kwargs),
+                                name=f"{interface}:{channel}")
             view.update(live_view(loadout, footer()))
         if not console.is_terminal:
             console.print()  # the last view has no line end where nothing is redrawn
@@ -299,5 +301,9 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
     console.print(f"stopped: {counters['published']} frames sent, {counters['bus_errors']} bus errors; truck "
                   f"changes: {loadout.presses} button presses, {loadout.gaps} gaps of 30 s or more, "
                   f"{counters['truck_commands']} from the terminal; units judged on {guard.judged} windows, "
-                  f"{guard.flagged_windows} wrong", markup=False, highlight=False)
+                  f"{guard.flagged_windows} wrong"
+                  + (f"; bus lost {counters['bus_lost']} time(s), {counters['bus_lost_seconds']:g} s"
+                     if counters.get("bus_lost") else "")
+                  + (f"; bus-off {counters['bus_off']} time(s), {counters['bus_off_seconds']:g} s"
+                     if counters.get("bus_off") else ""), markup=False, highlight=False)
     return loadout.trucks

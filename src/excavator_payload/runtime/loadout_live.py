@@ -16,7 +16,7 @@ import time as _time
 
 import can
 
-from excavator_payload.runtime.can_sensor import receive_counted, send_counted
+from excavator_payload.runtime.can_sensor import BusLink
 from excavator_payload.runtime.loadout import Truck
 from excavator_payload.runtime.loadout_bus import BusLoadout
 
@@ -115,7 +115,8 @@ def terminal_keys(stream):
 
 
 def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, on_tick=None,
-             error_pause: float = 0.1, commands: queue.Queue | None = None) -> dict:
+             error_pause: float = 0.1, commands: queue.Queue | None = None, bus_factory=None,
+             name: str = "") -> dict:
     """Read ``bus`` and send what ``loadout`` says until ``stop`` (a ``threading.Event``) is set;
     then the last truck is closed (and its total sent).
 
@@ -136,29 +137,36 @@ def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, 
     commands : queue.Queue, optional
         The operator's commands (:func:`read_commands`), taken without waiting once per sample
         period: ``"truck"`` closes the truck (:meth:`BusLoadout.new_truck`), ``"quit"`` stops.
+    bus_factory : callable, optional
+        Opens the bus again after it was lost (see :class:`~excavator_payload.runtime.can_sensor.BusLink`).
+    name : str, optional
+        What the log lines call the bus (``IFACE:CHANNEL``).
 
     Returns
     -------
     dict
         ``published`` frames, ``bus_errors`` (a failing ``recv`` or ``send``, error frames:
-        logged and counted, never fatal) and ``truck_commands`` (trucks closed by a command).
+        logged and counted, never fatal), ``truck_commands`` (trucks closed by a command) and the
+        outages: ``bus_lost``, ``bus_lost_seconds``, ``bus_off``, ``bus_off_seconds``.
     """
-    log = _log
     counters = {"published": 0, "bus_errors": 0, "truck_commands": 0}
+    link = BusLink(bus, counters, stop, bus_factory, name, error_pause, logger=_log)
     period = loadout.sensor.period
     next_tick = clock() + period
 
     def publish(frames):
         for frame in frames:
-            send_counted(bus, frame, counters, log)
+            link.send(frame)
 
     try:
         while not stop.is_set():
-            message = receive_counted(bus, max(0.0, min(next_tick - clock(), period)), counters, stop,
-                                      error_pause, log)
+            message = link.recv(max(0.0, min(next_tick - clock(), period)))
+            if link.lost:  # nothing is fed or published until the bus is back
+                next_tick = clock() + period
+                continue
             if message is not None:
                 if message.is_error_frame:
-                    counters["bus_errors"] += 1
+                    link.error_frame(message)
                 else:
                     publish(loadout.feed(message, clock()))
             while commands is not None:
@@ -183,6 +191,7 @@ def run_live(bus: can.BusABC, loadout: BusLoadout, stop, clock=_time.monotonic, 
     finally:
         publish(loadout.new_truck())
         loadout.finish()
+        link.close()
     return counters
 
 
