@@ -171,6 +171,8 @@ def main() -> None:
     ap.add_argument("--sets", default=",".join(SETS), help="comma separated names of training sets")
     ap.add_argument("--option", action="append", default=[], help="balance-net KEY=VALUE option")
     ap.add_argument("--out", type=Path, default=Path("net-generalisation"))
+    ap.add_argument("--judge", default="", help="comma separated test seeds to judge on (default: all "
+                    "of --test-seeds; the list still sets the lifts' numbers)")
     ap.add_argument("--label", default="", help="added to the result files' names (parallel runs)")
     a = ap.parse_args()
     test_seeds = [int(s) for s in a.test_seeds.split(",")]
@@ -186,7 +188,8 @@ def main() -> None:
     # Lifts differ between seeds only by their noise unless their number does (it spreads the
     # dipper angles): each further test seed has two more lifts.
     tests = {(seed, f): simulate(f, a.n_test + (2 * j if f == "lifts" else 0), seed + 10 * i, cache)
-             for j, seed in enumerate(test_seeds) for i, f in enumerate(FAMILIES)}
+             for j, seed in enumerate(test_seeds) for i, f in enumerate(FAMILIES)
+             if not a.judge or str(seed) in a.judge.split(",")}
     print(f"simulated ({time.time() - t0:.0f} s)", flush=True)
     tag = "_".join([a.label, *(f"{k}={v}" for k, v in options.items())]).strip("_") or "all"
     csv = a.out / f"net_generalisation_{tag}.csv"
@@ -207,7 +210,7 @@ def main() -> None:
     frame = pd.DataFrame(rows)
     lines = []
     for estimator in dict.fromkeys(frame["estimator"]):
-        for seed in test_seeds:
+        for seed in sorted({s for s, _ in tests}):
             sub = frame[frame["test_seed"] == seed]
             lines += [f"### {estimator} (test seed {seed})", "", *table(sub, estimator, FAMILIES), ""]
     (a.out / f"net_generalisation_{tag}.md").write_text("\n".join(lines))
