@@ -139,6 +139,9 @@ class ThesisPlatform(Platform):
                                cheap_chunk_size, description="minimum-jerk swings with computed torques"),
         "lifts": Motion("excavator_payload.simulation.lifts:lift_experiment", cheap_chunk_size,
                         needs_first_zero=True, description="slow constant-speed calibration lifts"),
+        "operator": Motion("excavator_payload.simulation.operator_swings:operator_experiment", cheap_chunk_size,
+                           description="operator-like swings: a pause mid-way, an overshoot corrected back, "
+                                       "small corrections at the end"),
     }
 
     def default_discard(self) -> int:

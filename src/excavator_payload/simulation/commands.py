@@ -44,8 +44,9 @@ def register(app: typer.Typer) -> None:
                                       help="Run on this existing Dask cluster (default: $EXCAVATOR_PAYLOAD_SCHEDULER, "
                                            "else local worker processes)."),
         motion: str = typer.Option(None, "--motion",
-                                   help="nmpc (thesis simulator, default), minimum-jerk, or lifts (calibration "
-                                        "lifts); for a hydraulic machine swing (default), nmpc, work-cycle, "
+                                   help="nmpc (thesis simulator, default), minimum-jerk, lifts (calibration "
+                                        "lifts) or operator (swings with a pause, an overshoot and "
+                                        "corrections); for a hydraulic machine swing (default), nmpc, work-cycle, "
                                         "slopes, lifts, operator, shift (trucks of 2-6 work cycles) or trajectory."),
         session: int = typer.Option(0, "--session",
                                     help="Hydraulic machine: working session, draws the sensor offsets "
