@@ -464,7 +464,8 @@ def noise_reference(frame, signals, experiment: str = "experiment") -> dict[str,
     """
     values = frame[list(signals)].to_numpy(dtype=float)
     relative = np.array([1.0 / NOISE_PRESSURE_SCALE if s.endswith("_pressure") else 0.0 for s in signals])
-    d2 = np.abs(values[2:] - 2 * values[1:-1] + values[:-2]) / (1.0 + np.abs(values[2:]) * relative)
+    with np.errstate(invalid="ignore"):  # an infinite sample is NaN here, and dropped below
+        d2 = np.abs(values[2:] - 2 * values[1:-1] + values[:-2]) / (1.0 + np.abs(values[2:]) * relative)
     if experiment in frame.columns:
         e = frame[experiment].to_numpy()
         d2 = d2[(e[2:] == e[1:-1]) & (e[1:-1] == e[:-2])]
