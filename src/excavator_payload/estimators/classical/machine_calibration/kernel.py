@@ -279,8 +279,10 @@ class CalibratedKernel(PressureRegression):
             self._check_joints()
         return True
 
-    #: whether :meth:`_check_joints` runs (the estimator's ``health``); the C export has no check
-    joint_check = False
+    @property
+    def checks_joints(self) -> bool:
+        """Whether the joint check can run: in the momentum form (the one it was set on)."""
+        return self.balance == "momentum"
 
     def _check_joints(self) -> None:
         r"""The joint consistency check: a pressure offset, drift or gain error of one cylinder

@@ -355,7 +355,7 @@ class MachineWeighing:
         balance : str
             The estimator's ``--balance``; must be the form the calibration was fitted in.
         """
-        from excavator_payload.estimators.classical.inverse_dynamics import restore_difference_scale
+        from excavator_payload.estimators.classical.pressure_regression import restore_difference_scale
 
         cal = MachineCalibration(arm)
         z = np.asarray(saved["z"], float)
