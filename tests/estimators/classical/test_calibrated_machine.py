@@ -633,16 +633,16 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     np.testing.assert_array_equal(again.calibration.angle_coverage, narrow.calibration.angle_coverage)
     np.testing.assert_allclose(again.estimate(test)["payload_estimate"].to_numpy(), b, rtol=1e-12, equal_nan=True)
     # a model saved before the coverage existed: no limit
-    saved = cm.arrays(narrow)
+    saved = narrow.kernel.arrays()
     del saved["angle_coverage"]
     old = copy.deepcopy(narrow)
-    cm.restore(old, cm.config(narrow), saved)
+    old._restore(narrow.kernel.config(), saved)
     assert np.all(np.abs(old.calibration.angle_coverage) == cm.NO_LIMIT) and old.estimate_notes(test) == []
     np.testing.assert_allclose(old.estimate(test)["payload_estimate"].to_numpy(), everywhere, rtol=1e-12,
                                equal_nan=True)
     saved["angle_coverage"] = np.array([[0.0, -1.0]] * 3)  # low above high: corrupt
     with pytest.raises(EstimatorError, match="corrupt"):
-        cm.restore(old, cm.config(narrow), saved)
+        old._restore(narrow.kernel.config(), saved)
 
 
 def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):

@@ -6,12 +6,10 @@ fitting data, and at ``load`` from what was saved. The kernel owns everything th
 between the platforms — its parameters, its streaming state, its statuses, what it saves and
 how it is restored — so the estimator delegates without asking which platform it is on:
 
-=========================  =============================================  ==========================
-estimator                  thesis' arm (joint torques)                    hydraulic machine (pressures)
-=========================  =============================================  ==========================
-``inverse-dynamics``       :class:`~.inverse_dynamics.TorqueKernel`       :class:`~.pressure_regression.PressureKernel`
-``calibrated``             :class:`~.calibrated.IdentifiedTorqueKernel`   :class:`~.machine_calibration.weighing.WeighingKernel`
-=========================  =============================================  ==========================
+* ``inverse-dynamics``: :class:`~.inverse_dynamics.TorqueKernel` on the thesis' arm (joint
+  torques), :class:`~.pressure_regression.PressureKernel` on the hydraulic machine (pressures);
+* ``calibrated``: :class:`~.calibrated.IdentifiedTorqueKernel` and
+  :class:`~.calibrated.WeighingKernel`.
 
 Adding a platform to an estimator is one more kernel class and one more entry in its
 ``KERNELS`` table.
