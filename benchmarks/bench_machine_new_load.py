@@ -54,5 +54,5 @@ for label, e in (("detect", est), ("off", off)):
     ok = np.isfinite(err)
     per = pd.DataFrame({"exp": f["experiment"], "err": np.abs(err), "before": before & ok, "mt": empty & ok})
     mb = per[per.before].groupby("exp").err.max(); me = per[per.mt].groupby("exp").err.max()
-    print(f"full work cycles {label}: before the dump mean MAX {mb.mean():.1f} kg; empty bucket (> 3 s after the dump) mean MAX {me.mean():.1f} kg, median {me.median():.1f}, estimated share there {(per.mt.sum() / empty.sum()):.2f}, new loads seen {int(getattr(e._pressure, 'new_loads', 0))}", flush=True)
+    print(f"full work cycles {label}: before the dump mean MAX {mb.mean():.1f} kg; empty bucket (> 3 s after the dump) mean MAX {me.mean():.1f} kg, median {me.median():.1f}, estimated share there {(per.mt.sum() / empty.sum()):.2f}, new loads seen {int(e.kernel.regression.new_loads)}", flush=True)
 print("total", time.time() - t0)

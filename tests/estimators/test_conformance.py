@@ -329,14 +329,17 @@ def test_restart_mid_motion(pair, bench):
 #: corruption or a bug would turn into NaN (a stepper's float arrays are all state).
 STATE_FLOATS = ("num", "info", "_num", "_info", "num_short", "info_short", "_sum", "_smoothed")
 STATE_ARRAYS = ("_x", "_P", "x", "P", "_buffer", "_terms", "_ring")
-STATE_OWNERS = ("_pressure", "_stepper", "_machine_filter")
+#: Where a state may live, beside the estimator itself (dotted: the kernel's regression).
+STATE_OWNERS = ("kernel", "kernel.regression", "_stepper", "_machine_filter")
 
 
 def _poison(est) -> list[str]:
     """Turn the estimator's state into NaN, in place; the names poisoned."""
     poisoned = []
     for owner_name in ("", *STATE_OWNERS):
-        owner = getattr(est, owner_name, None) if owner_name else est
+        owner = est
+        for part in owner_name.split(".") if owner_name else ():
+            owner = getattr(owner, part, None)
         if owner is None:
             continue
         for attr, value in list(vars(owner).items()):

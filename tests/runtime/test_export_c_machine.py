@@ -93,7 +93,7 @@ def test_c_equals_python_on_the_machine_set(name, machine_models, machine_faulty
     assert {"invalid_input", "out_of_range", "gap", "warming_up", "ok"} <= seen
     if name.startswith("calibrated"):
         assert "state_reset" in seen  # the NaN ground tilt: a non-finite state restarts
-    waits = getattr(getattr(est, "_pressure", None), "wait_for_boom", False)
+    waits = getattr(est.kernel.regression, "wait_for_boom", False)  # the calibrated kernel's option
     if not waits:
         # the pressure kernels' one-frame outlier test (a rejection before any information, or
         # before the boom was weighed, is reported as warming_up)
@@ -193,7 +193,7 @@ def test_c_equals_python_where_a_new_load_is_detected(machine_models, tmp_path):
     frame = __import__("pandas").concat([first, second], ignore_index=True).assign(payload=500.0)
     stream = Dataset(frame, {"sensor_set": "machine", "machine": "cat345c-hydraulic"})
     est = machine_models["calibrated-momentum"]
-    assert est._pressure.new_load
+    assert est.kernel.regression.new_load
     off = copy.deepcopy(est)
     off.options["new_load"] = "off"
     off.use_calibration()
@@ -222,7 +222,7 @@ def test_c_equals_python_where_a_load_change_settles(machine_models, tmp_path):
     kernel, seen = None, 0
     for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
         est.step_values(t, row)
-        kernel = est._pressure
+        kernel = est.kernel.regression
         if kernel.settles > seen:  # this window settled: the whole memory is the short one
             seen = kernel.settles
             assert (kernel.num, kernel.info) == (kernel.num_short, kernel.info_short)

@@ -158,7 +158,7 @@ def test_inverse_dynamics_needs_no_noise_preset_on_the_machine_set(setup):
     meta = {k: v for k, v in setup["test"].meta.items() if k != "noise"}
     est = create_estimator("inverse-dynamics", "cat345c-hydraulic").fit(Dataset(setup["test"].frame, meta))
     assert est.noise_name == "estimated"
-    assert 2.5e4 < est._pressure_noise[0] < 5e4
+    assert 2.5e4 < est.kernel.pressure_noise[0] < 5e4
 
 
 def test_imu_dynamics_correction_is_a_lead_and_a_leak_removal():
@@ -598,8 +598,8 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     angles = setup["cal"].frame[["boom_angle", "dipper_angle", "bucket_angle"]].to_numpy(float)
     assert np.all(cov[:, 0] < angles.min(axis=0)) and np.all(cov[:, 1] > angles.max(axis=0))
     assert np.all(cov[:, 0] > angles.min(axis=0) - np.radians(6))  # 5° margin, not more
-    assert momentum._pressure.outside_calibration == "skip"
-    assert setup["zeroed"]._pressure.outside_calibration == "use"
+    assert momentum.kernel.regression.outside_calibration == "skip"
+    assert setup["zeroed"].kernel.regression.outside_calibration == "use"
     test = setup["test"]
     # a test experiment's bucket leaves a narrowed range: its windows are not weighed then
     narrow = copy.deepcopy(momentum)
@@ -633,16 +633,16 @@ def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(mom
     np.testing.assert_array_equal(again.calibration.angle_coverage, narrow.calibration.angle_coverage)
     np.testing.assert_allclose(again.estimate(test)["payload_estimate"].to_numpy(), b, rtol=1e-12, equal_nan=True)
     # a model saved before the coverage existed: no limit
-    saved = cm.arrays(narrow)
+    saved = narrow.kernel.arrays()
     del saved["angle_coverage"]
     old = copy.deepcopy(narrow)
-    cm.restore(old, cm.config(narrow), saved)
+    old._restore(narrow.kernel.config(), saved)
     assert np.all(np.abs(old.calibration.angle_coverage) == cm.NO_LIMIT) and old.estimate_notes(test) == []
     np.testing.assert_allclose(old.estimate(test)["payload_estimate"].to_numpy(), everywhere, rtol=1e-12,
                                equal_nan=True)
     saved["angle_coverage"] = np.array([[0.0, -1.0]] * 3)  # low above high: corrupt
     with pytest.raises(EstimatorError, match="corrupt"):
-        cm.restore(old, cm.config(narrow), saved)
+        old._restore(narrow.kernel.config(), saved)
 
 
 def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):
@@ -650,7 +650,7 @@ def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):
     window has weighed the boom; the information gathered meanwhile is kept, so from then on the
     estimate is the one that reporting at once (no) gives."""
     test = setup["test"]
-    assert momentum._pressure.wait_for_boom and not setup["zeroed"]._pressure.wait_for_boom
+    assert momentum.kernel.regression.wait_for_boom and not setup["zeroed"].kernel.regression.wait_for_boom
     waiting = momentum.estimate(test)
     at_once = copy.deepcopy(momentum)
     at_once.options["wait_for_boom"] = "no"

@@ -51,13 +51,16 @@ from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
     InverseDynamicsEstimator,
+    TorqueKernel,
     base_parameters,
     base_regressor,
     residual_covariance,
+    sensor_variances,
     torque_jacobian,
 )
+from excavator_payload.estimators.classical.pressure_regression import PressureKernel
 from excavator_payload.model.machine import Machine, load_machine
-from excavator_payload.platforms import HYDRAULIC
+from excavator_payload.platforms import HYDRAULIC, THESIS
 
 #: Judged samples: index ≥ 81 of each experiment (the last second, as the thesis judges).
 FIRST_JUDGED_SAMPLE = 81
@@ -118,19 +121,178 @@ def identify_base_parameters(dataset: Dataset, prior: Machine, variances: np.nda
     return theta[:7], theta[7:], cov
 
 
+class IdentifiedTorqueKernel(TorqueKernel):
+    """The thesis' sensor set: :class:`TorqueKernel` weighing with base parameters identified
+    from known-payload experiments (:func:`identify_base_parameters`).
+
+    Parameters
+    ----------
+    machine : Machine
+        The machine file calibration starts from (its payload range bounds the weights).
+    options : dict
+        The estimator's options.
+    theta_empty, theta_payload : numpy.ndarray
+        Base parameters θ0 (7) and θ1 (5).
+    variances : numpy.ndarray
+        Sensor variances, :data:`SIGNALS` order.
+    noise_name : str
+        The noise preset the variances come from.
+    parameter_covariance : numpy.ndarray or None
+        Covariance of (θ0, θ1), 12×12 (None: zeros, nothing identified yet).
+    calibration_experiments : sequence of int
+        The experiments the identification used.
+    """
+
+    def __init__(self, machine: Machine, options: dict, theta_empty, theta_payload, variances,
+                 noise_name: str, parameter_covariance=None, calibration_experiments=()) -> None:
+        super().__init__(machine, options, theta_empty, theta_payload, variances, noise_name)
+        self.parameter_covariance = (np.zeros((12, 12)) if parameter_covariance is None
+                                     else parameter_covariance)
+        self.calibration_experiments = [int(i) for i in calibration_experiments]
+
+    @classmethod
+    def fit(cls, estimator, dataset: Dataset) -> "IdentifiedTorqueKernel":
+        """Identify the base parameters from the calibration experiments ``--experiments`` selects.
+
+        Parameters
+        ----------
+        estimator : CalibratedEstimator
+            The estimator (machine file and options).
+        dataset : Dataset
+            Thesis-set calibration data with known payloads.
+        """
+        noise = cls.fitting_noise(estimator, dataset)
+        variances = sensor_variances(noise)
+        dataset, ids = calibration_subset(estimator, dataset)
+        if not np.all(np.isfinite(dataset.payloads)):
+            raise EstimatorError(f"{estimator.name}: calibration experiments need known payloads")
+        options = estimator.options
+        theta_empty, theta_payload, cov = identify_base_parameters(
+            dataset, estimator.machine, variances, options["prior_std"], options["weighting"])
+        return cls(estimator.machine, options, theta_empty, theta_payload, variances,
+                   THESIS.noise(noise).name, cov, ids)
+
+    def config(self) -> dict:
+        """:class:`TorqueKernel`'s, and the calibration experiments."""
+        return {**super().config(), "calibration_experiments": self.calibration_experiments}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """:class:`TorqueKernel`'s, and the parameters' covariance."""
+        return {**super().arrays(), "parameter_covariance": self.parameter_covariance}
+
+    @classmethod
+    def restore(cls, estimator, config: dict, arrays: Mapping[str, np.ndarray]) -> "IdentifiedTorqueKernel":
+        """The kernel :meth:`config` and :meth:`arrays` saved (checked).
+
+        Parameters
+        ----------
+        estimator : CalibratedEstimator
+            The estimator being loaded (machine and options).
+        config : dict
+            The saved state.
+        arrays : Mapping[str, numpy.ndarray]
+            The saved arrays.
+        """
+        kernel = super().restore(estimator, config, arrays)
+        kernel.parameter_covariance = np.asarray(arrays["parameter_covariance"], float)
+        kernel.calibration_experiments = [int(i) for i in config.get("calibration_experiments", [])]
+        return kernel
+
+
+class WeighingKernel(PressureKernel):
+    """The machine sensor set: the streaming form of a machine-set calibration
+    (:class:`~excavator_payload.estimators.classical.machine_calibration.weighing.MachineWeighing`
+    held, its :class:`~excavator_payload.estimators.classical.machine_calibration.kernel.CalibratedKernel`
+    built with the estimator's options).
+
+    Parameters
+    ----------
+    weighing : MachineWeighing
+        The identified machine with its outlier scale, noise and calibration experiments.
+    options : dict
+        The estimator's options (read again when saving: ``balance``).
+    """
+
+    TAG = "calibrated_machine"
+
+    def __init__(self, weighing, options: dict) -> None:
+        super().__init__(weighing.kernel(options), options, weighing.noise_name,
+                         difference_scale=weighing.difference_scale)
+        self.weighing = weighing
+        self._options = options
+
+    @property
+    def calibration_experiments(self) -> list[int]:
+        """The experiments the calibration used."""
+        return self.weighing.calibration_experiments
+
+    @classmethod
+    def fit(cls, estimator, dataset: Dataset) -> "WeighingKernel":
+        """Calibrate on machine-sensor-set data (:meth:`MachineWeighing.fit`; its warnings,
+        refusals and report go to the estimator's) and weigh with the calibration.
+
+        Parameters
+        ----------
+        estimator : CalibratedEstimator
+            The estimator (machine file and options).
+        dataset : Dataset
+            Machine-sensor-set calibration data.
+        """
+        from excavator_payload.estimators.classical.machine_calibration.weighing import (
+            MachineWeighing, machine_arm)
+
+        arm = machine_arm(estimator.name, estimator.machine)
+        dataset, ids = calibration_subset(estimator, dataset)
+        weighing, messages = MachineWeighing.fit(estimator.name, arm, dataset, ids, estimator.options,
+                                                 lambda half: estimator._weighing_twin(half, dataset.sensor_set))
+        estimator.fit_warnings += messages["warnings"]
+        estimator.fit_refusals += messages["refusals"]
+        estimator.fit_report += messages["report"]
+        return cls(weighing, estimator.options)
+
+    def config(self) -> dict:
+        """The calibration's (:meth:`MachineWeighing.config`)."""
+        return self.weighing.config(self._options["balance"])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The calibration's (:meth:`MachineWeighing.arrays`)."""
+        return self.weighing.arrays()
+
+    @classmethod
+    def restore(cls, estimator, config: dict, arrays: Mapping[str, np.ndarray]) -> "WeighingKernel":
+        """The kernel :meth:`config` and :meth:`arrays` saved (:meth:`MachineWeighing.restore`).
+
+        Parameters
+        ----------
+        estimator : CalibratedEstimator
+            The estimator being loaded (machine and options).
+        config : dict
+            The saved state.
+        arrays : Mapping[str, numpy.ndarray]
+            The saved arrays.
+        """
+        from excavator_payload.estimators.classical.machine_calibration.weighing import (
+            MachineWeighing, machine_arm)
+
+        weighing = MachineWeighing.restore(machine_arm(estimator.name, estimator.machine), config, arrays,
+                                           estimator.options["balance"])
+        return cls(weighing, estimator.options)
+
+
 @register
 class CalibratedEstimator(InverseDynamicsEstimator):
     """Inverse-dynamics estimator whose base parameters are identified from calibration data.
 
     ``fit(dataset)`` takes experiments with *known* payloads (``--experiments N``: the first N
     only), starts from the machine file (``--machine``, e.g. the wrong ``cat345c-3pct``) and
-    identifies the twelve base parameters; estimation then equals ``inverse-dynamics``.
+    identifies the twelve base parameters; estimation then equals ``inverse-dynamics``
+    (:class:`IdentifiedTorqueKernel`).
 
     On machine-sensor-set data (a hydraulic machine file, e.g. ``cat345c-hydraulic-3pct``) it
     identifies the physical parameters, seal friction, sensor offsets and pressure noise instead
-    (:mod:`~excavator_payload.estimators.classical.calibrated_machine`); ``excavator-payload
-    zero`` re-estimates the offsets later. One-sigma uncertainty of the current estimate:
-    :attr:`uncertainty` (kg).
+    (:mod:`~excavator_payload.estimators.classical.machine_calibration`, :class:`WeighingKernel`);
+    ``excavator-payload zero`` re-estimates the offsets later. One-sigma uncertainty of the
+    current estimate: :attr:`uncertainty` (kg).
 
     Parameters
     ----------
@@ -141,8 +303,6 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     """
 
     name = "calibrated"
-    #: On the machine sensor set the identification is
-    #: :mod:`~excavator_payload.estimators.classical.calibrated_machine` (dispatch below).
     # SENSOR_SETS: from its traits (estimators/traits.py)
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
@@ -187,15 +347,35 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                             "noise only)", ("cross", "none")),
     }
 
+    KERNELS = {THESIS.name: IdentifiedTorqueKernel, HYDRAULIC.name: WeighingKernel}
+
     def __init__(self, machine=None, **options) -> None:
         super().__init__(machine, **options)
         if self.options["experiments"] < 0:
             raise EstimatorError(f"{self.name}: option --experiments must be >= 0")
         if not self.options["prior_std"] > 0:
             raise EstimatorError(f"{self.name}: option --prior-std must be > 0")
-        self.parameter_covariance = np.zeros((12, 12))
-        self.calibration_experiments: list[int] = []
-        self.weighing = None  # machine sensor set: a machine_calibration.weighing.MachineWeighing
+
+    @property
+    def parameter_covariance(self) -> np.ndarray:
+        """Covariance of the identified (θ0, θ1), 12×12 (thesis sensor set; zeros otherwise)."""
+        if isinstance(self.kernel, IdentifiedTorqueKernel):
+            return self.kernel.parameter_covariance
+        return np.zeros((12, 12))
+
+    @property
+    def calibration_experiments(self) -> list[int]:
+        """The experiments the calibration used (none before fit)."""
+        if isinstance(self.kernel, (IdentifiedTorqueKernel, WeighingKernel)):
+            return self.kernel.calibration_experiments
+        return []
+
+    @property
+    def weighing(self):
+        """The machine-set calibration weighed with (a
+        :class:`~excavator_payload.estimators.classical.machine_calibration.weighing.MachineWeighing`);
+        None otherwise."""
+        return self.kernel.weighing if isinstance(self.kernel, WeighingKernel) else None
 
     @property
     def calibration(self):
@@ -204,52 +384,14 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         held by :attr:`weighing`); None otherwise."""
         return self.weighing.calibration if self.weighing is not None else None
 
-    def _fit(self, dataset: Dataset) -> None:
-        self.weighing = None  # a refit starts afresh
-        if HYDRAULIC.carries(dataset):
-            self._fit_machine_calibration(dataset)
-            return
-        self._set_noise(self._noise_from(dataset))
-        dataset, ids = calibration_subset(self, dataset)
-        if not np.all(np.isfinite(dataset.payloads)):
-            raise EstimatorError(f"{self.name}: calibration experiments need known payloads")
-        theta_empty, theta_payload, cov = identify_base_parameters(
-            dataset, self.machine, self.variances, self.options["prior_std"], self.options["weighting"])
-        self.theta_empty, self.theta_payload, self.parameter_covariance = theta_empty, theta_payload, cov
-        self.calibration_experiments = [int(i) for i in ids]
-        self._prepare()
-
     # -- the machine sensor set: a MachineWeighing held ------------------------------------
-    def _fit_machine_calibration(self, dataset: Dataset) -> None:
-        """Calibrate on machine-sensor-set data (:meth:`MachineWeighing.fit`) and weigh with it."""
-        from excavator_payload.estimators.classical.machine_calibration.weighing import (
-            MachineWeighing, machine_arm)
-
-        arm = machine_arm(self.name, self.machine)
-        dataset, ids = calibration_subset(self, dataset)
-        weighing, messages = MachineWeighing.fit(self.name, arm, dataset, ids, self.options,
-                                                 lambda half: self._weighing_twin(half, dataset.sensor_set))
-        self.fit_warnings += messages["warnings"]
-        self.fit_refusals += messages["refusals"]
-        self.fit_report += messages["report"]
-        self._hold(weighing)
-
-    def _hold(self, weighing) -> None:
-        """Hold ``weighing`` and weigh with it: its kernel built with the current options."""
-        self.weighing = weighing
-        self.noise_name = weighing.noise_name
-        self.calibration_experiments = list(weighing.calibration_experiments)
-        self.difference_scale = weighing.difference_scale
-        self._pressure = weighing.kernel(self.options)
-        self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
-
     def _weighing_twin(self, weighing, sensor_set) -> "CalibratedEstimator":
         """A fitted estimator of this machine and these options that weighs with ``weighing``
         (the calibration cross-check's halves): no plausibility limits or borrowed gate of its own."""
         twin = type(self)(self.machine, **self.options)
         twin.gating, twin.health = self.gating, self.health
         twin.sensor_set, twin.fitted = sensor_set, True
-        twin._hold(weighing)
+        twin.kernel = WeighingKernel(weighing, twin.options)
         twin.reset()
         return twin
 
@@ -262,11 +404,12 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         calibration : MachineCalibration, optional
             The machine-set calibration to weigh with.
         """
-        if self.weighing is None:
+        weighing = self.weighing
+        if weighing is None:
             raise EstimatorError(f"{self.name}: no machine-sensor-set calibration to weigh with")
         if calibration is not None:
-            self.weighing.calibration = calibration
-        self._hold(self.weighing)
+            weighing.calibration = calibration
+        self.kernel = WeighingKernel(weighing, self.options)
 
     def zero(self, dataset: Dataset) -> list[str]:
         """The zero check: re-estimate the machine-set sensor offsets from an empty-bucket motion,
@@ -284,14 +427,15 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         """
         from excavator_payload.estimators.classical.machine_calibration.weighing import zero
 
-        if self.weighing is None or not HYDRAULIC.carries(dataset):
+        weighing = self.weighing
+        if weighing is None or not HYDRAULIC.carries(dataset):
             return zero(self, dataset)  # its one clear line
-        warnings = self.weighing.zero(dataset, self.options)
-        self._hold(self.weighing)
+        warnings = weighing.zero(dataset, self.options)
+        self.kernel = WeighingKernel(weighing, self.options)
         self.reset()
         # the predicted weighing error (one line) and why not to weigh with this zero
         # (``excavator-payload zero`` refuses unless --force), zero_quality.zero_quality
-        quality = self.weighing.zero_quality
+        quality = weighing.zero_quality
         self.zero_quality = quality
         self.zero_report = [quality.report()]
         self.zero_refusals = [f"zero: {reason}" for reason in quality.refusals]
@@ -302,8 +446,8 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             from excavator_payload.estimators.classical.machine_calibration.weighing import (
                 coverage_notes, waiting_notes)
 
-            return [*coverage_notes(self.name, self._pressure, self.calibration, dataset),
-                    *waiting_notes(self.name, self._pressure, estimates)]
+            return [*coverage_notes(self.name, self.kernel.regression, self.calibration, dataset),
+                    *waiting_notes(self.name, self.kernel.regression, estimates)]
         return []
 
     def identified_parameters(self) -> pd.DataFrame:
@@ -314,29 +458,6 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             "parameter": [*BASE_PARAMETER_NAMES, *(f"payload {p}" for p in PAYLOAD_PARAMETER_NAMES)],
             "prior": prior, "identified": value, "std": np.sqrt(np.diag(self.parameter_covariance)),
         })
-
-
-    def _config(self) -> dict:
-        if self.weighing is not None:
-            return self.weighing.config(self.options["balance"])
-        return {**super()._config(), "calibration_experiments": self.calibration_experiments}
-
-    def _arrays(self) -> dict[str, np.ndarray]:
-        if self.weighing is not None:
-            return self.weighing.arrays()
-        return {**super()._arrays(), "parameter_covariance": self.parameter_covariance}
-
-    def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
-        if config.get("kernel") == "calibrated_machine":
-            from excavator_payload.estimators.classical.machine_calibration.weighing import (
-                MachineWeighing, machine_arm)
-
-            self._hold(MachineWeighing.restore(machine_arm(self.name, self.machine), config, arrays,
-                                               self.options["balance"]))
-            return
-        super()._restore(config, arrays)
-        self.parameter_covariance = np.asarray(arrays["parameter_covariance"], float)
-        self.calibration_experiments = [int(i) for i in config.get("calibration_experiments", [])]
 
 
 def calibration_subset(estimator, dataset: Dataset) -> tuple[Dataset, list]:

@@ -2,7 +2,9 @@
 
 Code written against ``calibrated_machine`` keeps working: every public name of the rooms
 (settings, symbolic residuals, data preparation, solver, kernel, the estimator's side) is
-re-exported here. New code imports from the room itself.
+re-exported here. New code imports from the room itself. What a ``calibrated`` estimator holds
+on the machine sensor set, with its save and restore, is its kernel
+(:class:`~excavator_payload.estimators.classical.calibrated.WeighingKernel`).
 """
 
 from __future__ import annotations
@@ -29,56 +31,4 @@ from excavator_payload.estimators.classical.machine_calibration.weighing import 
     MachineWeighing, coverage_notes, hardly_moved, machine_arm, waiting_notes, zero)
 from excavator_payload.estimators.classical.pressure_regression import (  # noqa: F401
     ANGLES, PITCH, PRESSURES, RATES, ROLL)
-
-
-def _install(estimator, cal: MachineCalibration) -> None:
-    """Weigh with ``cal`` and the estimator's current options (its kernel rebuilt): the
-    estimator's own :meth:`~excavator_payload.estimators.classical.calibrated.CalibratedEstimator.use_calibration`.
-
-    Parameters
-    ----------
-    estimator : CalibratedEstimator
-        A fitted machine-set ``calibrated`` estimator.
-    cal : MachineCalibration
-        The calibration to weigh with.
-    """
-    estimator.use_calibration(cal)
-
-
-def config(estimator) -> dict:
-    """What a machine-set ``calibrated`` estimator saves in ``estimator.json`` (its ``_config``).
-
-    Parameters
-    ----------
-    estimator : CalibratedEstimator
-        A fitted machine-set ``calibrated`` estimator.
-    """
-    return estimator.weighing.config(estimator.options["balance"])
-
-
-def arrays(estimator) -> dict:
-    """What a machine-set ``calibrated`` estimator saves in ``arrays.npz`` (its ``_arrays``).
-
-    Parameters
-    ----------
-    estimator : CalibratedEstimator
-        A fitted machine-set ``calibrated`` estimator.
-    """
-    return estimator.weighing.arrays()
-
-
-def restore(estimator, cfg: dict, saved) -> None:
-    """Rebuild a machine-set ``calibrated`` estimator from what :func:`config` and :func:`arrays`
-    wrote (its ``_restore``).
-
-    Parameters
-    ----------
-    estimator : CalibratedEstimator
-        The estimator to restore into.
-    cfg : dict
-        The saved configuration.
-    saved : mapping
-        The saved arrays.
-    """
-    estimator._restore(cfg, saved)
 

@@ -109,6 +109,9 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
+from excavator_payload.estimators.classical.kernels import PayloadKernel, UnfittedKernel, saved_kernel
+from excavator_payload.estimators.classical.pressure_regression import (  # noqa: F401 (re-exported)
+    PressureKernel, restore_difference_scale)
 from excavator_payload.model.codegen import native
 from excavator_payload.model.dynamics import (
     BASE_PARAMETER_NAMES,
@@ -118,7 +121,7 @@ from excavator_payload.model.dynamics import (
     symbolic,
 )
 from excavator_payload.model.machine import Machine
-from excavator_payload.platforms import HYDRAULIC, THESIS
+from excavator_payload.platforms import HYDRAULIC, THESIS, platform_for
 
 #: Kinematic signals, in :data:`SIGNALS` order (the order of the Jacobian's columns).
 KINEMATIC_SIGNALS = SIGNALS[:6]
@@ -501,25 +504,216 @@ class _Kernel:
         return float(self._nis_out[0])
 
 
-def restore_difference_scale(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
-    """The machine set's per-signal outlier-test scale from a saved model (checked).
+class TorqueKernel(PayloadKernel):
+    """The thesis' sensor set: the torque residuals' recursive weighted least squares (module doc).
 
     Parameters
     ----------
-    arrays : Mapping[str, numpy.ndarray]
-        The saved model's arrays.
-
-    Returns
-    -------
-    numpy.ndarray
-        The 15 per-signal scales (SI units of each signal).
+    machine : Machine
+        The 2-link machine the estimator believes in (its payload range bounds the weights).
+    options : dict
+        The estimator's options (``weighting``, ``eiv_correction``, ``forgetting``, ``warmup_std``).
+    theta_empty, theta_payload : numpy.ndarray
+        Base parameters θ0 (7) and θ1 (5).
+    variances : numpy.ndarray
+        Sensor variances, :data:`SIGNALS` order.
+    noise_name : str
+        The noise preset the variances come from.
     """
-    if "difference_scale" not in arrays:
-        raise EstimatorError("saved model predates the machine set's outlier test: fit it again")
-    scale = np.asarray(arrays["difference_scale"], float)
-    if scale.shape != (15,) or np.any(np.isnan(scale)) or np.any(scale <= 0):
-        raise EstimatorError("saved outlier-test scale is corrupt")
-    return scale
+
+    def __init__(self, machine: Machine, options: dict, theta_empty, theta_payload, variances,
+                 noise_name: str) -> None:
+        self.theta_empty, self.theta_payload, self.variances = theta_empty, theta_payload, variances
+        self.noise_name = noise_name
+        self._weighting = options["weighting"]
+        self._eiv = bool(options["eiv_correction"])
+        self._lam = float(options["forgetting"])
+        self._warm_info = 1.0 / float(options["warmup_std"]) ** 2
+        self._default_weight_payload = 0.5 * float(machine.max_payload)
+        self._max_payload = float(machine.max_payload)
+        self._bind()
+        self.reset()
+
+    def _bind(self) -> None:
+        """Bind the compiled functions to the parameters."""
+        self._compiled = _Kernel(self.theta_empty, self.theta_payload, self.variances, self._weighting,
+                                 self._eiv)
+
+    # -- picking ---------------------------------------------------------------------------
+    @classmethod
+    def of_noise(cls, estimator, noise) -> "TorqueKernel":
+        """The kernel of ``estimator``'s machine (its file's base parameters) at a noise preset.
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator (machine and options).
+        noise : str or NoisePreset
+            The thesis-set noise preset of the weights.
+        """
+        theta_empty, theta_payload = base_parameters(estimator.machine)
+        return cls(estimator.machine, estimator.options, theta_empty, theta_payload,
+                   sensor_variances(noise), THESIS.noise(noise).name)
+
+    @staticmethod
+    def fitting_noise(estimator, dataset: Dataset):
+        """The noise preset of the weights: ``--noise``, or (``auto``) the one the data name.
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator (its name and options).
+        dataset : Dataset
+            The fitting data.
+        """
+        if HYDRAULIC.owns(estimator.machine):
+            raise EstimatorError(f"{estimator.name}: the hydraulic machine '{estimator.machine.name}' goes "
+                                 "with machine-sensor-set data")
+        name = estimator.options["noise"]
+        if name == "auto":
+            name = dataset.meta.get("noise")
+            if name is None:
+                raise EstimatorError(f"{estimator.name}: the training data name no noise preset; "
+                                     "pass --noise thesis|field|none")
+        return THESIS.noise(name)
+
+    @classmethod
+    def fit(cls, estimator, dataset: Dataset) -> "TorqueKernel":
+        """The kernel of the machine file's parameters at the fitting data's noise.
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator (machine and options).
+        dataset : Dataset
+            Thesis-set fitting data (only their noise preset is read).
+        """
+        return cls.of_noise(estimator, cls.fitting_noise(estimator, dataset))
+
+    # -- streaming -------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Zero the least-squares sums."""
+        self.num = 0.0
+        self.info = 0.0
+
+    def step(self, time: float, values: np.ndarray, judge: bool = True,
+             joint_check: bool = False) -> StepResult:
+        """One sample's information terms, accumulated (``judge``, ``joint_check``: unused, the
+        estimator's χ² gate judges the samples through :meth:`innovation`).
+
+        Parameters
+        ----------
+        time : float
+            Sample time, s.
+        values : numpy.ndarray
+            The sample, :data:`SIGNALS` order (SI units).
+        judge : bool
+            Unused.
+        joint_check : bool
+            Unused.
+        """
+        if self.info > 0.0:  # weights use the current estimate, kept physical
+            m_w = min(max(self.num / self.info, 0.0), self._max_payload)
+        else:
+            m_w = self._default_weight_payload
+        d_num, d_info = self._compiled.terms(values, m_w)
+        self.num = self._lam * self.num + d_num
+        self.info = self._lam * self.info + d_info
+        if self.info <= 0.0:
+            return StepResult(math.nan, Status.WARMING_UP)
+        estimate = self.num / self.info
+        status = Status.OK if self.info >= self._warm_info else Status.WARMING_UP
+        return StepResult(estimate, status)
+
+    def innovation(self, values: np.ndarray) -> tuple[float, int] | None:
+        """The sample's torque residual at the current estimate (:func:`residual_nis`), 2 dof.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample, :data:`SIGNALS` order (SI units).
+        """
+        if self.info <= 0.0:
+            return None
+        payload = min(max(self.num / self.info, 0.0), self._max_payload)
+        return self._compiled.nis(values, payload, 1.0 / self.info), 2
+
+    def terms(self, values: np.ndarray, weight_payload: float) -> tuple[float, float]:
+        """The compiled :func:`information_terms` of one sample.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample, :data:`SIGNALS` order (SI units).
+        weight_payload : float
+            Payload at which the weights are evaluated, kg.
+        """
+        return self._compiled.terms(values, weight_payload)
+
+    def nis(self, values: np.ndarray, payload: float, payload_var: float) -> float:
+        """The compiled :func:`residual_nis` of one sample.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample, :data:`SIGNALS` order (SI units).
+        payload : float
+            Payload estimate, kg.
+        payload_var : float
+            Its variance, kg².
+        """
+        return self._compiled.nis(values, payload, payload_var)
+
+    def state_finite(self) -> bool:
+        """Whether both sums are finite."""
+        return math.isfinite(self.num) and math.isfinite(self.info)
+
+    # -- persistence -----------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """The compiled functions' buffers are rebuilt, not pickled (multiprocessing, deepcopy)."""
+        state = dict(self.__dict__)
+        state.pop("_compiled", None)
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._bind()
+
+    def config(self) -> dict:
+        """The noise preset and the base parameters' names."""
+        return {"noise": self.noise_name,
+                "base_parameter_names": list(BASE_PARAMETER_NAMES),
+                "payload_parameter_names": list(PAYLOAD_PARAMETER_NAMES)}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """θ0, θ1 and the sensor variances."""
+        return {"theta_empty": np.asarray(self.theta_empty, float),
+                "theta_payload": np.asarray(self.theta_payload, float),
+                "sensor_variances": np.asarray(self.variances, float)}
+
+    @classmethod
+    def restore(cls, estimator, config: dict, arrays: Mapping[str, np.ndarray]) -> "TorqueKernel":
+        """The kernel :meth:`config` and :meth:`arrays` saved (checked).
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator being loaded (machine and options).
+        config : dict
+            The saved state.
+        arrays : Mapping[str, numpy.ndarray]
+            The saved arrays.
+        """
+        theta_empty = np.asarray(arrays["theta_empty"], float)
+        theta_payload = np.asarray(arrays["theta_payload"], float)
+        variances = np.asarray(arrays["sensor_variances"], float)
+        if theta_empty.shape != (7,) or theta_payload.shape != (5,) or variances.shape != (8,):
+            raise EstimatorError("saved parameters have the wrong shape (corrupt model folder)")
+        if not (np.all(np.isfinite(theta_empty)) and np.all(np.isfinite(theta_payload))
+                and np.all(variances > 0)):
+            raise EstimatorError("saved parameters are not finite (corrupt model folder)")
+        return cls(estimator.machine, estimator.options, theta_empty, theta_payload, variances,
+                   str(config.get("noise", "unknown")))
 
 
 @register
@@ -528,6 +722,8 @@ class InverseDynamicsEstimator(Estimator):
 
     See the module docstring for the equations. ``fit`` only reads the noise preset of the
     training dataset (``--noise auto``) to set the weights; the physics comes from the machine.
+    The weighing itself is the estimator's :attr:`kernel`, one per platform (:data:`KERNELS`,
+    :mod:`~excavator_payload.estimators.classical.kernels`).
 
     Parameters
     ----------
@@ -538,8 +734,6 @@ class InverseDynamicsEstimator(Estimator):
     """
 
     name = "inverse-dynamics"
-    #: On the machine sensor set (a hydraulic machine) the kernel is
-    #: :class:`~excavator_payload.estimators.classical.pressure_regression.PressureRegression`.
     # SENSOR_SETS: from its traits (estimators/traits.py)
     OPTIONS = {
         "forgetting": Option(float, 1.0, "forgetting factor λ in (0, 1]; 1 keeps the whole history"),
@@ -553,6 +747,8 @@ class InverseDynamicsEstimator(Estimator):
                               "differentiator that gives the accelerations (3: measured best on "
                               "NMPC swings and work cycles, 5 on slowly starting swings)"),
     }
+    #: The kernel of each platform, by platform name: picked at fit for the data's platform.
+    KERNELS: dict[str, type[PayloadKernel]] = {THESIS.name: TorqueKernel, HYDRAULIC.name: PressureKernel}
 
     def __init__(self, machine=None, **options) -> None:
         super().__init__(machine, **options)
@@ -563,165 +759,64 @@ class InverseDynamicsEstimator(Estimator):
             raise EstimatorError(f"{self.name}: option --warmup-std must be > 0 kg")
         if not 1 <= self.options["half_window"] <= 100:
             raise EstimatorError(f"{self.name}: option --half-window must be in 1…100 samples")
-        self._pressure = None  # the machine sensor set's kernel, once fitted on such data
-        if self._hydraulic:
-            self.noise_name = HYDRAULIC.default_noise
-            self._pressure_noise = (0.0, 0.0)
-            self.difference_scale = np.full(15, np.inf)  # the outlier test's scale, from fit data
-            self._reset()
-            return
-        self.theta_empty, self.theta_payload = base_parameters(self.machine)
-        self.variances = sensor_variances(THESIS.default_noise)
-        self.noise_name = THESIS.default_noise
-        self._prepare()
-        self._reset()
+        #: The weighing: until fit, the thesis kernel of the machine file at the default noise;
+        #: a hydraulic machine's kernel needs the fitting data (noise, outlier-test scale).
+        self.kernel: PayloadKernel = (UnfittedKernel(HYDRAULIC.default_noise) if HYDRAULIC.owns(self.machine)
+                                      else self.KERNELS[THESIS.name].of_noise(self, THESIS.default_noise))
 
+    # -- the kernel's parameters, read by the C export and the reports -----------------------
+    @property
+    def noise_name(self) -> str:
+        """The noise preset the weights come from (``estimated``: from the data)."""
+        return self.kernel.noise_name
 
-    def _build_pressure_kernel(self) -> None:
-        from excavator_payload.estimators.classical.pressure_regression import PressureRegression
-        from excavator_payload.model.hydraulic import HydraulicArmModel
+    @property
+    def theta_empty(self) -> np.ndarray:
+        """Empty-bucket base parameters θ0 (thesis sensor set)."""
+        return self.kernel.theta_empty
 
-        std, ripple = self._pressure_noise
-        from excavator_payload.estimators.classical.pressure_regression import spike_threshold
+    @property
+    def theta_payload(self) -> np.ndarray:
+        """Payload base parameters θ1 (thesis sensor set)."""
+        return self.kernel.theta_payload
 
-        self._pressure = PressureRegression(HydraulicArmModel(self.machine, compiled=False),
-                                            pressure_std=std, ripple_fraction=ripple,
-                                            half_window=self.options["half_window"],
-                                            forgetting=self.options["forgetting"])
-        self._pressure.spike_threshold = spike_threshold(self.difference_scale)
-        self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
-
-    def _fit_machine_set(self, dataset: Dataset) -> None:
-        from excavator_payload.estimators.classical.pressure_regression import difference_scale
-
-        if not self._hydraulic:
-            raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic machine "
-                                 f"file, not '{self.machine.name}' (e.g. --machine cat345c-hydraulic)")
-        self.difference_scale = difference_scale(dataset)
-        name = self.options["noise"]
-        if name == "auto":
-            name = dataset.meta.get("noise")
-        if name is None:  # issue 12: no preset named, the pressure noise is estimated from the data
-            from excavator_payload.estimators.classical.machine_calibration.data import pressure_noise_from_data
-
-            self.noise_name = "estimated"
-            self._pressure_noise = (pressure_noise_from_data(dataset), 0.0)
-            self._build_pressure_kernel()
-            return
-        preset = HYDRAULIC.noise(name)
-        self.noise_name = preset.name
-        self._pressure_noise = (preset.pressure_noise, preset.ripple_fraction)
-        self._build_pressure_kernel()
+    @property
+    def variances(self) -> np.ndarray:
+        """Sensor variances of the weights, :data:`SIGNALS` order (thesis sensor set)."""
+        return self.kernel.variances
 
     # -- fitting ---------------------------------------------------------------------------
-    def _noise_from(self, dataset: Dataset):
-        name = self.options["noise"]
-        if name == "auto":
-            name = dataset.meta.get("noise")
-            if name is None:
-                raise EstimatorError(f"{self.name}: the training data names no noise preset; "
-                                     "pass --noise thesis|field|none")
-        preset = THESIS.noise(name)
-        return preset
-
     def _set_noise(self, preset) -> None:
-        self.variances = sensor_variances(preset)
-        self.noise_name = THESIS.noise(preset).name
-        self._prepare()
+        """Weigh with the machine file's parameters at noise ``preset`` (the borrowed gate's
+        sentinel, :meth:`Estimator._build_sentinel`)."""
+        self.kernel = TorqueKernel.of_noise(self, preset)
 
     def _fit(self, dataset: Dataset) -> None:
-        if HYDRAULIC.carries(dataset):
-            self._fit_machine_set(dataset)
-            return
-        if self._hydraulic:
-            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
-                                 "with machine-sensor-set data")
-        self._set_noise(self._noise_from(dataset))
-        self.theta_empty, self.theta_payload = base_parameters(self.machine)
-        self._prepare()
-
-    def _prepare(self) -> None:
-        """Bind the compiled kernel to the parameters; cache the options as plain floats."""
-        self._kernel = _Kernel(self.theta_empty, self.theta_payload, self.variances,
-                               self.options["weighting"], bool(self.options["eiv_correction"]))
-        self._lam = float(self.options["forgetting"])
-        self._warm_info = 1.0 / float(self.options["warmup_std"]) ** 2
-        self._weighting = self.options["weighting"]
-        self._eiv = bool(self.options["eiv_correction"])
-        self._default_weight_payload = 0.5 * float(self.machine.max_payload)
-        self._max_payload = float(self.machine.max_payload)
+        self.kernel = self.KERNELS[platform_for(dataset).name].fit(self, dataset)
 
     # -- streaming -------------------------------------------------------------------------
     def _reset(self) -> None:
-        self._num = 0.0
-        self._info = 0.0
-        if self._pressure is not None:
-            self._pressure.reset()
-
+        self.kernel.reset()
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
-        if self._pressure is not None:
-            self._pressure.judge = self.gating
-            # the joint check (CalibratedKernel, calibrated's --joint-check) runs with the health
-            # monitor, in the momentum form (the one it was set on)
-            self._pressure.joint_check = (self.health and self.options.get("joint_check", "off") == "on"
-                                          and getattr(self._pressure, "balance", "") == "momentum")
-            self._pressure.update(time, values)
-            self._info = self._pressure.info
-            if self._info <= 0.0 or not getattr(self._pressure, "ready", True):
-                return StepResult(math.nan, Status.WARMING_UP)
-            status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
-            if self._pressure.rejected:  # the sample before this one was a one-frame outlier
-                status = Status.REJECTED
-            elif status is Status.OK and getattr(self._pressure, "changing", False):
-                status = Status.LOAD_CHANGING  # the short memory has left the whole one
-            checked = getattr(self._pressure, "joint_checked", True)
-            if status is Status.OK and self._pressure.joint_check and not checked:
-                status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
-            fault = getattr(self._pressure, "joint_fault", "") if self._pressure.joint_check else ""
-            if fault and status in (Status.OK, Status.LOAD_CHANGING):
-                # the joints' balances disagree (a cylinder's pressure off, drifting or mis-scaled):
-                # never ok; weighed without the joint named when one stands out, else nothing
-                estimate, info = self._pressure.joint_degraded
-                self._info = info
-                return StepResult(estimate, Status.SENSOR_FAULT, fault=fault)
-            return StepResult(self._pressure.estimate, status)
-        if self._info > 0.0:  # weights use the current estimate, kept physical
-            m_w = min(max(self._num / self._info, 0.0), self._max_payload)
-        else:
-            m_w = self._default_weight_payload
-        d_num, d_info = self._kernel.terms(values, m_w)
-        self._num = self._lam * self._num + d_num
-        self._info = self._lam * self._info + d_info
-        if self._info <= 0.0:
-            return StepResult(math.nan, Status.WARMING_UP)
-        estimate = self._num / self._info
-        status = Status.OK if self._info >= self._warm_info else Status.WARMING_UP
-        return StepResult(estimate, status)
+        # the joint check (calibrated's --joint-check) runs with the health monitor
+        joint_check = self.health and self.options.get("joint_check", "off") == "on"
+        return self.kernel.step(time, values, judge=self.gating, joint_check=joint_check)
 
     # -- gate, uncertainty, state watch (see estimators.base) --------------------------------
     def _innovation(self, time: float, values: np.ndarray) -> tuple[float, int] | None:
-        """The sample's torque residual at the current estimate (:func:`residual_nis`), 2 dof.
-
-        On the machine sensor set the kernel judges each sample itself, one sample after it
-        arrived (a one-frame outlier test, see
-        :mod:`~excavator_payload.estimators.classical.pressure_regression`): None here.
-        """
-        if self._info <= 0.0 or self._pressure is not None:
-            return None
-        payload = min(max(self._num / self._info, 0.0), self._max_payload)
-        return self._kernel.nis(values, payload, 1.0 / self._info), 2
+        """The kernel's χ² statistic of the sample (the thesis set's torque residual, 2 dof); on
+        the machine sensor set the kernel judges each sample itself, one sample after it
+        arrived (:mod:`~excavator_payload.estimators.classical.pressure_regression`): None."""
+        return self.kernel.innovation(values)
 
     def _estimate_sigma(self) -> float:
         """Standard deviation of the estimate from the accumulated information, kg (I^{-1/2});
         a calibrated machine kernel adds its model error: √(1/I + s_model²)."""
-        if self._info <= 0:
-            return math.nan
-        model_std = getattr(self._pressure, "model_std", 0.0) if self._pressure is not None else 0.0
-        return math.sqrt(1.0 / self._info + model_std * model_std)
+        return self.kernel.sigma()
 
     def _state_finite(self) -> bool:
-        return math.isfinite(self._num) and math.isfinite(self._info)
+        return self.kernel.state_finite()
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Samples are independent equations: a gap of up to 1 s keeps the sums, a longer one
@@ -729,59 +824,21 @@ class InverseDynamicsEstimator(Estimator):
         spaced samples: its window starts again after any gap."""
         if self._last_time is None or not 0.0 < time - self._last_time <= MAX_BRIDGED_GAP:
             self._reset()
-        elif self._pressure is not None:
-            self._pressure.restart_window()
+        else:
+            self.kernel.bridge_gap()
 
     @property
     def uncertainty(self) -> float:
         """Current standard deviation of the estimate, kg (I^{-1/2}); inf before any sample."""
-        return 1.0 / math.sqrt(self._info) if self._info > 0 else math.inf
+        info = self.kernel.info
+        return 1.0 / math.sqrt(info) if info > 0 else math.inf
 
     # -- persistence -----------------------------------------------------------------------
-    def __getstate__(self) -> dict:
-        """The compiled kernel's buffers are rebuilt, not pickled (multiprocessing, deepcopy)."""
-        state = dict(self.__dict__)
-        state.pop("_kernel", None)
-        return state
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        if getattr(self, "theta_empty", None) is not None and self._pressure is None:
-            self._prepare()
-
     def _config(self) -> dict:
-        if self._pressure is not None:
-            return {"noise": self.noise_name, "kernel": "pressure_regression"}
-        return {"noise": self.noise_name,
-                "base_parameter_names": list(BASE_PARAMETER_NAMES),
-                "payload_parameter_names": list(PAYLOAD_PARAMETER_NAMES)}
+        return self.kernel.config()
 
     def _arrays(self) -> dict[str, np.ndarray]:
-        if self._pressure is not None:
-            return {"pressure_noise": np.asarray(self._pressure_noise, float),
-                    "difference_scale": np.asarray(self.difference_scale, float)}
-        return {"theta_empty": np.asarray(self.theta_empty, float),
-                "theta_payload": np.asarray(self.theta_payload, float),
-                "sensor_variances": np.asarray(self.variances, float)}
+        return self.kernel.arrays()
 
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
-        if config.get("kernel") == "pressure_regression":
-            noise = np.asarray(arrays["pressure_noise"], float)
-            if noise.shape != (2,) or not np.all(np.isfinite(noise)) or not self._hydraulic:
-                raise EstimatorError("saved pressure-regression state is corrupt")
-            self._pressure_noise = (float(noise[0]), float(noise[1]))
-            self.noise_name = str(config.get("noise", "unknown"))
-            self.difference_scale = restore_difference_scale(arrays)
-            self._build_pressure_kernel()
-            return
-        theta_empty = np.asarray(arrays["theta_empty"], float)
-        theta_payload = np.asarray(arrays["theta_payload"], float)
-        variances = np.asarray(arrays["sensor_variances"], float)
-        if theta_empty.shape != (7,) or theta_payload.shape != (5,) or variances.shape != (8,):
-            raise EstimatorError("saved parameters have the wrong shape (corrupt model folder)")
-        if not (np.all(np.isfinite(theta_empty)) and np.all(np.isfinite(theta_payload))
-                and np.all(variances > 0)):
-            raise EstimatorError("saved parameters are not finite (corrupt model folder)")
-        self.theta_empty, self.theta_payload, self.variances = theta_empty, theta_payload, variances
-        self.noise_name = str(config.get("noise", "unknown"))
-        self._prepare()
+        self.kernel = saved_kernel(self.KERNELS, config).restore(self, config, arrays)

@@ -71,11 +71,16 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from typing import Mapping
 
 import numpy as np
 
 from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.errors import EstimatorError
+from excavator_payload.estimators.classical.kernels import PayloadKernel
+from excavator_payload.estimators.status import Status, StepResult
 from excavator_payload.model.hydraulic import HydraulicArmModel, compiled_function
+from excavator_payload.platforms import HYDRAULIC
 
 SIGNALS = MACHINE_SENSORS.signals
 ANGLES = [SIGNALS.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle")]
@@ -124,6 +129,19 @@ class PressureRegression:
     forgetting : float
         Forgetting factor λ of the recursive sums.
     """
+
+    # What the per-sample regression cannot do, said explicitly (the calibrated kernel,
+    # machine_calibration.kernel.CalibratedKernel, does these): it is ready from the first
+    # sample, detects no new load, checks no joint against the others and carries no model error.
+    ready = True
+    changing = False
+    checks_joints = False
+    #: whether the joint check runs (set per sample by the kernel); the C export has no check
+    joint_check = False
+    joint_checked = True
+    joint_fault = ""
+    joint_degraded = (math.nan, 0.0)
+    model_std = 0.0
 
     def __init__(self, arm: HydraulicArmModel, pressure_std: float, ripple_fraction: float = 0.0,
                  half_window: int = 5, forgetting: float = 1.0):
@@ -328,3 +346,185 @@ def spike_threshold(scale: np.ndarray) -> np.ndarray:
     from excavator_payload.estimators.checks import GATE_PROBABILITY
 
     return norm.isf(GATE_PROBABILITY / 2) * np.asarray(scale, float)
+
+
+def restore_difference_scale(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The machine set's per-signal outlier-test scale from a saved model (checked).
+
+    Parameters
+    ----------
+    arrays : Mapping[str, numpy.ndarray]
+        The saved model's arrays.
+
+    Returns
+    -------
+    numpy.ndarray
+        The 15 per-signal scales (SI units of each signal).
+    """
+    if "difference_scale" not in arrays:
+        raise EstimatorError("saved model predates the machine set's outlier test: fit it again")
+    scale = np.asarray(arrays["difference_scale"], float)
+    if scale.shape != (15,) or np.any(np.isnan(scale)) or np.any(scale <= 0):
+        raise EstimatorError("saved outlier-test scale is corrupt")
+    return scale
+
+
+class PressureKernel(PayloadKernel):
+    """The machine sensor set's kernel of ``inverse-dynamics``: a :class:`PressureRegression`
+    (or, held by ``calibrated``, its calibrated form) and the statuses it reports.
+
+    Parameters
+    ----------
+    regression : PressureRegression
+        The streaming regression it weighs with.
+    options : dict
+        The estimator's options (``warmup_std``).
+    noise_name : str
+        The noise preset of the weights (``estimated``: from the data).
+    pressure_noise : tuple of float
+        Pressure white-noise std (Pa) and pump-ripple share of the weights.
+    difference_scale : numpy.ndarray
+        Per-signal scale of the one-frame outlier test (:func:`difference_scale`).
+    """
+
+    TAG = "pressure_regression"
+
+    def __init__(self, regression: PressureRegression, options: dict, noise_name: str,
+                 pressure_noise: tuple[float, float] = (0.0, 0.0), difference_scale=None) -> None:
+        self.regression = regression
+        self.noise_name = noise_name
+        self.pressure_noise = pressure_noise
+        self.difference_scale = difference_scale
+        self.warm_info = 1.0 / float(options["warmup_std"]) ** 2
+        self.info = 0.0
+
+    @classmethod
+    def build(cls, estimator, noise_name: str, pressure_noise: tuple[float, float],
+              scale: np.ndarray) -> "PressureKernel":
+        """The kernel of ``estimator``'s hydraulic machine with these weights and outlier scale.
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator (machine and options).
+        noise_name : str
+            The noise preset of the weights.
+        pressure_noise : tuple of float
+            Pressure white-noise std (Pa) and pump-ripple share.
+        scale : numpy.ndarray
+            Per-signal outlier-test scale.
+        """
+        std, ripple = pressure_noise
+        options = estimator.options
+        regression = PressureRegression(HydraulicArmModel(estimator.machine, compiled=False),
+                                        pressure_std=std, ripple_fraction=ripple,
+                                        half_window=options["half_window"], forgetting=options["forgetting"])
+        regression.spike_threshold = spike_threshold(scale)
+        return cls(regression, options, noise_name, pressure_noise, scale)
+
+    @classmethod
+    def fit(cls, estimator, dataset) -> "PressureKernel":
+        """The kernel at the fitting data's noise (``--noise``, the preset the data name, or
+        estimated from the data) and outlier scale.
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator (machine and options).
+        dataset : Dataset
+            Machine-sensor-set fitting data.
+        """
+        if not HYDRAULIC.owns(estimator.machine):
+            raise EstimatorError(f"{estimator.name}: data of the machine sensor set need a hydraulic machine "
+                                 f"file, not '{estimator.machine.name}' (e.g. --machine cat345c-hydraulic)")
+        scale = difference_scale(dataset)
+        name = estimator.options["noise"]
+        if name == "auto":
+            name = dataset.meta.get("noise")
+        if name is None:  # issue 12: no preset named, the pressure noise is estimated from the data
+            from excavator_payload.estimators.classical.machine_calibration.data import pressure_noise_from_data
+
+            return cls.build(estimator, "estimated", (pressure_noise_from_data(dataset), 0.0), scale)
+        preset = HYDRAULIC.noise(name)
+        return cls.build(estimator, preset.name, (preset.pressure_noise, preset.ripple_fraction), scale)
+
+    # -- streaming -------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Empty the regression's window and sums."""
+        self.info = 0.0
+        self.regression.reset()
+
+    def bridge_gap(self) -> None:
+        """The differentiator needs evenly spaced samples: its window starts again."""
+        self.regression.restart_window()
+
+    @property
+    def model_std(self) -> float:
+        """The calibration's model error, kg (0 for the machine file's own parameters)."""
+        return self.regression.model_std
+
+    def step(self, time: float, values: np.ndarray, judge: bool = True,
+             joint_check: bool = False) -> StepResult:
+        """One sample into the regression; the status of the estimate it leaves.
+
+        Parameters
+        ----------
+        time : float
+            Sample time, s.
+        values : numpy.ndarray
+            The sample, machine-set :data:`SIGNALS` order (SI units).
+        judge : bool
+            Whether the one-frame outlier test runs.
+        joint_check : bool
+            Whether the joints' balances are checked against each other (in the momentum form).
+        """
+        regression = self.regression
+        regression.judge = judge
+        regression.joint_check = joint_check and regression.checks_joints
+        regression.update(time, values)
+        self.info = regression.info
+        if self.info <= 0.0 or not regression.ready:
+            return StepResult(math.nan, Status.WARMING_UP)
+        status = Status.OK if self.info >= self.warm_info else Status.WARMING_UP
+        if regression.rejected:  # the sample before this one was a one-frame outlier
+            status = Status.REJECTED
+        elif status is Status.OK and regression.changing:
+            status = Status.LOAD_CHANGING  # the short memory has left the whole one
+        if status is Status.OK and regression.joint_check and not regression.joint_checked:
+            status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
+        fault = regression.joint_fault if regression.joint_check else ""
+        if fault and status in (Status.OK, Status.LOAD_CHANGING):
+            # the joints' balances disagree (a cylinder's pressure off, drifting or mis-scaled):
+            # never ok; weighed without the joint named when one stands out, else nothing
+            estimate, self.info = regression.joint_degraded
+            return StepResult(estimate, Status.SENSOR_FAULT, fault=fault)
+        return StepResult(regression.estimate, status)
+
+    # -- persistence -----------------------------------------------------------------------
+    def config(self) -> dict:
+        """The noise preset and the kernel's tag."""
+        return {"noise": self.noise_name, "kernel": self.TAG}
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The pressure noise of the weights and the outlier test's scale."""
+        return {"pressure_noise": np.asarray(self.pressure_noise, float),
+                "difference_scale": np.asarray(self.difference_scale, float)}
+
+    @classmethod
+    def restore(cls, estimator, config: dict, arrays: Mapping[str, np.ndarray]) -> "PressureKernel":
+        """The kernel :meth:`config` and :meth:`arrays` saved (checked).
+
+        Parameters
+        ----------
+        estimator : InverseDynamicsEstimator
+            The estimator being loaded (machine and options).
+        config : dict
+            The saved state.
+        arrays : Mapping[str, numpy.ndarray]
+            The saved arrays.
+        """
+        noise = np.asarray(arrays["pressure_noise"], float)
+        if noise.shape != (2,) or not np.all(np.isfinite(noise)) or not HYDRAULIC.owns(estimator.machine):
+            raise EstimatorError("saved pressure-regression state is corrupt")
+        return cls.build(estimator, str(config.get("noise", "unknown")), (float(noise[0]), float(noise[1])),
+                         restore_difference_scale(arrays))

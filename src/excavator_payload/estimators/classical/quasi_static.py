@@ -57,7 +57,7 @@ import numpy as np
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
-from excavator_payload.platforms import HYDRAULIC
+from excavator_payload.platforms import HYDRAULIC, THESIS, platform_for
 
 DEG = math.pi / 180.0
 #: Calibration lifts whose dipper angles differ by less than this share one map line, rad.
@@ -97,6 +97,140 @@ def local_linear(x: np.ndarray, y: np.ndarray, nodes: np.ndarray, half_width: fl
     return (s2 * t0 - s1 * t1) / det
 
 
+class BoomTorque:
+    """The thesis' sensor set: the mapped load is the measured boom torque, N·m."""
+
+    #: No cylinder: the load is measured as a torque.
+    areas = None
+
+    @classmethod
+    def fit(cls, estimator) -> "BoomTorque":
+        """The load of ``estimator``'s 2-link machine (one clear line for a hydraulic one).
+
+        Parameters
+        ----------
+        estimator : QuasiStaticEstimator
+            The estimator (its name and machine).
+        """
+        if HYDRAULIC.owns(estimator.machine):
+            raise EstimatorError(f"{estimator.name}: the hydraulic machine '{estimator.machine.name}' goes "
+                                 "with machine-sensor-set data")
+        return cls()
+
+    def of_rows(self, rows) -> np.ndarray:
+        """The load of a lift's rows, N·m.
+
+        Parameters
+        ----------
+        rows : pandas.DataFrame
+            Thesis-set samples.
+        """
+        return rows["boom_torque"].to_numpy(float)
+
+    def bind(self, sensors) -> None:
+        """Find the load's signal in the sensor set's order (for :meth:`of_sample`).
+
+        Parameters
+        ----------
+        sensors : SensorSet
+            The sensor set the samples come in.
+        """
+        self._index = sensors.index("boom_torque")
+
+    def of_sample(self, values: np.ndarray) -> float:
+        """The load of one sample, N·m.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample in the sensor set's order.
+        """
+        return float(values[self._index])
+
+    def config(self) -> dict:
+        """Nothing to save."""
+        return {}
+
+
+class BoomPistonForce:
+    """The machine sensor set: the mapped load is the boom cylinder's piston force
+    :math:`p_h A_h - p_r A_r`, N (the boom torque is not measured).
+
+    Parameters
+    ----------
+    head_area, rod_area : float
+        The boom cylinder's head and rod areas, m².
+    """
+
+    def __init__(self, head_area: float, rod_area: float) -> None:
+        #: Boom cylinder (head, rod) areas, m².
+        self.areas = (head_area, rod_area)
+
+    @classmethod
+    def fit(cls, estimator) -> "BoomPistonForce":
+        """The load of ``estimator``'s hydraulic machine (one clear line for a 2-link one).
+
+        Parameters
+        ----------
+        estimator : QuasiStaticEstimator
+            The estimator (its name and machine).
+        """
+        if not HYDRAULIC.owns(estimator.machine):
+            raise EstimatorError(f"{estimator.name}: data of the machine sensor set need a hydraulic "
+                                 f"machine file, not '{estimator.machine.name}' (e.g. --machine "
+                                 "cat345c-hydraulic)")
+        cylinder = estimator.machine.boom_cylinder
+        return cls(float(cylinder.head_area), float(cylinder.rod_area))
+
+    def of_rows(self, rows) -> np.ndarray:
+        """The load of a lift's rows, N.
+
+        Parameters
+        ----------
+        rows : pandas.DataFrame
+            Machine-set samples.
+        """
+        head, rod = self.areas
+        return (rows["boom_head_pressure"].to_numpy(float) * head
+                - rows["boom_rod_pressure"].to_numpy(float) * rod)
+
+    def bind(self, sensors) -> None:
+        """Find the pressures in the sensor set's order (for :meth:`of_sample`).
+
+        Parameters
+        ----------
+        sensors : SensorSet
+            The sensor set the samples come in.
+        """
+        self._head, self._rod = sensors.indices(("boom_head_pressure", "boom_rod_pressure"))
+
+    def of_sample(self, values: np.ndarray) -> float:
+        """The load of one sample, N.
+
+        Parameters
+        ----------
+        values : numpy.ndarray
+            The sample in the sensor set's order.
+        """
+        return float(values[self._head]) * self.areas[0] - float(values[self._rod]) * self.areas[1]
+
+    def config(self) -> dict:
+        """The cylinder areas."""
+        return {"boom_areas": list(self.areas)}
+
+
+def saved_load(config: dict) -> BoomTorque | BoomPistonForce:
+    """The mapped load a saved model's state describes (its ``boom_areas``: the piston force).
+
+    Parameters
+    ----------
+    config : dict
+        The saved state.
+    """
+    areas = config.get("boom_areas")
+    return BoomTorque() if areas is None else BoomPistonForce(float(areas[0]), float(areas[1]))
+
+
 @register
 class QuasiStaticEstimator(Estimator):
     """Two characteristic boom-torque maps (empty, rated) and linear interpolation between them.
@@ -110,7 +244,6 @@ class QuasiStaticEstimator(Estimator):
     """
 
     name = "quasi-static"
-    #: On the machine sensor set the mapped load is the boom cylinder's piston force.
     # SENSOR_SETS: from its traits (estimators/traits.py)
     OPTIONS = {
         "grid_step": Option(float, 2.0, "boom-angle spacing of the maps, degrees"),
@@ -122,6 +255,8 @@ class QuasiStaticEstimator(Estimator):
         "averaging": Option(str, "cumulative", "report the running mean since the experiment "
                             "started, or each sample's value", ("cumulative", "none")),
     }
+    #: The mapped load of each platform, by platform name: picked at fit for the data's platform.
+    LOADS = {THESIS.name: BoomTorque, HYDRAULIC.name: BoomPistonForce}
 
     def __init__(self, machine=None, **options) -> None:
         super().__init__(machine, **options)
@@ -136,19 +271,14 @@ class QuasiStaticEstimator(Estimator):
         self.boom_nodes = np.zeros(0)
         self.dipper_nodes: list[np.ndarray] = []
         self.maps: list[np.ndarray] = []
-        #: Boom cylinder (head, rod) areas, m², on the machine sensor set (None: boom torque).
-        self.boom_areas: tuple[float, float] | None = None
+        #: The mapped load (:data:`LOADS`): the boom torque until fit on machine-set data.
+        self.load: BoomTorque | BoomPistonForce = BoomTorque()
         self._reset()
 
-
-    def _boom_load(self, rows) -> np.ndarray:
-        """The mapped load of a lift's rows: boom torque (thesis set) or boom piston force, N."""
-        if self.boom_areas is None:
-            return rows["boom_torque"].to_numpy(float)
-        head, rod = self.boom_areas
-        return (rows["boom_head_pressure"].to_numpy(float) * head
-                - rows["boom_rod_pressure"].to_numpy(float) * rod)
-
+    @property
+    def boom_areas(self) -> tuple[float, float] | None:
+        """Boom cylinder (head, rod) areas, m², on the machine sensor set (None: boom torque)."""
+        return self.load.areas
 
     # -- calibration -----------------------------------------------------------------------
     def _lift_part(self, exp_id: int, rows) -> tuple[np.ndarray, np.ndarray, float, float]:
@@ -162,7 +292,7 @@ class QuasiStaticEstimator(Estimator):
         boom = rows["boom_angle"].to_numpy(float)
         rate = rows["boom_rate"].to_numpy(float)
         dipper = rows["dipper_angle"].to_numpy(float)
-        torque = self._boom_load(rows)
+        torque = self.load.of_rows(rows)
         finite = (np.isfinite(time) & np.isfinite(boom) & np.isfinite(rate) & np.isfinite(dipper)
                   & np.isfinite(torque))
         time, boom, rate, dipper, torque = (a[finite] for a in (time, boom, rate, dipper, torque))
@@ -183,17 +313,7 @@ class QuasiStaticEstimator(Estimator):
         return boom[use], torque[use], float(np.mean(dipper[use])), speed
 
     def _fit(self, dataset: Dataset) -> None:
-        self.boom_areas = None
-        if HYDRAULIC.carries(dataset):
-            if not self._hydraulic:
-                raise EstimatorError(f"{self.name}: data of the machine sensor set need a hydraulic "
-                                     f"machine file, not '{self.machine.name}' (e.g. --machine "
-                                     "cat345c-hydraulic)")
-            cylinder = self.machine.boom_cylinder
-            self.boom_areas = (float(cylinder.head_area), float(cylinder.rod_area))
-        elif self._hydraulic:
-            raise EstimatorError(f"{self.name}: the hydraulic machine '{self.machine.name}' goes "
-                                 "with machine-sensor-set data")
+        self.load = self.LOADS[platform_for(dataset).name].fit(self)
         lifts = [(i, *self._lift_part(i, rows)) for i, rows in dataset.experiments()]
         payloads = dataset.payloads
         if not np.all(np.isfinite(payloads)):
@@ -271,10 +391,7 @@ class QuasiStaticEstimator(Estimator):
         sensors = self.sensor_set
         self._i_boom, self._i_boom_rate, self._i_dipper, self._i_dipper_rate = sensors.indices(
             ("boom_angle", "boom_rate", "dipper_angle", "dipper_rate"))
-        if self.boom_areas is None:
-            self._i_load = (sensors.index("boom_torque"),)
-        else:
-            self._i_load = tuple(sensors.indices(("boom_head_pressure", "boom_rod_pressure")))
+        self.load.bind(sensors)
 
     def _lookup(self, level: int, boom: float, dipper: float) -> float | None:
         """Bilinear interpolation of map ``level`` at (boom, dipper); None outside the map."""
@@ -320,11 +437,7 @@ class QuasiStaticEstimator(Estimator):
 
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         boom, dipper = float(values[self._i_boom]), float(values[self._i_dipper])
-        if self.boom_areas is None:
-            torque = float(values[self._i_load[0]])
-        else:  # machine sensor set: the boom piston force plays the torque's part
-            torque = (float(values[self._i_load[0]]) * self.boom_areas[0]
-                      - float(values[self._i_load[1]]) * self.boom_areas[1])
+        torque = self.load.of_sample(values)  # machine sensor set: the boom piston force
         if self._gate and (abs(float(values[self._i_boom_rate]) - self._speed) > self._speed_tol
                            or abs(float(values[self._i_dipper_rate])) > self._speed_tol):
             held = self._last_estimate  # not at the calibration speed: keep the last value
@@ -342,11 +455,8 @@ class QuasiStaticEstimator(Estimator):
 
     # -- persistence -----------------------------------------------------------------------
     def _config(self) -> dict:
-        config = {"reference_payloads": list(self.reference_payloads),
-                  "calibration_speed": self.calibration_speed}
-        if self.boom_areas is not None:
-            config["boom_areas"] = list(self.boom_areas)
-        return config
+        return {"reference_payloads": list(self.reference_payloads),
+                "calibration_speed": self.calibration_speed, **self.load.config()}
 
     def _arrays(self) -> dict[str, np.ndarray]:
         return {"boom_nodes": self.boom_nodes,
@@ -357,8 +467,7 @@ class QuasiStaticEstimator(Estimator):
         refs = config["reference_payloads"]
         self.reference_payloads = (float(refs[0]), float(refs[1]))
         self.calibration_speed = float(config["calibration_speed"])
-        areas = config.get("boom_areas")
-        self.boom_areas = None if areas is None else (float(areas[0]), float(areas[1]))
+        self.load = saved_load(config)
         self.boom_nodes = np.asarray(arrays["boom_nodes"], float)
         self.dipper_nodes = [np.asarray(arrays["empty_dipper_nodes"], float),
                              np.asarray(arrays["rated_dipper_nodes"], float)]

@@ -56,13 +56,13 @@ def pressure_regression_model(est) -> CModel:
     from excavator_payload.estimators.classical.machine_calibration.settings import BOOM_READY_WINDOWS, SETTLE_WINDOWS
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
-        ANGLES, PITCH, PRESSURES, RATES, ROLL)
+        ANGLES, PITCH, PRESSURES, RATES, ROLL, PressureKernel)
     from excavator_payload.model.hydraulic import hydraulic_symbolic
 
-    kernel = est._pressure
-    model_var = float(getattr(kernel, "model_std", 0.0)) ** 2
-    if kernel is None:
+    if not isinstance(est.kernel, PressureKernel):
         raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
+    kernel = est.kernel.regression
+    model_var = float(kernel.model_std) ** 2
     calibrated = isinstance(kernel, CalibratedKernel)
     momentum = calibrated and kernel.balance == "momentum"
     sensors = est.sensor_set
@@ -108,7 +108,7 @@ def pressure_regression_model(est) -> CModel:
         "",
         f"static const int EP_RATES[{len(RATES)}] = {{{rates_c}}};  /* boom, dipper, bucket, slew rate */",
         f"#define EP_FORGETTING {c_number(kernel.forgetting)}",
-        f"#define EP_WARM_INFO {c_number(est._warm_info)}      /* 1 / warmup_std^2 */",
+        f"#define EP_WARM_INFO {c_number(est.kernel.warm_info)}      /* 1 / warmup_std^2 */",
         f"#define EP_MAX_BRIDGED_GAP {c_number(MAX_BRIDGED_GAP)}  /* s: a longer gap restarts */",
         "/* pressure_regression's one-frame outlier test: the sample before the newest is rejected",
         " * when some signal moves away from both neighbours, in the same direction, by more than",

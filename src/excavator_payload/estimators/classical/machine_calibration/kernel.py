@@ -96,7 +96,7 @@ class CalibratedKernel(PressureRegression):
         self._short_forgetting = math.exp(-dt / NEW_LOAD_MEMORY)
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
-        self.model_std = float(getattr(cal, "model_std", 0.0))  # kg, in σ beside I^-1/2
+        self.model_std = float(cal.model_std)  # kg, in σ beside I^-1/2
         # each joint's estimate's variance beyond 1 / I_j (the joint check)
         self._joint_var = self.model_std**2 + (JOINT_MODEL_SHARE * float(cal.arm.machine.rated_payload))**2
         self._checked_info = 1.0 / (JOINT_CHECKED_SHARE * float(cal.arm.machine.rated_payload))**2
@@ -279,8 +279,10 @@ class CalibratedKernel(PressureRegression):
             self._check_joints()
         return True
 
-    #: whether :meth:`_check_joints` runs (the estimator's ``health``); the C export has no check
-    joint_check = False
+    @property
+    def checks_joints(self) -> bool:
+        """Whether the joint check can run: in the momentum form (the one it was set on)."""
+        return self.balance == "momentum"
 
     def _check_joints(self) -> None:
         r"""The joint consistency check: a pressure offset, drift or gain error of one cylinder

@@ -49,7 +49,7 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
     dataset : Dataset
         The data weighed.
     """
-    if getattr(kernel, "outside_calibration", "use") != "skip":
+    if kernel.outside_calibration != "skip":
         return []
     notes = []
     for j, joint in enumerate(("boom", "dipper", "bucket")):
@@ -84,7 +84,7 @@ def waiting_notes(name: str, kernel, estimates) -> list[str]:
     estimates : pandas.DataFrame or None
         What ``estimate`` returned.
     """
-    if not getattr(kernel, "wait_for_boom", False) or estimates is None or not len(estimates):
+    if not kernel.wait_for_boom or estimates is None or not len(estimates):
         return []
     estimate = estimates["payload_estimate"].to_numpy(float)
     status = estimates["status"].astype(str).to_numpy()
@@ -336,7 +336,7 @@ class MachineWeighing:
         cal = self.calibration
         return {"z": cal.z, "z_covariance": cal.covariance, "pressure_std": np.array([cal.pressure_std]),
                 "rate_var": np.array([cal.rate_var]), "window_inflation": cal.window_inflation,
-                "angle_coverage": cal.angle_coverage, "model_std": np.array([getattr(cal, "model_std", 0.0)]),
+                "angle_coverage": cal.angle_coverage, "model_std": np.array([cal.model_std]),
                 "difference_scale": np.asarray(self.difference_scale, float)}
 
     @classmethod
@@ -355,7 +355,7 @@ class MachineWeighing:
         balance : str
             The estimator's ``--balance``; must be the form the calibration was fitted in.
         """
-        from excavator_payload.estimators.classical.inverse_dynamics import restore_difference_scale
+        from excavator_payload.estimators.classical.pressure_regression import restore_difference_scale
 
         cal = MachineCalibration(arm)
         z = np.asarray(saved["z"], float)
