@@ -236,11 +236,6 @@ class Estimator(ABC):
         #: The fitting data's noise per signal for the monitor (see :func:`.health.noise_reference`).
         self.health_reference: dict[str, float] | None = None
 
-    @property
-    def _hydraulic(self) -> bool:
-        """Whether the machine the estimator believes in is a hydraulic machine (issue 11)."""
-        return HYDRAULIC.owns(self.machine)
-
     # -- to implement ----------------------------------------------------------------------
     @abstractmethod
     def _fit(self, dataset: Dataset) -> None:
