@@ -70,3 +70,26 @@ def test_column_map_equals_casadi_map_bit_for_bit():
     second = again(2 * xs, ps)[0]
     assert not np.array_equal(first, second) and np.array_equal(first, reference[0])
     assert [o.shape for o in ColumnMap(f, 0)(np.zeros((3, 0)), ps)] == [(3, 0), (3, 0), (1, 0)]
+
+
+def test_buffered_call_equals_the_function_call_and_keeps_its_stats():
+    """A solver called through :class:`BufferedCall` returns CasADi's own numbers (bit for bit)
+    and its statistics; an input not given is zero, a scalar fills its vector."""
+    import casadi as ca
+    import numpy as np
+
+    from excavator_payload.model.codegen import BufferedCall
+
+    x, p = ca.SX.sym("x", 2), ca.SX.sym("p")
+    solver = ca.nlpsol("s", "sqpmethod", {"x": x, "p": p, "f": (x[0] - p) ** 2 + (x[1] - 1) ** 4,
+                                          "g": x[0] + x[1]},
+                       {"print_time": False, "print_header": False, "print_iteration": False,
+                        "print_status": False, "qpsol": "qrqp",
+                        "qpsol_options": {"print_iter": False, "print_header": False, "print_info": False}})
+    call = BufferedCall(solver)
+    got = call(x0=np.array([0.3, 0.2]), p=2.0, lbg=-1.0, ubg=1.5, lbx=-np.inf, ubx=np.inf)
+    want = solver(x0=[0.3, 0.2], p=2.0, lbg=-1.0, ubg=1.5, lbx=-np.inf, ubx=np.inf)
+    for name in ("x", "f", "g", "lam_g", "lam_x"):
+        assert np.array_equal(got[name], np.asarray(want[name]).ravel())
+    assert call.stats()["return_status"] == solver.stats()["return_status"]
+    assert call.stats()["success"] is True

@@ -43,3 +43,21 @@ def test_acceleration_is_forward_dynamics_and_zero_order_hold():
     rest = np.array([0.1, -1.2, 0.0, 0.0])
     hold = ARM.gravity_torque(rest[:2], 1500.0)
     np.testing.assert_allclose(plant.step(rest, hold, 1500.0), rest, atol=1e-12)
+
+
+def test_hold_is_the_step_loop_bit_for_bit():
+    """``hold`` (one call per control period, through buffers) gives exactly what stepping the
+    plant one sample at a time gives: states, accelerations and the state after."""
+    plant = Plant(ARM)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        state = rng.uniform([0.3, -2.2, -0.5, -0.5], [0.9, -1.2, 0.5, 0.5])
+        torque = rng.uniform(-1e6, 1e6, 2)
+        payload = rng.uniform(0.0, 5000.0)
+        states, accels, after = plant.hold(state, torque, payload, 3)
+        x = state
+        for j in range(3):
+            assert np.array_equal(states[j], x)
+            assert np.array_equal(accels[j], plant.acceleration(x, torque, payload))
+            x = plant.step(x, torque, payload)
+        assert np.array_equal(after, x)
