@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from excavator_payload.data.schema import SIGNALS, TRUTH_COLUMNS
+from excavator_payload.data.schema import SAMPLE_RATE, SIGNALS, TRUTH_COLUMNS
 from excavator_payload.model.machine import Machine
 from excavator_payload.simulation.sensors import NoisePreset, add_noise
 
@@ -144,3 +144,35 @@ def noise_rng(spec: RunSpec, independent: np.random.Generator) -> np.random.Gene
     if spec.frozen_noise_seed is None:
         return independent
     return np.random.default_rng(int(spec.frozen_noise_seed))
+
+
+def run_in_process(spec: RunSpec, experiment, first_experiment: int, n_experiments: int):
+    """The dataset of experiments ``first_experiment …`` of the run ``spec``, simulated one
+    after another in this process by ``experiment(spec, k) -> (frame, meta)``.
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run.
+    experiment : callable
+        One experiment's rows and metadata.
+    first_experiment : int
+        Number of the first experiment.
+    n_experiments : int
+        Number of experiments.
+
+    Returns
+    -------
+    Dataset
+        The rows of all experiments and their metadata.
+    """
+    from excavator_payload.data.dataset import Dataset
+
+    frames, metas = [], []
+    for k in range(first_experiment, first_experiment + n_experiments):
+        frame, meta = experiment(spec, k)
+        frames.append(frame)
+        metas.append(meta)
+    meta = {"machine": spec.machine.to_dict(), "noise": spec.noise.name, "motion": spec.motion,
+            "base_seed": int(spec.seed), "sample_rate": SAMPLE_RATE, "experiments": metas}
+    return Dataset(pd.concat(frames, ignore_index=True), meta)

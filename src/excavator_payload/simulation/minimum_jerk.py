@@ -12,10 +12,10 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
-from excavator_payload.data.schema import DURATION, SAMPLE_RATE, SAMPLES_PER_EXPERIMENT
+from excavator_payload.data.schema import DURATION, SAMPLES_PER_EXPERIMENT
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.model.machine import Machine, load_machine
-from excavator_payload.simulation.experiment import RunSpec, experiment_frame, noise_rng
+from excavator_payload.simulation.experiment import RunSpec, experiment_frame, noise_rng, run_in_process
 from excavator_payload.simulation.scenario import experiment_rngs, sample_scenario
 from excavator_payload.simulation.sensors import NoisePreset, get_noise_preset
 
@@ -125,11 +125,4 @@ def simulate_minimum_jerk(n_experiments: int, seed: int = 0, machine: Machine | 
     preset = get_noise_preset(noise)
     spec = RunSpec("minimum-jerk", int(seed), machine, preset, bool(with_truth),
                    first_experiment + n_experiments, options=(("move_time", tuple(move_time)),))
-    frames, metas = [], []
-    for k in range(first_experiment, first_experiment + n_experiments):
-        frame, meta = minimum_jerk_experiment(spec, k)
-        frames.append(frame)
-        metas.append(meta)
-    meta = {"machine": machine.to_dict(), "noise": preset.name, "motion": "minimum-jerk",
-            "base_seed": int(seed), "sample_rate": SAMPLE_RATE, "experiments": metas}
-    return Dataset(pd.concat(frames, ignore_index=True), meta)
+    return run_in_process(spec, minimum_jerk_experiment, first_experiment, n_experiments)
