@@ -32,28 +32,9 @@ import torch
 
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator
+from excavator_payload.runtime import export_onnx_balance  # noqa: F401 (registers balance-net's export)
 from excavator_payload.runtime.exportable import ONNX_EXPORTABLE, per_sample_refusal
-
-OPSET = 17
-
-#: The graph of each exportable network, registered with :func:`onnx_graph_for` (what each
-#: estimator exports is declared in its traits; a test checks the two agree).
-_GRAPHS: dict[str, type] = {}
-
-
-def onnx_graph_for(*names: str):
-    """Class decorator: register a graph as the ONNX export of estimators ``names``.
-
-    Parameters
-    ----------
-    *names : str
-        Registry names of the networks it exports.
-    """
-    def register(graph: type) -> type:
-        for name in names:
-            _GRAPHS[name] = graph
-        return graph
-    return register
+from excavator_payload.runtime.onnx_registry import OPSET, exporter_for, graph_for, onnx_graph_for
 
 
 @onnx_graph_for("net1", "ffnn")
@@ -149,7 +130,7 @@ def onnx_graph(est: Estimator) -> torch.nn.Module:
     EstimatorError
         ``est`` has no ONNX export, or was trained with options that stop one.
     """
-    graph = _GRAPHS.get(est.name)
+    graph = graph_for(est.name)
     if graph is None:
         raise EstimatorError(f"{est.name} has no ONNX export; exportable: {', '.join(ONNX_EXPORTABLE)}")
     refusal = per_sample_refusal(est, "ONNX")
@@ -177,10 +158,9 @@ def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
 
     if not est.fitted:
         raise EstimatorError(f"{est.name}: nothing to export, the estimator is not fitted")
-    if est.name == "balance-net":  # a step with explicit state, not a window (its own module)
-        from excavator_payload.runtime.export_onnx_balance import export_balance_onnx
-
-        return export_balance_onnx(est, out)
+    writer = exporter_for(est.name)  # e.g. balance-net: a step with explicit state, not a window
+    if writer is not None:
+        return writer(est, out)
     graph = onnx_graph(est)
     sensors = est.sensor_set
     window = torch.zeros(1, graph.window, len(sensors.signals))
@@ -217,7 +197,3 @@ def export_onnx(est: Estimator, out: str | Path) -> list[Path]:
     onnx.save(model, str(tmp))
     os.replace(tmp, path)
     return [path]
-
-
-# balance-net's step graph registers itself (onnx_graph_for) when its module is imported
-from excavator_payload.runtime import export_onnx_balance  # noqa: E402,F401

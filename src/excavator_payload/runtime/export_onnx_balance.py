@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from excavator_payload.errors import EstimatorError
-from excavator_payload.runtime.export_onnx import OPSET, onnx_graph_for
+from excavator_payload.runtime.onnx_registry import OPSET, onnx_exporter_for, onnx_graph_for
 
 STATE = ("num", "info", "disagree", "num_new", "info_new", "terms", "used", "filled", "frames", "n_frames")
 
@@ -209,6 +209,7 @@ class BalanceStepGraph(torch.nn.Module):
 OUTPUTS = ("estimate", "status", "sigma", *(s + "_out" for s in STATE), "nis", "dof")
 
 
+@onnx_exporter_for("balance-net")
 def export_balance_onnx(est, out: str | Path) -> list[Path]:
     """Write ``balance-net.onnx`` (the step graph, metadata for the host loop) into ``out``.
 

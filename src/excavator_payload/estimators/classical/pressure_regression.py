@@ -75,9 +75,11 @@ from typing import Mapping
 
 import numpy as np
 
+from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.classical.kernels import PayloadKernel
+from excavator_payload.estimators.classical.machine_calibration.settings import DEFAULT_PRESSURE_STD
 from excavator_payload.estimators.status import Status, StepResult
 from excavator_payload.model.hydraulic import HydraulicArmModel, compiled_function
 from excavator_payload.platforms import HYDRAULIC
@@ -87,6 +89,32 @@ ANGLES = [SIGNALS.index(s) for s in ("boom_angle", "dipper_angle", "bucket_angle
 RATES = [SIGNALS.index(s) for s in ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")]
 PITCH, ROLL = SIGNALS.index("house_pitch"), SIGNALS.index("house_roll")
 PRESSURES = [SIGNALS.index(s) for s in SIGNALS if s.endswith("_pressure")]
+
+
+def pressure_noise_from_data(dataset: Dataset) -> float:
+    """White noise of the pressure transmitters (Pa) from second differences of the measured
+    pressures (var(Δ²x) = 6σ² for white noise on a smooth signal, a robust median): needs no
+    known payload, so any data will do; it sees the white noise and the aliased pump ripple,
+    as the estimator does.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+
+    Returns
+    -------
+    float
+        Standard deviation, Pa.
+    """
+    cols = [SIGNALS[i] for i in PRESSURES]
+    x = dataset.frame[cols].to_numpy(float)
+    d2 = np.diff(x, 2, axis=0)
+    d2 = d2[np.all(np.isfinite(d2), axis=1)]
+    if len(d2) < 10:
+        return DEFAULT_PRESSURE_STD
+    return float(np.sqrt(np.median(d2**2) / 0.4549 / 6))
+
 
 #: Samples after the one the outlier test judges: two, so that it sees two neighbours each side.
 LOOK_AHEAD = 2
@@ -442,8 +470,6 @@ class PressureKernel(PayloadKernel):
         if name == "auto":
             name = dataset.meta.get("noise")
         if name is None:  # issue 12: no preset named, the pressure noise is estimated from the data
-            from excavator_payload.estimators.classical.machine_calibration.data import pressure_noise_from_data
-
             return cls.build(estimator, "estimated", (pressure_noise_from_data(dataset), 0.0), scale)
         preset = HYDRAULIC.noise(name)
         return cls.build(estimator, preset.name, (preset.pressure_noise, preset.ripple_fraction), scale)

@@ -31,9 +31,10 @@ from scipy.signal import savgol_filter
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    CALIBRATION_HALF_WINDOW, COVERAGE_MARGIN, COVERAGE_PERCENTILES, DEFAULT_PRESSURE_STD, GLITCH_SIGMAS,
+    CALIBRATION_HALF_WINDOW, COVERAGE_MARGIN, COVERAGE_PERCENTILES, GLITCH_SIGMAS,
     HELD_SAMPLES, IMU_PRIOR_STD, NO_LIMIT, SIGNALS)
-from excavator_payload.estimators.classical.pressure_regression import ANGLES, PRESSURES, RATES
+from excavator_payload.estimators.classical.pressure_regression import (  # noqa: F401 (pressure noise re-exported)
+    ANGLES, PRESSURES, RATES, pressure_noise_from_data)
 
 
 def held_direction(speed: np.ndarray, runs: np.ndarray, threshold: np.ndarray,
@@ -197,30 +198,6 @@ def rate_variance(dataset: Dataset) -> float:
     if len(d2) < 10:
         return 0.0
     return float(np.median(d2**2) / 0.4549 / 6)  # median of χ²₁ = 0.4549
-
-
-def pressure_noise_from_data(dataset: Dataset) -> float:
-    """White noise of the pressure transmitters (Pa) from second differences of the measured
-    pressures (as :func:`rate_variance`): needs no known payload, so any data will do; it sees
-    the white noise and the aliased pump ripple, as the estimator does.
-
-    Parameters
-    ----------
-    dataset : Dataset
-        Machine-sensor-set data.
-
-    Returns
-    -------
-    float
-        Standard deviation, Pa.
-    """
-    cols = [SIGNALS[i] for i in PRESSURES]
-    x = dataset.frame[cols].to_numpy(float)
-    d2 = np.diff(x, 2, axis=0)
-    d2 = d2[np.all(np.isfinite(d2), axis=1)]
-    if len(d2) < 10:
-        return DEFAULT_PRESSURE_STD
-    return float(np.sqrt(np.median(d2**2) / 0.4549 / 6))
 
 
 def accel_variance(dataset: Dataset, half_window: int) -> float:
