@@ -107,7 +107,6 @@ def test_shipped_studies_are_in_the_wheel(tmp_path):
     """A wheel built from the sources carries the study files, and an installed copy of it
     resolves them by name (``study --config full_grid`` after ``pip install .``)."""
     pytest.importorskip("setuptools")
-    pytest.importorskip("wheel")
     root = Path(__file__).resolve().parents[2]
     source = tmp_path / "source"  # a copy: building writes build/ and *.egg-info next to the sources
     shutil.copytree(root / "src", source / "src", ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
