@@ -10,8 +10,7 @@ and says which; :func:`excavator_payload.estimators.health.refuse_flagged`).
 
 The motion should move the boom, the dipper and the bucket: offsets are read from moving
 joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
-pressures only (measured on 15 session-B swings, mean MAX: 276 kg after a lift, 85 kg after an
-empty swing). It prints the weighing error the zero predicts and refuses (exit 2, nothing saved;
+pressures only (what that costs: docs/findings/any-motion.md, *The zero motion*). It prints the weighing error the zero predicts and refuses (exit 2, nothing saved;
 ``--force`` saves it) a zero that leaves a cylinder's offsets undetermined or would weigh worse
 than 1 % of rated (:mod:`~excavator_payload.estimators.classical.zero_quality`).
 """
