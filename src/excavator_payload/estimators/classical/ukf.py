@@ -142,7 +142,6 @@ class UnscentedKalmanFilter(KalmanEstimatorBase):
     def _step(self, time: float, values: np.ndarray) -> StepResult:
         tuning = self.tuning
         y, u, a = kf.sample_parts(values, tuning)
-        n_y = len(y)
         if self._x is None:
             self._x, self._P = kf.initial_state(tuning, values)
         x_prior, P_prior = self._x, self._P
