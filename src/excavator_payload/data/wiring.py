@@ -90,13 +90,13 @@ def check_wiring(frame: pd.DataFrame, sensors, machine, source: str) -> None:
     if len(swapped):
         first = swapped.iloc[0]
         k, name = first["experiment"], first["cylinder"]
-        need, got = ("push (extend)", "pull") if first["pushes"] else ("pull (retract)", "push")
+        need, got = ("push (extend)", "pulls") if first["pushes"] else ("pull (retract)", "pushes")
         alike = int((swapped["cylinder"] == name).sum())
         total = frame["experiment"].nunique()
         also = f"; {alike} of {total} experiments alike" if alike > 1 else ""
         raise DatasetError(
             f"{source}: experiment {k:.0f}: the {name} cylinder's net force (head × piston area − rod × "
-            f"annulus area) {got}s on {100 * (1 - first['agreement']):.0f} % of the {first['judged']} "
+            f"annulus area) {got} on {100 * (1 - first['agreement']):.0f} % of the {first['judged']} "
             f"samples where the arm's balance needs it to {need}: are '{name}_head_pressure' and "
             f"'{name}_rod_pressure' swapped?{also}")
 
