@@ -8,6 +8,7 @@ import pytest
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import create_estimator, load_estimator
+from excavator_payload.estimators.status import Status
 from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.estimators.classical.pressure_regression import LOOK_AHEAD
 from excavator_payload.evaluation import demo_machine as dm
@@ -668,6 +669,42 @@ def test_momentum_form_waits_for_the_boom_before_it_reports(momentum, setup):
         assert np.abs(f.loc[rows[0]:first, "boom_rate"]).max() > np.radians(1.0)
     with pytest.raises(EstimatorError, match="wait-for-boom"):
         type(momentum)(PRIOR, wait_for_boom="maybe")
+
+
+def test_momentum_form_reports_a_weight_once_it_holds_still(momentum, setup):
+    """After the boom's windows, the first estimate reported is one that moved by at most
+    STEADY_SHARE of rated over the last STEADY_WINDOWS windows; before, warming_up. A new load
+    (the weighing restarts) waits for it again."""
+    from excavator_payload.estimators.classical.machine_calibration.settings import STEADY_SHARE, STEADY_WINDOWS
+
+    test = setup["test"]
+    est = copy.deepcopy(momentum)
+    est.reset()
+    regression = est.kernel.regression
+    limit = STEADY_SHARE * est.rated_payload
+    f = test.frame[test.frame["experiment"] == test.experiment_ids[0]]
+    signals = f[list(test.sensor_set.signals)].to_numpy(float)
+    history, first_ok = [], None
+    for k, (t, values) in enumerate(zip(f["time"].to_numpy(float), signals)):
+        result = est.step_values(t, values)
+        if regression.ready and regression.info > 0.0:
+            history.append(regression.num / regression.info)
+        if result.status is Status.OK and first_ok is None:
+            first_ok = k
+            assert len(history) > STEADY_WINDOWS  # it waited beyond the boom's windows
+            assert abs(history[-1] - history[-1 - STEADY_WINDOWS]) <= limit
+            # and no earlier estimate of the ready weighing held still that long
+            assert all(abs(history[i] - history[i - STEADY_WINDOWS]) > limit
+                       for i in range(STEADY_WINDOWS, len(history) - 1))
+        if first_ok is None:
+            assert result.status is not Status.OK
+    assert first_ok is not None and regression.steady
+    # a restart (a new load) clears it: no ok until the boom is weighed and the estimate holds again
+    regression.num = regression.info = 0.0
+    regression.boom_windows = 0
+    regression._restart_steady()
+    assert not regression.steady
+    assert est.step_values(f["time"].to_numpy(float)[-1] + 0.01, signals[-1]).status is not Status.OK
 
 
 def test_estimate_says_why_a_motion_without_boom_motion_got_no_estimate(momentum, setup, tmp_path, capsys):

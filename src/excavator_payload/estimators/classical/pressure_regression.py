@@ -162,6 +162,7 @@ class PressureRegression:
     # machine_calibration.kernel.CalibratedKernel, does these): it is ready from the first
     # sample, detects no new load, checks no joint against the others and carries no model error.
     ready = True
+    steady = True
     changing = False
     checks_joints = False
     #: whether the joint check runs (set per sample by the kernel); the C export has no check
@@ -509,7 +510,7 @@ class PressureKernel(PayloadKernel):
         regression.joint_check = joint_check and regression.checks_joints
         regression.update(time, values)
         self.info = regression.info
-        if self.info <= 0.0 or not regression.ready:
+        if self.info <= 0.0 or not regression.ready or not regression.steady:
             return StepResult(math.nan, Status.WARMING_UP)
         status = Status.OK if self.info >= self.warm_info else Status.WARMING_UP
         if regression.rejected:  # the sample before this one was a one-frame outlier

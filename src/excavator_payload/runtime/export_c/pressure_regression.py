@@ -53,7 +53,8 @@ def pressure_regression_model(est) -> CModel:
     """
     from excavator_payload.estimators.classical.calibrated_machine import (
         CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
-    from excavator_payload.estimators.classical.machine_calibration.settings import BOOM_READY_WINDOWS, SETTLE_WINDOWS
+    from excavator_payload.estimators.classical.machine_calibration.settings import (
+        BOOM_READY_WINDOWS, SETTLE_WINDOWS, STEADY_WINDOWS)
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL, PressureKernel)
@@ -142,6 +143,9 @@ def pressure_regression_model(est) -> CModel:
             " * weighed in EP_BOOM_READY windows */",
             f"#define EP_WAIT_FOR_BOOM {1 if kernel.wait_for_boom else 0}",
             f"#define EP_BOOM_READY {BOOM_READY_WINDOWS}",
+            "/* CalibratedKernel.steady: then reported once the estimate has moved by at most",
+            " * EP_STEADY_LIMIT kg over the last EP_STEADY windows, until the weighing restarts */",
+            f"#define EP_STEADY_LIMIT {c_number(kernel._steady_limit)}",
             "/* CalibratedKernel._accumulate (--new-load): a short memory's estimate leaving the",
             " * whole one by more than EP_NEW_LOAD_MIN kg and EP_NEW_LOAD_SIGMAS of the difference's",
             " * sigma is a new load: the weighing restarts */",
@@ -260,6 +264,8 @@ if (1) {
             s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
             s->boom_windows = 0;
             s->changing_windows = 0;
+            s->steady = !EP_WAIT_FOR_BOOM;
+            s->steady_count = 0;
             restarted = 1;
         } else {  /* CalibratedKernel.changing: the load is changing (status load_changing) */
             limit = EP_CHANGING_SIGMAS * EP_MATH(sqrt)(spread);
@@ -279,7 +285,16 @@ if (1) {
         }
     }
 }
-#endif"""
+#endif
+if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
+    /* CalibratedKernel._track_steady: this estimate against the one EP_STEADY windows back */
+    ep_real now = s->num / s->info;
+    unsigned int k = s->steady_count;
+    if (k >= EP_STEADY && EP_MATH(fabs)(now - s->steady_history[(k - EP_STEADY) % (EP_STEADY + 1)]) <= EP_STEADY_LIMIT)
+        s->steady = 1;
+    s->steady_history[k % (EP_STEADY + 1)] = now;
+    s->steady_count = k + 1;
+}"""
     call = casadi_call("ep_pressure_regression", kernel_fn, ["x", "qdd"], ["out"], code)
     if not momentum:
         regress = f"""    if (s->ring_filled == EP_RING && s->ring_used[(s->ring_next + EP_HALF_WINDOW) % EP_RING]) {{
@@ -366,7 +381,7 @@ if (1) {
 {textwrap.indent(new_load, "        ")}
         }}
     }}"""
-    not_ready = " || (EP_WAIT_FOR_BOOM && s->boom_windows < EP_BOOM_READY)" if calibrated else ""
+    not_ready = " || (EP_WAIT_FOR_BOOM && (s->boom_windows < EP_BOOM_READY || !s->steady))" if calibrated else ""
     changing_status = "s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" if calibrated else "EP_STATUS_OK"
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
@@ -430,11 +445,17 @@ if (1) {
                    "ep_real info_short;  /* ... and of w phi^2 */"]
         fields.append("unsigned char changing;  /* the short memory has left the whole one */")
         fields.append("unsigned int changing_windows;  /* windows of the load_changing episode (up to EP_SETTLE_WINDOWS) */")
+        fields += ["ep_real steady_history[EP_STEADY + 1];  /* the last estimates (CalibratedKernel.steady) */",
+                   "unsigned int steady_count;  /* estimates since the boom was ready */",
+                   "unsigned char steady;  /* the estimate has held still: reported */"]
         reset += ("\n    s->boom_windows = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
-                  "\n    s->changing = 0;\n    s->changing_windows = 0;")
+                  "\n    s->changing = 0;\n    s->changing_windows = 0;"
+                  "\n    s->steady = !EP_WAIT_FOR_BOOM;\n    s->steady_count = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",
                "#define EP_RING (EP_WINDOW + 2)  /* the window and the two newest, unjudged samples */"]
+    if calibrated:
+        defines.append(f"#define EP_STEADY {STEADY_WINDOWS}  /* windows an estimate holds still before it is reported */")
     if momentum:
         from excavator_payload.estimators.classical.calibrated_machine import BALANCE_HALF_WINDOW
 

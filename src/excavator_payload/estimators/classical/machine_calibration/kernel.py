@@ -12,7 +12,7 @@ standstill per ``--low-speed``, the rates' noise through the momentum). In the m
 the per-sample terms go into a second ring, and the residual and :math:`\varphi` are the
 balance's over its window (:func:`~.data.window_residuals`, the same weights). The kernel
 also owns ``--outside-calibration`` (a joint outside its covered angles gets no weight),
-``--wait-for-boom`` (:attr:`CalibratedKernel.ready`), ``--new-load`` (a short memory
+``--wait-for-boom`` (:attr:`CalibratedKernel.ready`, then :attr:`CalibratedKernel.steady`), ``--new-load`` (a short memory
 against the whole one, :meth:`CalibratedKernel._accumulate`) and ``--joint-check`` (each
 joint's share of the sums against the others', :meth:`CalibratedKernel._check_joints`).
 """
@@ -28,7 +28,8 @@ from excavator_payload.estimators.classical.machine_calibration.data import bala
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
     JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MODEL_SHARE, JOINT_PRESSURES, JOINT_SAMPLES,
-    NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS)
+    NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE,
+    STEADY_WINDOWS)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
 
@@ -96,6 +97,7 @@ class CalibratedKernel(PressureRegression):
         self._short_forgetting = math.exp(-dt / NEW_LOAD_MEMORY)
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
+        self._steady_limit = STEADY_SHARE * float(cal.arm.machine.rated_payload)
         self.model_std = float(cal.model_std)  # kg, in σ beside I^-1/2
         # each joint's estimate's variance beyond 1 / I_j (the joint check)
         self._joint_var = self.model_std**2 + (JOINT_MODEL_SHARE * float(cal.arm.machine.rated_payload))**2
@@ -158,6 +160,7 @@ class CalibratedKernel(PressureRegression):
         self.settles = 0  # changing episodes that ended with the whole memory set to the short one
         self.new_loads = 0  # new loads detected since the last reset
         self.changing = False  # the short memory has left the whole one (status load_changing)
+        self._restart_steady()
         self.joint_fault = ""  # "signal:balance,..." while the joint check fails (see _check_joints)
         self.joint_degraded = (math.nan, 0.0)  # (estimate, information) without the joint named
         self.joint_chi2 = 0.0
@@ -173,6 +176,25 @@ class CalibratedKernel(PressureRegression):
         and the first boom windows, all of one phase of the motion (its start), carry that
         phase's model error (:data:`BOOM_READY_WINDOWS`)."""
         return self.boom_windows >= BOOM_READY_WINDOWS or not self.wait_for_boom
+
+    def _restart_steady(self) -> None:
+        self.steady = not getattr(self, "wait_for_boom", False)  # reported once it holds still
+        self._steady_history = [0.0] * (STEADY_WINDOWS + 1)  # the last estimates, a ring
+        self._steady_count = 0
+
+    def _track_steady(self) -> None:
+        """:attr:`steady`: once :attr:`ready`, the estimate has moved by at most
+        :data:`STEADY_SHARE` of the rated payload over the last :data:`STEADY_WINDOWS` windows;
+        it stays so until the weighing restarts (a reset, a new load)."""
+        if self.steady or not self.ready or self.info <= 0.0:
+            return
+        k, n = self._steady_count, STEADY_WINDOWS + 1
+        estimate = self.num / self.info
+        history = self._steady_history
+        if k >= STEADY_WINDOWS and abs(estimate - history[(k - STEADY_WINDOWS) % n]) <= self._steady_limit:
+            self.steady = True
+        history[k % n] = estimate
+        self._steady_count = k + 1
 
     def restart_window(self) -> None:
         self._count = 0
@@ -238,6 +260,7 @@ class CalibratedKernel(PressureRegression):
             self.boom_windows += bool(wt[0] > 0.0)
             d_num, d_info = (wt * phi * residual).tolist(), (wt * phi * phi).tolist()
             self._accumulate(d_num, d_info)
+            self._track_steady()
             if self.joint_check:
                 self._check_joints()
             return True
@@ -275,6 +298,7 @@ class CalibratedKernel(PressureRegression):
         self.boom_windows += bool(wt[0] > 0.0)
         d_num, d_info = (wt * phi * residual).tolist(), (wt * phi * phi).tolist()
         self._accumulate(d_num, d_info)
+        self._track_steady()
         if self.joint_check:
             self._check_joints()
         return True
@@ -404,6 +428,7 @@ class CalibratedKernel(PressureRegression):
                 self.num_joint, self.info_joint = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
                 self.num_joint_short, self.info_joint_short = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
                 self.boom_windows = 0
+                self._restart_steady()
                 self.new_loads += 1
                 self.changing_windows = 0
                 return

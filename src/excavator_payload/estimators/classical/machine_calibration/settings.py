@@ -90,6 +90,15 @@ WAIT_FOR_BOOM_CHOICES = ("auto", "yes", "no")
 #: 12.3 / 18.6 kg with 50, 14.4 / 12.1 / 16.7 kg with 100; findings: any-motion, "The boom's
 #: first windows").
 BOOM_READY_WINDOWS = 50
+#: With ``--wait-for-boom``, once the boom's windows are in: an estimate is reported when it holds
+#: still, having moved by at most :data:`STEADY_SHARE` of the rated payload over the last
+#: :data:`STEADY_WINDOWS` windows (0.5 s), and from then on until the weighing restarts. The
+#: first estimates after a start rest on the motion's acceleration, where what a calibration got
+#: wrong (an IMU lag, friction at breakaway) weighs most, and drift towards the weight as the
+#: motion goes on (findings: any-motion, "A weight that holds still").
+STEADY_WINDOWS = 50
+#: The most a steady estimate moves over :data:`STEADY_WINDOWS` windows, share of the rated payload.
+STEADY_SHARE = 0.001
 #: Choices of ``--new-load``: restart the weighing when the load changes (a dump, a new bucket
 #: load on a machine that weighs one load after another). ``auto``: ``detect`` in the momentum
 #: form, ``off`` in the per-sample form.
