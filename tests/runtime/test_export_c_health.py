@@ -6,6 +6,7 @@ monitor knows injected (stuck, dropout, disagree, noise, offset, gain), for two 
 machine sensor set; ``-DEP_HEALTH=0`` is ``health = False``; the thesis set's export has no
 monitor."""
 
+import copy
 import subprocess
 
 import numpy as np
@@ -172,3 +173,62 @@ def test_c_monitor_equals_python_on_faults_of_every_kind(name, models, faulty, t
     kinds = {item.partition(":")[2] for f in py["fault"] for item in filter(None, f.split(","))}
     assert kinds == set(health.KINDS)  # every kind of the monitor was named, in C alike
     assert (py["status"] == "sensor_fault").sum() > 100
+
+
+def test_float_build_names_the_same_faults(models, faulty, tmp_path):
+    """Single precision (the C rounds the inputs to float, Python does not): on these data the
+    same statuses and faults, the estimates within 0.1 kg."""
+    est = models["calibrated-momentum"]
+    source = export_c(est, tmp_path / "export", precision="float32")[1]
+    _assert_equal(est, source, faulty, tmp_path / "build", single=True)
+
+
+def test_monitor_compiled_out_is_health_off(models, faulty, tmp_path):
+    """-DEP_HEALTH=0 is ``Estimator.health = False``: no sensor_fault, every mask 0; the default
+    build is not (the faults above are named)."""
+    est = copy.deepcopy(models["inverse-dynamics"])
+    source = export_c(est, tmp_path / "export")[1]
+    est.health = False
+    py = _assert_equal(est, source, faulty, tmp_path / "off", extra_flags=("-DEP_HEALTH=0",))
+    assert "sensor_fault" not in set(py["status"])
+    _, status, _, faults = _run_c(source, faulty, tmp_path / "on")
+    assert (status == CODES["sensor_fault"]).any() and not all(f == frozenset() for f in faults)
+    # an estimator with health off exports the monitor off by default (-DEP_HEALTH=1 turns it on)
+    assert "#define EP_HEALTH 0" in export_c(est, tmp_path / "off-export")[0].read_text()
+
+
+def test_constants_are_read_at_export_time(models, faulty, tmp_path, monkeypatch):
+    """The thresholds come from estimators/health.py when exporting: a retuned limit and hold
+    are exported as they are, and C still equals Python (which reads the same module)."""
+    est = copy.deepcopy(models["inverse-dynamics"])
+    before = export_c(est, tmp_path / "before")[1].read_text()
+    monkeypatch.setattr(health, "OFFSET_LIMIT", 0.02)
+    monkeypatch.setattr(health, "HOLD", 0.35)
+    monkeypatch.setattr(health, "STUCK_QUANTA", 4.0)
+    est._health_for = None  # a fresh monitor with the new constants
+    source = export_c(est, tmp_path / "export")[1]
+    text = source.read_text()
+    assert text != before and "#define EP_HM_OFFSET_LIMIT EP_C(0.02)" in text and "#define EP_HM_HOLD 35" in text
+    _assert_equal(est, source, faulty, tmp_path / "build")
+
+
+def test_model_without_noise_reference(models, faulty, tmp_path):
+    """A model saved before the noise check (no ``health_reference``): no noise kind, in C alike."""
+    est = copy.deepcopy(models["calibrated-momentum"])
+    est.health_reference = None
+    est._health_for = None
+    source = export_c(est, tmp_path / "export")[1]
+    assert "#define EP_HM_NOISE_CHECKED 0" in source.read_text()
+    py = _assert_equal(est, source, faulty, tmp_path / "build")
+    assert not any("noise" in f for f in py["fault"])
+
+
+def test_thesis_export_has_no_monitor(tmp_path):
+    """The monitor runs on the machine set only (health.for_sensor_set): the thesis set's C has
+    none of it."""
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    swings = simulate_dataset(2, seed=8, workers=1, noise="thesis", progress=False)
+    header, source = export_c(create_estimator("inverse-dynamics").fit(swings), tmp_path)
+    assert "EP_HEALTH" not in header.read_text() + source.read_text()
+    assert "ep_faults" not in header.read_text()
