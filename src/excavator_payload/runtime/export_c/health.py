@@ -70,6 +70,11 @@ class CHealth:
     reset = "\n#if EP_HEALTH\n    ep_hm_reset(s);\n#endif"
 
 
+# J1939-73's failure mode identifiers the kinds map to (health.FMI; runtime/dm1.py)
+_FMI_MEANING = {2: "data erratic", 5: "current below normal or open circuit",
+                7: "mechanical system not responding", 13: "out of calibration"}
+
+
 def _ints(name: str, values) -> str:
     values = [int(v) for v in values]
     return f"static const int {name}[{len(values)}] = {{{', '.join(map(str, values))}}};\n"
@@ -117,9 +122,11 @@ def health_c(est) -> CHealth | None:
     pitch, roll = (m.tilts if m.tilts else (-1, -1))
     restart = _mask(kind_of[k] for k in H._RESTART_KINDS)
     flagged = _mask(kind_of[k] for k in H._TRACK_FLAGGED)
-    kind_defines = "\n".join(f"#define EP_FAULT_{k.upper()} {i}  /* J1939 FMI {H.FMI[k]} */"
+    kind_defines = "\n".join(f"#define EP_FAULT_{k.upper()} {i}  /* J1939 FMI {H.FMI[k]}: "
+                             f"{_FMI_MEANING.get(H.FMI[k], 'see J1939-73')} */"
                              for i, k in enumerate(kinds))
     header = f"""
+
 /* Sensor health (estimators/health.py, HealthMonitor): while a signal is named faulty, ep_step
  * returns EP_STATUS_SENSOR_FAULT, does not use the sample and keeps the last estimate and sigma.
  * ep_faults(s, kind) is then a bit mask over the signals (bit i = EP_SIGNAL_NAMES[i]) of those

@@ -5,7 +5,9 @@
 the source around a kernel's :class:`~excavator_payload.runtime.export_c.cmodel.CModel`.
 ``ep_step`` is :meth:`Estimator.step_values` (base.py) line by line: non-finite input ->
 ``invalid_input``; a signal outside the fitted estimator's plausibility limits (its
-``plausible_low``/``plausible_high``, two constant tables) -> ``out_of_range``; a time step
+``plausible_low``/``plausible_high``, two constant tables) -> ``out_of_range``; on the machine
+set, the sensor health monitor (:mod:`~excavator_payload.runtime.export_c.health`, ``EP_HEALTH``)
+naming a fault -> ``sensor_fault`` (``ep_faults`` says which); a time step
 <= 0 or > 1.5 sample periods (or gate-rejected samples just before) -> the model's gap
 handling; the statistical gate (``EP_GATING``, default ``Estimator.gating``): the model's
 normalised squared innovation against the chi-square quantile of
