@@ -4,17 +4,28 @@ the lines of generated C it adds. Run:
 ``OMP_NUM_THREADS=1 python -m tests.runtime.measure_export_c_health``."""
 
 import statistics
+import subprocess
 import tempfile
 from pathlib import Path
 
 from excavator_payload.estimators.base import create_estimator
-from excavator_payload.runtime.c_harness import build
+from excavator_payload.runtime.c_harness import build, c_compiler
 from excavator_payload.runtime.export_c import export_c, template
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
 
 def _lines(paths) -> int:
     return sum(len(Path(p).read_text().splitlines()) for p in paths)
+
+
+def _state_size(header: Path, folder: Path, flags) -> int:
+    """sizeof(ep_state) as the model's object sees it (the harness's own build does not get
+    the -D flags)."""
+    program = folder / "size.c"
+    program.write_text(f'#include <stdio.h>\n#include "{header.resolve()}"\n'
+                       'int main(void) { printf("%lu\\n", (unsigned long)sizeof(ep_state)); return 0; }\n')
+    subprocess.run([c_compiler(), "-std=c99", *flags, str(program), "-o", str(folder / "size")], check=True)
+    return int(subprocess.run([str(folder / "size")], check=True, capture_output=True, text=True).stdout)
 
 
 def main(repetitions: int = 20, rounds: int = 7) -> None:
@@ -47,7 +58,8 @@ def main(repetitions: int = 20, rounds: int = 7) -> None:
             print(f"  {'float' if single else 'double'}: ns/step with {statistics.median(times_on):.0f} "
                   f"({min(times_on):.0f}-{max(times_on):.0f}), without {statistics.median(times_off):.0f} "
                   f"({min(times_off):.0f}-{max(times_off):.0f}), ratio {ratio:.2f}; "
-                  f"sizeof(ep_state) {on.state_size()} vs {off.state_size()} B; "
+                  f"sizeof(ep_state) {_state_size(paths[0], folder, [f'-DEP_SINGLE={int(single)}'])} vs "
+                  f"{_state_size(paths[0], folder, [f'-DEP_SINGLE={int(single)}', '-DEP_HEALTH=0'])} B; "
                   f".text {on.text_size()} vs {off.text_size()} B")
 
 

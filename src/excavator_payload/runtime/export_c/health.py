@@ -302,17 +302,21 @@ static int ep_hm_found(const unsigned long found[EP_N_FAULT_KINDS], int i, unsig
 static void ep_hm_stuck(const ep_state *s, const ep_real *v, unsigned long found[EP_N_FAULT_KINDS])
 {
     unsigned long still = 0, dropped = found[EP_FAULT_DROPOUT];
-    const ep_real *first = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_N_STUCK - 1)];
+    int first_row = EP_HM_RAW_AT(s, EP_HM_N_STUCK - 1), row = first_row;
+    const ep_real *first = s->hm_raw[first_row];
+    ep_real hi[EP_N_SIGNALS], lo[EP_N_SIGNALS];
     int i, j, back, turning_any = 0;
-    for (i = 0; i < EP_N_SIGNALS; ++i) {
-        ep_real hi = v[i], lo = v[i];
-        for (back = 1; back < EP_HM_N_STUCK; ++back) {
-            ep_real x = s->hm_raw[EP_HM_RAW_AT(s, back)][i];
-            if (x > hi) hi = x;
-            if (x < lo) lo = x;
+    for (i = 0; i < EP_N_SIGNALS; ++i) hi[i] = lo[i] = v[i];
+    for (back = EP_HM_N_STUCK - 1; back >= 1; --back) {  /* the window's older rows, oldest first */
+        const ep_real *x = s->hm_raw[row];
+        for (i = 0; i < EP_N_SIGNALS; ++i) {
+            if (x[i] > hi[i]) hi[i] = x[i];
+            if (x[i] < lo[i]) lo[i] = x[i];
         }
-        if (hi - lo <= EP_HM_QUANTUM[i]) still |= EP_HM_BIT(i);
+        if (++row == EP_HM_RAW) row = 0;
     }
+    for (i = 0; i < EP_N_SIGNALS; ++i)
+        if (hi[i] - lo[i] <= EP_HM_QUANTUM[i]) still |= EP_HM_BIT(i);
     if (!still) return;
     for (j = 0; j < EP_HM_N_LINKS; ++j) {
         int a = EP_HM_LINK_ANGLE[j], r = EP_HM_LINK_RATE[j];
@@ -338,19 +342,21 @@ static void ep_hm_stuck(const ep_state *s, const ep_real *v, unsigned long found
  * the limit */
 static void ep_hm_noise(ep_state *s, unsigned long found[EP_N_FAULT_KINDS])
 {
-    int i, t, *block = s->hm_blocks[s->hm_block_next];
-    for (i = 0; i < EP_N_SIGNALS; ++i) {
-        int count = 0;
-        for (t = 0; t < EP_HM_EVERY; ++t) {
-            ep_real w0 = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_EVERY + 1 - t)][i];
-            ep_real w1 = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_EVERY - t)][i];
-            ep_real w2 = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_EVERY - 1 - t)][i];
-            ep_real d2 = EP_MATH(fabs)(w2 - EP_C(2.0) * w1 + w0);
-            if (d2 > EP_HM_NOISE_LIMIT[i] + EP_MATH(fabs)(w2) * EP_HM_NOISE_RELATIVE[i]) ++count;
+    int i, t, count[EP_N_SIGNALS], *block = s->hm_blocks[s->hm_block_next];
+    for (i = 0; i < EP_N_SIGNALS; ++i) count[i] = 0;
+    for (t = 0; t < EP_HM_EVERY; ++t) {
+        const ep_real *w0 = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_EVERY + 1 - t)];
+        const ep_real *w1 = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_EVERY - t)];
+        const ep_real *w2 = s->hm_raw[EP_HM_RAW_AT(s, EP_HM_EVERY - 1 - t)];
+        for (i = 0; i < EP_N_SIGNALS; ++i) {
+            ep_real d2 = EP_MATH(fabs)(w2[i] - EP_C(2.0) * w1[i] + w0[i]);
+            if (d2 > EP_HM_NOISE_LIMIT[i] + EP_MATH(fabs)(w2[i]) * EP_HM_NOISE_RELATIVE[i]) ++count[i];
         }
+    }
+    for (i = 0; i < EP_N_SIGNALS; ++i) {
         if (s->hm_n_blocks == EP_HM_N_BLOCKS) s->hm_noise_count[i] -= block[i];  /* the oldest leaves */
-        block[i] = count;
-        s->hm_noise_count[i] += count;
+        block[i] = count[i];
+        s->hm_noise_count[i] += count[i];
     }
     s->hm_block_next = (s->hm_block_next + 1) % EP_HM_N_BLOCKS;
     if (s->hm_n_blocks < EP_HM_N_BLOCKS) s->hm_n_blocks += 1;
@@ -363,12 +369,15 @@ static void ep_hm_noise(ep_state *s, unsigned long found[EP_N_FAULT_KINDS])
  * (offset), and its least-squares slope against the angle (gain) */
 static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KINDS])
 {
-    int j, back, c = s->hm_count;
+    int j, back, row, c = s->hm_count;
     int ns = c < EP_HM_N_SMOOTH ? c : EP_HM_N_SMOOTH;
     for (j = 0; j < EP_HM_N_LINKS; ++j) {
         int a = EP_HM_LINK_ANGLE[j], r = EP_HM_LINK_RATE[j], slow;
         ep_real sy = EP_C(0.0), smooth, predicted, error, slope = EP_C(0.0);
-        for (back = ns - 1; back >= 0; --back) sy += s->hm_y[EP_HM_SUM_AT(s, back)][j];
+        for (back = ns - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
+            sy += s->hm_y[row][j];
+            if (++row == EP_HM_SUMS) row = 0;
+        }
         smooth = sy / (ep_real)ns;
         /* a link whose angle or rate was stuck, dropped out or noisy has a meaningless integral:
          * its track starts again once that has cleared */
@@ -395,13 +404,13 @@ static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KI
         if (c >= EP_HM_N_GAIN && s->hm_gain_wait[j] <= 0) {  /* HealthMonitor._gain */
             ep_real sx = EP_C(0.0), sxx = EP_C(0.0), sxy = EP_C(0.0), m = (ep_real)EP_HM_N_GAIN, var;
             sy = EP_C(0.0);
-            for (back = EP_HM_N_GAIN - 1; back >= 0; --back) {
-                int row = EP_HM_SUM_AT(s, back);
+            for (back = EP_HM_N_GAIN - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
                 ep_real x = s->hm_x[row][j], y = s->hm_y[row][j];
                 sy += y;
                 sx += x;
                 sxx += x * x;
                 sxy += x * y;
+                if (++row == EP_HM_SUMS) row = 0;
             }
             var = sxx / m - (sx / m) * (sx / m);
             if (var >= EP_HM_GAIN_MIN_VAR) slope = (sxy / m - sx * sy / m / m) / var;
@@ -418,9 +427,12 @@ static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KI
 static void ep_hm_tilt_offset(ep_state *s, unsigned long found[EP_N_FAULT_KINDS])
 {
 #if EP_HM_PITCH >= 0
-    int back, c = s->hm_count, ns = c < EP_HM_N_SMOOTH ? c : EP_HM_N_SMOOTH, slow;
+    int back, row, c = s->hm_count, ns = c < EP_HM_N_SMOOTH ? c : EP_HM_N_SMOOTH, slow;
     ep_real sum = EP_C(0.0), smooth, predicted, error;
-    for (back = ns - 1; back >= 0; --back) sum += s->hm_tilt[EP_HM_SUM_AT(s, back)];
+    for (back = ns - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
+        sum += s->hm_tilt[row];
+        if (++row == EP_HM_SUMS) row = 0;
+    }
     smooth = sum / (ep_real)ns;
     if (!s->hm_tilt_tracked || ep_hm_active(s, EP_HM_PITCH, EP_HM_RESTART_KINDS)
         || ep_hm_active(s, EP_HM_ROLL, EP_HM_RESTART_KINDS) || ep_hm_found(found, EP_HM_PITCH, EP_HM_RESTART_KINDS)
@@ -495,12 +507,13 @@ static int ep_hm_step(ep_state *s, ep_real time, const ep_real v[EP_N_SIGNALS])
     if (c >= EP_HM_N_DIS) {
         int old = EP_HM_SUM_AT(s, EP_HM_N_DIS - 1);
         for (j = 0; j < EP_HM_N_LINKS; ++j) {
-            int a = EP_HM_LINK_ANGLE[j], r = EP_HM_LINK_RATE[j], back;
+            int a = EP_HM_LINK_ANGLE[j], r = EP_HM_LINK_RATE[j], back, raw_row = EP_HM_RAW_AT(s, EP_HM_N_DIS - 1);
             ep_real hi = v[r], lo = v[r], limit;
-            for (back = 1; back < EP_HM_N_DIS; ++back) {
-                ep_real x = s->hm_raw[EP_HM_RAW_AT(s, back)][r];
+            for (back = EP_HM_N_DIS - 1; back >= 1; --back) {
+                ep_real x = s->hm_raw[raw_row][r];
                 if (x > hi) hi = x;
                 if (x < lo) lo = x;
+                if (++raw_row == EP_HM_RAW) raw_row = 0;
             }
             limit = EP_HM_DISAGREE_LIMIT + EP_HM_DISAGREE_PER_RATE_CHANGE * (hi - lo);
             if (EP_MATH(fabs)(s->hm_y[row][j] - s->hm_y[old][j]) > limit) {
