@@ -155,6 +155,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
     /* sensor health monitor (estimators/health.py) */
     int hm_reported;           /* the last ep_step returned sensor_fault */
     int hm_age[EP_N_SIGNALS][EP_N_FAULT_KINDS];  /* samples since the fault was last seen, -1: none */
+    int hm_any_active;         /* any hm_age >= 0 */
     ep_real hm_last_time;
     int hm_has_last_time;
     int hm_count;              /* samples since the windows started (saturates) */
@@ -275,6 +276,7 @@ static void ep_hm_reset(ep_state *s)
     for (i = 0; i < EP_N_SIGNALS; ++i)
         for (k = 0; k < EP_N_FAULT_KINDS; ++k) s->hm_age[i][k] = -1;
     s->hm_reported = 0;
+    s->hm_any_active = 0;
     s->hm_has_last_time = 0;
     s->hm_last_time = EP_C(0.0);
     ep_hm_restart(s);
@@ -371,14 +373,28 @@ static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KI
 {
     int j, back, row, c = s->hm_count;
     int ns = c < EP_HM_N_SMOOTH ? c : EP_HM_N_SMOOTH;
-    for (j = 0; j < EP_HM_N_LINKS; ++j) {
-        int a = EP_HM_LINK_ANGLE[j], r = EP_HM_LINK_RATE[j], slow;
-        ep_real sy = EP_C(0.0), smooth, predicted, error, slope = EP_C(0.0);
-        for (back = ns - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
-            sy += s->hm_y[row][j];
+    ep_real sy[EP_HM_N_LINKS], g[EP_HM_N_LINKS][4];  /* the gain window's sums of y, x, x^2, x y */
+    /* the windows' sums, oldest sample first, the links side by side */
+    for (j = 0; j < EP_HM_N_LINKS; ++j) sy[j] = g[j][0] = g[j][1] = g[j][2] = g[j][3] = EP_C(0.0);
+    for (back = ns - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
+        for (j = 0; j < EP_HM_N_LINKS; ++j) sy[j] += s->hm_y[row][j];
+        if (++row == EP_HM_SUMS) row = 0;
+    }
+    if (c >= EP_HM_N_GAIN) {
+        for (back = EP_HM_N_GAIN - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
+            for (j = 0; j < EP_HM_N_LINKS; ++j) {
+                ep_real x = s->hm_x[row][j], y = s->hm_y[row][j];
+                g[j][0] += y;
+                g[j][1] += x;
+                g[j][2] += x * x;
+                g[j][3] += x * y;
+            }
             if (++row == EP_HM_SUMS) row = 0;
         }
-        smooth = sy / (ep_real)ns;
+    }
+    for (j = 0; j < EP_HM_N_LINKS; ++j) {
+        int a = EP_HM_LINK_ANGLE[j], r = EP_HM_LINK_RATE[j], slow;
+        ep_real smooth = sy[j] / (ep_real)ns, predicted, error, slope = EP_C(0.0);
         /* a link whose angle or rate was stuck, dropped out or noisy has a meaningless integral:
          * its track starts again once that has cleared */
         if (!s->hm_tracked[j] || ep_hm_active(s, a, EP_HM_RESTART_KINDS) || ep_hm_active(s, r, EP_HM_RESTART_KINDS)
@@ -402,18 +418,8 @@ static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KI
             found[EP_FAULT_OFFSET] |= EP_HM_BIT(a) | EP_HM_BIT(r);
         }
         if (c >= EP_HM_N_GAIN && s->hm_gain_wait[j] <= 0) {  /* HealthMonitor._gain */
-            ep_real sx = EP_C(0.0), sxx = EP_C(0.0), sxy = EP_C(0.0), m = (ep_real)EP_HM_N_GAIN, var;
-            sy = EP_C(0.0);
-            for (back = EP_HM_N_GAIN - 1, row = EP_HM_SUM_AT(s, back); back >= 0; --back) {
-                ep_real x = s->hm_x[row][j], y = s->hm_y[row][j];
-                sy += y;
-                sx += x;
-                sxx += x * x;
-                sxy += x * y;
-                if (++row == EP_HM_SUMS) row = 0;
-            }
-            var = sxx / m - (sx / m) * (sx / m);
-            if (var >= EP_HM_GAIN_MIN_VAR) slope = (sxy / m - sx * sy / m / m) / var;
+            ep_real m = (ep_real)EP_HM_N_GAIN, var = g[j][2] / m - (g[j][1] / m) * (g[j][1] / m);
+            if (var >= EP_HM_GAIN_MIN_VAR) slope = (g[j][3] / m - g[j][1] * g[j][0] / m / m) / var;
         }
         s->hm_gain_run[j] = EP_MATH(fabs)(slope) > EP_HM_GAIN_LIMIT
                             ? (s->hm_gain_run[j] < EP_HM_CAP ? s->hm_gain_run[j] + 1 : EP_HM_CAP) : 0;
@@ -532,6 +538,9 @@ static int ep_hm_step(ep_state *s, ep_real time, const ep_real v[EP_N_SIGNALS])
     else if (s->hm_phase == 2 && c >= EP_HM_N_SMOOTH) ep_hm_offset_and_gain(s, found);
     else if (s->hm_phase == 3 && c >= EP_HM_N_SMOOTH && EP_HM_PITCH >= 0) ep_hm_tilt_offset(s, found);
     /* the hold: a fault stays active until its condition has been clear EP_HM_HOLD samples */
+    for (k = 0; k < EP_N_FAULT_KINDS; ++k) any |= found[k] != 0;
+    if (!any && !s->hm_any_active) return 0;
+    any = 0;
     for (i = 0; i < EP_N_SIGNALS; ++i) {
         for (k = 0; k < EP_N_FAULT_KINDS; ++k) {
             if (s->hm_age[i][k] >= 0 && ++s->hm_age[i][k] > EP_HM_HOLD) s->hm_age[i][k] = -1;
@@ -539,6 +548,7 @@ static int ep_hm_step(ep_state *s, ep_real time, const ep_real v[EP_N_SIGNALS])
             any |= s->hm_age[i][k] >= 0;
         }
     }
+    s->hm_any_active = any;
     return any;
 }
 """
