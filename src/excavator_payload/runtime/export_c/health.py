@@ -14,8 +14,8 @@ limits from the fitted estimator's ``health_reference``.
 The C follows ``HealthMonitor.step`` rule by rule and in the same order (the same 5-sample
 stagger), with two differences in how, not what: the windows' sums (offset, gain, tilt) are
 summed over a ring of per-sample terms instead of Python's differences of running totals
-(bounded state; a float build stays exact over a long shift, where a running total of 10⁶
-samples would not), so they agree to rounding, not bit for bit; and the sample counters
+(bounded state; a float build loses no precision over a long shift, where a running total
+of 10⁶ samples would), so they agree to rounding, not bit for bit; and the sample counters
 saturate (C ints do not grow for ever). ``-DEP_HEALTH=0`` compiles the monitor out
 (``Estimator.health = False``); the default is the estimator's ``health``.
 """
