@@ -230,3 +230,12 @@ def test_thesis_export_has_no_monitor(tmp_path):
     header, source = export_c(create_estimator("inverse-dynamics").fit(swings), tmp_path)
     assert "EP_HEALTH" not in header.read_text() + source.read_text()
     assert "ep_faults" not in header.read_text()
+
+
+def test_float_monitor_does_no_double_maths(models, tmp_path):
+    """In single precision the monitor promotes nothing to double (an ECU with a float FPU)."""
+    header, source = export_c(models["calibrated-momentum"], tmp_path, precision="float32")
+    assert "#define EP_HEALTH 1" in header.read_text()
+    result = subprocess.run([c_compiler(), *STRICT_FLAGS, "-Wdouble-promotion", "-O0", "-c", str(source),
+                             "-o", str(tmp_path / "model.o")], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
