@@ -38,7 +38,7 @@ def _machine():
     frame["experiment"] += int(train.frame["experiment"].max()) + 1
     wide = Dataset(pd.concat([train.frame, frame], ignore_index=True), train.meta)
     est = create_estimator("balance-net", order=2, half_window=10, ramp=4, every=1).fit(wide)
-    est.health = False  # the exports carry no sensor health monitor (as the other C exports)
+    est.health = False  # the ONNX export has no sensor health monitor (the C one: test_export_c_health.py)
     data = simulate_machine_dataset(1, seed=44, session=1)
     frame = data.frame.copy()
     frame.loc[300, "boom_head_pressure"] += 5e6                 # a one-frame glitch

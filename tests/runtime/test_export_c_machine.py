@@ -69,7 +69,8 @@ def _machine_models(data):
 def machine_models(machine_swings):
     models = dict(_machine_models(machine_swings))
     for est in models.values():
-        # the C kernels have no sensor health monitor (estimators.health) yet: compare the rest
+        # the rest of the status logic, with the sensor health monitor off (EP_HEALTH 0 then);
+        # tests/runtime/test_export_c_health.py compares the monitor itself
         est.health = False
     return models
 

@@ -9,6 +9,8 @@ Every exported model has the same interface (the header documents it)::
     int  ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS],
                  ep_real *estimate);    /* a status code, 0 = ok, as the Status enum */
     ep_real ep_sigma(const ep_state *s);  /* one-sigma uncertainty of that estimate, kg */
+    unsigned long ep_faults(const ep_state *s, int kind);  /* machine set: the signals the
+                                        sensor health monitor names with EP_FAULT_<kind> */
 
 Rules: C99, no heap (work arrays live on the stack of ``ep_step``), nothing beyond
 ``<math.h>``, no warning under ``-std=c99 -Wall -Wextra -Werror -pedantic``. ``ep_real`` is
@@ -24,6 +26,7 @@ The rooms of this package:
 * :mod:`.cmodel`: :class:`CModel`, what a builder hands to the template, and the borrowed gate;
 * :mod:`.template`: :func:`render`, the interface and ``Estimator.step_values``' status logic;
 * :mod:`.registry`: the builders, registered against the estimator and sensor set they export;
+* :mod:`.health`: the sensor health monitor of every machine-set export (``EP_HEALTH``);
 * one builder per kernel: :mod:`.inverse_dynamics`, :mod:`.ekf`, :mod:`.networks` (thesis
   sensor set), :mod:`.pressure_regression` (machine sensor set).
 """

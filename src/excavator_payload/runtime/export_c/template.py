@@ -5,7 +5,9 @@
 the source around a kernel's :class:`~excavator_payload.runtime.export_c.cmodel.CModel`.
 ``ep_step`` is :meth:`Estimator.step_values` (base.py) line by line: non-finite input ->
 ``invalid_input``; a signal outside the fitted estimator's plausibility limits (its
-``plausible_low``/``plausible_high``, two constant tables) -> ``out_of_range``; a time step
+``plausible_low``/``plausible_high``, two constant tables) -> ``out_of_range``; on the machine
+set, the sensor health monitor (:mod:`~excavator_payload.runtime.export_c.health`, ``EP_HEALTH``)
+naming a fault -> ``sensor_fault`` (``ep_faults`` says which); a time step
 <= 0 or > 1.5 sample periods (or gate-rejected samples just before) -> the model's gap
 handling; the statistical gate (``EP_GATING``, default ``Estimator.gating``): the model's
 normalised squared innovation against the chi-square quantile of
@@ -34,6 +36,7 @@ from excavator_payload.estimators.base import (
 )
 from excavator_payload.runtime.export_c.c_text import c_array, c_number
 from excavator_payload.runtime.export_c.cmodel import CModel
+from excavator_payload.runtime.export_c.health import health_c
 
 
 def _status_defines() -> str:
@@ -64,6 +67,11 @@ def render(est: Estimator, model: CModel, base: str, single: bool) -> tuple[str,
     """
     sensors = est.sensor_set
     guard = f"{base.upper()}_H"
+    # the sensor health monitor (machine set; None elsewhere, and then not a byte changes)
+    hm = health_c(est)
+    hm_header, hm_fields = (hm.header, "\n" + hm.fields) if hm else ("", "")
+    hm_definitions, hm_declaration, hm_api = (hm.definitions + "\n", hm.declaration, hm.api) if hm else ("", "", "")
+    hm_clear, hm_check, hm_reset = (hm.clear, hm.check, hm.reset) if hm else ("", "", "")
     last_used_fields = ("    ep_real last_used_time;  /* the last used sample (rejected slots are interpolated) */\n"
                         "    ep_real last_used[EP_N_SIGNALS];\n"
                         "    int has_last_used;\n") if model.fill_rejected is not None else ""
@@ -101,7 +109,7 @@ typedef int ep_int;
 #define EP_N_SIGNALS {len(sensors.signals)}  /* inputs, in the dataset's column order */
 #define EP_SAMPLE_RATE {sensors.sample_rate!r}  /* Hz */
 {_status_defines()}
-{chr(10).join(model.header_defines)}
+{chr(10).join(model.header_defines)}{hm_header}
 
 extern const char *const EP_SIGNAL_NAMES[EP_N_SIGNALS];
 extern const char *const EP_STATUS_NAMES[EP_N_STATUSES];
@@ -113,7 +121,7 @@ typedef struct {{
     ep_real last_sigma;     /* kg, its one-sigma uncertainty (NaN: unknown) */
     int n_rejected;         /* consecutive samples the gate rejected */
     ep_real gate_scale;     /* the gate's width, >= 1 times the chi-square quantile */
-{last_used_fields}{chr(10).join("    " + f for f in model.state_fields)}
+{last_used_fields}{chr(10).join("    " + f for f in model.state_fields)}{hm_fields}
 }} ep_state;
 
 /* Start a new experiment (forget everything). */
@@ -124,7 +132,7 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
 
 /* One-sigma uncertainty (kg) of the estimate the last ep_step wrote; NaN where unknown. */
 ep_real ep_sigma(const ep_state *s);
-
+{hm_declaration}
 #endif /* {guard} */
 """
     statuses = ", ".join(f'"{s.value}"' for s in Status)
@@ -245,7 +253,7 @@ const char *const EP_STATUS_NAMES[EP_N_STATUSES] = {{{statuses}}};
 {c_array("EP_PLAUSIBLE_LOW", low)}{c_array("EP_PLAUSIBLE_HIGH", high)}
 static void ep_model_reset(ep_state *s);
 
-{model.definitions}
+{hm_definitions}{model.definitions}
 
 static void ep_model_reset(ep_state *s)
 {{
@@ -288,21 +296,21 @@ void ep_reset(ep_state *s)
     s->last_sigma = EP_NAN;
     s->n_rejected = 0;
     s->gate_scale = EP_C(1.0);{chr(10) + "    s->has_last_used = 0;" if fills else ""}{gate_reset}
-    ep_model_reset(s);
+    ep_model_reset(s);{hm_reset}
 }}
 
 ep_real ep_sigma(const ep_state *s)
 {{
     return s->last_sigma;
 }}
-
+{hm_api}
 int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_real *estimate)
 {{
     /* Estimator.step_values (base.py): readable, plausible, consistent; then the model */
     const ep_real *v = signals;
     ep_real result, sigma;
     int i, status, gap = 0, reinitialised = 0;
-    if (!isfinite(time)) {{
+{hm_clear}    if (!isfinite(time)) {{
         *estimate = s->last_estimate;
         return EP_STATUS_INVALID;
     }}
@@ -318,7 +326,7 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
             return EP_STATUS_OUT_OF_RANGE;
         }}
     }}
-    if (s->has_last_time) {{
+{hm_check}    if (s->has_last_time) {{
         ep_real dt = time - s->last_time;
         if (dt <= EP_C(0.0) || dt > EP_MAX_STEP) gap = 1;
     }}

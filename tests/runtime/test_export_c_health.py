@@ -1,0 +1,241 @@
+"""The sensor health monitor in the C export (runtime/export_c/health.py) equals Python's
+(estimators/health.py, run by ``Estimator.step_values``) sample by sample: status codes, the
+signals and kinds named (``ep_faults`` against ``StepResult.fault``), estimates and ``ep_sigma``,
+with ``Estimator.health = True``, on clean work and on work with a fault of every kind the
+monitor knows injected (stuck, dropout, disagree, noise, offset, gain), for two estimators of the
+machine sensor set; ``-DEP_HEALTH=0`` is ``health = False``; the thesis set's export has no
+monitor."""
+
+import copy
+import subprocess
+
+import numpy as np
+import pytest
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.estimators import health
+from excavator_payload.estimators.base import Status, create_estimator
+from excavator_payload.runtime.c_harness import STRICT_FLAGS, _rows, build, c_compiler
+from excavator_payload.runtime.export_c import export_c
+from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
+
+CODES = {s.value: i for i, s in enumerate(Status)}
+SIGNALS = list(MACHINE_SENSORS.signals)
+DEG, BAR = np.pi / 180.0, 1e5
+
+# prints estimate, status, sigma and the fault mask of every kind, per sample
+HARNESS = r"""
+#include <stdio.h>
+#include <stdlib.h>
+#include "HEADER"
+
+int main(void)
+{
+    char line[8192];
+    ep_state s;
+    while (fgets(line, sizeof line, stdin)) {
+        char *p = line, *end;
+        ep_real v[EP_N_SIGNALS], est, t;
+        int j, k, status, start = (int)strtol(p, &end, 10);
+        p = end;
+        t = (ep_real)strtod(p, &end);
+        p = end;
+        for (j = 0; j < EP_N_SIGNALS; ++j) {
+            v[j] = (ep_real)strtod(p, &end);
+            p = end;
+        }
+        if (start) ep_reset(&s);
+        status = ep_step(&s, t, v, &est);
+        printf("%.17g %d %.17g", (double)est, status, (double)ep_sigma(&s));
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k) printf(" %lu", ep_faults(&s, k));
+        printf("\n");
+    }
+    return 0;
+}
+"""
+
+
+def _run_c(c_file, dataset, folder, single=False, extra_flags=()):
+    """Estimate, status, sigma and the fault set per sample from the compiled export."""
+    obj = build(c_file, folder, single=single, extra_flags=extra_flags).object_file
+    harness = folder / "faults.c"
+    harness.write_text(HARNESS.replace("HEADER", str(c_file.with_suffix(".h").resolve())))
+    binary = folder / "faults"
+    defines = ["-DEP_SINGLE=1" if single else "-DEP_SINGLE=0", *extra_flags]
+    subprocess.run([c_compiler(), *STRICT_FLAGS, "-O2", *defines, str(harness), str(obj), "-o", str(binary),
+                    "-lm"], check=True, capture_output=True, text=True)
+    out = subprocess.run([str(binary)], input=_rows(dataset), check=True, capture_output=True, text=True,
+                         timeout=120).stdout.splitlines()
+    rows = [line.split() for line in out]
+    est = np.array([float(r[0]) for r in rows])
+    status = np.array([int(r[1]) for r in rows])
+    sigma = np.array([float(r[2]) for r in rows])
+    faults = [frozenset(f"{SIGNALS[i]}:{kind}" for k, kind in enumerate(health.KINDS)
+                        for i in range(len(SIGNALS)) if int(r[3 + k]) >> i & 1) for r in rows]
+    return est, status, sigma, faults
+
+
+def _assert_equal(est, c_file, dataset, folder, single=False, extra_flags=()):
+    """C == Python sample by sample: statuses, fault sets, estimates and sigma (the tolerances of
+    tests/runtime/test_export_c.py)."""
+    py = est.estimate(dataset)
+    got, status, sigma, faults = _run_c(c_file, dataset, folder, single, extra_flags)
+    want_status = np.array([CODES[s] for s in py["status"]])
+    bad = np.flatnonzero(status != want_status)
+    assert bad.size == 0, (f"{bad.size} statuses differ, first at row {bad[0]}: C {status[bad[0]]}, "
+                           f"Python {py['status'].iloc[bad[0]]} ({py['fault'].iloc[bad[0]]})")
+    want_faults = [frozenset(filter(None, f.split(","))) for f in py["fault"]]
+    diff = [i for i, (a, b) in enumerate(zip(faults, want_faults)) if a != b]
+    assert not diff, f"fault sets differ at {len(diff)} rows, first {diff[0]}: C {faults[diff[0]]}, " \
+                     f"Python {want_faults[diff[0]]}"
+    want, want_sigma = py["payload_estimate"].to_numpy(), py["sigma"].to_numpy()
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_array_equal(np.isnan(sigma), np.isnan(want_sigma))
+    ok, ok_sigma = ~np.isnan(want), ~np.isnan(want_sigma)
+    if single:
+        assert np.abs(got[ok] - want[ok]).max(initial=0.0) <= 0.1
+        np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-4)
+    else:
+        np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-6)
+    return py
+
+
+@pytest.fixture(scope="module")
+def models():
+    fitting = simulate_machine_dataset(3, seed=3)
+    out = {"inverse-dynamics": create_estimator("inverse-dynamics", machine="cat345c-hydraulic").fit(fitting),
+           "calibrated-momentum": create_estimator("calibrated", machine="cat345c-hydraulic-3pct",
+                                                   balance="momentum").fit(fitting)}
+    for est in out.values():
+        assert est.health and est.health_reference  # fitted on noisy data: the monitor and its noise check
+    return out
+
+
+@pytest.fixture(scope="module")
+def clean():
+    """Clean operator motion (another seed and session than the fitting data)."""
+    return simulate_machine_dataset(2, seed=31, session=2, motion="operator")
+
+
+def _inject(frame, rows, signal, kind, a, b, size, rng):
+    """Fault ``kind`` of ``size`` on ``signal``, rows a:b of one experiment's ``rows``."""
+    idx = rows[a:b]
+    if kind == "stuck":
+        frame.loc[idx, signal] = frame.loc[rows[a - 1], signal]
+    elif kind == "dropout":
+        frame.loc[idx, signal] = 0.0
+    elif kind == "noise":
+        frame.loc[idx, signal] += size * rng.standard_normal(len(idx))
+    elif kind == "offset":
+        frame.loc[idx, signal] += size
+    elif kind == "gain":
+        frame.loc[idx, signal] *= size
+
+
+@pytest.fixture(scope="module")
+def faulty(clean):
+    """The clean work with faults of every kind (as benchmarks/bench_faults.py injects them) and a
+    hole in time (the monitor's windows restart)."""
+    frame = clean.frame.copy()
+    rng = np.random.default_rng(5)
+    ids = list(clean.experiment_ids)
+    r0, r1 = (frame.index[frame["experiment"] == e] for e in ids)
+    for rows, signal, kind, a, b, size in [
+        (r0, "boom_head_pressure", "stuck", 300, 420, None),
+        (r0, "dipper_rod_pressure", "dropout", 600, 650, None),
+        (r0, "boom_angle", "offset", 900, 1300, 5 * DEG),         # disagree at its edges, then offset
+        (r0, "bucket_head_pressure", "noise", 1400, 1600, 10 * BAR),
+        (r1, "dipper_angle", "gain", 400, 1600, 1.25),
+        (r1, "house_pitch", "offset", 2000, 2400, 5 * DEG),
+        (r1, "slew_rate", "stuck", 2600, 2800, None),
+        (r1, "boom_rate", "noise", 3000, 3200, 1.5 * DEG),
+    ]:
+        _inject(frame, rows, signal, kind, a, b, size, rng)
+    frame = frame.drop(index=list(r1[1800:1830])).reset_index(drop=True)  # 0.3 s hole
+    return Dataset(frame, clean.meta)
+
+
+def test_c_monitor_equals_python_on_clean_work(models, clean, tmp_path):
+    est = models["calibrated-momentum"]
+    source = export_c(est, tmp_path / "export")[1]
+    py = _assert_equal(est, source, clean, tmp_path / "build")
+    assert "ok" in set(py["status"])
+
+
+@pytest.mark.parametrize("name", ["inverse-dynamics", "calibrated-momentum"])
+def test_c_monitor_equals_python_on_faults_of_every_kind(name, models, faulty, tmp_path):
+    source = export_c(models[name], tmp_path / "export")[1]
+    py = _assert_equal(models[name], source, faulty, tmp_path / "build")
+    kinds = {item.partition(":")[2] for f in py["fault"] for item in filter(None, f.split(","))}
+    assert kinds == set(health.KINDS)  # every kind of the monitor was named, in C alike
+    assert (py["status"] == "sensor_fault").sum() > 100
+
+
+def test_float_build_names_the_same_faults(models, faulty, tmp_path):
+    """Single precision (the C rounds the inputs to float, Python does not): on these data the
+    same statuses and faults, the estimates within 0.1 kg."""
+    est = models["calibrated-momentum"]
+    source = export_c(est, tmp_path / "export", precision="float32")[1]
+    _assert_equal(est, source, faulty, tmp_path / "build", single=True)
+
+
+def test_monitor_compiled_out_is_health_off(models, faulty, tmp_path):
+    """-DEP_HEALTH=0 is ``Estimator.health = False``: no sensor_fault, every mask 0 (the default
+    build names the faults: the test above)."""
+    est = copy.deepcopy(models["calibrated-momentum"])
+    source = export_c(est, tmp_path / "export")[1]
+    est.health = False
+    py = _assert_equal(est, source, faulty, tmp_path / "off", extra_flags=("-DEP_HEALTH=0",))
+    assert "sensor_fault" not in set(py["status"])
+    # an estimator with health off exports the monitor off by default (-DEP_HEALTH=1 turns it on)
+    assert "#define EP_HEALTH 0" in export_c(est, tmp_path / "off-export")[0].read_text()
+
+
+def test_constants_are_read_at_export_time(models, faulty, tmp_path, monkeypatch):
+    """The thresholds come from estimators/health.py when exporting: a retuned limit and hold
+    are exported as they are, and C still equals Python (which reads the same module)."""
+    est = copy.deepcopy(models["calibrated-momentum"])
+    before = export_c(est, tmp_path / "before")[1].read_text()
+    monkeypatch.setattr(health, "OFFSET_LIMIT", 0.02)
+    monkeypatch.setattr(health, "HOLD", 0.35)
+    monkeypatch.setattr(health, "STUCK_QUANTA", 4.0)
+    est._health_for = None  # a fresh monitor with the new constants
+    source = export_c(est, tmp_path / "export")[1]
+    text = source.read_text()
+    assert text != before and "#define EP_HM_OFFSET_LIMIT EP_C(0.02)" in text and "#define EP_HM_HOLD 35" in text
+    _assert_equal(est, source, faulty, tmp_path / "build")
+
+
+def test_model_without_noise_reference(models, faulty, tmp_path):
+    """A model saved before the noise check (no ``health_reference``): no noise kind, in C alike."""
+    est = copy.deepcopy(models["calibrated-momentum"])
+    est.health_reference = None
+    est._health_for = None
+    source = export_c(est, tmp_path / "export")[1]
+    assert "#define EP_HM_NOISE_CHECKED 0" in source.read_text()
+    py = _assert_equal(est, source, faulty, tmp_path / "build")
+    assert not any("noise" in f for f in py["fault"])
+
+
+def test_thesis_export_has_no_monitor(tmp_path):
+    """The monitor runs on the machine set only (health.for_sensor_set): the thesis set's C has
+    none of it."""
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    swings = simulate_dataset(2, seed=8, workers=1, noise="thesis", progress=False)
+    header, source = export_c(create_estimator("inverse-dynamics").fit(swings), tmp_path)
+    assert "EP_HEALTH" not in header.read_text() + source.read_text()
+    assert "ep_faults" not in header.read_text()
+
+
+def test_float_monitor_does_no_double_maths(models, tmp_path):
+    """In single precision the monitor promotes nothing to double (an ECU with a float FPU)."""
+    header, source = export_c(models["calibrated-momentum"], tmp_path, precision="float32")
+    assert "#define EP_HEALTH 1" in header.read_text()
+    result = subprocess.run([c_compiler(), *STRICT_FLAGS, "-Wdouble-promotion", "-O0", "-c", str(source),
+                             "-o", str(tmp_path / "model.o")], capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr
