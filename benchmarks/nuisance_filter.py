@@ -81,15 +81,17 @@ class NuisanceFilter:
         """Start a new load: the payload unknown again; with ``carry`` the nuisances keep what
         the loads so far told about them (the payload marginalised), else the calibration's
         posterior alone."""
-        if carry and self.H_data[0, 0] > 0:
-            H, g = self.H_data, self.g_data
+        if carry and self.S[0, 0] > 0:
+            H, g = self.normal_equations(self.solve()[0])
             A = H[1:, 1:] - np.outer(H[1:, 0], H[0, 1:]) / H[0, 0]
             b = g[1:] - H[1:, 0] * g[0] / H[0, 0]
             self.carried = (self.carried[0] + A, self.carried[1] + b)
         elif not carry:
             self.carried = (np.zeros((self.n, self.n)), np.zeros(self.n))
-        self.H_data = np.zeros((self.d, self.d))
-        self.g_data = np.zeros(self.d)
+        # sufficient statistics of a = [-φ, ∂r0/∂u, ∂φ/∂u] (1 + 2n): the residual's Jacobian in u
+        # is ∂r0/∂u - m ∂φ/∂u, so that H and g at any linearisation payload follow from them
+        self.S = np.zeros((1 + 2 * self.n, 1 + 2 * self.n))
+        self.t = np.zeros(1 + 2 * self.n)
         self._ring = []
         self._run = None
         self._sign = np.zeros(3)
@@ -103,21 +105,40 @@ class NuisanceFilter:
         b = np.r_[0.0, self.carried[1]]
         return P, b
 
-    def solve(self) -> tuple[float, float, np.ndarray]:
-        """(payload, its std, the nuisances ν) from the windows so far."""
+    def normal_equations(self, m: float) -> tuple[np.ndarray, np.ndarray]:
+        """The windows' H and g with the Jacobian in u taken at payload ``m``."""
+        n = self.n
+        T = np.zeros((1 + 2 * n, 1 + n))
+        T[0, 0] = 1.0
+        T[1:1 + n, 1:] = np.eye(n)
+        T[1 + n:, 1:] = -m * np.eye(n)
+        return T.T @ self.S @ T, T.T @ self.t
+
+    @property
+    def H_data(self) -> np.ndarray:
+        return self.normal_equations(self._linearisation_payload())[0]
+
+    def solve(self, iterations: int = 3) -> tuple[float, float, np.ndarray]:
+        """(payload, its std, the nuisances ν) from the windows so far; the Jacobian in u at
+        ``m_lin``, or (None) at the payload it gives, by fixed-point iteration from the last."""
         P, b = self._prior()
-        H = self.H_data + P
-        theta = -np.linalg.solve(H, self.g_data + b)
+        m = self.m_lin if self.m_lin is not None else getattr(self, "_last", 0.5 * self.rated)
+        for _ in range(1 if self.m_lin is not None else iterations):
+            Hd, gd = self.normal_equations(m)
+            H = Hd + P
+            theta = -np.linalg.solve(H, gd + b)
+            m = float(theta[0])
+        if self.m_lin is None and Hd[0, 0] > 1.0 / 50.0**2:
+            self._last = m
         var = np.linalg.solve(H, np.eye(self.d)[:, 0])[0]
         nu = self.cal.z[self.idx] + self.L @ theta[1:]
         return float(theta[0]), math.sqrt(max(var, 0.0)), nu
 
     def _linearisation_payload(self) -> float:
+        """The payload of the rates' noise through the momentum (the windows' weights)."""
         if self.m_lin is not None:
             return self.m_lin
-        if self.H_data[0, 0] > 1.0 / 50.0**2:
-            return self.solve()[0]
-        return 0.5 * self.rated
+        return getattr(self, "_last", 0.5 * self.rated)
 
     def update(self, values: np.ndarray, qdd: np.ndarray, run) -> bool:
         """One valid sample (values of the sensor set, q̈ (4), its run id: a new id where a
@@ -146,10 +167,10 @@ class NuisanceFilter:
             self._ring.pop(0)
         if len(self._ring) < self.len:
             return False
-        self._window(m_lin)
+        self._window()
         return True
 
-    def _window(self, m_lin: float) -> None:
+    def _window(self) -> None:
         cal = self.cal
         A = np.array([s[0] for s in self._ring])  # (51, 12)
         dA = np.array([s[1] for s in self._ring])  # (51, 12, n)
@@ -160,8 +181,7 @@ class NuisanceFilter:
         dinteg, dmom = np.einsum("k,kan->an", wdt, dA[:, 6:12]), np.einsum("k,kan->an", u, dA[:, 0:6])
         dr0 = (dinteg[0:3] - dmom[0:3]) / self.W
         dsens = (dmom[3:6] - dinteg[3:6]) / self.W
-        Ju = dr0 - m_lin * dsens  # (3, n), as the batch's J at its payload
-        G = np.concatenate([-sens[:, None], Ju], axis=1)  # (3, d)
+        G = np.concatenate([-sens[:, None], dr0, dsens], axis=1)  # (3, 1 + 2n)
         # weights: the batch oracle's "skip" rule (evaluate_windows + weights)
         lever = self._ring[BALANCE_HALF_WINDOW][2]
         speeds = np.array([s[3] for s in self._ring])
@@ -177,8 +197,8 @@ class NuisanceFilter:
         w = np.where(ok, w, 0.0)
         G = np.where(ok[:, None], G, 0.0)
         r0 = np.where(ok, r0, 0.0)
-        self.H_data += np.einsum("ja,j,jb->ab", G, w, G)
-        self.g_data += np.einsum("ja,j,j->a", G, w, r0)
+        self.S += np.einsum("ja,j,jb->ab", G, w, G)
+        self.t += np.einsum("ja,j,j->a", G, w, r0)
         self.windows += 1
 
 
@@ -194,7 +214,7 @@ def run_experiment(filt: NuisanceFilter, ds_e, times_out: np.ndarray | None = No
     for i in range(len(values)):
         filt.update(values[i], qdd[i], runs[i])
         while k < len(times_out) and (i + 1 == len(values) or times[i + 1] > times_out[k]):
-            out.append(filt.solve()[:2] if filt.H_data[0, 0] > 0 else (math.nan, math.nan))
+            out.append(filt.solve()[:2] if filt.S[0, 0] > 0 else (math.nan, math.nan))
             k += 1
     while k < len(times_out):
         out.append(filt.solve()[:2])
