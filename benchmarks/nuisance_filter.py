@@ -247,7 +247,9 @@ def main() -> None:
     for c in a.cells:
         est = estimator(a.cache, *CELLS[c])
         cal = est.calibration
-        delay = (BALANCE_HALF_WINDOW + est.options["half_window"] + LOOK_AHEAD) * DT
+        # the kernel's estimate at t rests on windows ending its differentiator's half window and
+        # the outlier gate's look-ahead before t; the filter adds a window at its last sample
+        delay = (est.options["half_window"] + LOOK_AHEAD) * DT
         for fam in a.families:
             ds = cached(a.cache, f"family_{fam}_{a.n_test}", lambda: None)
             frame = est.estimate(ds)
