@@ -240,9 +240,11 @@ def main() -> None:
     ap.add_argument("--cells", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--families", nargs="+", default=["nmpc", "lever"])
     ap.add_argument("--check", action="store_true", help="only the check against the batch oracle")
+    ap.add_argument("--variant", default="offsets+imu", choices=("offsets+imu", "imu", "offsets"),
+                    help="the nuisances re-estimated (the batch oracle's variant of that name)")
     a = ap.parse_args()
-    idx = np.r_[OFFSETS, IMU]
-    assert np.array_equal(VARIANTS["offsets+imu"][0], idx)
+    idx = {"offsets+imu": np.r_[OFFSETS, IMU], "imu": IMU, "offsets": OFFSETS}[a.variant]
+    assert np.array_equal(VARIANTS[a.variant][0], idx)
     rows = []
     for c in a.cells:
         est = estimator(a.cache, *CELLS[c])
@@ -269,7 +271,7 @@ def main() -> None:
                     fixed = NuisanceFilter(cal, idx, m_lin=m0)
                     end = run_experiment(fixed, ds_e, t[-1:])[-1]
                     spent = time.time() - t0
-                    batch = oracle(cal, ds_e, m0, t[-1:], 0.0)["offsets+imu"]["early"][-1]
+                    batch = oracle(cal, ds_e, m0, t[-1:], 0.0)[a.variant]["early"][-1]
                     print(f"{CELLS[c][0]} / {fam} / experiment {e}: streaming {end[0]:.6f} kg (std {end[1]:.6f}),"
                           f" batch expanding {batch[0]:.6f} kg (std {batch[1]:.6f}); "
                           f"{fixed.windows} windows, {1e3 * spent / sel.sum():.2f} ms per sample (Python)",
@@ -291,7 +293,7 @@ def main() -> None:
                 g = table[(table.calibration == CELLS[c][0]) & (table.family == fam)].groupby("method", sort=False)
                 s = g.agg(mean_max=("max", "mean"), mean_rms=("rms", "mean"), mean_final=("final", "mean"))
                 s["within_1pct"] = g["max"].apply(lambda x: float(np.mean(x <= 50.0)))
-                print(f"\n{CELLS[c][0]} / {CELLS[c][1]} / {fam}")
+                print(f"\n{CELLS[c][0]} / {CELLS[c][1]} / {fam} ({a.variant})")
                 print(s.to_string(float_format=lambda v: f"{v:.2f}"), flush=True)
 
 
