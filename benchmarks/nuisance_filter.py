@@ -230,7 +230,7 @@ def main() -> None:
 
     import pandas as pd
     from bench_nuisance_oracle import IMU, LOOK_AHEAD, OFFSETS, VARIANTS, oracle
-    from nuisance_oracle_prep import CELLS, cached, estimator
+    from nuisance_oracle_prep import CELLS, cached, estimator, family
 
     from excavator_payload.data.dataset import Dataset
 
@@ -253,7 +253,7 @@ def main() -> None:
         # the outlier gate's look-ahead before t; the filter adds a window at its last sample
         delay = (est.options["half_window"] + LOOK_AHEAD) * DT
         for fam in a.families:
-            ds = cached(a.cache, f"family_{fam}_{a.n_test}", lambda: None)
+            ds = cached(a.cache, f"family_{fam}_{a.n_test}", lambda: family(fam, a.n_test, 9100))
             frame = est.estimate(ds)
             f = ds.frame
             session = NuisanceFilter(cal, idx)
