@@ -24,7 +24,8 @@ Variants (what is free besides the payload):
   reference that isolates the re-estimation; ``held (downweight)``: the same with the still
   windows weighted by the calibration's still-share variance instead of skipped;
 * ``offsets``: the 11 sensor offsets; ``imu``: the IMU lag and the four acceleration
-  sensitivities; ``lag``: the lag alone; ``friction``: the seal friction parameters (Coulomb,
+  sensitivities; ``lag``: the lag alone; ``imu (no house)``: the lag and the three link IMUs'
+  sensitivities; ``house imu``: the house IMU's sensitivity alone; ``friction``: the seal friction parameters (Coulomb,
   load coefficient, viscous of each cylinder); ``offsets+imu``; ``all``: offsets, IMU dynamics
   and friction parameters;
 * ``all+rest``: ``all`` and one friction force per standstill, the still windows then used
@@ -94,7 +95,8 @@ ALL = np.r_[OFFSETS, IMU, FRICTION]
 #: marginalised) added to the prior)
 VARIANTS = {"held": (NONE, False, "skip", False), "held (downweight)": (NONE, False, "downweight", False),
             "offsets": (OFFSETS, False, "skip", False), "imu": (IMU, False, "skip", False),
-            "lag": (IMU[:1], False, "skip", False),
+            "lag": (IMU[:1], False, "skip", False), "imu (no house)": (IMU[:4], False, "skip", False),
+            "house imu": (IMU[4:], False, "skip", False),
             "friction": (FRICTION, False, "skip", False),
             "offsets+imu": (np.r_[OFFSETS, IMU], False, "skip", False),
             "all": (ALL, False, "skip", False),
@@ -427,8 +429,13 @@ def main() -> None:
                     help="indices into nuisance_oracle_prep.CELLS")
     ap.add_argument("--out", type=Path, default=Path("nuisance-oracle"))
     ap.add_argument("--truth-check", action="store_true")
+    ap.add_argument("--variants", nargs="+", default=None, help="only these variants (default all)")
     a = ap.parse_args()
     a.cache.mkdir(parents=True, exist_ok=True)
+    if a.variants:
+        for name in list(VARIANTS):
+            if name not in a.variants:
+                del VARIANTS[name]
     if a.truth_check:
         truth_check(a.cache, a.n_test)
         return
