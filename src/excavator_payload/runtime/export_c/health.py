@@ -25,7 +25,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from excavator_payload.estimators import health as H
-from excavator_payload.platforms import HYDRAULIC
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.export_c.c_text import c_array, c_number
 
@@ -151,7 +150,7 @@ extern const int EP_FAULT_FMI[EP_N_FAULT_KINDS];"""
  * returned EP_STATUS_SENSOR_FAULT, or when built with EP_HEALTH=0). */
 unsigned long ep_faults(const ep_state *s, int kind);
 """
-    fields = f"""#if EP_HEALTH
+    fields = """#if EP_HEALTH
     /* sensor health monitor (estimators/health.py) */
     int hm_reported;           /* the last ep_step returned sensor_fault */
     int hm_age[EP_N_SIGNALS][EP_N_FAULT_KINDS];  /* samples since the fault was last seen, -1: none */
