@@ -84,11 +84,8 @@ OUTSIDE_CALIBRATION_CHOICES = ("auto", "skip", "use")
 #: per-sample form.
 WAIT_FOR_BOOM_CHOICES = ("auto", "yes", "no")
 #: With ``--wait-for-boom``, windows that weigh the boom before an estimate is reported (0.5 s
-#: of boom motion). One window was the rule before: the first ``ok`` estimates then rested on
-#: the motion's start alone and erred most (up to 4-5 σ; measured on NMPC swings, work cycles
-#: and ``operator`` motions, 8 each: mean MAX 19.1 / 16.5 / 24.8 kg with one window, 17.4 /
-#: 12.3 / 18.6 kg with 50, 14.4 / 12.1 / 16.7 kg with 100; findings: any-motion, "The boom's
-#: first windows").
+#: of boom motion): with one window the first ``ok`` estimates rested on the motion's start
+#: alone and erred most (findings: any-motion, "The boom's first windows").
 BOOM_READY_WINDOWS = 50
 #: With ``--wait-for-boom``, once the boom's windows are in: an estimate is reported when it holds
 #: still, having moved by at most :data:`STEADY_SHARE` of the rated payload over the last
