@@ -671,9 +671,17 @@ def _clip_to_ranges(motion: Motion, machine) -> Motion:
     """
     r = _inside(machine, 1 * DEG)
     time = np.linspace(0, motion.duration, 400)
-    for _ in range(8):
+    # The first 8 rounds halve the latest step towards the excursion (motions inside the
+    # machine's ranges after them are as they always were). A drift of many small trims (an
+    # `operator` motion's bucket, 19° past its range in 1 of 40 draws) outlasts them and was
+    # returned out of the machine's range: then the largest such step is halved until the motion
+    # is inside the ranges themselves.
+    hard = _inside(machine, 0.0)
+    for round_ in range(8 + MAX_EXTRA_CLIP_ROUNDS):
         q, _, _ = motion.sample(time)
         ok = True
+        if round_ >= 8:
+            r = hard
         for j in range(3):
             over, under = q[:, j].max() - r[j, 1], r[j, 0] - q[:, j].min()
             if over <= 0 and under <= 0:
@@ -684,10 +692,16 @@ def _clip_to_ranges(motion: Motion, machine) -> Motion:
             candidates = [st for st in motion.steps
                           if st.joint == j and st.start < worst and st.delta * sign > 0]
             if candidates:
-                max(candidates, key=lambda st: st.start).delta *= 0.5
+                key = (lambda st: st.start) if round_ < 8 else (lambda st: abs(st.delta))
+                max(candidates, key=key).delta *= 0.5
         if ok:
             return motion
     return motion
+
+
+#: Rounds of :func:`_clip_to_ranges` after its first 8 (each halves the largest step towards the
+#: excursion: 19° of drift needs a few dozen).
+MAX_EXTRA_CLIP_ROUNDS = 200
 
 
 def slope_tilt(rng) -> np.ndarray:
