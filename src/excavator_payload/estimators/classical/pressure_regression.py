@@ -91,11 +91,27 @@ PITCH, ROLL = SIGNALS.index("house_pitch"), SIGNALS.index("house_roll")
 PRESSURES = [SIGNALS.index(s) for s in SIGNALS if s.endswith("_pressure")]
 
 
+def white_noise_variance(x: np.ndarray) -> float | None:
+    """White-noise variance of the columns of ``x`` from their second differences:
+    var(Δ²x) = 6σ² for white noise on a smooth signal, through the median of χ²₁ (0.4549), which
+    makes it robust to jumps; None with fewer than 10 finite rows.
+
+    Parameters
+    ----------
+    x : numpy.ndarray
+        Samples (rows) of one or more signals (columns), evenly spaced.
+    """
+    d2 = np.diff(x, 2, axis=0)
+    d2 = d2[np.all(np.isfinite(d2), axis=1)]
+    if len(d2) < 10:
+        return None
+    return float(np.median(d2**2) / 0.4549 / 6)
+
+
 def pressure_noise_from_data(dataset: Dataset) -> float:
     """White noise of the pressure transmitters (Pa) from second differences of the measured
-    pressures (var(Δ²x) = 6σ² for white noise on a smooth signal, a robust median): needs no
-    known payload, so any data will do; it sees the white noise and the aliased pump ripple,
-    as the estimator does.
+    pressures (:func:`white_noise_variance`): needs no known payload, so any data will do; it
+    sees the white noise and the aliased pump ripple, as the estimator does.
 
     Parameters
     ----------
@@ -107,13 +123,8 @@ def pressure_noise_from_data(dataset: Dataset) -> float:
     float
         Standard deviation, Pa.
     """
-    cols = [SIGNALS[i] for i in PRESSURES]
-    x = dataset.frame[cols].to_numpy(float)
-    d2 = np.diff(x, 2, axis=0)
-    d2 = d2[np.all(np.isfinite(d2), axis=1)]
-    if len(d2) < 10:
-        return DEFAULT_PRESSURE_STD
-    return float(np.sqrt(np.median(d2**2) / 0.4549 / 6))
+    variance = white_noise_variance(dataset.frame[[SIGNALS[i] for i in PRESSURES]].to_numpy(float))
+    return DEFAULT_PRESSURE_STD if variance is None else math.sqrt(variance)
 
 
 #: Samples after the one the outlier test judges: two, so that it sees two neighbours each side.

@@ -34,7 +34,7 @@ from excavator_payload.estimators.classical.machine_calibration.settings import 
     CALIBRATION_HALF_WINDOW, COVERAGE_MARGIN, COVERAGE_PERCENTILES, GLITCH_SIGMAS,
     HELD_SAMPLES, IMU_PRIOR_STD, NO_LIMIT, SIGNALS)
 from excavator_payload.estimators.classical.pressure_regression import (  # noqa: F401 (pressure noise re-exported)
-    ANGLES, PRESSURES, RATES, pressure_noise_from_data)
+    ANGLES, PRESSURES, RATES, pressure_noise_from_data, white_noise_variance)
 
 
 def held_direction(speed: np.ndarray, runs: np.ndarray, threshold: np.ndarray,
@@ -192,12 +192,8 @@ def rate_variance(dataset: Dataset) -> float:
     float
         Variance, (rad/s)² (0 with fewer than 10 usable rows).
     """
-    rates = dataset.frame[[SIGNALS[i] for i in RATES[:3]]].to_numpy(float)
-    d2 = np.diff(rates, 2, axis=0)
-    d2 = d2[np.all(np.isfinite(d2), axis=1)]
-    if len(d2) < 10:
-        return 0.0
-    return float(np.median(d2**2) / 0.4549 / 6)  # median of χ²₁ = 0.4549
+    variance = white_noise_variance(dataset.frame[[SIGNALS[i] for i in RATES[:3]]].to_numpy(float))
+    return 0.0 if variance is None else variance
 
 
 def accel_variance(dataset: Dataset, half_window: int) -> float:
