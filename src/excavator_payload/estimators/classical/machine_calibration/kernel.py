@@ -12,9 +12,10 @@ standstill per ``--low-speed``, the rates' noise through the momentum). In the m
 the per-sample terms go into a second ring, and the residual and :math:`\varphi` are the
 balance's over its window (:func:`~.data.window_residuals`, the same weights). The kernel
 also owns ``--outside-calibration`` (a joint outside its covered angles gets no weight),
-``--wait-for-boom`` (:attr:`CalibratedKernel.ready`, then :attr:`CalibratedKernel.steady`), ``--new-load`` (a short memory
-against the whole one, :meth:`CalibratedKernel._accumulate`) and ``--joint-check`` (each
-joint's share of the sums against the others', :meth:`CalibratedKernel._check_joints`).
+``--wait-for-boom`` (:attr:`CalibratedKernel.ready`, then :attr:`CalibratedKernel.steady`),
+``--new-load`` (a short memory against the whole one, :meth:`CalibratedKernel._accumulate`)
+and ``--joint-check`` (each joint's share of the sums against the others',
+:meth:`CalibratedKernel._check_joints`).
 """
 
 from __future__ import annotations
