@@ -319,7 +319,8 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                                       "per-sample form",
                                       OUTSIDE_CALIBRATION_CHOICES),
         "wait_for_boom": Option(str, "auto", "machine sensor set: report no estimate until the "
-                                "boom has been weighed in 50 windows (0.5 s of boom motion); auto: yes in the "
+                                "boom has been weighed in 50 windows (0.5 s of boom motion) and the estimate "
+                                "then holds still (within 0.1 % of rated over 0.5 s); auto: yes in the "
                                 "momentum form, no in the per-sample form", WAIT_FOR_BOOM_CHOICES),
         "new_load": Option(str, "auto", "machine sensor set: restart the weighing when the load "
                            "changes (a dump, the next bucket load), detected as a short memory's "
