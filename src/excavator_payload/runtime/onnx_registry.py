@@ -18,6 +18,14 @@ _GRAPHS: dict[str, type] = {}
 _EXPORTERS: dict[str, Callable] = {}
 
 
+def _register(table: dict, names: tuple[str, ...]) -> Callable:
+    def register(entry):
+        for name in names:
+            table[name] = entry
+        return entry
+    return register
+
+
 def onnx_graph_for(*names: str) -> Callable[[type], type]:
     """Class decorator: register a graph as the ONNX export of estimators ``names``.
 
@@ -26,11 +34,7 @@ def onnx_graph_for(*names: str) -> Callable[[type], type]:
     *names : str
         Registry names of the networks it exports.
     """
-    def register(graph: type) -> type:
-        for name in names:
-            _GRAPHS[name] = graph
-        return graph
-    return register
+    return _register(_GRAPHS, names)
 
 
 def onnx_exporter_for(*names: str) -> Callable[[Callable], Callable]:
@@ -41,11 +45,7 @@ def onnx_exporter_for(*names: str) -> Callable[[Callable], Callable]:
     *names : str
         Registry names of the estimators it writes.
     """
-    def register(writer: Callable) -> Callable:
-        for name in names:
-            _EXPORTERS[name] = writer
-        return writer
-    return register
+    return _register(_EXPORTERS, names)
 
 
 def graph_for(name: str) -> type | None:
