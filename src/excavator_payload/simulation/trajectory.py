@@ -9,8 +9,9 @@ within an experiment to replay a shift — a bucket filled at the dig and emptie
 :func:`payload_passes`)
 
 and optionally ``ground_pitch`` and ``ground_roll`` (rad; level ground where absent). Any sample
-rate, even uneven, is accepted: each angle is interpolated by a cubic spline (continuous
-angle, rate and acceleration) and evaluated at 100 Hz between the experiment's first and last
+rate, even uneven, is accepted: each angle is interpolated by quintic pieces through its
+samples' angle, rate and acceleration (continuous angle, rate and acceleration; local, so a
+jump of the acceleration does not ring through the motion) and evaluated at 100 Hz between the experiment's first and last
 time. A motion recorded on a real machine, or made by hand, can so be pushed through the
 simulator (``excavator-payload simulate --machine cat345c-hydraulic --motion trajectory
 --trajectory FILE``); its pressures are those the model needs for that motion, and the
@@ -18,7 +19,7 @@ experiment's metadata say whether it stayed within the relief pressure and the p
 
 A motion the machine cannot make is refused before anything is simulated, with the real reason
 (:func:`check_trajectory_motion`): a joint outside its range; angles that come in steps (a
-quantised or sample-and-hold log), whose spline accelerates at hundreds of rad/s² and needs
+quantised or sample-and-hold log), whose interpolation accelerates at hundreds of rad/s² and needs
 pressures far beyond the relief valve (``--smooth SECONDS`` filters them, :func:`smooth_trajectory`);
 a motion faster than the pumps or the slew drive give (a replay faster than the machine flatters
 the estimator; ``--allow-overspeed`` simulates it anyway, flagged); or one many times faster (an
@@ -100,7 +101,7 @@ STEP_PROBE = 0.05
 STEP_FACTOR = 2.0
 #: Smallest unknown-column similarity (difflib ratio) that makes it a misspelt known column.
 MISSPELT_CUTOFF = 0.8
-#: Slack on the machine's joint ranges (the spline may overshoot a recorded end stop a little), rad.
+#: Slack on the machine's joint ranges (the interpolation may overshoot a recorded end stop a little), rad.
 RANGE_SLACK = np.radians(1.0)
 
 
@@ -189,7 +190,7 @@ def smooth_trajectory(trajectory: Trajectory, seconds: float) -> Trajectory:
     zero-phase Gaussian kernel of standard deviation ``seconds`` / 2 (``--smooth SECONDS``).
 
     A log whose angles come in steps (a quantised sensor, or a slow one logged at a fast rate
-    and held between its samples) has a spline through every step: accelerations of hundreds
+    and held between its samples) is interpolated through every step: accelerations of hundreds
     of rad/s² that no arm makes. The filter keeps the motion (no lag) and removes the steps;
     tilt is interpolated linearly, the payload kept.
 
@@ -295,7 +296,7 @@ def _step_interval(rows: pd.DataFrame, column: str) -> float:
 
 def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bool = False) -> list[str]:
     """Refuse motions the machine cannot make, naming the real reason (module docstring):
-    joints outside their ranges; angles in steps whose spline accelerations need far more than
+    joints outside their ranges; angles in steps whose interpolated accelerations need far more than
     the relief pressure (or speed) gives; a motion faster than the pumps or slew drive (refused
     unless ``allow_overspeed``: then one warning line per experiment is returned); a motion many
     times faster (a unit mistake: an angle in degrees, time in ms).
@@ -336,7 +337,7 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
                 worst = q[:, j].min() if q[:, j].min() < low - RANGE_SLACK else q[:, j].max()
                 raise DatasetError(f"{trajectory.source}: experiment {exp_id}: '{name}' reaches {worst:.3g} rad, "
                                    f"outside the machine's range [{low:.3g}, {high:.3g}] rad (between "
-                                   "the samples too: a time gap makes the spline swing)")
+                                   "the samples too: a time gap makes the interpolation swing)")
         payload = np.interp(time, rows["time"].to_numpy(dtype=float), rows["payload"].to_numpy(dtype=float))
         speed, force = _demand(arm, q, qd, qdd, tilt, payload)
         too_fast, too_strong = speed.max() > OVERSPEED_TOLERANCE, force.max() > FORCE_LIMIT
@@ -359,7 +360,7 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
             need = (f"{force[i, j]:.3g} times the force its cylinder gives at the relief pressure" if too_strong
                     else f"{speed[i, j]:.3g} times the speed the pumps give")
             raise DatasetError(
-                f"{where}: experiment {exp_id} at t = {time[i]:.2f} s: the spline through the recorded "
+                f"{where}: experiment {exp_id} at t = {time[i]:.2f} s: the interpolation through the recorded "
                 f"{names[j]} angle accelerates at {qdd[i, j]:.3g} rad/s², which needs {need}: the angles "
                 f"come in steps (a quantised or held signal{f', every {interval:.3g} s' if math.isfinite(interval) else ''}), "
                 f"not in a motion the machine makes; smooth them with --smooth {advice:g} (seconds) or "
@@ -388,8 +389,57 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
     return warnings
 
 
+def knot_derivatives(t: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rates and accelerations at the recorded samples from the quartic through five samples.
+
+    At sample *i*, the polynomial of degree 4 through the samples *i* − 2 … *i* + 2 (the nearest
+    five at the ends) gives the rate and acceleration; on an even grid of step *h*
+
+    .. math:: \\dot q_i = \\frac{q_{i-2} - 8 q_{i-1} + 8 q_{i+1} - q_{i+2}}{12 h}, \\qquad
+              \\ddot q_i = \\frac{-q_{i-2} + 16 q_{i-1} - 30 q_i + 16 q_{i+1} - q_{i+2}}{12 h^2},
+
+    fourth-order accurate like a cubic spline on a smooth motion, but local: where the
+    acceleration jumps between two samples, the samples beside it move by 1/24 of the jump and
+    the rest not at all (a global spline rings through the motion instead).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Strictly increasing sample times, s, shape (n,), n ≥ 3.
+    q : numpy.ndarray
+        Angles at those times, rad, shape (n, k).
+
+    Returns
+    -------
+    qd, qdd : numpy.ndarray
+        Rates (rad/s) and accelerations (rad/s²) at the samples, shape (n, k).
+    """
+    n = len(t)
+    width = min(5, n)
+    start = np.clip(np.arange(n) - width // 2, 0, n - width)
+    stencil = start[:, None] + np.arange(width)
+    dt = t[stencil] - t[:, None]
+    scale = np.abs(dt).max(axis=1, keepdims=True)  # well-conditioned whatever the time unit
+    vander = (dt / scale)[:, None, :] ** np.arange(width)[None, :, None]  # (n, power, sample)
+    # weights w with Σ_s w_s (dt_s/scale)^p = p-th derivative of (dt/scale)^p at 0: p = 1 → 1, p = 2 → 2
+    rhs = np.zeros((n, width, 2))
+    rhs[:, 1, 0], rhs[:, 2, 1] = 1.0, 2.0
+    weights = np.linalg.solve(vander, rhs)  # (n, sample, 2)
+    samples = q[stencil]  # (n, sample, k)
+    qd = np.einsum("ns,nsk->nk", weights[:, :, 0], samples) / scale
+    qdd = np.einsum("ns,nsk->nk", weights[:, :, 1], samples) / scale**2
+    return qd, qdd
+
+
 def interpolate(rows: pd.DataFrame, sample_rate: float):
-    """Time grid at ``sample_rate`` and (q, q̇, q̈) (n, 4), tilt (n, 2) by cubic splines.
+    """Time grid at ``sample_rate`` and (q, q̇, q̈) (n, 4), tilt (n, 2) by quintic Hermite pieces.
+
+    Each angle is interpolated between its samples by the quintic that takes the sample's angle,
+    rate and acceleration at both ends (:func:`knot_derivatives`): continuous angle, rate and
+    acceleration, and local. A global cubic spline (used before) rings where a motion's
+    acceleration jumps (a lever pushed through a first-order valve): its acceleration alternates
+    from sample to sample by up to half the motion's largest, which the inverse dynamics turns
+    into chamber pressures no machine makes (oil compliance filters them).
 
     Parameters
     ----------
@@ -408,13 +458,23 @@ def interpolate(rows: pd.DataFrame, sample_rate: float):
     tilt : numpy.ndarray
         Ground (pitch, roll), rad, interpolated linearly (0 where absent), shape (n, 2).
     """
-    from scipy.interpolate import CubicSpline
-
     t = rows["time"].to_numpy(dtype=float)
     n = int(np.floor((t[-1] - t[0]) * sample_rate + 1e-9)) + 1
     time = t[0] + np.arange(n) / sample_rate
-    spline = CubicSpline(t, rows[list(ANGLE_COLUMNS)].to_numpy(dtype=float), axis=0)
-    q, qd, qdd = spline(time), spline(time, 1), spline(time, 2)
+    knots = rows[list(ANGLE_COLUMNS)].to_numpy(dtype=float)
+    rate, accel = knot_derivatives(t, knots)
+    piece = np.clip(np.searchsorted(t, time, side="right") - 1, 0, len(t) - 2)
+    h = (t[piece + 1] - t[piece])[:, None]
+    s = (time - t[piece])[:, None] / h
+    # power form c0 + c1 s + … + c5 s⁵ of the piece, from the two ends' angle, rate and acceleration
+    c0, c1, c2 = knots[piece], rate[piece] * h, 0.5 * accel[piece] * h**2
+    P = knots[piece + 1] - (c0 + c1 + c2)
+    V = rate[piece + 1] * h - (c1 + 2.0 * c2)
+    A = accel[piece + 1] * h**2 - 2.0 * c2
+    c3, c4, c5 = 10.0 * P - 4.0 * V + 0.5 * A, -15.0 * P + 7.0 * V - A, 6.0 * P - 3.0 * V + 0.5 * A
+    q = c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5))))
+    qd = (c1 + s * (2.0 * c2 + s * (3.0 * c3 + s * (4.0 * c4 + s * 5.0 * c5)))) / h
+    qdd = (2.0 * c2 + s * (6.0 * c3 + s * (12.0 * c4 + s * 20.0 * c5))) / h**2
     tilt = np.zeros((n, 2))
     for j, c in enumerate(OPTIONAL):
         if c in rows.columns:
