@@ -119,8 +119,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
-#define EP_JC_ENOUGH {c_number(check.enough)}  /* I_j for a joint to be compared */
-#define EP_JC_CHECKED_INFO {c_number(check.checked_info)}  /* I_j of a weighed joint (ok needs two) */
+#define EP_JC_ENOUGH {c_number(check.enough)}  /* I_j for a joint to be compared (ok needs two) */
 #define EP_JC_CHI2 {c_number(JOINT_CHI2)}
 #define EP_JC_SAMPLES {JOINT_SAMPLES}
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
@@ -217,7 +216,7 @@ static int ep_jc_load_moves(const ep_state *s)
 static void ep_jc_judge(ep_state *s)
 {{
     ep_real m[3], w[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0);
-    int j, compared = 0, n = 0, weighed = 0, failing, single = -1;
+    int j, compared = 0, n = 0, failing, held, single = -1;
     for (j = 0; j < 3; ++j) {{
         if (s->jc_info[j] >= EP_JC_ENOUGH) {{
             compared |= 1 << j;
@@ -225,7 +224,6 @@ static void ep_jc_judge(ep_state *s)
             m[j] = s->jc_num[j] / s->jc_info[j];
             w[j] = EP_C(1.0) / (EP_JC_INFLATION / s->jc_info[j] + EP_JC_EXTRA);
         }}
-        weighed += s->jc_info[j] >= EP_JC_CHECKED_INFO;
     }}
     if (n >= 2) {{
         for (j = 0; j < 3; ++j)
@@ -237,14 +235,15 @@ static void ep_jc_judge(ep_state *s)
         for (j = 0; j < 3; ++j)
             if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
     }}
-    s->jc_checked = (unsigned char)(weighed >= 2);
+    s->jc_checked = (unsigned char)(n >= 2);
     failing = chi2 > EP_JC_CHI2;
-    if (failing && !s->jc_named && (s->changing || s->jc_paused)) failing = 0;  /* the load is changing */
+    /* the load is changing: a new fault waits (named at once if still there when the pause ends) */
+    held = failing && !s->jc_named && (s->changing || s->jc_paused > 0);
     /* a named joint is cleared only by agreeing with another compared joint */
     if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;
     else s->jc_run = 0;
-    if (s->jc_run < EP_JC_SAMPLES) {{
+    if (s->jc_run < EP_JC_SAMPLES || held) {{
         for (j = 0; j < 3; ++j)
             if (s->jc_named == 1 << j) ep_jc_without(s, j);
         return;
@@ -294,23 +293,19 @@ static void ep_jc_judge(ep_state *s)
 static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
 {{
     int j;
-    if (s->jc_new_load) {{  /* the weighing restarted: so does the check */
+    if (s->jc_new_load) {{  /* the weighing restarted: so do the check's sums (not a fault named) */
         s->jc_new_load = 0;
         ep_jc_clear(s);
-        s->jc_named = 0;
-        s->jc_degraded = EP_NAN;
-        s->jc_degraded_info = EP_C(0.0);
-        s->jc_run = 0;
     }}
     for (j = 0; j < 3; ++j) {{
         s->jc_num[j] = EP_FORGETTING * s->jc_num[j] + dn[j];
         s->jc_info[j] = EP_FORGETTING * s->jc_info[j] + di[j];
     }}
     if (ep_jc_load_moves(s)) {{
-        if (s->jc_armed) {{
-            s->jc_paused += 1;
-            if (s->jc_paused > EP_JC_PAUSE) {{
-                ep_jc_clear(s);
+        if (s->jc_armed && (!s->jc_paused || di[0] + di[1] + di[2] > EP_C(0.0))) {{
+            s->jc_paused += 1;  /* windows with information, not of standstill */
+            if (s->jc_paused > EP_JC_PAUSE) {{  /* a lasting difference: judged on the sums */
+                s->jc_paused = 0;
                 s->jc_armed = 0;
             }}
         }}

@@ -57,8 +57,10 @@ class JointCheck:
 
     def __init__(self, rated: float, model_std: float):
         self.extra = float(model_std) ** 2 + (JOINT_MODEL_SHARE * float(rated)) ** 2
-        self.enough = JOINT_INFO_INFLATION / (JOINT_CHECKED_SHARE * float(rated)) ** 2  # I_j to be compared
-        self.checked_info = 1.0 / (JOINT_CHECKED_SHARE * float(rated)) ** 2
+        # I_j of a joint compared (and of the two an ok estimate needs): its σ, inflated as in
+        # v_j, within JOINT_CHECKED_SHARE of the rated payload
+        self.enough = JOINT_INFO_INFLATION / (JOINT_CHECKED_SHARE * float(rated)) ** 2
+
         self.change_min = JOINT_CHANGE_SHARE * float(rated)
         self.reset()
 
@@ -97,8 +99,8 @@ class JointCheck:
             n[j] = lam * n[j] + d_num[j]
             i[j] = lam * i[j] + d_info[j]
         if self._load_moves(kernel):
-            if self.armed:
-                self.paused += 1
+            if self.armed and (not self.paused or d_info[0] + d_info[1] + d_info[2] > 0.0):
+                self.paused += 1  # it lasts so many windows with information, not of standstill
                 if self.paused > JOINT_PAUSE_WINDOWS:  # a lasting difference: judged on the sums
                     self.paused = 0
                     self.armed = False
@@ -139,7 +141,7 @@ class JointCheck:
             mean = sum(w[j] * m[j] for j in joints) / sum(w.values())
             chi2 = sum(w[j] * (m[j] - mean) ** 2 for j in joints)
         self.chi2 = chi2
-        self.checked = sum(ij[j] >= self.checked_info for j in range(3)) >= 2
+        self.checked = len(joints) >= 2
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
