@@ -91,7 +91,7 @@ class JointCheck:
             The window's w φ² of each joint.
         """
         lam = kernel.forgetting
-        if kernel.new_loads != self.loads:  # the weighing restarted: so does the check
+        if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
             self.loads = kernel.new_loads
             self._resume()
         n, i = self.num, self.info
@@ -145,7 +145,7 @@ class JointCheck:
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
-        held = failing and not self.fault and (kernel.changing or self.paused > 0)
+        held = failing and not self.fault and (kernel.changing or self.paused > 0) and not self._leads(joints, m, w)
         if self.fault and not failing and not set(self.named) < set(joints):
             failing = True  # a named joint is cleared only by agreeing with another compared joint
         if failing != bool(self.fault):
@@ -160,18 +160,35 @@ class JointCheck:
         if not failing:
             self.fault, self.degraded, self.named = "", (math.nan, 0.0), ()
             return
-        named = joints
-        if len(joints) == 3:
-            def stands_out(j):  # (m_j − mean of the others)² over its variance, and the others
-                rest = [i for i in joints if i != j]
-                w_rest = sum(w[i] for i in rest)
-                mean_rest = sum(w[i] * m[i] for i in rest) / w_rest
-                return (m[j] - mean_rest) ** 2 / (1.0 / w[j] + 1.0 / w_rest), rest
+        self._name(_named(joints, m, w))
+        self.degraded = kernel._without(self.named[0]) if len(self.named) == 1 else (math.nan, 0.0)
 
-            worst = max(joints, key=lambda j: stands_out(j)[0])
-            a, b = stands_out(worst)[1]
-            if (m[a] - m[b]) ** 2 / (1.0 / w[a] + 1.0 / w[b]) <= JOINT_CHI2:
-                named = [worst]
+    def _name(self, named) -> None:
         self.named = tuple(named)
         self.fault = ",".join(f"{s}:balance" for j in named for s in JOINT_PRESSURES[j])
-        self.degraded = kernel._without(named[0]) if len(named) == 1 else (math.nan, 0.0)
+
+    def _leads(self, joints: list, m: dict, w: dict) -> bool:
+        """Whether the one joint the check would name holds more information than the joints it
+        disagrees with: then the whole weighing follows it, and a load change the kernel sees
+        is that joint's doing, not one the joints that move see first."""
+        named = _named(joints, m, w)
+        return len(named) == 1 and 2.0 * self.info[named[0]] > sum(self.info[j] for j in joints)
+
+
+def _named(joints: list, m: dict, w: dict) -> list:
+    """The joints a failing check names: the one that stands out most from the mean of the
+    other two, alone when those two then agree; else every compared joint."""
+    if len(joints) != 3:
+        return joints
+
+    def stands_out(j):  # (m_j − mean of the others)² over its variance, and the others
+        rest = [i for i in joints if i != j]
+        w_rest = sum(w[i] for i in rest)
+        mean_rest = sum(w[i] * m[i] for i in rest) / w_rest
+        return (m[j] - mean_rest) ** 2 / (1.0 / w[j] + 1.0 / w_rest), rest
+
+    worst = max(joints, key=lambda j: stands_out(j)[0])
+    a, b = stands_out(worst)[1]
+    if (m[a] - m[b]) ** 2 / (1.0 / w[a] + 1.0 / w[b]) <= JOINT_CHI2:
+        return [worst]
+    return joints
