@@ -125,7 +125,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
-static const unsigned long EP_JC_PRESSURES[3] = {{{", ".join(masks)}}};  /* each cylinder's head and rod */
 
 static void ep_jc_clear(ep_state *s)
 {{
@@ -151,6 +150,9 @@ static void ep_jc_reset(ep_state *s)
     s->jc_reported = 0;
     s->jc_gap = 0;
 }}
+
+#if EP_JOINT_CHECK
+static const unsigned long EP_JC_PRESSURES[3] = {{{", ".join(masks)}}};  /* each cylinder's head and rod */
 
 /* CalibratedKernel._accumulate: each joint's share, the same forgetting (and the short memory's) */
 static void ep_jc_accumulate(ep_state *s, const ep_real dn[3], const ep_real di[3])
@@ -212,10 +214,38 @@ static int ep_jc_load_moves(const ep_state *s)
     return change > limit;
 }}
 
+/* joint_check._named: of three compared joints, the one that stands out most from the mean of
+ * the other two, when those two then agree; else -1 (every compared joint is named) */
+static int ep_jc_single(const ep_real m[3], const ep_real w[3])
+{{
+    ep_real best = EP_C(-1.0);
+    int j, worst = 0, a, b;
+    for (j = 0; j < 3; ++j) {{
+        ep_real wr = EP_C(0.0), mr = EP_C(0.0), d, score;
+        int i;
+        for (i = 0; i < 3; ++i)
+            if (i != j) {{
+                wr += w[i];
+                mr += w[i] * m[i];
+            }}
+        mr = mr / wr;
+        d = m[j] - mr;
+        score = (d * d) / (EP_C(1.0) / w[j] + EP_C(1.0) / wr);
+        if (score > best) {{
+            best = score;
+            worst = j;
+        }}
+    }}
+    a = worst == 0 ? 1 : 0;
+    b = worst == 2 ? 1 : 2;
+    if (((m[a] - m[b]) * (m[a] - m[b])) / (EP_C(1.0) / w[a] + EP_C(1.0) / w[b]) <= EP_JC_CHI2) return worst;
+    return -1;
+}}
+
 /* JointCheck._judge */
 static void ep_jc_judge(ep_state *s)
 {{
-    ep_real m[3], w[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0);
+    ep_real m[3], w[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0), total = EP_C(0.0);
     int j, compared = 0, n = 0, failing, held, single = -1;
     for (j = 0; j < 3; ++j) {{
         if (s->jc_info[j] >= EP_JC_ENOUGH) {{
@@ -223,6 +253,7 @@ static void ep_jc_judge(ep_state *s)
             n += 1;
             m[j] = s->jc_num[j] / s->jc_info[j];
             w[j] = EP_C(1.0) / (EP_JC_INFLATION / s->jc_info[j] + EP_JC_EXTRA);
+            total += s->jc_info[j];
         }}
     }}
     if (n >= 2) {{
@@ -237,8 +268,11 @@ static void ep_jc_judge(ep_state *s)
     }}
     s->jc_checked = (unsigned char)(n >= 2);
     failing = chi2 > EP_JC_CHI2;
-    /* the load is changing: a new fault waits (named at once if still there when the pause ends) */
-    held = failing && !s->jc_named && (s->changing || s->jc_paused > 0);
+    if (failing && n == 3) single = ep_jc_single(m, w);
+    /* the load is changing: a new fault waits (named at once if still there when the pause ends),
+     * unless its joint holds most of the information (JointCheck._leads) */
+    held = failing && !s->jc_named && (s->changing || s->jc_paused > 0)
+           && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total);
     /* a named joint is cleared only by agreeing with another compared joint */
     if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;
@@ -255,33 +289,7 @@ static void ep_jc_judge(ep_state *s)
         s->jc_degraded_info = EP_C(0.0);
         return;
     }}
-    s->jc_named = compared;
-    if (n == 3) {{  /* the joint that stands out most from the mean of the other two */
-        ep_real best = EP_C(-1.0);
-        int worst = 0, a, b;
-        for (j = 0; j < 3; ++j) {{
-            ep_real wr = EP_C(0.0), mr = EP_C(0.0), d, score;
-            int i;
-            for (i = 0; i < 3; ++i)
-                if (i != j) {{
-                    wr += w[i];
-                    mr += w[i] * m[i];
-                }}
-            mr = mr / wr;
-            d = m[j] - mr;
-            score = (d * d) / (EP_C(1.0) / w[j] + EP_C(1.0) / wr);
-            if (score > best) {{
-                best = score;
-                worst = j;
-            }}
-        }}
-        a = worst == 0 ? 1 : 0;
-        b = worst == 2 ? 1 : 2;
-        if (((m[a] - m[b]) * (m[a] - m[b])) / (EP_C(1.0) / w[a] + EP_C(1.0) / w[b]) <= EP_JC_CHI2) {{
-            s->jc_named = 1 << worst;
-            single = worst;
-        }}
-    }}
+    s->jc_named = single >= 0 ? 1 << single : compared;
     if (single >= 0) ep_jc_without(s, single);
     else {{
         s->jc_degraded = EP_NAN;
@@ -341,7 +349,8 @@ static unsigned long ep_jc_faults(const ep_state *s)
     for (j = 0; j < 3; ++j)
         if (s->jc_named >> j & 1) mask |= EP_JC_PRESSURES[j];
     return mask;
-}}"""
+}}
+#endif"""
     return CJointCheck(
         fields=fields,
         definitions=definitions,
@@ -349,7 +358,7 @@ static unsigned long ep_jc_faults(const ep_state *s)
         accumulate="#if EP_JOINT_CHECK\nep_jc_accumulate(s, jd_num, jd_info);\n#endif",
         restart="\n#if EP_JOINT_CHECK\n            ep_jc_reset_sums(s);\n#endif",
         settle="\n#if EP_JOINT_CHECK\n                ep_jc_settle(s);\n#endif",
-        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info);\n#endif",
+        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info);\n#else\n(void)jd_num;\n(void)jd_info;\n#endif",
         prologue="""#if EP_JOINT_CHECK
     unsigned char jc_gap = s->jc_gap;  /* this sample came after a gap (its status: gap) */
     s->jc_gap = 0;
