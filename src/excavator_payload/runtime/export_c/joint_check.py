@@ -411,8 +411,8 @@ def add_joint_check(model, est, kernel, signals, model_var: float):
     step = _once(step, "ep_real integral[6], momentum[6], bal[15], bal_rate[3];",
                  "\n            ep_real jd_num[3], jd_info[3];  /* each joint's share (the joint check) */", "after")
     step = _once(step, "d_info += wt * (bal[3 + j] * bal[3 + j]);",
-                 "\n            jd_num[j] = wt * (bal[3 + j] * bal[j]);\n            jd_info[j] = wt * (bal[3 + j] * bal[3 + j]);",
-                 "after")
+                 "\n            jd_num[j] = wt * (bal[3 + j] * bal[j]);"
+                 "\n            jd_info[j] = wt * (bal[3 + j] * bal[3 + j]);", "after")
     step = _once(step, "s->info = EP_FORGETTING * s->info + d_info;\n", jc.accumulate + "\n", "after")
     step = _once(step, "restarted = 1;", jc.restart, "after")
     step = _once(step, "s->info = s->info_short;", jc.settle, "after")

@@ -4,22 +4,23 @@ A pressure offset, drift or gain error of one cylinder biases only its own joint
 boom cylinder's force is internal to the dipper's and bucket's free bodies), so the joints'
 estimates part. The kernel (:class:`~.kernel.CalibratedKernel`) sums each joint's share of the
 weighing; after every balance window :meth:`JointCheck.update` judges the joints against one
-another. The check keeps its own sums of each joint's share, which restart with the weighing
-(a new load) and after every pause (below), so that it compares only what the joints weighed
-under one load:
+another on its own copy of those sums, which restarts with the weighing (a new load) and after a
+pause, so that it compares what the joints weighed under one load:
 
-* **pause** while any weighed joint's short memory (the new-load test's, 1 s) has left the
-  whole weighing by the ``load_changing`` limits (:data:`~.settings.CHANGING_MIN_SHARE` of the
-  rated payload and :data:`~.settings.CHANGING_SIGMAS` of that joint's short σ): the joints that
-  move see a dump first, while a standing boom, which carries most of the information, keeps the
-  whole weighing where it was. The kernel reports ``load_changing`` meanwhile. The pause ends
-  when every joint agrees with the whole again or after :data:`~.settings.JOINT_PAUSE_WINDOWS`
-  windows (a lasting fault keeps its joint off for ever); the check then starts again from
-  nothing, and the pause is armed again only once no joint is off;
-* a joint enters the comparison only once its own σ (:data:`~.settings.JOINT_INFO_INFLATION`
-  / I_j)^½ is within :data:`~.settings.JOINT_CHECKED_SHARE` of the rated payload.
+* a joint is compared only once its own σ, (:data:`~.settings.JOINT_INFO_INFLATION` / I_j)^½,
+  is within :data:`~.settings.JOINT_CHECKED_SHARE` of the rated payload (and an ``ok`` estimate
+  needs two compared joints);
+* **pause**: while the new-load test's short memory has left the whole weighing by
+  :data:`~.settings.JOINT_CHANGE_SHARE` of the rated payload (and
+  :data:`~.settings.CHANGING_SIGMAS`), a new fault is held and the kernel says
+  ``load_changing``: in a dump the joints that move see the load leave first, while a standing
+  boom, which carries most of the information, keeps the whole weighing where it was. The pause
+  ends when the memories agree again (the check then starts from nothing) or after
+  :data:`~.settings.JOINT_PAUSE_WINDOWS` windows that weigh anything (a lasting difference: a
+  held fault is named at once). A fault whose one joint holds more than half of the compared
+  information is not held: the whole weighing follows that joint, the change is its doing.
 
-What is measured with it is in docs/sensor-health.md ("The joint check").
+What was measured with it is in docs/sensor-health.md ("The joint check").
 """
 
 from __future__ import annotations
@@ -44,8 +45,9 @@ class JointCheck:
     (χ² of 1 dof within the limit), and :attr:`degraded` is then the weighing without it. With
     two joints compared, or when the rest disagree too, all are named and nothing is weighed. A
     named joint stays named until it agrees again with another compared joint (a new load, which
-    the fault itself may trigger, restarts the sums, not the fault). None is raised while the
-    kernel says the load is changing or the check pauses.
+    the fault itself may trigger, restarts the sums, not the fault). A new fault is held while the
+    kernel says the load is changing or the check pauses, unless its joint leads the weighing
+    (:meth:`_leads`).
 
     Parameters
     ----------
