@@ -25,6 +25,7 @@ pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on t
 CODES = {s.value: i for i, s in enumerate(Status)}
 SIGNALS = list(MACHINE_SENSORS.signals)
 DEG, BAR = np.pi / 180.0, 1e5
+C_KINDS = (*health.KINDS, "balance")  # ep_faults' kinds: the monitor's, then the kernel's joint check
 
 # prints estimate, status, sigma and the fault mask of every kind, per sample
 HARNESS = r"""
@@ -73,7 +74,7 @@ def _run_c(c_file, dataset, folder, single=False, extra_flags=()):
     est = np.array([float(r[0]) for r in rows])
     status = np.array([int(r[1]) for r in rows])
     sigma = np.array([float(r[2]) for r in rows])
-    faults = [frozenset(f"{SIGNALS[i]}:{kind}" for k, kind in enumerate(health.KINDS)
+    faults = [frozenset(f"{SIGNALS[i]}:{kind}" for k, kind in enumerate(C_KINDS)
                         for i in range(len(SIGNALS)) if int(r[3 + k]) >> i & 1) for r in rows]
     return est, status, sigma, faults
 

@@ -339,8 +339,8 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                               "joint's balance disagrees with the other joints' (a pressure offset, drift or "
                               "gain error; status sensor_fault, fault 'PRESSURE:balance', DM1 FMI 13), and "
                               "call no estimate ok before two joints are weighed; runs with the sensor "
-                              "health monitor, which the C export does not have. Off by default: it names "
-                              "sound cylinders on some clean swings and after dumps (docs/sensor-health.md)",
+                              "health monitor (in the C export too). Off by default: it still names sound "
+                              "cylinders on some held-out work (docs/sensor-health.md)",
                               ("on", "off")),
         "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
                             "estimate's sigma: cross (two-fold cross-fit of the calibration "

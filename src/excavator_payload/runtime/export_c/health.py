@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from excavator_payload.estimators import health as H
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.export_c.c_text import c_array, c_number
+from excavator_payload.runtime.export_c.joint_check import exports_joint_check
 
 
 @dataclass
@@ -100,7 +101,7 @@ def health_c(est) -> CHealth | None:
     n = len(m.signals)
     if n > 32:
         raise ValueError("the fault masks hold 32 signals")  # unsigned long has at least 32 bits
-    kinds = list(H.KINDS)
+    kinds = list(H.KINDS) + ["balance"]  # the last: the calibrated kernel's joint check (joint_check.py)
     kind_of = {k: i for i, k in enumerate(kinds)}
     L = len(m.link_angle)
     # the raw samples' ring needs the stuck, disagree and noise windows; the per-sample terms'
@@ -210,6 +211,9 @@ unsigned long ep_faults(const ep_state *s, int kind);
 """
     fmis = ", ".join(str(H.FMI[k]) for k in kinds)
     names = ", ".join(f'"{k}"' for k in kinds)
+    balance = ""
+    if exports_joint_check(est, getattr(getattr(est, "kernel", None), "regression", None)):
+        balance = "    if (kind == EP_FAULT_BALANCE) return ep_jc_faults(s);  /* the kernel's joint check */\n"
     api = f"""
 const char *const EP_FAULT_KIND_NAMES[EP_N_FAULT_KINDS] = {{{names}}};
 const int EP_FAULT_FMI[EP_N_FAULT_KINDS] = {{{fmis}}};
@@ -219,7 +223,7 @@ unsigned long ep_faults(const ep_state *s, int kind)
 #if EP_HEALTH
     unsigned long mask = 0;
     int i;
-    if (!s->hm_reported || kind < 0 || kind >= EP_N_FAULT_KINDS) return 0;
+{balance}    if (!s->hm_reported || kind < 0 || kind >= EP_N_FAULT_KINDS) return 0;
     for (i = 0; i < EP_N_SIGNALS; ++i)
         if (s->hm_age[i][kind] >= 0) mask |= 1UL << i;
     return mask;

@@ -30,6 +30,7 @@ from excavator_payload.runtime.export_c.casadi_code import (
     casadi_call,
     ground_tilt_symbolic,
 )
+from excavator_payload.runtime.export_c.joint_check import add_joint_check, exports_joint_check
 from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel
 
@@ -469,7 +470,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         defines += [f"#define EP_BALANCE {2 * BALANCE_HALF_WINDOW + 1}  /* samples of the momentum balance's window */",
                     f"#define EP_BALANCE_CENTRE {BALANCE_HALF_WINDOW}"]
         description += f", momentum balance over ±{BALANCE_HALF_WINDOW} samples"
-    return CModel(
+    model = CModel(
         description=description,
         state_fields=fields,
         definitions="\n".join(defs),
@@ -481,3 +482,6 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps
         # the sum), so only I is watched
         state_finite="    return isfinite(s->info);")
+    if momentum and exports_joint_check(est, kernel):  # --joint-check on: runtime/export_c/joint_check.py
+        model = add_joint_check(model, est, kernel, sensors.signals, model_var)
+    return model

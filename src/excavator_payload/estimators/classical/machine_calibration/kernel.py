@@ -28,9 +28,9 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import balance_weights
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
-    JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MODEL_SHARE, JOINT_PRESSURES, JOINT_SAMPLES,
     NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE,
     STEADY_WINDOWS)
+from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
 
@@ -100,9 +100,7 @@ class CalibratedKernel(PressureRegression):
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._steady_limit = STEADY_SHARE * float(cal.arm.machine.rated_payload)
         self.model_std = float(cal.model_std)  # kg, in σ beside I^-1/2
-        # each joint's estimate's variance beyond 1 / I_j (the joint check)
-        self._joint_var = self.model_std**2 + (JOINT_MODEL_SHARE * float(cal.arm.machine.rated_payload))**2
-        self._checked_info = 1.0 / (JOINT_CHECKED_SHARE * float(cal.arm.machine.rated_payload))**2
+        self._joints = JointCheck(float(cal.arm.machine.rated_payload), self.model_std)  # --joint-check
         k = np.arange(-self.half_window, self.half_window + 1) * dt
         self._slope = k / float(k @ k)
         self._lever_var = (self._head**2 + self._rod**2) * self.pressure_var
@@ -162,12 +160,8 @@ class CalibratedKernel(PressureRegression):
         self.new_loads = 0  # new loads detected since the last reset
         self.changing = False  # the short memory has left the whole one (status load_changing)
         self._restart_steady()
-        self.joint_fault = ""  # "signal:balance,..." while the joint check fails (see _check_joints)
-        self.joint_degraded = (math.nan, 0.0)  # (estimate, information) without the joint named
-        self.joint_chi2 = 0.0
-        self.joint_checked = False  # two joints weighed well enough to check one another
-        self._joint_run = 0  # samples in a row beyond (or, while failing, within) the limit
-        self._joint_named: tuple = ()  # the joints named while joint_fault
+        if hasattr(self, "_joints"):
+            self._joints.reset()
 
     @property
     def ready(self) -> bool:
@@ -263,7 +257,7 @@ class CalibratedKernel(PressureRegression):
             self._accumulate(d_num, d_info)
             self._track_steady()
             if self.joint_check:
-                self._check_joints()
+                self._check_joints(d_num, d_info)
             return True
         # momentum: the terms of the differentiator window's centre (its q̈ serves the IMU
         # correction only) go into a second ring, the balance's window
@@ -301,7 +295,7 @@ class CalibratedKernel(PressureRegression):
         self._accumulate(d_num, d_info)
         self._track_steady()
         if self.joint_check:
-            self._check_joints()
+            self._check_joints(d_num, d_info)
         return True
 
     @property
@@ -309,73 +303,19 @@ class CalibratedKernel(PressureRegression):
         """Whether the joint check can run: in the momentum form (the one it was set on)."""
         return self.balance == "momentum"
 
-    def _check_joints(self) -> None:
-        r"""The joint consistency check: a pressure offset, drift or gain error of one cylinder
-        biases only its own joint's balance (the boom cylinder's force is internal to the
-        dipper's and bucket's), so the joints' estimates :math:`m_j = N_j / I_j` part.
+    def _check_joints(self, d_num: list, d_info: list) -> None:
+        """The joint consistency check of this window (:class:`~.joint_check.JointCheck`)."""
+        self._joints.update(self, d_num, d_info)
 
-        With :math:`v_j = k/I_j + s^2 + s_j^2` (:data:`JOINT_INFO_INFLATION`: neighbouring
-        windows share their noise; the calibration's model std and each joint's,
-        :data:`JOINT_MODEL_SHARE`) and :math:`\bar m` their :math:`1/v_j`-weighted mean,
-        :math:`\chi^2 = \sum_j (m_j - \bar m)^2 / v_j` beyond :data:`JOINT_CHI2` on
-        :data:`JOINT_SAMPLES` windows in a row fails the check (it clears after as many in a
-        row within). The joint named is the one that stands out most from the mean of the others
-        (leave one out); it is named alone when the other two then agree (χ² of 1 dof within the
-        limit), and :attr:`joint_degraded` is then the weighing without it. With two joints
-        weighed, or when the rest disagree too, both or all are named and nothing is weighed.
-        A named joint stays named until it agrees again with another weighed joint: one joint
-        weighed alone cannot clear it; a new load (which the fault itself may trigger) restarts
-        the sums, not the fault. None is raised while the load is changing (:attr:`changing`).
-        Not solved: while the bucket dumps, the joints that move see the load leave before a
-        standing boom does, and a joint weighed mid-dump that then stands still keeps a stale
-        estimate: on work cycles that dump, the check names a cylinder that is fine
-        (docs/sensor-health.md).
-        :attr:`joint_checked`: two joints are weighed to within
-        :data:`JOINT_CHECKED_SHARE` of the rated payload (before, the estimator says
-        ``warming_up``, not ``ok``: one joint alone cannot be checked).
-        """
-        nj, ij, extra = self.num_joint, self.info_joint, self._joint_var
-        joints = [j for j in range(3) if ij[j] > 0.0]
-        chi2 = 0.0
-        if len(joints) >= 2:
-            m = {j: nj[j] / ij[j] for j in joints}
-            w = {j: 1.0 / (JOINT_INFO_INFLATION / ij[j] + extra) for j in joints}
-            mean = sum(w[j] * m[j] for j in joints) / sum(w.values())
-            chi2 = sum(w[j] * (m[j] - mean) ** 2 for j in joints)
-        self.joint_chi2 = chi2
-        self.joint_checked = sum(ij[j] >= self._checked_info for j in joints) >= 2
-        failing = chi2 > JOINT_CHI2
-        if failing and not self.joint_fault and self.changing:
-            failing = False  # the load is changing: the joints that move see it first
-        if self.joint_fault and not failing and not set(self._joint_named) < set(joints):
-            failing = True  # a named joint is cleared only by agreeing with another weighed joint
-        if failing != bool(self.joint_fault):
-            self._joint_run += 1
-        else:
-            self._joint_run = 0
-        if self._joint_run < JOINT_SAMPLES:
-            if self.joint_fault and len(self._joint_named) == 1:
-                self.joint_degraded = self._without(self._joint_named[0])
-            return
-        self._joint_run = 0
-        if not failing:
-            self.joint_fault, self.joint_degraded, self._joint_named = "", (math.nan, 0.0), ()
-            return
-        named = joints
-        if len(joints) == 3:
-            def stands_out(j):  # (m_j − mean of the others)² over its variance, and the others
-                rest = [i for i in joints if i != j]
-                w_rest = sum(w[i] for i in rest)
-                mean_rest = sum(w[i] * m[i] for i in rest) / w_rest
-                return (m[j] - mean_rest) ** 2 / (1.0 / w[j] + 1.0 / w_rest), rest
-
-            worst = max(joints, key=lambda j: stands_out(j)[0])
-            a, b = stands_out(worst)[1]
-            if (m[a] - m[b]) ** 2 / (1.0 / w[a] + 1.0 / w[b]) <= JOINT_CHI2:
-                named = [worst]
-        self._joint_named = tuple(named)
-        self.joint_fault = ",".join(f"{s}:balance" for j in named for s in JOINT_PRESSURES[j])
-        self.joint_degraded = self._without(named[0]) if len(named) == 1 else (math.nan, 0.0)
+    # the check's state, read by PressureKernel.step (and the C export's parity tests)
+    joint_fault = property(lambda self: self._joints.fault, doc="``signal:balance,...`` while the check fails.")
+    joint_degraded = property(lambda self: self._joints.degraded,
+                              doc="(estimate, information) of the weighing without the joint named.")
+    joint_chi2 = property(lambda self: self._joints.chi2, doc="χ² of the joints' estimates about their mean.")
+    joint_checked = property(lambda self: self._joints.checked,
+                             doc="Two joints weighed well enough to check one another.")
+    joint_pausing = property(lambda self: self._joints.pausing,
+                             doc="The check pauses: a joint sees the load change (``load_changing``).")
 
     def _without(self, j: int) -> tuple[float, float]:
         """(estimate, information) of the weighing without joint ``j``'s share."""

@@ -1,0 +1,196 @@
+r"""The calibrated kernel's joint consistency check (``--joint-check``): :class:`JointCheck`.
+
+A pressure offset, drift or gain error of one cylinder biases only its own joint's balance (the
+boom cylinder's force is internal to the dipper's and bucket's free bodies), so the joints'
+estimates part. The kernel (:class:`~.kernel.CalibratedKernel`) sums each joint's share of the
+weighing; after every balance window :meth:`JointCheck.update` judges the joints against one
+another on its own copy of those sums, which restarts with the weighing (a new load) and after a
+pause, so that it compares what the joints weighed under one load:
+
+* a joint is compared only once its own σ, (:data:`~.settings.JOINT_INFO_INFLATION` / I_j)^½,
+  is within :data:`~.settings.JOINT_CHECKED_SHARE` of the rated payload (and an ``ok`` estimate
+  needs two compared joints);
+* **pause**: while the new-load test's short memory has left the whole weighing by
+  :data:`~.settings.JOINT_CHANGE_SHARE` of the rated payload (and
+  :data:`~.settings.CHANGING_SIGMAS`), a new fault is held and the kernel says
+  ``load_changing``: in a dump the joints that move see the load leave first, while a standing
+  boom, which carries most of the information, keeps the whole weighing where it was. The pause
+  ends when the memories agree again (the check then starts from nothing) or after
+  :data:`~.settings.JOINT_PAUSE_WINDOWS` windows that weigh anything (a lasting difference: a
+  held fault is named at once). A fault whose one joint holds more than half of the compared
+  information is not held: the whole weighing follows that joint, the change is its doing.
+
+What was measured with it is in docs/sensor-health.md ("The joint check").
+"""
+
+from __future__ import annotations
+
+import math
+
+from excavator_payload.estimators.classical.machine_calibration.settings import (
+    CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MODEL_SHARE,
+    JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
+
+
+class JointCheck:
+    r"""The joints' balances against one another, window by window.
+
+    With :math:`v_j = k/I_j + s^2 + s_j^2` (:data:`~.settings.JOINT_INFO_INFLATION`: neighbouring
+    windows share their noise; the calibration's model std and each joint's,
+    :data:`~.settings.JOINT_MODEL_SHARE`) and :math:`\bar m` the :math:`1/v_j`-weighted mean of
+    the joints' estimates :math:`m_j = N_j/I_j`, :math:`\chi^2 = \sum_j (m_j - \bar m)^2 / v_j`
+    beyond :data:`~.settings.JOINT_CHI2` on :data:`~.settings.JOINT_SAMPLES` windows in a row
+    fails the check (it clears after as many in a row within). The joint named is the one that
+    stands out most from the mean of the others; it is named alone when the other two then agree
+    (χ² of 1 dof within the limit), and :attr:`degraded` is then the weighing without it. With
+    two joints compared, or when the rest disagree too, all are named and nothing is weighed. A
+    named joint stays named until it agrees again with another compared joint (a new load, which
+    the fault itself may trigger, restarts the sums, not the fault). A new fault is held while the
+    kernel says the load is changing or the check pauses, unless its joint leads the weighing
+    (:meth:`_leads`).
+
+    Parameters
+    ----------
+    rated : float
+        The machine's rated payload, kg.
+    model_std : float
+        The calibration's cross-validated model std, kg.
+    """
+
+    def __init__(self, rated: float, model_std: float):
+        self.extra = float(model_std) ** 2 + (JOINT_MODEL_SHARE * float(rated)) ** 2
+        # I_j of a joint compared (and of the two an ok estimate needs): its σ, inflated as in
+        # v_j, within JOINT_CHECKED_SHARE of the rated payload
+        self.enough = JOINT_INFO_INFLATION / (JOINT_CHECKED_SHARE * float(rated)) ** 2
+
+        self.change_min = JOINT_CHANGE_SHARE * float(rated)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start again: no sums, no fault, no pause."""
+        self.num = [0.0, 0.0, 0.0]  # the check's own sums of each joint's share
+        self.info = [0.0, 0.0, 0.0]
+        self.fault = ""  # "signal:balance,..." while the check fails
+        self.named: tuple = ()
+        self.degraded = (math.nan, 0.0)  # (estimate, information) without the joint named
+        self.chi2 = 0.0
+        self.checked = False  # two joints weighed well enough to check one another
+        self.run = 0  # windows in a row beyond (or, while failing, within) the limit
+        self.paused = 0  # windows of the current pause (0: not paused)
+        self.armed = True  # a pause may start (again only once no joint is off)
+        self.loads = 0  # the kernel's new loads seen
+
+    def update(self, kernel, d_num: list, d_info: list) -> None:
+        """One balance window, after the kernel has accumulated it.
+
+        Parameters
+        ----------
+        kernel : CalibratedKernel
+            The kernel (its whole and short sums, ``changing``, ``new_loads``, ``forgetting``).
+        d_num : list
+            The window's w φ r of each joint (boom, dipper, bucket).
+        d_info : list
+            The window's w φ² of each joint.
+        """
+        lam = kernel.forgetting
+        if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
+            self.loads = kernel.new_loads
+            self._resume()
+        n, i = self.num, self.info
+        for j in range(3):
+            n[j] = lam * n[j] + d_num[j]
+            i[j] = lam * i[j] + d_info[j]
+        if self._load_moves(kernel):
+            if self.armed and (not self.paused or d_info[0] + d_info[1] + d_info[2] > 0.0):
+                self.paused += 1  # it lasts so many windows with information, not of standstill
+                if self.paused > JOINT_PAUSE_WINDOWS:  # a lasting difference: judged on the sums
+                    self.paused = 0
+                    self.armed = False
+        else:
+            self.armed = True
+            if self.paused:
+                self._resume()
+        self._judge(kernel)
+
+    def _resume(self) -> None:
+        self.paused = 0
+        self.num, self.info = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+
+    def _load_moves(self, kernel) -> bool:
+        """Whether the load changes as the check sees it: the new-load test's short memory has
+        left the whole weighing by :data:`~.settings.JOINT_CHANGE_SHARE` of the rated payload
+        and :data:`~.settings.CHANGING_SIGMAS` of the difference's σ (1 / I inflated as the
+        check's)."""
+        if not 0.0 < kernel.info_short < kernel.info:
+            return False
+        spread = JOINT_INFO_INFLATION * max(1.0 / kernel.info_short - 1.0 / kernel.info, 0.0)
+        change = abs(kernel.num_short / kernel.info_short - kernel.num / kernel.info)
+        return change > max(self.change_min, CHANGING_SIGMAS * math.sqrt(spread))
+
+    @property
+    def pausing(self) -> bool:
+        """Whether the check pauses (a joint sees the load change): the kernel says ``load_changing``."""
+        return self.paused > 0
+
+    def _judge(self, kernel) -> None:
+        nj, ij, extra = self.num, self.info, self.extra
+        joints = [j for j in range(3) if ij[j] >= self.enough]
+        chi2 = 0.0
+        m, w = {}, {}
+        if len(joints) >= 2:
+            m = {j: nj[j] / ij[j] for j in joints}
+            w = {j: 1.0 / (JOINT_INFO_INFLATION / ij[j] + extra) for j in joints}
+            mean = sum(w[j] * m[j] for j in joints) / sum(w.values())
+            chi2 = sum(w[j] * (m[j] - mean) ** 2 for j in joints)
+        self.chi2 = chi2
+        self.checked = len(joints) >= 2
+        failing = chi2 > JOINT_CHI2
+        # the load is changing: the joints that move see it first; a new fault waits (its run
+        # goes on: named at once if the joints still disagree when the pause ends)
+        held = failing and not self.fault and (kernel.changing or self.paused > 0) and not self._leads(joints, m, w)
+        if self.fault and not failing and not set(self.named) < set(joints):
+            failing = True  # a named joint is cleared only by agreeing with another compared joint
+        if failing != bool(self.fault):
+            self.run += 1
+        else:
+            self.run = 0
+        if self.run < JOINT_SAMPLES or held:
+            if self.fault and len(self.named) == 1:
+                self.degraded = kernel._without(self.named[0])
+            return
+        self.run = 0
+        if not failing:
+            self.fault, self.degraded, self.named = "", (math.nan, 0.0), ()
+            return
+        self._name(_named(joints, m, w))
+        self.degraded = kernel._without(self.named[0]) if len(self.named) == 1 else (math.nan, 0.0)
+
+    def _name(self, named) -> None:
+        self.named = tuple(named)
+        self.fault = ",".join(f"{s}:balance" for j in named for s in JOINT_PRESSURES[j])
+
+    def _leads(self, joints: list, m: dict, w: dict) -> bool:
+        """Whether the one joint the check would name holds more information than the joints it
+        disagrees with: then the whole weighing follows it, and a load change the kernel sees
+        is that joint's doing, not one the joints that move see first."""
+        named = _named(joints, m, w)
+        return len(named) == 1 and 2.0 * self.info[named[0]] > sum(self.info[j] for j in joints)
+
+
+def _named(joints: list, m: dict, w: dict) -> list:
+    """The joints a failing check names: the one that stands out most from the mean of the
+    other two, alone when those two then agree; else every compared joint."""
+    if len(joints) != 3:
+        return joints
+
+    def stands_out(j):  # (m_j − mean of the others)² over its variance, and the others
+        rest = [i for i in joints if i != j]
+        w_rest = sum(w[i] for i in rest)
+        mean_rest = sum(w[i] * m[i] for i in rest) / w_rest
+        return (m[j] - mean_rest) ** 2 / (1.0 / w[j] + 1.0 / w_rest), rest
+
+    worst = max(joints, key=lambda j: stands_out(j)[0])
+    a, b = stands_out(worst)[1]
+    if (m[a] - m[b]) ** 2 / (1.0 / w[a] + 1.0 / w[b]) <= JOINT_CHI2:
+        return [worst]
+    return joints

@@ -1,0 +1,434 @@
+"""The calibrated kernel's joint consistency check (``--joint-check``) in C.
+
+:func:`joint_check_c` renders :class:`~excavator_payload.estimators.classical.machine_calibration
+.joint_check.JointCheck` and the kernel's per-joint sums it reads
+(:meth:`CalibratedKernel._accumulate`, ``_settle``, ``_without``) for the builder in
+:mod:`~excavator_payload.runtime.export_c.pressure_regression`, which calls the hooks where the
+Python kernel does; :mod:`~excavator_payload.runtime.export_c.health` reports the pressures named
+as ``EP_FAULT_BALANCE`` (FMI 13) through ``ep_faults``. Exported when the model's option
+``joint_check`` is ``on`` (momentum form); it runs with the health monitor, as in Python
+(``Estimator._step``: the check runs only with ``health``), so ``-DEP_HEALTH=0`` compiles it out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from excavator_payload.runtime.export_c.c_text import c_number
+
+
+@dataclass
+class CJointCheck:
+    """The check's parts for the kernel's builder.
+
+    Parameters
+    ----------
+    fields : list of str
+        ``ep_state`` fields.
+    definitions : str
+        Constants and static functions (after the kernel's constants).
+    reset : str
+        Lines of ``ep_model_reset``.
+    accumulate : str
+        After the window's sums (each joint's share, before the new-load test).
+    restart : str
+        Where the new-load test restarts the weighing.
+    settle : str
+        Where a settled change sets the whole memory to the short one.
+    update : str
+        After the new-load test and the steady tracking: the check of this window.
+    prologue : str
+        The step's first lines (after its declarations).
+    status : str
+        The step's last status rule (the kernel's status with the check's: ``load_changing``
+        while it pauses, ``warming_up`` before two joints are weighed, ``sensor_fault`` with the
+        weighing without the joint named).
+    on_gap : str
+        In the gap handling (a gap's sample reports no fault).
+    sigma : str
+        Body of ``ep_model_sigma`` (the information the step reported).
+    """
+
+    fields: list
+    definitions: str
+    reset: str
+    accumulate: str
+    restart: str
+    settle: str
+    update: str
+    prologue: str
+    status: str
+    on_gap: str
+    sigma: str
+
+
+def exports_joint_check(est, kernel) -> bool:
+    """Whether ``est``'s export carries the joint check: option ``joint_check`` on and a kernel that
+    checks joints (``calibrated``, momentum form).
+
+    Parameters
+    ----------
+    est : Estimator
+        The fitted estimator (its options).
+    kernel : PressureRegression
+        Its weighing kernel.
+    """
+    return est.options.get("joint_check", "off") == "on" and bool(getattr(kernel, "checks_joints", False))
+
+
+def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
+    """The C of the joint check of ``est``'s calibrated kernel.
+
+    Parameters
+    ----------
+    est : Estimator
+        The fitted ``calibrated`` estimator.
+    kernel : CalibratedKernel
+        Its kernel (the check's constants: rated payload, model std).
+    signals : sequence of str
+        The export's signals, in order (the pressures' bits).
+    model_var : float
+        The calibration's model variance, kg² (the sigma).
+    """
+    from excavator_payload.estimators.classical.machine_calibration.settings import (
+        CHANGING_SIGMAS, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
+
+    check = kernel._joints
+    masks = []
+    for pair in JOINT_PRESSURES:
+        bits = 0
+        for name in pair:
+            bits |= 1 << list(signals).index(name)
+        masks.append(f"{bits:#x}UL")
+    fields = [
+        "ep_real jc_num_joint[3], jc_info_joint[3];  /* each joint's share of num and info */",
+        "ep_real jc_num_short[3], jc_info_short[3];  /* ... of the new-load test's short memory */",
+        "ep_real jc_num[3], jc_info[3];  /* the joint check's own sums (restart with loads and pauses) */",
+        "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
+        "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
+        "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
+        "int jc_run;       /* windows in a row beyond (or, while failing, within) the limit */",
+        "int jc_paused;    /* windows of the current pause (0: not paused) */",
+        "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap;",
+    ]
+    definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
+ * estimate N_j / I_j against the others', chi2 about their 1/v_j-weighted mean with
+ * v_j = EP_JC_INFLATION / I_j + EP_JC_EXTRA; beyond EP_JC_CHI2 on EP_JC_SAMPLES windows in a row a
+ * cylinder's pressures are named (EP_FAULT_BALANCE, FMI 13). Paused while the short memory has left
+ * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time. */
+#define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
+#define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
+#define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
+#define EP_JC_ENOUGH {c_number(check.enough)}  /* I_j for a joint to be compared (ok needs two) */
+#define EP_JC_CHI2 {c_number(JOINT_CHI2)}
+#define EP_JC_SAMPLES {JOINT_SAMPLES}
+#define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
+#define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
+#define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
+
+static void ep_jc_clear(ep_state *s)
+{{
+    int j;
+    for (j = 0; j < 3; ++j) s->jc_num[j] = s->jc_info[j] = EP_C(0.0);
+    s->jc_paused = 0;
+}}
+
+static void ep_jc_reset(ep_state *s)
+{{
+    int j;
+    for (j = 0; j < 3; ++j)
+        s->jc_num_joint[j] = s->jc_info_joint[j] = s->jc_num_short[j] = s->jc_info_short[j] = EP_C(0.0);
+    ep_jc_clear(s);
+    s->jc_degraded = EP_NAN;
+    s->jc_degraded_info = EP_C(0.0);
+    s->jc_out_info = EP_C(0.0);
+    s->jc_named = 0;
+    s->jc_run = 0;
+    s->jc_armed = 1;
+    s->jc_checked = 0;
+    s->jc_new_load = 0;
+    s->jc_reported = 0;
+    s->jc_gap = 0;
+}}
+
+#if EP_JOINT_CHECK
+static const unsigned long EP_JC_PRESSURES[3] = {{{", ".join(masks)}}};  /* each cylinder's head and rod */
+
+/* CalibratedKernel._accumulate: each joint's share, the same forgetting (and the short memory's) */
+static void ep_jc_accumulate(ep_state *s, const ep_real dn[3], const ep_real di[3])
+{{
+    int j;
+    for (j = 0; j < 3; ++j) {{
+        s->jc_num_joint[j] = EP_FORGETTING * s->jc_num_joint[j] + dn[j];
+        s->jc_info_joint[j] = EP_FORGETTING * s->jc_info_joint[j] + di[j];
+#if EP_NEW_LOAD
+        s->jc_num_short[j] = EP_SHORT_FORGETTING * s->jc_num_short[j] + dn[j];
+        s->jc_info_short[j] = EP_SHORT_FORGETTING * s->jc_info_short[j] + di[j];
+#endif
+    }}
+}}
+
+/* CalibratedKernel._accumulate's new load: the joints' sums restart, and so does the check */
+static void ep_jc_reset_sums(ep_state *s)
+{{
+    int j;
+    for (j = 0; j < 3; ++j)
+        s->jc_num_joint[j] = s->jc_info_joint[j] = s->jc_num_short[j] = s->jc_info_short[j] = EP_C(0.0);
+    s->jc_new_load = 1;
+}}
+
+/* CalibratedKernel._settle: the joints' whole memory takes the short one's sums */
+static void ep_jc_settle(ep_state *s)
+{{
+    int j;
+    for (j = 0; j < 3; ++j) {{
+        s->jc_num_joint[j] = s->jc_num_short[j];
+        s->jc_info_joint[j] = s->jc_info_short[j];
+    }}
+}}
+
+/* CalibratedKernel._without: the weighing without joint j's share */
+static void ep_jc_without(ep_state *s, int j)
+{{
+    ep_real info = s->info - s->jc_info_joint[j];
+    if (info <= EP_C(1e-12) * s->info || info <= EP_C(0.0)) {{
+        s->jc_degraded = EP_NAN;
+        s->jc_degraded_info = EP_C(0.0);
+    }} else {{
+        s->jc_degraded = (s->num - s->jc_num_joint[j]) / info;
+        s->jc_degraded_info = info;
+    }}
+}}
+
+/* JointCheck._load_moves: the short memory has left the whole weighing */
+static int ep_jc_load_moves(const ep_state *s)
+{{
+    ep_real spread, change, limit;
+    if (!(EP_C(0.0) < s->info_short && s->info_short < s->info)) return 0;
+    spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
+    if (spread < EP_C(0.0)) spread = EP_C(0.0);
+    spread = EP_JC_INFLATION * spread;
+    change = EP_MATH(fabs)(s->num_short / s->info_short - s->num / s->info);
+    limit = EP_JC_CHANGE_SIGMAS * EP_MATH(sqrt)(spread);
+    if (limit < EP_JC_CHANGE_MIN) limit = EP_JC_CHANGE_MIN;
+    return change > limit;
+}}
+
+/* joint_check._named: of three compared joints, the one that stands out most from the mean of
+ * the other two, when those two then agree; else -1 (every compared joint is named) */
+static int ep_jc_single(const ep_real m[3], const ep_real w[3])
+{{
+    ep_real best = EP_C(-1.0);
+    int j, worst = 0, a, b;
+    for (j = 0; j < 3; ++j) {{
+        ep_real wr = EP_C(0.0), mr = EP_C(0.0), d, score;
+        int i;
+        for (i = 0; i < 3; ++i)
+            if (i != j) {{
+                wr += w[i];
+                mr += w[i] * m[i];
+            }}
+        mr = mr / wr;
+        d = m[j] - mr;
+        score = (d * d) / (EP_C(1.0) / w[j] + EP_C(1.0) / wr);
+        if (score > best) {{
+            best = score;
+            worst = j;
+        }}
+    }}
+    a = worst == 0 ? 1 : 0;
+    b = worst == 2 ? 1 : 2;
+    if (((m[a] - m[b]) * (m[a] - m[b])) / (EP_C(1.0) / w[a] + EP_C(1.0) / w[b]) <= EP_JC_CHI2) return worst;
+    return -1;
+}}
+
+/* JointCheck._judge */
+static void ep_jc_judge(ep_state *s)
+{{
+    ep_real m[3], w[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0), total = EP_C(0.0);
+    int j, compared = 0, n = 0, failing, held, single = -1;
+    for (j = 0; j < 3; ++j) {{
+        if (s->jc_info[j] >= EP_JC_ENOUGH) {{
+            compared |= 1 << j;
+            n += 1;
+            m[j] = s->jc_num[j] / s->jc_info[j];
+            w[j] = EP_C(1.0) / (EP_JC_INFLATION / s->jc_info[j] + EP_JC_EXTRA);
+            total += s->jc_info[j];
+        }}
+    }}
+    if (n >= 2) {{
+        for (j = 0; j < 3; ++j)
+            if (compared >> j & 1) {{
+                sw += w[j];
+                swm += w[j] * m[j];
+            }}
+        mean = swm / sw;
+        for (j = 0; j < 3; ++j)
+            if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
+    }}
+    s->jc_checked = (unsigned char)(n >= 2);
+    failing = chi2 > EP_JC_CHI2;
+    if (failing && n == 3) single = ep_jc_single(m, w);
+    /* the load is changing: a new fault waits (named at once if still there when the pause ends),
+     * unless its joint holds most of the information (JointCheck._leads) */
+    held = failing && !s->jc_named && (s->changing || s->jc_paused > 0)
+           && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total);
+    /* a named joint is cleared only by agreeing with another compared joint */
+    if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
+    if (failing != (s->jc_named != 0)) s->jc_run += 1;
+    else s->jc_run = 0;
+    if (s->jc_run < EP_JC_SAMPLES || held) {{
+        for (j = 0; j < 3; ++j)
+            if (s->jc_named == 1 << j) ep_jc_without(s, j);
+        return;
+    }}
+    s->jc_run = 0;
+    if (!failing) {{
+        s->jc_named = 0;
+        s->jc_degraded = EP_NAN;
+        s->jc_degraded_info = EP_C(0.0);
+        return;
+    }}
+    s->jc_named = single >= 0 ? 1 << single : compared;
+    if (single >= 0) ep_jc_without(s, single);
+    else {{
+        s->jc_degraded = EP_NAN;
+        s->jc_degraded_info = EP_C(0.0);
+    }}
+}}
+
+/* JointCheck.update: one balance window, after the kernel has summed it */
+static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
+{{
+    int j;
+    if (s->jc_new_load) {{  /* the weighing restarted: so do the check's sums (not a fault named) */
+        s->jc_new_load = 0;
+        ep_jc_clear(s);
+    }}
+    for (j = 0; j < 3; ++j) {{
+        s->jc_num[j] = EP_FORGETTING * s->jc_num[j] + dn[j];
+        s->jc_info[j] = EP_FORGETTING * s->jc_info[j] + di[j];
+    }}
+    if (ep_jc_load_moves(s)) {{
+        if (s->jc_armed && (!s->jc_paused || di[0] + di[1] + di[2] > EP_C(0.0))) {{
+            s->jc_paused += 1;  /* windows with information, not of standstill */
+            if (s->jc_paused > EP_JC_PAUSE) {{  /* a lasting difference: judged on the sums */
+                s->jc_paused = 0;
+                s->jc_armed = 0;
+            }}
+        }}
+    }} else {{
+        s->jc_armed = 1;
+        if (s->jc_paused) ep_jc_clear(s);
+    }}
+    ep_jc_judge(s);
+}}
+
+/* PressureKernel.step's last rules with the check: load_changing while it pauses, warming_up
+ * before two joints are weighed, sensor_fault (never ok) while a cylinder is named, with the
+ * weighing without it when one joint stands out (else NaN) */
+static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
+{{
+    if (status == EP_STATUS_OK && s->jc_paused) status = EP_STATUS_LOAD_CHANGING;
+    if (status == EP_STATUS_OK && !s->jc_checked) status = EP_STATUS_WARMING_UP;
+    if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{
+        *estimate = s->jc_degraded;
+        s->jc_out_info = s->jc_degraded_info;
+        s->jc_reported = (unsigned char)!gap;  /* a gap's sample says gap, with no fault */
+        return EP_STATUS_SENSOR_FAULT;
+    }}
+    return status;
+}}
+
+/* the pressures named by the last ep_step (EP_FAULT_BALANCE) */
+static unsigned long ep_jc_faults(const ep_state *s)
+{{
+    unsigned long mask = 0;
+    int j;
+    if (!s->jc_reported) return 0;
+    for (j = 0; j < 3; ++j)
+        if (s->jc_named >> j & 1) mask |= EP_JC_PRESSURES[j];
+    return mask;
+}}
+#endif"""
+    return CJointCheck(
+        fields=fields,
+        definitions=definitions,
+        reset="\n    ep_jc_reset(s);",
+        accumulate="#if EP_JOINT_CHECK\nep_jc_accumulate(s, jd_num, jd_info);\n#endif",
+        restart="\n#if EP_JOINT_CHECK\n            ep_jc_reset_sums(s);\n#endif",
+        settle="\n#if EP_JOINT_CHECK\n                ep_jc_settle(s);\n#endif",
+        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info);\n#else\n(void)jd_num;\n(void)jd_info;\n#endif",
+        prologue="""#if EP_JOINT_CHECK
+    unsigned char jc_gap = s->jc_gap;  /* this sample came after a gap (its status: gap) */
+    s->jc_gap = 0;
+    s->jc_reported = 0;
+#endif
+""",
+        status="""#if EP_JOINT_CHECK
+    s->jc_out_info = s->info;
+    if (rejected) return EP_STATUS_REJECTED;
+    return ep_jc_status(s, s->info < EP_WARM_INFO ? EP_STATUS_WARMING_UP : @KERNEL_STATUS@, estimate, jc_gap);
+#endif""",
+        on_gap="\n#if EP_JOINT_CHECK\n    s->jc_gap = 1;\n#endif",
+        sigma=("    /* _estimate_sigma: sqrt(1/I + s_model^2), I of the estimate reported (the joint check's\n"
+               "     * weighing without a named joint) */\n"
+               "#if EP_JOINT_CHECK\n"
+               "    ep_real info = s->jc_out_info;\n"
+               "#else\n"
+               "    ep_real info = s->info;\n"
+               "#endif\n"
+               f"    return info > EP_C(0.0) ? EP_MATH(sqrt)(EP_C(1.0) / info + {c_number(model_var)}) : EP_NAN;"),
+    )
+
+
+def _once(text: str, anchor: str, new: str, where: str) -> str:
+    """``text`` with ``new`` put after (or, ``where="before"``, before) its one ``anchor``."""
+    if text.count(anchor) != 1:
+        raise RuntimeError(f"joint check export: the kernel's C has {text.count(anchor)} of {anchor!r}")
+    return text.replace(anchor, anchor + new if where == "after" else new + anchor)
+
+
+def add_joint_check(model, est, kernel, signals, model_var: float):
+    """``model`` (the calibrated kernel's :class:`CModel`, momentum form) with the joint check's
+    hooks put where the Python kernel calls them.
+
+    Parameters
+    ----------
+    model : CModel
+        The kernel's parts from its builder.
+    est : Estimator
+        The fitted ``calibrated`` estimator.
+    kernel : CalibratedKernel
+        Its kernel.
+    signals : sequence of str
+        The export's signals, in order.
+    model_var : float
+        The calibration's model variance, kg².
+    """
+    jc = joint_check_c(est, kernel, signals, model_var)
+    step = model.step
+    step = _once(step, "ep_real integral[6], momentum[6], bal[15], bal_rate[3];",
+                 "\n            ep_real jd_num[3], jd_info[3];  /* each joint's share (the joint check) */", "after")
+    step = _once(step, "d_info += wt * (bal[3 + j] * bal[3 + j]);",
+                 "\n            jd_num[j] = wt * (bal[3 + j] * bal[j]);"
+                 "\n            jd_info[j] = wt * (bal[3 + j] * bal[3 + j]);", "after")
+    step = _once(step, "s->info = EP_FORGETTING * s->info + d_info;\n", jc.accumulate + "\n", "after")
+    step = _once(step, "restarted = 1;", jc.restart, "after")
+    step = _once(step, "s->info = s->info_short;", jc.settle, "after")
+    step = _once(step, "s->steady_count = k + 1;\n        }\n", jc.update + "\n", "after")
+    step = _once(step, "    for (i = 0; i < EP_N_SIGNALS; ++i) s->ring[newest * EP_N_SIGNALS + i] = v[i];",
+                 jc.prologue, "before")
+    last = "    return s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK;"
+    step = _once(step, "    if (rejected) return EP_STATUS_REJECTED;",
+                 jc.status.replace("@KERNEL_STATUS@", "(s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK)") + "\n",
+                 "before")
+    if step.count(last) != 1:
+        raise RuntimeError("joint check export: the kernel's C has no single changing status")
+    model.step = step
+    model.on_gap = model.on_gap + jc.on_gap
+    model.reset = model.reset + jc.reset
+    model.state_fields = list(model.state_fields) + jc.fields
+    model.definitions = model.definitions + "\n" + jc.definitions
+    model.sigma = jc.sigma
+    return model

@@ -1,0 +1,81 @@
+"""The calibrated kernel's joint check in the C export (runtime/export_c/joint_check.py) equals
+Python's (machine_calibration/joint_check.py) sample by sample: statuses, the pressures named
+``balance`` (``ep_faults(s, EP_FAULT_BALANCE)``, FMI 13) against ``StepResult.fault``, estimates
+(the weighing without the joint named) and ``ep_sigma``; on clean work and with a boom head
+pressure offset injected; ``-DEP_HEALTH=0`` runs neither monitor nor check, as ``health = False``;
+an export with ``joint_check off`` carries none of it."""
+
+import copy
+
+import pytest
+
+from excavator_payload.data.dataset import Dataset
+from excavator_payload.estimators.base import create_estimator
+from excavator_payload.runtime.c_harness import c_compiler
+from excavator_payload.runtime.export_c import export_c
+from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+from tests.runtime.test_export_c_health import BAR, _assert_equal
+
+pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
+
+
+@pytest.fixture(scope="module")
+def model():
+    est = create_estimator("calibrated", machine="cat345c-hydraulic-3pct", balance="momentum")
+    est.fit(simulate_machine_dataset(3, seed=3))
+    est.options["joint_check"] = "on"
+    assert est.health
+    return est
+
+
+@pytest.fixture(scope="module")
+def work():
+    """Clean operator motion (another seed and session than the fitting data), and the same with
+    the boom head pressure 10 bar high from 4 s on in both experiments."""
+    clean = simulate_machine_dataset(2, seed=31, session=2, motion="operator")
+    frame = clean.frame.copy()
+    for e in clean.experiment_ids:
+        rows = frame.index[frame["experiment"] == e]
+        frame.loc[rows[400:], "boom_head_pressure"] += 10 * BAR
+    return clean, Dataset(frame, clean.meta)
+
+
+def test_c_joint_check_names_an_offset_as_python_does(model, work, tmp_path):
+    source = export_c(model, tmp_path / "export")[1]
+    assert "ep_jc_update" in source.read_text()
+    py = _assert_equal(model, source, work[1], tmp_path / "build")
+    named = py["fault"].str.contains("boom_head_pressure:balance", regex=False)
+    assert named.sum() > 100 and py["fault"].str.contains("boom_rod_pressure:balance", regex=False).sum() == named.sum()
+    assert (py.loc[named, "status"] == "sensor_fault").all()
+    row = work[1].frame.groupby("experiment").cumcount().to_numpy()
+    assert not named.to_numpy()[row < 400].any()  # nothing named before the offset
+
+
+def test_c_joint_check_equals_python_on_clean_work(model, work, tmp_path):
+    source = export_c(model, tmp_path / "export")[1]
+    py = _assert_equal(model, source, work[0], tmp_path / "build")
+    assert "ok" in set(py["status"])
+
+
+def test_float_build_names_the_same(model, work, tmp_path):
+    source = export_c(model, tmp_path / "export", precision="float32")[1]
+    _assert_equal(model, source, work[1], tmp_path / "build", single=True)
+
+
+def test_compiled_out_with_the_monitor(model, work, tmp_path):
+    """-DEP_HEALTH=0 is ``health = False``: no check either (Estimator._step), no balance fault."""
+    est = copy.deepcopy(model)
+    source = export_c(est, tmp_path / "export")[1]
+    est.health = False
+    py = _assert_equal(est, source, work[1], tmp_path / "off", extra_flags=("-DEP_HEALTH=0",))
+    assert "sensor_fault" not in set(py["status"])
+
+
+def test_off_exports_no_check(model, work, tmp_path):
+    """``joint_check off``: none of the check's C, and C equals Python without it."""
+    est = copy.deepcopy(model)
+    est.options["joint_check"] = "off"
+    source = export_c(est, tmp_path / "export")[1]
+    assert "ep_jc_" not in source.read_text()
+    py = _assert_equal(est, source, work[1], tmp_path / "build")
+    assert not py["fault"].str.contains("balance").any()
