@@ -63,6 +63,9 @@ def pressure_regression_model(est) -> CModel:
     if not isinstance(est.kernel, PressureKernel):
         raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
     kernel = est.kernel.regression
+    if getattr(kernel, "_imu_nuisance", None) is not None:  # not ported to C yet
+        raise EstimatorError(f"{est.name}: option --imu-nuisance on has no C export yet; "
+                             "train (or edit the model's options) with --imu-nuisance off")
     model_var = float(kernel.model_std) ** 2
     calibrated = isinstance(kernel, CalibratedKernel)
     momentum = calibrated and kernel.balance == "momentum"
