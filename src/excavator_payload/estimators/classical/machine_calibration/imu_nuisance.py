@@ -94,6 +94,13 @@ class ImuNuisanceFilter:
         self._balance_len = balance_len
         self._jac = imu_jacobian_function()
         self._trigger = None
+        # (m, u) from a = [φ, ∂r0, ∂φ]: θ's design is a·T (the payload block of T set per solve)
+        self._eye = np.eye(self.n)
+        self._T = np.zeros((1 + 2 * self.n, 1 + self.n))
+        self._T[0, 0] = 1.0
+        self._T[1:1 + self.n, 1:] = -self._eye
+        self._prior = np.zeros((1 + self.n, 1 + self.n))
+        self._prior[1:, 1:] = self._eye
         self.reset()
 
     def reset(self) -> None:
@@ -158,8 +165,9 @@ class ImuNuisanceFilter:
         """
         b = self._balance_len
         dT = self._terms[start:start + b]
-        integral = np.einsum("k,kan->an", kernel._balance_w, dT[:, 6:12])
-        momentum = np.einsum("k,kan->an", kernel._balance_u, dT[:, 0:6])
+        n = self.n
+        integral = (kernel._balance_w @ dT[:, 6:12].reshape(b, 6 * n)).reshape(6, n)
+        momentum = (kernel._balance_u @ dT[:, 0:6].reshape(b, 6 * n)).reshape(6, n)
         dr0 = (integral[0:3] - momentum[0:3]) / kernel._balance_span
         dphi = (momentum[3:6] - integral[3:6]) / kernel._balance_span
         a = np.concatenate([phi[:, None], dr0, dphi], axis=1)  # (3, 1 + 2n)
@@ -186,22 +194,20 @@ class ImuNuisanceFilter:
         if self.S[0, 0] <= 0.0:
             self.payload, self.variance = math.nan, math.inf
             return
-        n = self.n
-        T = np.zeros((1 + 2 * n, 1 + n))
-        T[0, 0] = 1.0
-        T[1:1 + n, 1:] = -np.eye(n)
-        T[1 + n:, 1:] = self.m_lin * np.eye(n)
-        H = T.T @ self.S @ T
-        H[1:, 1:] += np.eye(n)
-        g = T.T @ self.t
+        n, T = self.n, self._T
+        T[1 + n:, 1:] = self.m_lin * self._eye
+        H = T.T @ self.S @ T + self._prior
         try:
-            c = np.linalg.cholesky(H)
+            Hinv = np.linalg.inv(H)
         except np.linalg.LinAlgError:
             self.payload, self.variance = math.nan, math.inf
             return
-        theta = np.linalg.solve(c.T, np.linalg.solve(c, g))
-        e0 = np.linalg.solve(c, np.eye(1 + n)[:, 0])
-        self.payload, self.variance, self.u = float(theta[0]), float(e0 @ e0), theta[1:]
+        theta = Hinv @ (T.T @ self.t)
+        variance = float(Hinv[0, 0])
+        if not (variance > 0.0 and np.all(np.isfinite(theta))):
+            self.payload, self.variance = math.nan, math.inf
+            return
+        self.payload, self.variance, self.u = float(theta[0]), variance, theta[1:]
         if 1.0 / self.variance > KNOWN_INFO:
             self.m_lin = self.payload
 
