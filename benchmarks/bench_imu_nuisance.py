@@ -89,6 +89,8 @@ def main() -> None:
     ap.add_argument("--cells", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--families", nargs="+", default=["nmpc", "work-cycle", "operator"])
     ap.add_argument("--out", type=Path, default=None, help="CSV of the table")
+    ap.add_argument("--all-five", action="store_true",
+                    help="re-estimate all five IMU dynamics (lag and four sensitivities), not the default two")
     ap.add_argument("--data-only", action="store_true", help="only simulate the families into the cache")
     a = ap.parse_args()
     a.cache.mkdir(parents=True, exist_ok=True)
@@ -99,10 +101,17 @@ def main() -> None:
     rows = []
     for c in a.cells:
         base = estimator(a.cache, *CELLS[c])
-        for mode in ("off", "on"):
+        for mode in ("on",) if a.all_five else ("off", "on"):
             est = copy.deepcopy(base)
             est.options["imu_nuisance"] = mode
             est.use_calibration()
+            if mode == "on" and a.all_five:
+                from excavator_payload.estimators.classical.machine_calibration.imu_nuisance import (
+                    ImuNuisanceFilter)
+                from excavator_payload.estimators.classical.machine_calibration.settings import IMU_PARAMETERS
+
+                kernel = est.kernel.regression
+                kernel._imu_nuisance = ImuNuisanceFilter(est.calibration, kernel._balance_len, IMU_PARAMETERS)
             for fam, ds in data.items():
                 t0 = time.process_time()
                 frame = est.estimate(ds)

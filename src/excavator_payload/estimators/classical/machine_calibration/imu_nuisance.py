@@ -44,32 +44,44 @@ from excavator_payload.model.hydraulic import HYDRAULIC_PARAMETER_NAMES
 KNOWN_INFO = 1.0 / 50.0**2
 
 
-@lru_cache(maxsize=1)
-def imu_jacobian_function() -> ca.Function:
+@lru_cache(maxsize=2)
+def imu_jacobian_function(names: tuple = IMU_NUISANCES) -> ca.Function:
     """One streaming sample's momentum-balance terms' Jacobian (12 × n) with respect to the
-    IMU dynamics :data:`IMU_NUISANCES`, compiled; the inputs of
-    :func:`~.symbolic.kernel_function` (momentum form)."""
+    IMU dynamics ``names``, compiled; the inputs of :func:`~.symbolic.kernel_function`
+    (momentum form).
+
+    Parameters
+    ----------
+    names : tuple of str
+        The IMU dynamics (:data:`IMU_PARAMETERS`) re-estimated.
+    """
     x = ca.SX.sym("x", len(SIGNALS))
     qdd = ca.SX.sym("qdd", 4)
     p = ca.SX.sym("p", len(HYDRAULIC_PARAMETER_NAMES))
     offsets = ca.SX.sym("offsets", len(SIGNALS))
     imu = ca.SX.sym("imu", len(IMU_PARAMETERS))
     A = _momentum_terms(x, qdd, p, offsets, imu)[0]
-    free = ca.vertcat(*[imu[IMU_PARAMETERS.index(name)] for name in IMU_NUISANCES])
+    free = ca.vertcat(*[imu[IMU_PARAMETERS.index(name)] for name in names])
     jac = ca.densify(ca.jacobian(A, free))
-    return native(ca.Function("cal_machine_imu_jacobian", [x, qdd, p, offsets, imu], [jac]))
+    return native(ca.Function(f"cal_machine_imu_jacobian_{len(names)}", [x, qdd, p, offsets, imu], [jac]))
 
 
-def imu_whitening(cal) -> np.ndarray:
-    """L with L Lᵀ = the calibration's posterior covariance of :data:`IMU_NUISANCES`.
+def _indices(names) -> list[int]:
+    start = len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS)
+    return [start + IMU_PARAMETERS.index(name) for name in names]
+
+
+def imu_whitening(cal, names: tuple = IMU_NUISANCES) -> np.ndarray:
+    """L with L Lᵀ = the calibration's posterior covariance of the IMU dynamics ``names``.
 
     Parameters
     ----------
     cal : MachineCalibration
         The calibration (its ``covariance`` over z = (δ, offsets, IMU dynamics)).
+    names : tuple of str
+        The IMU dynamics re-estimated.
     """
-    start = len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS)
-    idx = [start + IMU_PARAMETERS.index(name) for name in IMU_NUISANCES]
+    idx = _indices(names)
     C = np.asarray(cal.covariance, float)[np.ix_(idx, idx)]
     lam, V = np.linalg.eigh(0.5 * (C + C.T))
     return V * np.sqrt(np.maximum(lam, 0.0))
@@ -85,14 +97,17 @@ class ImuNuisanceFilter:
         The calibration weighed with (prior mean and covariance of the IMU dynamics).
     balance_len : int
         Samples of the kernel's momentum window (its ring of per-sample terms is twice this).
+    names : tuple of str
+        The IMU dynamics re-estimated (:data:`IMU_NUISANCES`; all five were measured too).
     """
 
-    def __init__(self, cal, balance_len: int):
-        self.n = len(IMU_NUISANCES)
-        self.L = imu_whitening(cal)
+    def __init__(self, cal, balance_len: int, names: tuple = IMU_NUISANCES):
+        self.names = tuple(names)
+        self.n = len(self.names)
+        self.L = imu_whitening(cal, self.names)
         self.rated = float(cal.arm.machine.rated_payload)
         self._balance_len = balance_len
-        self._jac = imu_jacobian_function()
+        self._jac = imu_jacobian_function(self.names)
         self._trigger = None
         # (m, u) from a = [φ, ∂r0, ∂φ]: θ's design is a·T (the payload block of T set per solve)
         self._eye = np.eye(self.n)
@@ -122,7 +137,7 @@ class ImuNuisanceFilter:
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        self._jac = imu_jacobian_function()
+        self._jac = imu_jacobian_function(self.names)
         self._trigger = None
 
     def sample(self, kernel, slot: int) -> None:
@@ -217,13 +232,11 @@ class ImuNuisanceFilter:
         return 1.0 / self.variance if self.variance > 0.0 and math.isfinite(self.variance) else 0.0
 
     def nuisances(self, cal) -> np.ndarray:
-        """The current estimate of :data:`IMU_NUISANCES` (s, s²).
+        """The current estimate of the IMU dynamics re-estimated (s, s²).
 
         Parameters
         ----------
         cal : MachineCalibration
             The calibration (prior mean).
         """
-        start = len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS)
-        idx = [start + IMU_PARAMETERS.index(name) for name in IMU_NUISANCES]
-        return np.asarray(cal.z, float)[idx] + self.L @ self.u
+        return np.asarray(cal.z, float)[_indices(self.names)] + self.L @ self.u
