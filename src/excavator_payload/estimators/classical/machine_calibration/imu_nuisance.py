@@ -189,6 +189,8 @@ class ImuNuisanceFilter:
         ok = w > 0.0
         a, w, r = a[ok], w[ok], residual[ok]
         dS, dt = (a.T * w) @ a, (a.T * w) @ r
+        if not (np.all(np.isfinite(dS)) and np.all(np.isfinite(dt))):  # a hostile sample's Jacobian
+            dS, dt = 0.0 * self.S, 0.0 * self.t
         lam = kernel.forgetting
         self.S, self.t = lam * self.S + dS, lam * self.t + dt
         if kernel.new_load:
