@@ -149,3 +149,19 @@ def test_export_c_refuses_it_in_one_line(fitted, tmp_path):
 
     with pytest.raises(EstimatorError, match="--imu-nuisance on has no C export"):
         export_c(fitted["on"], tmp_path)
+
+
+def test_the_cli_refuses_a_bad_choice_and_the_c_export_in_one_line(fitted, tmp_path, capsys):
+    from excavator_payload.cli import main
+    from excavator_payload.data.io import write_dataset
+
+    data = tmp_path / "zero.parquet"
+    write_dataset(dm.zero_data(seed=6), data)
+    for extra in (["--imu-nuisance", "maybe"], ["--imu-nuisance", "on", "--balance", "differentiated"]):
+        assert main(["train", "calibrated", "--data", str(data), "--out", str(tmp_path / "m"), *extra]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "imu-nuisance" in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    model = fitted["on"].save(tmp_path / "on")
+    assert main(["export", "--model", str(model), "--format", "c", "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--imu-nuisance on has no C export" in err and len(err.splitlines()) == 1
