@@ -144,14 +144,7 @@ def test_needs_the_momentum_form_and_refuses_a_bad_choice():
         create_estimator("calibrated", PRIOR, imu_nuisance="maybe")
 
 
-def test_export_c_refuses_it_in_one_line(fitted, tmp_path):
-    from excavator_payload.runtime.export_c import export_c
-
-    with pytest.raises(EstimatorError, match="--imu-nuisance on has no C export"):
-        export_c(fitted["on"], tmp_path)
-
-
-def test_the_cli_refuses_a_bad_choice_and_the_c_export_in_one_line(fitted, tmp_path, capsys):
+def test_the_cli_refuses_a_bad_choice_in_one_line_and_exports_c(fitted, tmp_path, capsys):
     from excavator_payload.cli import main
     from excavator_payload.data.io import write_dataset
 
@@ -162,6 +155,5 @@ def test_the_cli_refuses_a_bad_choice_and_the_c_export_in_one_line(fitted, tmp_p
         err = capsys.readouterr().err.strip()
         assert "imu-nuisance" in err and len(err.splitlines()) == 1 and "Traceback" not in err
     model = fitted["on"].save(tmp_path / "on")
-    assert main(["export", "--model", str(model), "--format", "c", "--out", str(tmp_path / "c")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "--imu-nuisance on has no C export" in err and len(err.splitlines()) == 1
+    assert main(["export", "--model", str(model), "--format", "c", "--out", str(tmp_path / "c")]) == 0
+    assert "EP_NZ" in (tmp_path / "c" / "ep_calibrated.h").read_text()  # parity: tests/runtime

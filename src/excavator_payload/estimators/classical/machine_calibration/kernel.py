@@ -334,8 +334,9 @@ class CalibratedKernel(PressureRegression):
 
     @property
     def weighed_info(self) -> float:
-        """The information on the payload σ reads: I, or the filter's marginal one."""
-        if self._imu_nuisance is not None:
+        """The information on the payload σ reads: I, or the filter's marginal one (a
+        non-finite I as it is: the estimator then restarts the state)."""
+        if self._imu_nuisance is not None and math.isfinite(self.info):
             return self._imu_nuisance.info if self.info > 0 else 0.0
         return self.info
 
