@@ -46,7 +46,7 @@ from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    BALANCE_CHOICES, IMU_LEAK_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
+    BALANCE_CHOICES, IMU_LEAK_CHOICES, IMU_NUISANCE_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -342,6 +342,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                               "health monitor (in the C export too). Off by default: it still names sound "
                               "cylinders on some held-out work (docs/sensor-health.md)",
                               ("on", "off")),
+        "imu_nuisance": Option(str, "off", "machine sensor set, momentum form: re-estimate the IMU "
+                               "lag and the house IMU's acceleration sensitivity per load while weighing, the "
+                               "calibration's posterior as their prior (docs/findings/nuisance-oracle.md)",
+                               IMU_NUISANCE_CHOICES),
         "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
                             "estimate's sigma: cross (two-fold cross-fit of the calibration "
                             "motions, 95 % of held-out errors within 2 sigma) or none (sensor "
@@ -356,6 +360,8 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             raise EstimatorError(f"{self.name}: option --experiments must be >= 0")
         if not self.options["prior_std"] > 0:
             raise EstimatorError(f"{self.name}: option --prior-std must be > 0")
+        if self.options.get("imu_nuisance") == "on" and self.options["balance"] != "momentum":
+            raise EstimatorError(f"{self.name}: option --imu-nuisance on needs --balance momentum")
 
     @property
     def parameter_covariance(self) -> np.ndarray:

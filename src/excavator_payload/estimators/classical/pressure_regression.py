@@ -283,6 +283,11 @@ class PressureRegression:
     def estimate(self) -> float:
         return self.num / self.info if self.info > 0 else math.nan
 
+    @property
+    def weighed_info(self) -> float:
+        """The information on the payload its σ reads (the sums' I here)."""
+        return self.info
+
 
 def judge_frame(before: np.ndarray, sample: np.ndarray, after: np.ndarray, threshold: np.ndarray,
                 before2: np.ndarray | None = None, after2: np.ndarray | None = None) -> tuple[bool, bool]:
@@ -521,7 +526,7 @@ class PressureKernel(PayloadKernel):
         regression.judge = judge
         regression.joint_check = joint_check and regression.checks_joints
         regression.update(time, values)
-        self.info = regression.info
+        self.info = regression.weighed_info
         if self.info <= 0.0 or not regression.ready or not regression.steady:
             return StepResult(math.nan, Status.WARMING_UP)
         status = Status.OK if self.info >= self.warm_info else Status.WARMING_UP

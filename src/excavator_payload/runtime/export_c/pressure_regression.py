@@ -33,6 +33,7 @@ from excavator_payload.runtime.export_c.casadi_code import (
 from excavator_payload.runtime.export_c.joint_check import add_joint_check, exports_joint_check
 from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel
+from excavator_payload.runtime.export_c.imu_nuisance import imu_nuisance_c, imu_nuisance_functions
 
 
 @c_builder("inverse-dynamics", "calibrated", sensor_set="machine")
@@ -64,9 +65,14 @@ def pressure_regression_model(est) -> CModel:
     if not isinstance(est.kernel, PressureKernel):
         raise EstimatorError(f"{est.name}: fitted on machine-sensor-set data but has no kernel")
     kernel = est.kernel.regression
+    nuisance = getattr(kernel, "_imu_nuisance", None) is not None  # --imu-nuisance on: imu_nuisance.py
     model_var = float(kernel.model_std) ** 2
     calibrated = isinstance(kernel, CalibratedKernel)
     momentum = calibrated and kernel.balance == "momentum"
+    if nuisance and exports_joint_check(est, kernel):
+        # the C joint check reports σ from the kernel's held sums, the filter from its own
+        raise EstimatorError(f"{est.name}: --imu-nuisance on together with --joint-check on has no C "
+                             "export yet (each alone has); retrain with one of them off to export")
     sensors = est.sensor_set
     n = len(sensors.signals)
     h = int(kernel.half_window)
@@ -95,7 +101,8 @@ def pressure_regression_model(est) -> CModel:
     else:
         outputs = hydraulic_symbolic().functions["pressure_regression"](q, qd, qdd, tilt, pressures, ca.DM(p))
     kernel_fn = ca.Function("ep_pressure_regression", [x, qdd], [ca.vertcat(*outputs)], ["x", "qdd"], ["out"])
-    code = casadi_c_code({"ep_pressure_regression": kernel_fn})
+    extra = imu_nuisance_functions(kernel) if nuisance else {}
+    code = casadi_c_code({"ep_pressure_regression": kernel_fn, **extra})
 
     head, rod = np.asarray(kernel._head, float), np.asarray(kernel._rod, float)
     still_speed = 3 * np.asarray(kernel._v_stribeck, float)
@@ -470,6 +477,15 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         defines += [f"#define EP_BALANCE {2 * BALANCE_HALF_WINDOW + 1}  /* samples of the momentum balance's window */",
                     f"#define EP_BALANCE_CENTRE {BALANCE_HALF_WINDOW}"]
         description += f", momentum balance over ±{BALANCE_HALF_WINDOW} samples"
+    sigma = ("    /* _estimate_sigma: sqrt(1/I + s_model^2), the calibration's cross-checked model error */\n"
+             f"    return s->info > EP_C(0.0) ? EP_MATH(sqrt)(EP_C(1.0) / s->info + {c_number(model_var)}) : EP_NAN;")
+    if nuisance:
+        nz = imu_nuisance_c(kernel, casadi_call("ep_imu_jacobian", extra["ep_imu_jacobian"], ["x", "qdd"], ["jac"],
+                                                code), step, fields, reset, c_number(model_var))
+        defs.append(nz["defs"])
+        defines += nz["header"]
+        step, fields, reset, sigma = nz["step"], nz["fields"], nz["reset"], nz["sigma"]
+        description += ", the IMU lag and house IMU sensitivity re-estimated per load (--imu-nuisance on)"
     model = CModel(
         description=description,
         state_fields=fields,
@@ -477,8 +493,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         reset=reset,
         step=step, on_gap=on_gap,
         header_defines=defines,
-        sigma=("    /* _estimate_sigma: sqrt(1/I + s_model^2), the calibration's cross-checked model error */\n"
-               f"    return s->info > EP_C(0.0) ? EP_MATH(sqrt)(EP_C(1.0) / s->info + {c_number(model_var)}) : EP_NAN;"),
+        sigma=sigma,
         # InverseDynamicsEstimator._state_finite: on this set its N stays 0 (the kernel keeps
         # the sum), so only I is watched
         state_finite="    return isfinite(s->info);")

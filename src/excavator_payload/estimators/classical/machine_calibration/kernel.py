@@ -64,6 +64,8 @@ class CalibratedKernel(PressureRegression):
         ``--new-load``: ``auto``, ``detect`` or ``off``.
     """
 
+    _imu_nuisance = None  # ``--imu-nuisance on``: an ImuNuisanceFilter (use_imu_nuisance)
+
     def __init__(self, cal, half_window: int, forgetting: float, low_speed: str,
                  outside_calibration: str = "auto", wait_for_boom: str = "auto", new_load: str = "auto"):
         super().__init__(cal.arm, pressure_std=cal.pressure_std, ripple_fraction=0.0,
@@ -162,6 +164,8 @@ class CalibratedKernel(PressureRegression):
         self._restart_steady()
         if hasattr(self, "_joints"):
             self._joints.reset()
+        if self._imu_nuisance is not None:
+            self._imu_nuisance.reset()
 
     @property
     def ready(self) -> bool:
@@ -268,6 +272,8 @@ class CalibratedKernel(PressureRegression):
         # integral) but is never a window's centre
         self._terms_used[slot] = self._terms_used[slot + b] = centre_used
         self._terms_inside[slot] = self._terms_inside[slot + b] = self._inside(centre)
+        if self._imu_nuisance is not None:
+            self._imu_nuisance.sample(self, slot)
         self._terms_count += 1
         if self._terms_count < b:
             return False
@@ -293,10 +299,40 @@ class CalibratedKernel(PressureRegression):
         self.boom_windows += bool(wt[0] > 0.0)
         d_num, d_info = (wt * phi * residual).tolist(), (wt * phi * phi).tolist()
         self._accumulate(d_num, d_info)
+        if self._imu_nuisance is not None:
+            self._imu_nuisance.window(self, start, wt, phi, residual)
         self._track_steady()
         if self.joint_check:
             self._check_joints(d_num, d_info)
         return True
+
+    def use_imu_nuisance(self, cal) -> None:
+        """``--imu-nuisance on``: weigh with the IMU dynamics re-estimated per load
+        (:class:`~.imu_nuisance.ImuNuisanceFilter`; momentum form only).
+
+        Parameters
+        ----------
+        cal : MachineCalibration
+            The calibration weighed with (the prior of the IMU dynamics).
+        """
+        from excavator_payload.estimators.classical.machine_calibration.imu_nuisance import ImuNuisanceFilter
+
+        self._imu_nuisance = ImuNuisanceFilter(cal, self._balance_len)
+
+    @property
+    def estimate(self) -> float:
+        """The payload: N / I, or with ``--imu-nuisance on`` the filter's."""
+        if self._imu_nuisance is not None:
+            return self._imu_nuisance.payload if self.info > 0 else math.nan
+        return self.num / self.info if self.info > 0 else math.nan
+
+    @property
+    def weighed_info(self) -> float:
+        """The information on the payload σ reads: I, or the filter's marginal one (a
+        non-finite I as it is: the estimator then restarts the state)."""
+        if self._imu_nuisance is not None and math.isfinite(self.info):
+            return self._imu_nuisance.info if self.info > 0 else 0.0
+        return self.info
 
     @property
     def checks_joints(self) -> bool:

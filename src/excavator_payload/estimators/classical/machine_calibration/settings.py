@@ -63,6 +63,12 @@ IMU_PARAMETERS: tuple[str, ...] = ("imu_lag", "boom_imu_acceleration_sensitivity
 #: axis, where inclination sensors go, 0.005 s² (with the links' 0.02 s² it absorbed the rates'
 #: noise instead: findings, "The house IMU's prior").
 IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.005])
+#: ``--imu-nuisance on``: the IMU dynamics re-estimated per load while weighing (momentum form,
+#: :mod:`.imu_nuisance`), the calibration's posterior as prior: the lag and the house IMU's
+#: sensitivity (the link IMUs' add nothing: docs/findings/nuisance-oracle.md).
+IMU_NUISANCES: tuple[str, ...] = ("imu_lag", "house_imu_acceleration_sensitivity")
+#: Choices of ``--imu-nuisance``.
+IMU_NUISANCE_CHOICES = ("on", "off")
 #: Moving samples per cylinder below which fit warns that calibration learned little of it
 #: (2 s at 100 Hz).
 MIN_MOVING_SAMPLES = 200

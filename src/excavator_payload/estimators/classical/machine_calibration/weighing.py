@@ -166,12 +166,14 @@ class MachineWeighing:
         ----------
         options : dict
             The estimator's options (``half_window``, ``forgetting``, ``low_speed``,
-            ``outside_calibration``, ``wait_for_boom``, ``new_load``).
+            ``outside_calibration``, ``wait_for_boom``, ``new_load``, ``imu_nuisance``).
         """
         kernel = self.calibration.kernel(options["half_window"], options["forgetting"], options["low_speed"],
                                          options["outside_calibration"], options["wait_for_boom"],
                                          options["new_load"])
         kernel.spike_threshold = spike_threshold(self.difference_scale)
+        if options.get("imu_nuisance") == "on" and kernel.balance == "momentum":
+            kernel.use_imu_nuisance(self.calibration)
         return kernel
 
     # -- fit ----------------------------------------------------------------------------------
