@@ -65,3 +65,14 @@ def test_c_equals_python_across_loads_and_a_settle(models, tmp_path):
 def test_off_exports_the_kernel_as_before(models, tmp_path):
     header, source = export_c(models["off"], tmp_path / "export")
     assert "EP_NZ" not in header.read_text() and "nz_" not in source.read_text()
+
+
+def test_c_export_refuses_the_imu_dynamics_with_the_joint_check(models, tmp_path):
+    """Each option alone has its C; together their σ comes from different sums: refused, said why."""
+    from excavator_payload.errors import EstimatorError
+
+    both = copy.deepcopy(models["on"])
+    both.options["joint_check"] = "on"
+    both.health = True
+    with pytest.raises(EstimatorError, match="--imu-nuisance on together with --joint-check on"):
+        export_c(both, tmp_path / "export")
