@@ -75,6 +75,21 @@ def test_stepped_angles_are_refused_with_the_real_reason_and_smoothed_on_request
     assert np.abs(data.frame["boom_angle"].to_numpy() - smooth["boom_angle"].to_numpy()).max() < 0.03
 
 
+def test_noisy_angles_are_called_noise_not_steps_and_smoothed_on_request(tmp_path, capsys):
+    # a real log: 100 Hz angles with 1 mrad of sensor noise (they change at every sample)
+    frame = _motion(np.arange(0, 6.0001, 0.01))
+    rng = np.random.default_rng(0)
+    for c in ("boom_angle", "dipper_angle", "bucket_angle", "slew_angle"):
+        frame[c] = frame[c] + rng.normal(0.0, 0.001, len(frame))
+    code, out = _simulate(tmp_path, frame)
+    line = _one_line(capsys, code)
+    assert "sensor noise" in line and "--smooth" in line and "steps" not in line
+    assert not out.exists()
+    code, out = _simulate(tmp_path, frame, "--smooth", "0.1")
+    capsys.readouterr()
+    assert code == 0 and read_dataset(out).meta["experiments"][0]["within_relief"]
+
+
 def test_a_replay_faster_than_the_pumps_is_refused_or_flagged(tmp_path, capsys):
     fast = _motion(np.arange(0, 4.0001, 0.05), boom=(0.3, 1.2), dipper=(0.5, 1.5))
     code, out = _simulate(tmp_path, fast)

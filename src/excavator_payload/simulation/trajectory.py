@@ -359,12 +359,17 @@ def check_trajectory_motion(trajectory: Trajectory, machine, allow_overspeed: bo
             advice = max(0.1, round(2 * interval, 2)) if math.isfinite(interval) else 0.2
             need = (f"{force[i, j]:.3g} times the force its cylinder gives at the relief pressure" if too_strong
                     else f"{speed[i, j]:.3g} times the speed the pumps give")
+            sample = float(np.median(np.diff(rows["time"].to_numpy(dtype=float))))
+            if math.isfinite(interval) and interval <= 1.5 * sample:  # it changes at every sample
+                kind = ("jump from sample to sample (sensor noise or a fine quantisation) more than a "
+                        f"machine moves; smooth them with --smooth {advice:g} (seconds)")
+            else:
+                kind = ("come in steps (a quantised or held signal"
+                        f"{f', every {interval:.3g} s' if math.isfinite(interval) else ''}), not in a motion "
+                        f"the machine makes; smooth them with --smooth {advice:g} (seconds) or record them finer")
             raise DatasetError(
                 f"{where}: experiment {exp_id} at t = {time[i]:.2f} s: the interpolation through the recorded "
-                f"{names[j]} angle accelerates at {qdd[i, j]:.3g} rad/s², which needs {need}: the angles "
-                f"come in steps (a quantised or held signal{f', every {interval:.3g} s' if math.isfinite(interval) else ''}), "
-                f"not in a motion the machine makes; smooth them with --smooth {advice:g} (seconds) or "
-                "record them finer")
+                f"{names[j]} angle accelerates at {qdd[i, j]:.3g} rad/s², which needs {need}: the angles {kind}")
         share = float(speed.max())
         if share > MAX_SPEED_SHARE:
             raise DatasetError(f"{where}: experiment {exp_id} moves {share:.3g} times faster than "
