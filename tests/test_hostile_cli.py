@@ -355,7 +355,8 @@ BAD_TRAJECTORIES: dict[str, tuple[Callable, str | None]] = {
     "text-column": (_trajectory_edit(_column("boom_angle", lambda a: a.astype(str))), "numeric"),
     "fractional-experiment": (_trajectory_edit(_column("experiment", lambda e: e + 0.5)), "whole numbers"),
     "time-in-ms": (_trajectory_edit(_column("time", lambda t: t * 1000.0)), "seconds"),
-    "hour-gap": (_trajectory_edit(lambda f: f.assign(time=f["time"] + 3600.0 * (f.index >= 20))), "outside"),
+    "hour-gap": (_trajectory_edit(lambda f: f.assign(time=f["time"] + 3600.0 * (f.index >= 20))),
+                 "split it into two experiments"),
     "ground-in-degrees": (_trajectory_edit(lambda f: f.assign(ground_pitch=5.0)), "ground_pitch"),
 }
 

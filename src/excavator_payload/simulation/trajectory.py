@@ -9,11 +9,12 @@ within an experiment to replay a shift — a bucket filled at the dig and emptie
 :func:`payload_passes`)
 
 and optionally ``ground_pitch`` and ``ground_roll`` (rad; level ground where absent). Any sample
-rate, even uneven, is accepted: each angle is interpolated by quintic pieces through its
-samples' angle, rate and acceleration (continuous angle, rate and acceleration; local, so a
-jump of the acceleration does not ring through the motion) and evaluated at 100 Hz between the experiment's first and last
-time. A motion recorded on a real machine, or made by hand, can so be pushed through the
-simulator (``excavator-payload simulate --machine cat345c-hydraulic --motion trajectory
+rate, even uneven, is accepted (a gap of more than 1 s and 20 samples' time is refused: split
+the experiment there): each angle is interpolated by quintic pieces through its samples'
+angle, rate and acceleration (continuous angle, rate and acceleration; local, so a jump of the
+acceleration does not ring through the motion) and evaluated at 100 Hz between the
+experiment's first and last time. A motion recorded on a real machine, or made by hand, can
+so be pushed through the simulator (``excavator-payload simulate --machine cat345c-hydraulic --motion trajectory
 --trajectory FILE``); its pressures are those the model needs for that motion, and the
 experiment's metadata say whether it stayed within the relief pressure and the pumps' speed.
 
@@ -101,6 +102,11 @@ STEP_PROBE = 0.05
 STEP_FACTOR = 2.0
 #: Smallest unknown-column similarity (difflib ratio) that makes it a misspelt known column.
 MISSPELT_CUTOFF = 0.8
+#: A time gap longer than this and :data:`GAP_FACTOR` times the experiment's median sample interval
+#: is refused (nothing says what the machine did in it), s.
+MAX_GAP = 1.0
+#: See :data:`MAX_GAP`.
+GAP_FACTOR = 20.0
 #: Slack on the machine's joint ranges (the interpolation may overshoot a recorded end stop a little), rad.
 RANGE_SLACK = np.radians(1.0)
 
@@ -180,6 +186,13 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
         if np.median(np.diff(t)) > MAX_MEDIAN_STEP:
             raise DatasetError(f"{source}: the samples of experiment {exp_id} are {np.median(np.diff(t)):.4g} s "
                                "apart (median); is 'time' in seconds?")
+        step, typical = np.diff(t), float(np.median(np.diff(t)))
+        gap = int(np.argmax(step))
+        if step[gap] > max(MAX_GAP, GAP_FACTOR * typical):
+            # a logger that stopped: whatever the interpolation draws across it is not the motion
+            raise DatasetError(f"{source}: experiment {exp_id} has no samples for {step[gap]:.4g} s after "
+                               f"t = {t[gap]:.4g} s (they are {typical:.3g} s apart elsewhere); split it into "
+                               "two experiments there")
         experiments.append((int(exp_id), rows.reset_index(drop=True)))
     digest = hashlib.sha256(pd.util.hash_pandas_object(frame, index=False).values.tobytes()).hexdigest()[:16]
     return Trajectory(source, digest, experiments, ignored=tuple(unknown))
