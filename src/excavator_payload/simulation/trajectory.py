@@ -14,9 +14,10 @@ the experiment there): each angle is interpolated by quintic pieces through its 
 angle, rate and acceleration (continuous angle, rate and acceleration; local, so a jump of the
 acceleration does not ring through the motion) and evaluated at 100 Hz between the
 experiment's first and last time. A motion recorded on a real machine, or made by hand, can
-so be pushed through the simulator (``excavator-payload simulate --machine cat345c-hydraulic --motion trajectory
---trajectory FILE``); its pressures are those the model needs for that motion, and the
-experiment's metadata say whether it stayed within the relief pressure and the pumps' speed.
+so be pushed through the simulator (``excavator-payload simulate --machine cat345c-hydraulic
+--motion trajectory --trajectory FILE``); its pressures are those the model needs for that
+motion, and the experiment's metadata say whether it stayed within the relief pressure and the
+pumps' speed.
 
 A motion the machine cannot make is refused before anything is simulated, with the real reason
 (:func:`check_trajectory_motion`): a joint outside its range; angles that come in steps (a
