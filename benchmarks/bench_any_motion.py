@@ -73,12 +73,9 @@ def zeros(seed: int) -> dict:
     }
 
 
-def judge(est, ds, efficiency: bool = False) -> dict:
-    est_frame = est.estimate(ds)
-    # the bound of this calibration's own model (crb_machine: one unknown friction per standstill)
-    bound = dataset_machine_bound(ds, est) if efficiency else None
-    ev = dm.judge(est, ds, "m", bound)
-    row = dm.summary_row(ev, RATED)
+def alarms_and_coverage(ds, est_frame) -> dict:
+    """False alarms (clean samples not ``ok`` after the first second, the documented wait for the
+    boom's first weighing excepted) and the share of judged ``ok`` samples with |error| ≤ 2σ."""
     f = ds.frame
     t = f["time"].to_numpy(float)
     exp = f["experiment"].to_numpy()
@@ -91,9 +88,19 @@ def judge(est, ds, efficiency: bool = False) -> dict:
     error = est_frame["payload_estimate"].to_numpy(float) - f["payload"].to_numpy(float)
     sigma = est_frame["sigma"].to_numpy(float)
     ok = (status == "ok") & judged & np.isfinite(sigma)
-    row["false_alarms"] = float(alarms.sum() / max(judged.sum(), 1))
-    row["sigma_covers"] = float(np.mean(np.abs(error[ok]) <= 2 * sigma[ok])) if ok.any() else np.nan
-    return row
+    return {"false_alarms": float(alarms.sum() / max(judged.sum(), 1)),
+            "sigma_covers": float(np.mean(np.abs(error[ok]) <= 2 * sigma[ok])) if ok.any() else np.nan}
+
+
+def judge(est, ds, efficiency: bool = False) -> dict:
+    from excavator_payload.evaluation.metrics import evaluate_estimates
+
+    est_frame = est.estimate(ds)  # once: the summary and the alarms read the same estimates
+    # the bound of this calibration's own model (crb_machine: one unknown friction per standstill)
+    bound = dataset_machine_bound(ds, est) if efficiency else None
+    ev = evaluate_estimates(ds, est_frame, label="m", bound=bound, with_bound=bound is not None,
+                            discard=dm.DISCARD)
+    return {**dm.summary_row(ev, RATED), **alarms_and_coverage(ds, est_frame)}
 
 
 def main() -> None:

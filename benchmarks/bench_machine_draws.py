@@ -33,6 +33,7 @@ from pathlib import Path
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_any_motion import alarms_and_coverage  # noqa: E402
 from held_out_motions import joystick_trajectory, lever_trajectory  # noqa: E402
 
 from excavator_payload.estimators.classical import calibrated_machine as cm
@@ -45,24 +46,12 @@ SETS = ("nmpc", "work-cycle", "slope-5deg")
 
 def judge(est, ds, label, bound) -> dict:
     """The study's summary row, and the σ's coverage and the false alarms as ``bench_any_motion``."""
-    import numpy as np
-
     from excavator_payload.evaluation.metrics import evaluate_estimates
 
     frame = est.estimate(ds)
     row = dm.summary_row(evaluate_estimates(ds, frame, label=label, bound=bound, with_bound=bound is not None,
                                             discard=dm.DISCARD), dm.RATED_PAYLOAD, None)
-    f = ds.frame
-    t, exp = f["time"].to_numpy(float), f["experiment"].to_numpy()
-    judged = (t - pd.Series(t).groupby(exp).transform("min").to_numpy()) >= 1.0
-    status = frame["status"].astype(str).to_numpy()
-    waiting = pd.Series(status == "warming_up").groupby(exp).cummin().to_numpy()
-    error = frame["payload_estimate"].to_numpy(float) - f["payload"].to_numpy(float)
-    sigma = frame["sigma"].to_numpy(float)
-    ok = (status == "ok") & judged & np.isfinite(sigma)
-    row["false_alarms"] = float((judged & ~waiting & (status != "ok")).sum() / max(judged.sum(), 1))
-    row["sigma_covers"] = float(np.mean(np.abs(error[ok]) <= 2 * sigma[ok])) if ok.any() else float("nan")
-    return row
+    return {**row, **alarms_and_coverage(ds, frame)}
 
 
 def main() -> None:

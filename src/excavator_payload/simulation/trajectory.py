@@ -184,10 +184,11 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
             raise DatasetError(f"{source}: experiment {exp_id} has {len(t)} samples; at least 4 are needed")
         if not np.all(np.diff(t) > 0):
             raise DatasetError(f"{source}: 'time' must increase strictly within experiment {exp_id}")
-        if np.median(np.diff(t)) > MAX_MEDIAN_STEP:
-            raise DatasetError(f"{source}: the samples of experiment {exp_id} are {np.median(np.diff(t)):.4g} s "
+        step = np.diff(t)
+        typical = float(np.median(step))
+        if typical > MAX_MEDIAN_STEP:
+            raise DatasetError(f"{source}: the samples of experiment {exp_id} are {typical:.4g} s "
                                "apart (median); is 'time' in seconds?")
-        step, typical = np.diff(t), float(np.median(np.diff(t)))
         gap = int(np.argmax(step))
         if step[gap] > max(MAX_GAP, GAP_FACTOR * typical):
             # a logger that stopped: whatever the interpolation draws across it is not the motion
