@@ -66,7 +66,7 @@ def test_base_parameters_equal_the_hand_calculation(machine):
                   m.boom_friction, m.dipper_friction]
     hand_payload = [l1**2, l2**2, l1 * l2, g * l1, g * l2]
     theta_empty, theta_payload = base_parameters(m)
-    np.testing.assert_allclose(theta_empty, hand_empty, rtol=1e-14)
+    np.testing.assert_allclose(theta_empty, hand_empty, rtol=1e-13)  # 1.3e-14 on an AMD EPYC's BLAS
     np.testing.assert_array_equal(theta_payload, hand_payload)
     Y = base_regressor(np.array([0.0, 0.0]), np.array([0.0, 0.0]), np.array([1.0, 0.0]))
     np.testing.assert_allclose(Y, [[1, 1, 2, 1, 1, 0, 0], [0, 1, 1, 0, 1, 0, 0]], atol=1e-15)

@@ -39,14 +39,17 @@ def test_a_model_saved_before_the_kernels_saves_back_byte_for_byte(name, tmp_pat
 
 def test_a_thesis_model_saved_before_weighs_as_a_fresh_fit():
     """inverse-dynamics reads only the noise preset of its data: a fresh fit on any thesis-noise
-    data is the saved model, and both give the same estimates, statuses and sigmas exactly."""
+    data is the saved model, and both give the same statuses exactly and the same estimates and
+    sigmas to rounding (the saved parameters were computed on another CPU, whose BLAS kernels sum
+    in another order: 2e-14 relative on an AMD EPYC)."""
     saved = load_estimator(SAVED / "inverse-dynamics")
     fresh = create_estimator("inverse-dynamics", "cat345c", weighting="diagonal").fit(
         simulate_minimum_jerk(2, seed=21, noise="thesis"))
     test = simulate_minimum_jerk(2, seed=22, noise="field")
     got, want = saved.estimate(test), fresh.estimate(test)
     assert set(got["status"]) >= {"ok", "rejected_outlier"}
-    pd.testing.assert_frame_equal(got, want, check_exact=True)
+    pd.testing.assert_frame_equal(got, want, check_exact=False, rtol=1e-12, atol=0.0)
+    assert (got["status"] == want["status"]).all()
 
 
 def test_the_kernel_is_picked_per_platform():
