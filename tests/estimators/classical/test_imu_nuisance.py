@@ -113,6 +113,7 @@ def _true_machine(est):
     k_link = noise.acceleration_leak * noise.link_imu_distance / 9.81
     z[LAG:] = [noise.imu_lag, k_link, k_link, k_link, noise.acceleration_leak * noise.house_imu_radius / 9.81]
     cal.z = z
+    cal.zero_std = 0.0  # the true offsets, not a zero's: σ from the sensor noise only
     est.use_calibration(cal)
     return est
 

@@ -105,3 +105,30 @@ def test_cli_refuses_with_exit_2_and_saves_with_force(setup, tmp_path, capsys):
     assert "(saved: --force)" in out.err and (tmp_path / "z2" / "estimator.json").exists()
     assert main([*args, str(tmp_path / "swing.parquet"), "--out", str(tmp_path / "z3")]) == 0
     assert "predicted weighing error" in capsys.readouterr().out
+
+
+def test_sigma_carries_the_zeros_offsets_and_keeps_them_through_save(setup, tmp_path):
+    """After a zero every estimate's σ² holds the zero's offsets posterior as it weighs
+    (``zero_quality.offset_part``) beside 1/I and the cross-checked s; before a zero it does
+    not; a saved and loaded model weighs with the same σ to the bit."""
+    from excavator_payload.estimators import load_estimator
+
+    est = copy.deepcopy(setup["calibrated"])
+    test = dm.simulate_trajectory(dm.motion_trajectory(1, 7, (2500.0,)), 7, dm.SESSION_WORK)
+    before = est.estimate(test)
+    assert est.kernel.model_std == est.calibration.model_std == 0.0  # model_std none: noise only
+    est.zero(setup["swing"])
+    part = est.zero_quality.offset_part
+    assert part > 0 and est.kernel.model_std == pytest.approx(part, rel=1e-12)
+    after = est.estimate(test)
+    ok = (after["status"] == "ok").to_numpy()
+    assert ok.sum() > 100
+    # σ² - s_zero² is the noise-only part: at the same information it is below the σ² of a
+    # model without the zero's term, and never negative
+    sigma = after["sigma"].to_numpy(float)[ok]
+    assert np.all(sigma >= part) and np.all(sigma**2 - part**2 > 0)
+    assert np.nanmin(before["sigma"].to_numpy(float)) < part  # the sensor noise alone went below it
+    est.save(tmp_path / "zeroed")
+    again = load_estimator(tmp_path / "zeroed")
+    assert again.calibration.zero_std == est.calibration.zero_std
+    np.testing.assert_array_equal(again.estimate(test)["sigma"].to_numpy(float), after["sigma"].to_numpy(float))

@@ -101,8 +101,11 @@ class CalibratedKernel(PressureRegression):
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._steady_limit = STEADY_SHARE * float(cal.arm.machine.rated_payload)
-        self.model_std = float(cal.model_std)  # kg, in σ beside I^-1/2
-        self._joints = JointCheck(float(cal.arm.machine.rated_payload), self.model_std)  # --joint-check
+        # kg, in σ beside I^-1/2: the calibration's cross-checked model error and the zero's offsets
+        self.model_std = math.hypot(float(cal.model_std), float(getattr(cal, "zero_std", 0.0)))
+        # --joint-check: its thresholds were set on the calibration's s alone (a zero's offset error
+        # is shared by the joints' weighings it compares)
+        self._joints = JointCheck(float(cal.arm.machine.rated_payload), float(cal.model_std))
         k = np.arange(-self.half_window, self.half_window + 1) * dt
         self._slope = k / float(k @ k)
         self._lever_var = (self._head**2 + self._rod**2) * self.pressure_var

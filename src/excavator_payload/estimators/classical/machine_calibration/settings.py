@@ -205,7 +205,8 @@ BALANCE_RAMP = 10
 GLITCH_SIGMAS = 8.0
 
 #: Share of held-out calibration samples whose error the reported σ must cover twice
-#: (``cross_validated_model_std``): σ = √(1/I + s_model²) with 2σ ⊇ 95 % of them.
+#: (``cross_validated_model_std``): σ = √(1/I + s_model²) with 2σ ⊇ 95 % of them (after a zero,
+#: σ = √(1/I + s_model² + s_zero²), s_zero the zero's offsets posterior as it weighs).
 SIGMA_COVERAGE = 0.95
 #: Fewest calibration experiments for the cross-check (two folds of at least two motions).
 MIN_CROSS_EXPERIMENTS = 4

@@ -97,6 +97,8 @@ class MachineCalibration:
         # motions covered (angle_coverage; ±NO_LIMIT: not known)
         self.angle_coverage = np.tile([-NO_LIMIT, NO_LIMIT], (3, 1))
         self.model_std = 0.0  # kg: model error carried in sigma (cross_validated_model_std)
+        # kg: the last zero's offsets posterior as it weighs (zero_quality's offset part), in sigma too
+        self.zero_std = 0.0
 
     @staticmethod
     def prior_std(relative: float) -> np.ndarray:

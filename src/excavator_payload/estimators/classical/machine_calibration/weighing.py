@@ -289,6 +289,9 @@ class MachineWeighing:
         used, moving = zero_offsets(self.calibration, dataset, options["low_speed"])
         #: the zero's predicted weighing error and its reasons not to weigh with it
         self.zero_quality = zero_quality(self.calibration, dataset, moving)
+        # the zero motion's noise stays in its offsets for the whole session: a shared error the
+        # cross-checked s (measured with the calibration's own offsets) does not hold
+        self.calibration.zero_std = float(self.zero_quality.offset_part)
         n = len(dataset.frame)
         warnings = []
         if used < n:
@@ -334,11 +337,12 @@ class MachineWeighing:
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The arrays to save: the identified ``z`` and its covariance, the noise, the window
-        inflation, the covered angle range, the model error and the outlier test's scale."""
+        inflation, the covered angle range, the model error, the zero's and the outlier test's scale."""
         cal = self.calibration
         return {"z": cal.z, "z_covariance": cal.covariance, "pressure_std": np.array([cal.pressure_std]),
                 "rate_var": np.array([cal.rate_var]), "window_inflation": cal.window_inflation,
                 "angle_coverage": cal.angle_coverage, "model_std": np.array([cal.model_std]),
+                "zero_std": np.array([cal.zero_std]),
                 "difference_scale": np.asarray(self.difference_scale, float)}
 
     @classmethod
@@ -395,6 +399,11 @@ class MachineWeighing:
             if model_std.shape != (1,) or not np.isfinite(model_std[0]) or model_std[0] < 0:
                 raise EstimatorError("saved machine calibration is corrupt or of another version")
             cal.model_std = float(model_std[0])
+        if "zero_std" in saved:  # absent in models saved before it (or never zeroed): 0
+            zero_std = np.asarray(saved["zero_std"], float).ravel()
+            if zero_std.shape != (1,) or not np.isfinite(zero_std[0]) or zero_std[0] < 0:
+                raise EstimatorError("saved machine calibration is corrupt or of another version")
+            cal.zero_std = float(zero_std[0])
         if "angle_coverage" in saved:  # absent in models saved before it: no limit
             coverage = np.asarray(saved["angle_coverage"], float)
             if (coverage.shape != (3, 2) or not np.all(np.isfinite(coverage))
