@@ -117,7 +117,10 @@ def main() -> None:
                     help="also the Cramér–Rao bound of each calibration on each family, and the efficiency")
     ap.add_argument("--calibration", action="append", default=None,
                     help="only these calibration variants (repeatable; default all)")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="an option of the calibrated estimator (repeatable), e.g. imu_nuisance=on")
     a = ap.parse_args()
+    options = dict(o.split("=", 1) for o in a.option)
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     tests = families(a.n_test, a.seed)
@@ -127,7 +130,7 @@ def main() -> None:
     for cal_name, simulate_calibration in calibrations(a.seed + 100).items():
         if a.calibration and cal_name not in a.calibration:
             continue
-        base = CalibratedEstimator("cat345c-hydraulic-3pct").fit(simulate_calibration())
+        base = CalibratedEstimator("cat345c-hydraulic-3pct", **options).fit(simulate_calibration())
         for zero_name, zero in zero_sets.items():
             est = _copy(base)  # each zero from the same calibration
             est.zero(zero)

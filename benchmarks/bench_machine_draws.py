@@ -68,7 +68,10 @@ def main() -> None:
                     help="zero motion per draw, cycled over the draws")
     ap.add_argument("--balance", choices=cm.BALANCE_CHOICES, action="append",
                     help="the form(s) to calibrate (default: both)")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="an option of the calibrated estimator (repeatable), e.g. imu_nuisance=on")
     a = ap.parse_args()
+    options = dict(o.split("=", 1) for o in a.option)
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     tests = {k: v for k, v in dm.test_sets(a.n_test, a.seed + 2).items() if k in a.sets}
@@ -101,7 +104,7 @@ def main() -> None:
             if balance == "differentiated":
                 est = reference
             else:
-                est = CalibratedEstimator("cat345c-hydraulic-3pct", balance=balance).fit(cal)
+                est = CalibratedEstimator("cat345c-hydraulic-3pct", balance=balance, **options).fit(cal)
                 est.zero(zero)
             for name, ds in tests.items():
                 row = judge(est, ds, balance, bounds[name])

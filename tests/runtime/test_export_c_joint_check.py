@@ -24,7 +24,8 @@ def model():
     est = create_estimator("calibrated", machine="cat345c-hydraulic-3pct", balance="momentum")
     est.fit(simulate_machine_dataset(3, seed=3))
     est.options["joint_check"] = "on"
-    assert est.health
+    est.use_calibration()  # the kernel again: --imu-nuisance auto is off beside the joint check
+    assert est.health and est.kernel.regression._imu_nuisance is None
     return est
 
 

@@ -24,7 +24,8 @@ LAG = len(cm.CALIBRATED_PARAMETERS) + len(cm.OFFSET_SIGNALS) + cm.IMU_PARAMETERS
 def fitted(machine_calibration):
     """The momentum form calibrated on conftest's three swings (no cross-check, for time),
     zeroed, with --imu-nuisance off and on, and two test swings."""
-    off = create_estimator("calibrated", PRIOR, balance="momentum", model_std="none").fit(machine_calibration["cal"])
+    off = create_estimator("calibrated", PRIOR, balance="momentum", model_std="none",
+                           imu_nuisance="off").fit(machine_calibration["cal"])
     off.zero(machine_calibration["zero"])
     on = copy.deepcopy(off)
     on.options["imu_nuisance"] = "on"
@@ -158,3 +159,24 @@ def test_the_cli_refuses_a_bad_choice_in_one_line_and_exports_c(fitted, tmp_path
     model = fitted["on"].save(tmp_path / "on")
     assert main(["export", "--model", str(model), "--format", "c", "--out", str(tmp_path / "c")]) == 0
     assert "EP_NZ" in (tmp_path / "c" / "ep_calibrated.h").read_text()  # parity: tests/runtime
+
+
+def test_auto_is_on_in_the_momentum_form_unless_the_joint_check_is():
+    """``--imu-nuisance auto`` (the default) re-estimates the IMU dynamics in the momentum form,
+    not with ``--joint-check on`` (no C for the two together) nor in the per-sample form;
+    ``on``/``off`` say so explicitly."""
+    from excavator_payload.estimators.classical.machine_calibration.weighing import imu_nuisance_on
+
+    assert create_estimator("calibrated", PRIOR).options["imu_nuisance"] == "auto"
+    assert imu_nuisance_on({"imu_nuisance": "auto", "joint_check": "off"}, "momentum")
+    assert not imu_nuisance_on({"imu_nuisance": "auto", "joint_check": "on"}, "momentum")
+    assert imu_nuisance_on({"imu_nuisance": "on", "joint_check": "on"}, "momentum")
+    assert not imu_nuisance_on({"imu_nuisance": "off"}, "momentum")
+    assert not imu_nuisance_on({"imu_nuisance": "auto"}, "differentiated")
+
+
+def test_the_default_estimator_weighs_with_the_nuisances(fitted, machine_calibration):
+    """A model fitted with the defaults carries the IMU-dynamics filter; told off, it does not."""
+    default = create_estimator("calibrated", PRIOR, model_std="none").fit(machine_calibration["cal"])
+    assert default.kernel.regression._imu_nuisance is not None
+    assert fitted["off"].kernel.regression._imu_nuisance is None

@@ -342,9 +342,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                               "health monitor (in the C export too). Off by default: it still names sound "
                               "cylinders on some held-out work (docs/sensor-health.md)",
                               ("on", "off")),
-        "imu_nuisance": Option(str, "off", "machine sensor set, momentum form: re-estimate the IMU "
+        "imu_nuisance": Option(str, "auto", "machine sensor set, momentum form: re-estimate the IMU "
                                "lag and the house IMU's acceleration sensitivity per load while weighing, the "
-                               "calibration's posterior as their prior (docs/findings/nuisance-oracle.md)",
+                               "calibration's posterior as their prior (docs/findings/nuisance-oracle.md); "
+                               "auto: on in the momentum form unless --joint-check on",
                                IMU_NUISANCE_CHOICES),
         "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
                             "estimate's sigma: cross (two-fold cross-fit of the calibration "

@@ -72,7 +72,8 @@ def pressure_regression_model(est) -> CModel:
     if nuisance and exports_joint_check(est, kernel):
         # the C joint check reports σ from the kernel's held sums, the filter from its own
         raise EstimatorError(f"{est.name}: --imu-nuisance on together with --joint-check on has no C "
-                             "export yet (each alone has); retrain with one of them off to export")
+                             "export yet (each alone has); retrain with --imu-nuisance off (or auto, which is off beside "
+                             "the joint check) or --joint-check off to export")
     sensors = est.sensor_set
     n = len(sensors.signals)
     h = int(kernel.half_window)

@@ -137,6 +137,23 @@ def machine_arm(name: str, machine) -> HydraulicArmModel:
     return HydraulicArmModel(machine, compiled=False)
 
 
+def imu_nuisance_on(options: dict, balance: str) -> bool:
+    """Whether the kernel re-estimates the IMU dynamics while weighing (``--imu-nuisance``):
+    ``on``; ``auto`` in the momentum form unless ``--joint-check on``; never in another form.
+
+    Parameters
+    ----------
+    options : dict
+        The estimator's options (``imu_nuisance``, ``joint_check``).
+    balance : str
+        The kernel's form (``momentum`` or ``differentiated``).
+    """
+    choice = options.get("imu_nuisance", "auto")
+    if balance != "momentum" or choice == "off":
+        return False
+    return choice == "on" or options.get("joint_check", "off") != "on"
+
+
 class MachineWeighing:
     """What a ``calibrated`` estimator holds on the machine sensor set, with its save and restore.
 
@@ -172,7 +189,7 @@ class MachineWeighing:
                                          options["outside_calibration"], options["wait_for_boom"],
                                          options["new_load"])
         kernel.spike_threshold = spike_threshold(self.difference_scale)
-        if options.get("imu_nuisance") == "on" and kernel.balance == "momentum":
+        if imu_nuisance_on(options, kernel.balance):
             kernel.use_imu_nuisance(self.calibration)
         return kernel
 
