@@ -111,6 +111,31 @@ def test_rate_scale_error_is_named_gain_or_offset(reference, work):
     assert named[a:].any()
 
 
+@pytest.mark.parametrize("rate", ["boom_rate", "bucket_rate"])
+def test_a_lasting_rate_bias_is_named_offset_once_the_track_slopes(reference, work, rate):
+    """A rate reading 1 °/s high from a move on, to the end: the track of angle − integrated
+    rate (τ = 4 s) absorbs it and the offset check never names it; its slope passes 0.5 °/s and
+    the rate is named offset (7 s after the onset here), nothing before the onset nor on the
+    clean run."""
+    frame = _one(work)
+    a = _moving(frame, rate, 0.1)
+    v = frame[rate].to_numpy(float).copy()
+    v[a:] += np.radians(1.0)
+    frame[rate] = v
+    faults = _faults(reference, frame)
+    named = np.array([f"{rate}:offset" in f for f in faults])
+    assert not named[:a].any()
+    assert named[a:].any()
+    assert not any(_faults(reference, _one(work)))
+    limit = health.OFFSET_SLOPE_LIMIT
+    try:  # the bound lifted: the same bias goes unnamed
+        health.OFFSET_SLOPE_LIMIT = np.inf
+        lifted = np.array([f"{rate}:offset" in f for f in _faults(reference, frame)])
+    finally:
+        health.OFFSET_SLOPE_LIMIT = limit
+    assert not lifted.any()
+
+
 def test_noise_reference_is_saved_and_a_noisy_signal_never_ok(fitting, work, tmp_path):
     est = create_estimator("inverse-dynamics", machine="cat345c-hydraulic").fit(fitting)
     est.save(tmp_path / "m")

@@ -28,7 +28,8 @@ its joint's motion, the fitting data's noise):
 * ``offset`` (FMI 13, out of calibration): a link's angle minus its integrated rate, smoothed
   over :data:`OFFSET_SMOOTH`, leaves its own slow track (a level and a slope following it with
   time constant :data:`OFFSET_TAU`: the gyro's bias ramps it) by more than :data:`OFFSET_LIMIT`
-  for :data:`OFFSET_SAMPLES` samples. A lasting offset or a drift faster than about
+  for :data:`OFFSET_SAMPLES` samples, or the track's slope passes :data:`OFFSET_SLOPE_LIMIT` (a
+  rate's lasting bias, which the track would absorb). A lasting offset or a drift faster than about
   OFFSET_LIMIT / OFFSET_TAU; while flagged the track follows only with :data:`OFFSET_TAU_FLAGGED`,
   so a lasting offset is named for tens of seconds, not for ever. Both signals named. The
   size of the house's tilt (hypot of pitch and roll: on a slope they turn into each other as
@@ -101,6 +102,10 @@ OFFSET_TAU = 4.0
 OFFSET_TAU_FLAGGED = 30.0
 OFFSET_LIMIT = 0.035
 OFFSET_SAMPLES = 10
+#: A track whose slope (rad/s) passes this is a rate's lasting bias (or an angle's drift) the
+#: track would otherwise absorb: 0.5 °/s, five times the largest on clean data (0.105 °/s, the
+#: field preset's gyro bias is 0.1 °/s; docs/sensor-health.md). Counted with the offset's run.
+OFFSET_SLOPE_LIMIT = math.radians(0.5)
 #: Gain: window, s; the angle's least spread over it, rad; the largest slope of (angle −
 #: integrated rate) against the angle (a 10 % scale error is 0.1); samples in a row.
 GAIN_WINDOW = 2.0
@@ -393,7 +398,8 @@ class HealthMonitor:
             alpha, beta = self.track_gains[1 if self.active and self._is_active(a, _TRACK_FLAGGED) else 0]
             track[0] = predicted + alpha * error
             track[1] += beta * error
-            self.off_run[j] = self.off_run[j] + 1 if abs(error) > OFFSET_LIMIT else 0
+            self.off_run[j] = self.off_run[j] + 1 if (abs(error) > OFFSET_LIMIT
+                                                      or abs(track[1]) > OFFSET_SLOPE_LIMIT) else 0
             if self.off_run[j] >= self.offset_evaluations:
                 found += [(a, "offset"), (r, "offset")]
             gain = self._gain(j, c)

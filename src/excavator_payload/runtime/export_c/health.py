@@ -199,6 +199,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
 #define EP_HM_DISAGREE_LIMIT {c_number(H.DISAGREE_LIMIT)}
 #define EP_HM_DISAGREE_PER_RATE_CHANGE {c_number(H.DISAGREE_PER_RATE_CHANGE)}
 #define EP_HM_OFFSET_LIMIT {c_number(H.OFFSET_LIMIT)}
+#define EP_HM_OFFSET_SLOPE_LIMIT {c_number(H.OFFSET_SLOPE_LIMIT)}
 #define EP_HM_GAIN_LIMIT {c_number(H.GAIN_LIMIT)}
 #define EP_HM_GAIN_MIN_VAR {c_number(H.GAIN_MIN_STD ** 2)}
 #define EP_HM_NOISE_COUNT_LIMIT {c_number(m.noise_count_limit)}
@@ -415,7 +416,8 @@ static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KI
         slow = ep_hm_active(s, a, EP_HM_FLAGGED_KINDS);
         s->hm_track[j][0] = predicted + EP_HM_ALPHA[slow] * error;
         s->hm_track[j][1] += EP_HM_BETA[slow] * error;
-        s->hm_off_run[j] = EP_MATH(fabs)(error) > EP_HM_OFFSET_LIMIT
+        s->hm_off_run[j] = (EP_MATH(fabs)(error) > EP_HM_OFFSET_LIMIT
+                            || EP_MATH(fabs)(s->hm_track[j][1]) > EP_HM_OFFSET_SLOPE_LIMIT)
                            ? (s->hm_off_run[j] < EP_HM_CAP ? s->hm_off_run[j] + 1 : EP_HM_CAP) : 0;
         if (s->hm_off_run[j] >= EP_HM_OFFSET_EVALUATIONS) {
             found[EP_FAULT_OFFSET] |= EP_HM_BIT(a) | EP_HM_BIT(r);
