@@ -176,6 +176,18 @@ def test_c_monitor_equals_python_on_faults_of_every_kind(name, models, faulty, t
     assert (py["status"] == "sensor_fault").sum() > 100
 
 
+def test_c_names_a_lasting_rate_bias_by_the_tracks_slope_as_python_does(models, clean, tmp_path):
+    """A bucket rate 1 °/s high from 5 s to the end: only the track's slope bound names it
+    (offset); C names the same samples as Python."""
+    frame = clean.frame.copy()
+    rows = frame.index[frame["experiment"] == clean.experiment_ids[0]]
+    frame.loc[rows[500:], "bucket_rate"] += 1.0 * DEG
+    est = models["calibrated-momentum"]
+    source = export_c(est, tmp_path / "export")[1]
+    py = _assert_equal(est, source, Dataset(frame, clean.meta), tmp_path / "build")
+    assert py["fault"].str.contains("bucket_rate:offset").any()
+
+
 def test_float_build_names_the_same_faults(models, faulty, tmp_path):
     """Single precision (the C rounds the inputs to float, Python does not): on these data the
     same statuses and faults, the estimates within 0.1 kg."""
