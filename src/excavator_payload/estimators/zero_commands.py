@@ -66,7 +66,8 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
         # every signal feeds the offsets (the rates and angles say which cylinder moved)
         health.refuse_flagged(estimator, dataset, dataset.sensor_set.signals, "zero")
     if getattr(estimator, "calibration", None) is not None:
-        estimator.zero_warnings = calibrated_machine.zero(estimator, dataset) + notes
+        # flagged signals were judged above (refused, or --force with a note)
+        estimator.zero_warnings = calibrated_machine.zero(estimator, dataset, force=True) + notes
     else:  # a learned model (balance-net) re-estimates its own offsets
         estimator.zero_warnings = estimator.zero(dataset) + notes
     if estimator.zero_refusals and not force:

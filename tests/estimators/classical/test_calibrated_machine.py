@@ -560,12 +560,20 @@ def test_a_bad_rate_at_an_experiments_edge_is_a_bad_sample(setup, row):
 
 def test_zero_with_a_stuck_sensor_warns_of_its_offsets(setup):
     """A boom head pressure stuck at its first value in the zero swing moved the zeroed angle
-    offsets by degrees (house pitch -8°) without a word; zero names the offsets beyond any
-    working session's. The clean zero check says nothing."""
+    offsets by degrees (house pitch -8°) without a word; now the health monitor names it and
+    zero refuses (one line, nothing changed); forced, it names the offsets beyond any working
+    session's. The clean zero check says nothing."""
     assert copy.deepcopy(setup["calibrated"]).zero(setup["zero"]) == []
     frame = setup["zero"].frame.copy()
     frame["boom_head_pressure"] = frame["boom_head_pressure"].iloc[0]
-    warnings = copy.deepcopy(setup["calibrated"]).zero(Dataset(frame, setup["zero"].meta))
+    stuck = Dataset(frame, setup["zero"].meta)
+    est = copy.deepcopy(setup["calibrated"])
+    before = est.calibration.offsets.copy()
+    # the monitor names the stuck pressure: refused, the model unchanged
+    with pytest.raises(EstimatorError, match=r"^zero: the sensor health monitor flags boom_head_pressure \(stuck"):
+        est.zero(stuck)
+    np.testing.assert_array_equal(est.calibration.offsets, before)
+    warnings = est.zero(stuck, force=True)  # forced: the offsets it leaves are named
     far = [w for w in warnings if "far beyond a working session's" in w]
     assert len(far) == 1 and "°" in far[0]
 

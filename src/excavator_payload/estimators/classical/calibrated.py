@@ -419,7 +419,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             weighing.calibration = calibration
         self.kernel = WeighingKernel(weighing, self.options)
 
-    def zero(self, dataset: Dataset) -> list[str]:
+    def zero(self, dataset: Dataset, force: bool = False) -> list[str]:
         """The zero check: re-estimate the machine-set sensor offsets from an empty-bucket motion,
         in place, and weigh with them (:meth:`MachineWeighing.zero`).
 
@@ -427,6 +427,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         ----------
         dataset : Dataset
             A short empty-bucket motion of the machine sensor set.
+        force : bool
+            Zero even when the sensor health monitor flags a signal of ``dataset``
+            (:class:`EstimatorError` otherwise, the model unchanged: an offset built on a faulty
+            signal carries the fault into every later weighing).
 
         Returns
         -------
@@ -438,6 +442,11 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         weighing = self.weighing
         if weighing is None or not HYDRAULIC.carries(dataset):
             return zero(self, dataset)  # its one clear line
+        if not force and self.health:
+            from excavator_payload.estimators import health
+
+            # every signal feeds the offsets (the rates and angles say which cylinder moved)
+            health.refuse_flagged(self, dataset, dataset.sensor_set.signals, "zero")
         warnings = weighing.zero(dataset, self.options)
         self.kernel = WeighingKernel(weighing, self.options)
         self.reset()

@@ -432,7 +432,7 @@ class MachineWeighing:
         return cls(cal, restore_difference_scale(saved), noise_name, experiments)
 
 
-def zero(estimator, dataset: Dataset) -> list[str]:
+def zero(estimator, dataset: Dataset, force: bool = False) -> list[str]:
     """Re-estimate a fitted machine-set ``calibrated`` estimator's sensor offsets, in place.
     Returns warnings (samples it could not use), as fit's ``fit_warnings``.
 
@@ -443,6 +443,8 @@ def zero(estimator, dataset: Dataset) -> list[str]:
         clear line).
     dataset : Dataset
         A short empty-bucket motion of the machine sensor set.
+    force : bool
+        Zero even on a signal the sensor health monitor flags (refused otherwise).
     """
     if getattr(estimator, "calibration", None) is None:
         raise EstimatorError(f"zero needs a 'calibrated' model fitted on machine-sensor-set data, "
@@ -450,4 +452,4 @@ def zero(estimator, dataset: Dataset) -> list[str]:
     if not HYDRAULIC.carries(dataset):
         raise EstimatorError(f"zero needs machine-sensor-set data, these are of the "
                              f"{dataset.sensor_set.name} sensor set")
-    return estimator.zero(dataset)
+    return estimator.zero(dataset, force=force)
