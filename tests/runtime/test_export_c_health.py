@@ -252,3 +252,35 @@ def test_float_monitor_does_no_double_maths(models, tmp_path):
     result = subprocess.run([c_compiler(), *STRICT_FLAGS, "-Wdouble-promotion", "-O0", "-c", str(source),
                              "-o", str(tmp_path / "model.o")], capture_output=True, text=True)
     assert result.returncode == 0, result.stderr
+
+
+@pytest.fixture(scope="module")
+def rate_faults(clean):
+    """The clean work with a link rate stuck, dropped out and noisy (the monitor names only the
+    rate: degraded weighing on the angle's slope), and the slew rate stuck (no substitute)."""
+    frame = clean.frame.copy()
+    rng = np.random.default_rng(7)
+    r0, r1 = (frame.index[frame["experiment"] == e] for e in clean.experiment_ids)
+    for rows, signal, kind, a, b, size in [
+        (r0, "boom_rate", "stuck", 500, 700, None),
+        (r0, "dipper_rate", "dropout", 1200, 1400, None),
+        (r1, "bucket_rate", "noise", 600, 900, 1.5 * DEG),
+        (r1, "slew_rate", "stuck", 1500, 1700, None),
+    ]:
+        _inject(frame, rows, signal, kind, a, b, size, rng)
+    return Dataset(frame, clean.meta)
+
+
+@pytest.mark.parametrize("name", ["inverse-dynamics", "calibrated-momentum"])
+@pytest.mark.parametrize("single", [False, True])
+def test_c_weighs_degraded_as_python_does(name, single, models, rate_faults, tmp_path):
+    """Degraded weighing in C: the same statuses (degraded, code 13), the rate still named in
+    ep_faults, the estimates and the widened sigma equal to Python's."""
+    est = models[name]
+    source = export_c(est, tmp_path / "export", precision="float32" if single else "float64")[1]
+    py = _assert_equal(est, source, rate_faults, tmp_path / "build", single=single)
+    degraded = py["status"] == Status.DEGRADED.value
+    if set(est.DEGRADED_RATES):
+        assert degraded.sum() > 50
+        assert (py["fault"][degraded] != "").all()
+    assert "#define EP_STATUS_DEGRADED 13" in source.with_suffix(".h").read_text()

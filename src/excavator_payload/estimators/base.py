@@ -164,6 +164,12 @@ class Estimator(ABC):
     #: Its facts, declared once in :mod:`~excavator_payload.estimators.traits` (set from
     #: ``name`` when the class is defined; None for a class not in that table).
     TRAITS: ClassVar[EstimatorTraits | None] = None
+    #: The link rates it weighs on without while the health monitor names them (stuck, dropout,
+    #: noise): replaced by the angle's slope, status ``degraded`` (:meth:`.health.HealthMonitor
+    #: .substitute`; :meth:`degraded_rates` per instance). None by default: an estimator opts in
+    #: where its error on the substitute was measured within its widened sigma
+    #: (docs/sensor-health.md); the others stop (``sensor_fault``) as before.
+    DEGRADED_RATES: ClassVar[tuple[str, ...]] = ()
     #: Whether it borrows its statistical gate (it has no noise model of its own), see
     #: :meth:`_borrows_gate`.
     BORROWS_GATE: ClassVar[bool] = False
@@ -443,6 +449,17 @@ class Estimator(ABC):
             return self._kept(Status.INVALID)
         return self.step_values(time, values)
 
+    def degraded_rates(self) -> tuple[str, ...]:
+        """The link rates this estimator weighs on without (:attr:`DEGRADED_RATES`; an estimator
+        whose options change what it can weigh without overrides it).
+
+        Returns
+        -------
+        tuple of str
+            Signal names (empty: no degraded weighing).
+        """
+        return self.DEGRADED_RATES
+
     def _kept(self, status: Status) -> StepResult:
         """The last estimate again, with ``status`` (the sample was not used)."""
         return StepResult(self._last_estimate, status, self._last_sigma)
@@ -485,8 +502,20 @@ class Estimator(ABC):
                 self._health_for = self.sensor_set
             fault = self._health.step(time, values) if self._health is not None else ""
             if fault:
-                # not used: the next healthy sample sees a hole in time and bridges it as a gap
-                return StepResult(self._last_estimate, Status.SENSOR_FAULT, self._last_sigma, fault)
+                substituted = self._health.substitute(values, self.degraded_rates())
+                if substituted is None:
+                    # not used: the next healthy sample sees a hole in time and bridges it as a gap
+                    return StepResult(self._last_estimate, Status.SENSOR_FAULT, self._last_sigma, fault)
+                # degraded weighing: the named rates replaced by their angles' slopes
+                result = self._use(time, substituted, degraded=True)
+                status = Status.DEGRADED if result.status is Status.OK else result.status
+                return StepResult(result.estimate, status, result.sigma,
+                                  ",".join(filter(None, (fault, result.fault))))
+        return self._use(time, values)
+
+    def _use(self, time: float, values: np.ndarray, degraded: bool = False) -> StepResult:
+        """The rest of :meth:`step_values` for a sample the monitor let through (``degraded``:
+        with substitutes; sigma widened by :data:`.health.DEGRADED_SIGMA_FACTOR`)."""
         gap = False
         if self._last_time is not None:
             dt = time - self._last_time
@@ -537,6 +566,10 @@ class Estimator(ABC):
         if self._sentinel is not None:
             self._sentinel._step(time, values)
         sigma = self._estimate_sigma()
+        if degraded:
+            from excavator_payload.estimators.health import DEGRADED_SIGMA_FACTOR
+
+            sigma *= DEGRADED_SIGMA_FACTOR
         if not self._state_finite() or (result.status is Status.OK and not math.isfinite(result.estimate)):
             self._reset()
             self._last_time = None

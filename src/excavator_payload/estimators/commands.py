@@ -81,6 +81,8 @@ STATUS_MEANING = {
     "sensor_fault": "a sensor is stuck, dropped out or disagrees with its redundancy (named in the fault "
                     "column); sample not used, estimate kept, never ok (a cylinder's pressures off its "
                     "joint's balance, 'balance': weighed without that joint, or none)",
+    "degraded": "weighed without a faulty sensor (named in the fault column): a link's rate replaced by "
+                "its differentiated angle, sigma widened; not ok",
 }
 
 

@@ -29,6 +29,9 @@ class Status(str, Enum):
     #: a sensor is faulty (stuck, dropped out, disagreeing with its redundancy; named in
     #: ``StepResult.fault``): sample not used, estimate kept (see :mod:`.health`)
     SENSOR_FAULT = "sensor_fault"
+    #: weighed without a faulty signal (named in ``StepResult.fault``): a link's rate replaced by
+    #: its differentiated angle, sigma widened (see :meth:`.health.HealthMonitor.substitute`)
+    DEGRADED = "degraded"
 
 
 @dataclass(frozen=True)
@@ -44,7 +47,8 @@ class StepResult:
     sigma : float
         One-sigma uncertainty, kg (NaN: unknown).
     fault : str
-        Faulty signals and kinds, ``"signal:kind,..."`` (only with ``sensor_fault``).
+        Faulty signals and kinds, ``"signal:kind,..."`` (with ``sensor_fault``, and with
+        every status while the estimator weighs degraded).
 
     Attributes
     ----------
@@ -62,5 +66,6 @@ class StepResult:
     estimate: float
     status: Status
     sigma: float = math.nan
-    #: the faulty signals and kinds while ``status`` is ``sensor_fault``, ``"signal:kind,..."``
+    #: the faulty signals and kinds, ``"signal:kind,..."``, while ``status`` is ``sensor_fault``
+    #: or the estimator weighs without them (``degraded``, or any status of a degraded sample)
     fault: str = ""

@@ -66,7 +66,7 @@ class SensorOutput:
     stale : tuple of str, optional
         The signals too old for this sample (status ``"stale"``).
     fault : str, optional
-        ``"signal:kind,..."`` while the status is ``sensor_fault``.
+        ``"signal:kind,..."`` while a signal is named (``sensor_fault``, ``degraded``).
     values : ndarray or None, optional
         The sample's signals (sensor-set order) the estimate was made from; None for a
         ``stale`` output of a silent bus.
@@ -77,7 +77,7 @@ class SensorOutput:
     status: str          # a Status value or "stale"
     sigma: float         # kg, one-sigma uncertainty, NaN when unknown
     stale: tuple[str, ...] = ()  # the signals too old for this sample (status "stale")
-    fault: str = ""  # "signal:kind,..." while the status is sensor_fault (estimators.health)
+    fault: str = ""  # "signal:kind,..." while a signal is named (sensor_fault, degraded; estimators.health)
     #: the sample's signals (sensor-set order) the estimate was made from; None for a 'stale'
     #: output of a silent bus (loadout reads the bucket's moves from them)
     values: np.ndarray | None = field(default=None, repr=False, compare=False)

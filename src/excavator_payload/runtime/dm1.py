@@ -1,6 +1,7 @@
 """J1939 DM1 (active diagnostic trouble codes, PGN 65226 / 0xFECA) from the sensor health monitor.
 
-While the estimator reports ``sensor_fault`` (:mod:`excavator_payload.estimators.health`), the
+While the estimator names a faulty signal (``sensor_fault``, or ``degraded`` while it weighs
+without it; :mod:`excavator_payload.estimators.health`), the
 payload ECU (source address :data:`~excavator_payload.runtime.dbc.ESTIMATOR_ADDRESS`) sends a
 DM1 once a second, and once more at once when the set of active faults changes; after the
 last fault clears it sends one DM1 with no active DTC. Layout (J1939-73):

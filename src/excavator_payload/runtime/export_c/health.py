@@ -5,7 +5,10 @@ for every export of the ``machine`` sensor set.
 template (:func:`~excavator_payload.runtime.export_c.template.render`), which calls it where
 :meth:`Estimator.step_values` calls the monitor: after the finite and plausibility checks,
 before the gap rule; while it reports a fault the sample is not used, ``ep_step`` returns
-``EP_STATUS_SENSOR_FAULT`` with the last estimate and sigma, and ``ep_faults`` says which
+``EP_STATUS_SENSOR_FAULT`` with the last estimate and sigma (or, where only link rates the
+estimator weighs without are named, ``ep_hm_substitute`` puts their angles' slopes in their
+place and the sample is weighed, ``EP_STATUS_DEGRADED``, sigma widened: as
+:meth:`HealthMonitor.substitute`), and ``ep_faults`` says which
 signals and kinds (one bit mask over the signals per kind). The thresholds, windows and rules
 are read from :mod:`excavator_payload.estimators.health` and from a monitor built for the
 estimator's sensor set at export time (so a retuned constant is exported as it is), the noise
@@ -56,16 +59,28 @@ class CHealth:
 
     #: ep_step: before anything (the fault report is the last sample's only)
     clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n#endif\n"
+    #: ep_step: its locals for degraded weighing (HealthMonitor.substitute)
+    locals = "#if EP_HEALTH\n    ep_real hm_used[EP_N_SIGNALS];\n    int degraded = 0;\n#endif\n"
     #: ep_step: where Estimator.step_values calls the monitor
     check = ("#if EP_HEALTH\n"
              "    /* the sensor health monitor (estimators/health.py): while it names a fault the sample\n"
-             "     * is not used (the next healthy one sees a hole in time), the estimate is kept */\n"
+             "     * is not used (the next healthy one sees a hole in time), the estimate is kept;\n"
+             "     * unless only link rates are named (stuck, dropout, noise): then the model weighs\n"
+             "     * on with their angles' slopes (HealthMonitor.substitute), degraded */\n"
              "    if (ep_hm_step(s, time, v)) {\n"
              "        s->hm_reported = 1;\n"
-             "        *estimate = s->last_estimate;\n"
-             "        return EP_STATUS_SENSOR_FAULT;\n"
+             "        if (!ep_hm_substitute(s, v, hm_used)) {\n"
+             "            *estimate = s->last_estimate;\n"
+             "            return EP_STATUS_SENSOR_FAULT;\n"
+             "        }\n"
+             "        v = hm_used;\n"
+             "        degraded = 1;\n"
              "    }\n"
              "#endif\n")
+    #: ep_step: after the model's sigma (Estimator._use: widened while degraded)
+    inflate = "#if EP_HEALTH\n    if (degraded) sigma *= EP_DEGRADED_SIGMA_FACTOR;\n#endif\n"
+    #: ep_step: the last rule (Estimator.step_values: an ok of a degraded sample is degraded)
+    final = "#if EP_HEALTH\n    if (degraded && status == EP_STATUS_OK) return EP_STATUS_DEGRADED;\n#endif\n"
     #: ep_reset
     reset = "\n#if EP_HEALTH\n    ep_hm_reset(s);\n#endif"
 
@@ -106,7 +121,7 @@ def health_c(est) -> CHealth | None:
     L = len(m.link_angle)
     # the raw samples' ring needs the stuck, disagree and noise windows; the per-sample terms'
     # ring the offset and gain windows (Python keeps one ring of m.size for both)
-    raw = max(m.n_stuck, m.n_dis, m.every + 2)
+    raw = max(m.n_stuck, m.n_dis, m.n_sub, m.every + 2)
     sums = max(m.n_smooth, m.n_gain)
     cap = max(raw, sums, m.every + 3) + 1  # the counter saturates above every window
     group = [0] * n  # dropout groups: 1 angles, 2 pressures
@@ -128,9 +143,11 @@ def health_c(est) -> CHealth | None:
     header = f"""
 
 /* Sensor health (estimators/health.py, HealthMonitor): while a signal is named faulty, ep_step
- * returns EP_STATUS_SENSOR_FAULT, does not use the sample and keeps the last estimate and sigma.
+ * returns EP_STATUS_SENSOR_FAULT, does not use the sample and keeps the last estimate and sigma;
+ * or, where only link rates the model weighs without are named, weighs on with their angles'
+ * slopes (EP_STATUS_DEGRADED unless another status applies, sigma widened).
  * ep_faults(s, kind) is then a bit mask over the signals (bit i = EP_SIGNAL_NAMES[i]) of those
- * named with that kind; 0 after any other status. For J1939 DM1: one DTC per set bit,
+ * named with that kind; 0 when nothing is named. For J1939 DM1: one DTC per set bit,
  * SPN = EP_SPN_BASE + i (the generated DBC's), FMI = EP_FAULT_FMI[kind]. Kinds: */
 #ifndef EP_HEALTH
 #define EP_HEALTH {1 if est.health else 0}  /* -DEP_HEALTH=0: no monitor (Estimator.health = False) */
@@ -153,7 +170,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
 """
     fields = """#if EP_HEALTH
     /* sensor health monitor (estimators/health.py) */
-    int hm_reported;           /* the last ep_step returned sensor_fault */
+    int hm_reported;           /* the last ep_step returned sensor_fault or weighed degraded */
     int hm_age[EP_N_SIGNALS][EP_N_FAULT_KINDS];  /* samples since the fault was last seen, -1: none */
     int hm_any_active;         /* any hm_age >= 0 */
     ep_real hm_last_time;
@@ -176,6 +193,11 @@ unsigned long ep_faults(const ep_state *s, int kind);
     int hm_noise_count[EP_N_SIGNALS];
 #endif"""
     alpha, beta = zip(*m.track_gains)
+    sub_angle = [-1] * n  # per signal: a link rate's angle (its substitute's source), else -1
+    allowed = m.substitutable(est.degraded_rates())
+    for a, r in zip(m.link_angle, m.link_rate):
+        if r in allowed:
+            sub_angle[r] = a
     definitions = f"""#if EP_HEALTH
 /* estimators/health.py at export time: windows in samples, thresholds in SI units */
 #define EP_HM_CAP {cap}
@@ -203,11 +225,15 @@ unsigned long ep_faults(const ep_state *s, int kind);
 #define EP_HM_GAIN_LIMIT {c_number(H.GAIN_LIMIT)}
 #define EP_HM_GAIN_MIN_VAR {c_number(H.GAIN_MIN_STD ** 2)}
 #define EP_HM_NOISE_COUNT_LIMIT {c_number(m.noise_count_limit)}
+#define EP_HM_N_SUB {m.n_sub}  /* samples of a rate's substitute (the angle's least-squares slope) */
+#define EP_HM_SUB_KINDS {_mask(kind_of[k] for k in H.SUBSTITUTE_KINDS)}  /* kinds a rate is replaced under */
+#define EP_DEGRADED_SIGMA_FACTOR {c_number(H.DEGRADED_SIGMA_FACTOR)}
+{_ints("EP_HM_SUB_ANGLE", sub_angle)}{c_array("EP_HM_SUB_WEIGHTS", m.sub_weights)}\
 {_ints("EP_HM_LINK_ANGLE", m.link_angle)}{_ints("EP_HM_LINK_RATE", m.link_rate)}\
 {_ints("EP_HM_GROUP", group)}{_ints("EP_HM_PARTNER", partner)}{_ints("EP_HM_IS_RATE", is_rate)}\
 {_ints("EP_HM_LONE", lone)}{c_array("EP_HM_QUANTUM", m.quantum)}{c_array("EP_HM_NOISE_LIMIT", m.noise_limit)}\
 {c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}
-{_C_FUNCTIONS}
+{_C_FUNCTIONS}{_C_SUBSTITUTE}
 #endif
 """
     fmis = ", ".join(str(H.FMI[k]) for k in kinds)
@@ -555,5 +581,35 @@ static int ep_hm_step(ep_state *s, ep_real time, const ep_real v[EP_N_SIGNALS])
     }
     s->hm_any_active = any;
     return any;
+}
+"""
+
+# HealthMonitor.substitute
+_C_SUBSTITUTE = r"""
+/* HealthMonitor.substitute: 1 with `out` the sample whose named link rates are replaced by
+ * their angles' least-squares slope over the last EP_HM_N_SUB raw samples (summed oldest
+ * first), when every active fault is a link rate's of a kind in EP_HM_SUB_KINDS and the
+ * windows hold EP_HM_N_SUB samples; else 0 (the sample is not used) */
+static int ep_hm_substitute(const ep_state *s, const ep_real v[EP_N_SIGNALS], ep_real out[EP_N_SIGNALS])
+{
+    int i, k, back;
+    if (s->hm_count < EP_HM_N_SUB) return 0;
+    for (i = 0; i < EP_N_SIGNALS; ++i)
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k)
+            if (s->hm_age[i][k] >= 0 && (EP_HM_SUB_ANGLE[i] < 0 || !(EP_HM_SUB_KINDS & EP_HM_BIT(k))))
+                return 0;
+    for (i = 0; i < EP_N_SIGNALS; ++i) {
+        int named = 0;
+        out[i] = v[i];
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k) named |= s->hm_age[i][k] >= 0;
+        if (named) {
+            ep_real slope = EP_C(0.0);
+            for (back = EP_HM_N_SUB - 1; back >= 0; --back)
+                slope += EP_HM_SUB_WEIGHTS[EP_HM_N_SUB - 1 - back]
+                         * s->hm_raw[EP_HM_RAW_AT(s, back)][EP_HM_SUB_ANGLE[i]];
+            out[i] = slope;
+        }
+    }
+    return 1;
 }
 """

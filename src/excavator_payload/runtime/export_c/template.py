@@ -7,7 +7,8 @@ the source around a kernel's :class:`~excavator_payload.runtime.export_c.cmodel.
 ``invalid_input``; a signal outside the fitted estimator's plausibility limits (its
 ``plausible_low``/``plausible_high``, two constant tables) -> ``out_of_range``; on the machine
 set, the sensor health monitor (:mod:`~excavator_payload.runtime.export_c.health`, ``EP_HEALTH``)
-naming a fault -> ``sensor_fault`` (``ep_faults`` says which); a time step
+naming a fault -> ``sensor_fault`` (``ep_faults`` says which), or, for a named link rate the
+estimator weighs without, the angle's slope in its place, sigma widened and ``degraded``; a time step
 <= 0 or > 1.5 sample periods (or gate-rejected samples just before) -> the model's gap
 handling; the statistical gate (``EP_GATING``, default ``Estimator.gating``): the model's
 normalised squared innovation against the chi-square quantile of
@@ -39,10 +40,18 @@ from excavator_payload.runtime.export_c.cmodel import CModel
 from excavator_payload.runtime.export_c.health import health_c
 
 
-def _status_defines() -> str:
-    """``EP_STATUS_*``: :class:`~excavator_payload.estimators.base.Status` in its order."""
-    lines = [f"#define EP_STATUS_{s.name} {i}  /* {s.value} */" for i, s in enumerate(Status)]
-    lines.append(f"#define EP_N_STATUSES {len(Status)}")
+def _statuses(degraded: bool) -> list[Status]:
+    """:class:`~excavator_payload.estimators.base.Status` in its order; ``degraded`` only where
+    the export weighs degraded (a sensor health monitor: the machine set), so the other sets'
+    C stays as it was (the code is the last, every other keeps its number)."""
+    return [s for s in Status if degraded or s is not Status.DEGRADED]
+
+
+def _status_defines(degraded: bool) -> str:
+    """``EP_STATUS_*``: :func:`_statuses` in order."""
+    statuses = _statuses(degraded)
+    lines = [f"#define EP_STATUS_{s.name} {i}  /* {s.value} */" for i, s in enumerate(statuses)]
+    lines.append(f"#define EP_N_STATUSES {len(statuses)}")
     return "\n".join(lines)
 
 
@@ -72,6 +81,7 @@ def render(est: Estimator, model: CModel, base: str, single: bool) -> tuple[str,
     hm_header, hm_fields = (hm.header, "\n" + hm.fields) if hm else ("", "")
     hm_definitions, hm_declaration, hm_api = (hm.definitions + "\n", hm.declaration, hm.api) if hm else ("", "", "")
     hm_clear, hm_check, hm_reset = (hm.clear, hm.check, hm.reset) if hm else ("", "", "")
+    hm_locals, hm_inflate, hm_final = (hm.locals, hm.inflate, hm.final) if hm else ("", "", "")
     last_used_fields = ("    ep_real last_used_time;  /* the last used sample (rejected slots are interpolated) */\n"
                         "    ep_real last_used[EP_N_SIGNALS];\n"
                         "    int has_last_used;\n") if model.fill_rejected is not None else ""
@@ -108,7 +118,7 @@ typedef int ep_int;
 
 #define EP_N_SIGNALS {len(sensors.signals)}  /* inputs, in the dataset's column order */
 #define EP_SAMPLE_RATE {sensors.sample_rate!r}  /* Hz */
-{_status_defines()}
+{_status_defines(hm is not None)}
 {chr(10).join(model.header_defines)}{hm_header}
 
 extern const char *const EP_SIGNAL_NAMES[EP_N_SIGNALS];
@@ -135,7 +145,7 @@ ep_real ep_sigma(const ep_state *s);
 {hm_declaration}
 #endif /* {guard} */
 """
-    statuses = ", ".join(f'"{s.value}"' for s in Status)
+    statuses = ", ".join(f'"{s.value}"' for s in _statuses(hm is not None))
     judged = ""
     if est.rated_payload is not None:  # Estimator._judged: the one plausibility rule of the output
         lo, hi = (f * est.rated_payload for f in PLAUSIBLE_PAYLOAD)
@@ -310,7 +320,7 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
     const ep_real *v = signals;
     ep_real result, sigma;
     int i, status, gap = 0, reinitialised = 0;
-{hm_clear}    if (!isfinite(time)) {{
+{hm_locals}{hm_clear}    if (!isfinite(time)) {{
         *estimate = s->last_estimate;
         return EP_STATUS_INVALID;
     }}
@@ -342,7 +352,7 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
     s->has_last_time = 1;
     status = ep_model_step(s, time, v, &result);
 {after_step}    sigma = ep_model_sigma(s);
-    if (!ep_model_state_finite(s) || (status == EP_STATUS_OK && !isfinite(result))) {{
+{hm_inflate}    if (!ep_model_state_finite(s) || (status == EP_STATUS_OK && !isfinite(result))) {{
         ep_model_reset(s);  /* the state went non-finite: restart */
         s->has_last_time = 0;
         result = EP_NAN;
@@ -356,7 +366,7 @@ int ep_step(ep_state *s, ep_real time, const ep_real signals[EP_N_SIGNALS], ep_r
     *estimate = result;
     if (reinitialised) return EP_STATUS_REINITIALISED;
     if (gap && status != EP_STATUS_STATE_RESET) return EP_STATUS_GAP;
-{judged}    return status;
+{judged}{hm_final}    return status;
 }}
 """
     return header, source
