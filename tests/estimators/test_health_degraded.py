@@ -9,10 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from excavator_payload.data.dataset import Dataset
 from excavator_payload.estimators import health
 from excavator_payload.estimators.base import Status, create_estimator, load_estimator
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+from .test_health import _with  # a signal of one experiment rewritten on rows a:b
 
 DEG = np.pi / 180
 
@@ -28,14 +29,6 @@ def models():
     return {"inverse-dynamics": create_estimator("inverse-dynamics", machine="cat345c-hydraulic").fit(fitting),
             "calibrated": create_estimator("calibrated", machine="cat345c-hydraulic-3pct",
                                            balance="momentum").fit(fitting)}
-
-
-def _with(swing, signal, a, b, how):
-    frame = swing.frame.copy()
-    v = frame[signal].to_numpy(dtype=float).copy()
-    v[a:b] = how(v, a, b)
-    frame[signal] = v
-    return Dataset(frame, swing.meta)
 
 
 def _moving(swing, rate, clean=None):
