@@ -486,14 +486,13 @@ class HealthMonitor:
         if not self.active or self.count < self.n_sub:
             return None
         allowed = self.substitutable(rates)
-        rates = self.link_rate
         if any(kind not in SUBSTITUTE_KINDS or i not in allowed for i, kind in self.active):
             return None
         end = (self.count - 1) % self.size + self.size + 1  # one past the newest sample
         window = self.buffer[end - self.n_sub:end]
         out = np.array(values, dtype=float)
         for i in {i for i, _ in self.active}:
-            a = self.link_angle[rates.index(i)]
+            a = self.link_angle[self.link_rate.index(i)]
             slope = 0.0
             for w, x in zip(self.sub_weights.tolist(), window[:, a].tolist()):
                 slope += w * x  # summed oldest first, as the C export does
