@@ -26,8 +26,9 @@ Per case: time to flag (onset to the first ``sensor_fault`` naming that signal, 
 ``n.f.`` never), the kinds named, the worst |ok estimate − payload| from the onset to the
 experiment's end with the monitor on, the same on the clean run over the same samples (the
 model's own error), and with the monitor off; and the samples weighed ``degraded`` (a link rate
-replaced by its differentiated angle): how many, their worst |estimate − payload| and the share
-within 2 sigma. ``--kinds``/``--groups`` run a part of the table.
+replaced by its differentiated angle, or a cylinder's joint dropped): how many, their worst |estimate − payload| and the share
+within 2 sigma (a named cylinder pressure: weighed without its joint). ``--kinds``/``--groups``
+run a part of the table; ``--to-end`` makes every fault last to its experiment's end.
 """
 
 from __future__ import annotations
@@ -146,7 +147,7 @@ def false_alarms(est, ds: Dataset) -> tuple[int, int, dict]:
 
 
 def cases(est, family: str, ds: Dataset, rng: np.random.Generator, only_kinds=KINDS,
-          only_groups=tuple(GROUPS)) -> list[dict]:
+          only_groups=tuple(GROUPS), to_end: bool = False) -> list[dict]:
     rows = []
     for e in ds.frame["experiment"].unique():
         one = ds.frame[ds.frame["experiment"] == e].reset_index(drop=True)
@@ -162,6 +163,8 @@ def cases(est, family: str, ds: Dataset, rng: np.random.Generator, only_kinds=KI
                 signal = signals[rng.integers(len(signals))]
                 a = int(rng.integers(150, n - 200))
                 b = min(n, a + int(rng.integers(50, 301)))
+                if to_end:  # the same draws, the fault lasting to the experiment's end
+                    b = n
                 if kind not in only_kinds or group not in only_groups:
                     continue  # a part of the table: its cases' places drawn as in the full run
                 bad = one.copy()
@@ -220,6 +223,7 @@ def main() -> None:
     ap.add_argument("--kinds", default=",".join(KINDS), help="fault kinds to inject (comma-separated)")
     ap.add_argument("--groups", default=",".join(GROUPS), help="signal groups (comma-separated)")
     ap.add_argument("--families", default="", help="only these families (comma-separated first words)")
+    ap.add_argument("--to-end", action="store_true", help="every fault lasts to its experiment's end")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
@@ -250,7 +254,7 @@ def main() -> None:
         late, flagged, names = false_alarms(est, ds)
         alarms.append({"family": family, "samples": late, "flagged": flagged, "names": names})
         print(f"{family}: false alarms {flagged} of {late} samples after 1 s {names}", flush=True)
-        rows += cases(est, family, ds, rng, a.kinds.split(","), a.groups.split(","))
+        rows += cases(est, family, ds, rng, a.kinds.split(","), a.groups.split(","), a.to_end)
         pd.DataFrame(rows).to_csv(a.out / "faults.csv", index=False)
         np.save(a.out / "degraded_ratios.npy", np.concatenate(RATIOS) if RATIOS else np.zeros(0))
         print(f"{family}: {len(rows)} cases ({time.time() - t0:.0f} s)", flush=True)

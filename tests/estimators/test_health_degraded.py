@@ -2,7 +2,8 @@
 the monitor names only a link's rate (stuck, dropout, noise), the estimator weighs on with the
 rate replaced by its angle's slope, says ``degraded`` (never ``ok``) with the signal still named
 and sigma widened; streaming equals batch, a saved model does the same; where no substitute
-exists (a pressure, the slew rate, a disagreeing link) it stops as before."""
+exists (the house tilt, the slew rate, a disagreeing link) it stops as before (a cylinder
+pressure: tests/estimators/test_health_degraded_pressure.py)."""
 
 import math
 
@@ -93,8 +94,8 @@ def test_rate_fault_weighs_degraded_never_ok(models, swing, signal, kind, how):
 
 
 @pytest.mark.parametrize("signal,joint,how", [
-    ("boom_head_pressure", "boom_rate", lambda v, a, b: v[a - 1]),
-    ("slew_rate", "dipper_rate", lambda v, a, b: 0.0 * v[a:b]),
+    ("house_pitch", "boom_rate", lambda v, a, b: v[a - 1]),  # (a pressure now drops its joint:
+    ("slew_rate", "dipper_rate", lambda v, a, b: 0.0 * v[a:b]),  # test_health_degraded_pressure.py)
     ("dipper_angle", "dipper_rate", lambda v, a, b: v[a:b] + np.radians(5)),  # disagree: the rate too
 ])
 def test_no_substitute_stops_as_before(models, swing, signal, joint, how):

@@ -284,3 +284,38 @@ def test_c_weighs_degraded_as_python_does(name, single, models, rate_faults, tmp
         assert degraded.sum() > 50
         assert (py["fault"][degraded] != "").all()
     assert "#define EP_STATUS_DEGRADED 13" in source.with_suffix(".h").read_text()
+
+
+@pytest.fixture(scope="module")
+def pressure_faults(clean):
+    """The clean work with a boom head pressure stuck, a dipper rod pressure dropped out and a
+    bucket head pressure noisy: ``calibrated`` (momentum) weighs on without their joints."""
+    frame = clean.frame.copy()
+    rng = np.random.default_rng(9)
+    r0, r1 = (frame.index[frame["experiment"] == e] for e in clean.experiment_ids)
+    for rows, signal, kind, a, b, size in [
+        (r0, "boom_head_pressure", "stuck", 500, 800, None),
+        (r0, "dipper_rod_pressure", "dropout", 1200, 1400, None),
+        (r1, "bucket_head_pressure", "noise", 600, 900, 10 * BAR),
+        (r1, "boom_rod_pressure", "dropout", 1500, 1600, None),
+    ]:
+        _inject(frame, rows, signal, kind, a, b, size, rng)
+    return Dataset(frame, clean.meta)
+
+
+@pytest.mark.parametrize("single", [False, True])
+def test_c_weighs_without_a_named_pressures_joint_as_python_does(single, models, pressure_faults, tmp_path):
+    """A named cylinder pressure in C: the same degraded statuses, the pressure named in
+    ep_faults, the estimates and sigma equal to Python's (its joint dropped: ring_drop); the
+    models that do not weigh without a joint export none of it (their C as before)."""
+    est = models["calibrated-momentum"]
+    header, source = export_c(est, tmp_path / "export", precision="float32" if single else "float64")
+    assert "EP_HM_DROPPED" in header.read_text() and "ring_drop" in source.read_text()
+    py = _assert_equal(est, source, pressure_faults, tmp_path / "build", single=single)
+    degraded = (py["status"] == Status.DEGRADED.value).to_numpy()
+    assert degraded.sum() > 100
+    named = {item.partition(":")[0] for f in py["fault"][degraded] for item in f.split(",")}
+    assert named <= {"boom_head_pressure", "dipper_rod_pressure", "bucket_head_pressure", "boom_rod_pressure"}
+    assert len(named) >= 2
+    text = export_c(models["inverse-dynamics"], tmp_path / "id")[1].read_text()
+    assert "ring_drop" not in text and "EP_HM_DROP_JOINT" not in text

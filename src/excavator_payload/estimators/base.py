@@ -170,6 +170,10 @@ class Estimator(ABC):
     #: where its error on the substitute was measured within its widened sigma
     #: (docs/sensor-health.md); the others stop (``sensor_fault``) as before.
     DEGRADED_RATES: ClassVar[tuple[str, ...]] = ()
+    #: The cylinder pressures whose joint it weighs on without while the monitor names them
+    #: (stuck, dropout, noise): the joint dropped from the weighing, status ``degraded``
+    #: (:meth:`degraded_pressures` per instance, :meth:`_drop_joints`). None by default.
+    DEGRADED_PRESSURES: ClassVar[tuple[str, ...]] = ()
     #: Whether it borrows its statistical gate (it has no noise model of its own), see
     #: :meth:`_borrows_gate`.
     BORROWS_GATE: ClassVar[bool] = False
@@ -460,6 +464,27 @@ class Estimator(ABC):
         """
         return self.DEGRADED_RATES
 
+    def degraded_pressures(self) -> tuple[str, ...]:
+        """The cylinder pressures whose joint this estimator weighs on without
+        (:attr:`DEGRADED_PRESSURES`; an estimator whose options change it overrides it).
+
+        Returns
+        -------
+        tuple of str
+            Signal names (empty: a named pressure stops the weighing).
+        """
+        return self.DEGRADED_PRESSURES
+
+    def _drop_joints(self, joints: tuple[bool, ...]) -> None:
+        """Weigh the next sample without these link joints (boom, dipper, bucket; all False:
+        every joint), for an estimator with :meth:`degraded_pressures`.
+
+        Parameters
+        ----------
+        joints : tuple of bool
+            Per joint, whether it is dropped.
+        """
+
     def _kept(self, status: Status) -> StepResult:
         """The last estimate again, with ``status`` (the sample was not used)."""
         return StepResult(self._last_estimate, status, self._last_sigma)
@@ -502,12 +527,22 @@ class Estimator(ABC):
                 self._health_for = self.sensor_set
             fault = self._health.step(time, values) if self._health is not None else ""
             if fault:
-                substituted = self._health.substitute(values, self.degraded_rates())
+                pressures = self.degraded_pressures()
+                substituted = self._health.substitute(values, self.degraded_rates(), pressures)
                 if substituted is None:
                     # not used: the next healthy sample sees a hole in time and bridges it as a gap
                     return StepResult(self._last_estimate, Status.SENSOR_FAULT, self._last_sigma, fault)
-                # degraded weighing: the named rates replaced by their angles' slopes
-                result = self._use(time, substituted, degraded=True)
+                # degraded weighing: the named rates replaced by their angles' slopes, the named
+                # pressures' joints dropped from the weighing
+                dropped = self._health.named_joints(pressures) if pressures else ()
+                if any(dropped):
+                    self._drop_joints(dropped)
+                    try:
+                        result = self._use(time, substituted, degraded=True)
+                    finally:
+                        self._drop_joints((False, False, False))
+                else:
+                    result = self._use(time, substituted, degraded=True)
                 status = Status.DEGRADED if result.status is Status.OK else result.status
                 return StepResult(result.estimate, status, result.sigma,
                                   ",".join(filter(None, (fault, result.fault))))

@@ -193,6 +193,9 @@ class HealthMonitor:
         # each pressure's joint rate; the unpartnered signals watch every arm joint
         self.pressure_rate = [(idx[s], idx[s.split("_")[0] + "_rate"]) for s in self.signals
                               if s.endswith("_pressure") and s.split("_")[0] + "_rate" in idx]
+        # each link cylinder's pressure: its joint (boom 0, dipper 1, bucket 2)
+        self.pressure_joint = {idx[s]: LINKS.index(s.split("_")[0]) for s in self.signals
+                               if s.endswith("_pressure") and s.split("_")[0] in LINKS}
         self.lone = [idx[s] for s in ("slew_rate", "house_pitch", "house_roll") if s in idx]
         # the house's tilt: pitch and roll turn into each other as the house slews on a slope,
         # the size of the tilt does not
@@ -461,14 +464,16 @@ class HealthMonitor:
         var = sxx / m - (sx / m) ** 2
         return (sxy / m - sx * sy / m / m) / var if var >= GAIN_MIN_STD ** 2 else 0.0
 
-    def substitute(self, values, rates=None):
-        """The sample with each named link rate replaced by its angle's slope, when the active
-        faults (after the last :meth:`step`) allow weighing on; None when they do not.
+    def substitute(self, values, rates=None, pressures=()):
+        """The sample with each named link rate replaced by its angle's slope (and each named
+        cylinder pressure of ``pressures`` by 0: its joint is dropped from the weighing, see
+        :meth:`named_joints`), when the active faults (after the last :meth:`step`) allow
+        weighing on; None when they do not.
 
-        Weighing goes on only while every active fault is a link's rate with a kind of
-        :data:`SUBSTITUTE_KINDS` and the windows hold :attr:`n_sub` samples since the last
-        restart; the slope is the least-squares one over those samples (raw values, as the
-        monitor saw them).
+        Weighing goes on only while every active fault is a link's rate or an allowed pressure,
+        each with a kind of :data:`SUBSTITUTE_KINDS`, and the windows hold :attr:`n_sub` samples
+        since the last restart; the slope is the least-squares one over those samples (raw
+        values, as the monitor saw them).
 
         Parameters
         ----------
@@ -477,6 +482,9 @@ class HealthMonitor:
         rates : collection of str or None
             The link rates the estimator weighs on without (its ``DEGRADED_RATES``); None: every
             link's.
+        pressures : collection of str
+            The cylinder pressures whose joint the estimator weighs on without (its
+            ``degraded_pressures()``); empty: none.
 
         Returns
         -------
@@ -486,12 +494,16 @@ class HealthMonitor:
         if not self.active or self.count < self.n_sub:
             return None
         allowed = self.substitutable(rates)
-        if any(kind not in SUBSTITUTE_KINDS or i not in allowed for i, kind in self.active):
+        dropped = self.droppable(pressures)
+        if any(kind not in SUBSTITUTE_KINDS or (i not in allowed and i not in dropped) for i, kind in self.active):
             return None
         end = (self.count - 1) % self.size + self.size + 1  # one past the newest sample
         window = self.buffer[end - self.n_sub:end]
         out = np.array(values, dtype=float)
         for i in {i for i, _ in self.active}:
+            if i in dropped:
+                out[i] = 0.0  # its joint is not weighed (named_joints); 0 never stands out as a spike
+                continue
             a = self.link_angle[self.link_rate.index(i)]
             slope = 0.0
             for w, x in zip(self.sub_weights.tolist(), window[:, a].tolist()):
@@ -508,6 +520,30 @@ class HealthMonitor:
             Link rate names allowed (None: every link's rate).
         """
         return [r for r in self.link_rate if rates is None or self.signals[r] in rates]
+
+    def droppable(self, pressures=()) -> list[int]:
+        """Column indices of the cylinder pressures (of a link's joint) in ``pressures``: those
+        :meth:`substitute` may drop.
+
+        Parameters
+        ----------
+        pressures : collection of str
+            Pressure names allowed (empty: none).
+        """
+        return [i for i in self.pressure_joint if self.signals[i] in pressures]
+
+    def named_joints(self, pressures=()) -> tuple[bool, ...]:
+        """Per link joint (boom, dipper, bucket): whether one of its cylinder's pressures in
+        ``pressures`` is named now (after the last :meth:`step`): the joint the estimator drops
+        from the weighing while degraded.
+
+        Parameters
+        ----------
+        pressures : collection of str
+            Pressure names the estimator weighs on without.
+        """
+        named = {self.pressure_joint[i] for i, _ in self.active if i in self.droppable(pressures)}
+        return tuple(j in named for j in range(len(LINKS)))
 
     def link_state(self) -> list[tuple[float, float]]:
         """Per link: (offset error of its track, gain-window slope), for measuring the margins

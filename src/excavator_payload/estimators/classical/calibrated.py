@@ -307,6 +307,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     #: measured with the momentum balance (the default): degraded error within 2 sigma on 95–99 %
     #: of the samples, tuning and held out (docs/sensor-health.md, "Degraded weighing")
     DEGRADED_RATES = ("boom_rate", "dipper_rate", "bucket_rate")
+    #: a cylinder's pressures enter only its own joint's balance: while one is named the kernel
+    #: weighs on the other joints' windows (CalibratedKernel.drop; docs/sensor-health.md)
+    DEGRADED_PRESSURES = ("boom_head_pressure", "boom_rod_pressure", "dipper_head_pressure",
+                          "dipper_rod_pressure", "bucket_head_pressure", "bucket_rod_pressure")
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
         "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),
@@ -432,6 +436,31 @@ class CalibratedEstimator(InverseDynamicsEstimator):
             Signal names (empty: no degraded weighing).
         """
         return self.DEGRADED_RATES if self.options.get("balance") == "momentum" else ()
+
+    def degraded_pressures(self) -> tuple[str, ...]:
+        """Every link cylinder's pressures on the machine sensor set with the momentum balance
+        (measured); none otherwise.
+
+        Returns
+        -------
+        tuple of str
+            Signal names (empty: a named pressure stops the weighing).
+        """
+        if self.options.get("balance") != "momentum" or not isinstance(self.kernel, WeighingKernel):
+            return ()
+        return self.DEGRADED_PRESSURES
+
+    def _drop_joints(self, joints: tuple[bool, ...]) -> None:
+        """The kernel weighs the next sample's windows without these joints
+        (:attr:`CalibratedKernel.drop`).
+
+        Parameters
+        ----------
+        joints : tuple of bool
+            Per joint (boom, dipper, bucket), whether it is dropped.
+        """
+        if isinstance(self.kernel, WeighingKernel):
+            self.kernel.regression.drop = tuple(bool(j) for j in joints)
 
     def zero(self, dataset: Dataset, force: bool = False) -> list[str]:
         """The zero check: re-estimate the machine-set sensor offsets from an empty-bucket motion,

@@ -198,6 +198,19 @@ unsigned long ep_faults(const ep_state *s, int kind);
     for a, r in zip(m.link_angle, m.link_rate):
         if r in allowed:
             sub_angle[r] = a
+    drop_joint = [-1] * n  # per signal: the joint a named pressure drops (degraded_pressures), else -1
+    for i in m.droppable(est.degraded_pressures()):
+        drop_joint[i] = m.pressure_joint[i]
+    drops = any(j >= 0 for j in drop_joint)  # else not a byte of it (the other models' C as before)
+    if drops:
+        header += """
+#if EP_HEALTH  /* the joints (bit j: boom, dipper, bucket) a named pressure drops from this sample */
+#define EP_HM_DROPPED(s) ((s)->hm_drop)
+#else
+#define EP_HM_DROPPED(s) 0u
+#endif"""
+        fields = fields.replace("    int hm_reported;", "    unsigned int hm_drop;      /* joints dropped from this sample's weighing (bit j) */\n"
+                                "    int hm_reported;")
     definitions = f"""#if EP_HEALTH
 /* estimators/health.py at export time: windows in samples, thresholds in SI units */
 #define EP_HM_CAP {cap}
@@ -233,7 +246,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
 {_ints("EP_HM_GROUP", group)}{_ints("EP_HM_PARTNER", partner)}{_ints("EP_HM_IS_RATE", is_rate)}\
 {_ints("EP_HM_LONE", lone)}{c_array("EP_HM_QUANTUM", m.quantum)}{c_array("EP_HM_NOISE_LIMIT", m.noise_limit)}\
 {c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}
-{_C_FUNCTIONS}{_C_SUBSTITUTE}
+{_ints("EP_HM_DROP_JOINT", drop_joint) if drops else ""}{_C_FUNCTIONS}{_C_SUBSTITUTE_DROP if drops else _C_SUBSTITUTE}
 #endif
 """
     fmis = ", ".join(str(H.FMI[k]) for k in kinds)
@@ -261,7 +274,11 @@ unsigned long ep_faults(const ep_state *s, int kind)
 #endif
 }}
 """
-    return CHealth(header, fields, definitions, api_decl, api)
+    parts = CHealth(header, fields, definitions, api_decl, api)
+    if drops:
+        parts.clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n    s->hm_drop = 0;\n#endif\n"
+        parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, &s->hm_drop)")
+    return parts
 
 
 # HealthMonitor.step, _faults, _stuck, _noise, _offset_and_gain, _tilt_offset and _gain
@@ -613,3 +630,23 @@ static int ep_hm_substitute(const ep_state *s, const ep_real v[EP_N_SIGNALS], ep
     return 1;
 }
 """
+
+# HealthMonitor.substitute for a model with degraded_pressures: a named cylinder pressure is set
+# to 0 and its joint dropped (CalibratedKernel.drop: the kernel's ring_drop)
+_C_SUBSTITUTE_DROP = (_C_SUBSTITUTE
+                      .replace(" * their angles' least-squares slope over the last EP_HM_N_SUB raw samples (summed oldest\n"
+                               " * first), when every active fault is a link rate's of a kind in EP_HM_SUB_KINDS and the\n"
+                               " * windows hold",
+                               " * their angles' least-squares slope over the last EP_HM_N_SUB raw samples (summed oldest\n"
+                               " * first) and each named pressure of EP_HM_DROP_JOINT by 0 with its joint's bit set in\n"
+                               " * *drop, when every active fault is a link rate's or such a pressure's, of a kind in\n"
+                               " * EP_HM_SUB_KINDS, and the\n * windows hold")
+                      .replace(" * EP_HM_SUB_KINDS, and the\n * windows hold windows hold EP_HM_N_SUB samples;",
+                               " * EP_HM_SUB_KINDS, and the windows hold EP_HM_N_SUB samples;")
+                      .replace("ep_real out[EP_N_SIGNALS])", "ep_real out[EP_N_SIGNALS],\n"
+                               "                            unsigned int *drop)")
+                      .replace("(EP_HM_SUB_ANGLE[i] < 0 ||", "((EP_HM_SUB_ANGLE[i] < 0 && EP_HM_DROP_JOINT[i] < 0) ||")
+                      .replace("        if (named) {", "        if (named && EP_HM_DROP_JOINT[i] >= 0) {\n"
+                               "            out[i] = EP_C(0.0);\n"
+                               "            *drop |= 1u << EP_HM_DROP_JOINT[i];\n"
+                               "        } else if (named) {"))

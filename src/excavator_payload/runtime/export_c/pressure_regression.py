@@ -74,6 +74,10 @@ def pressure_regression_model(est) -> CModel:
         raise EstimatorError(f"{est.name}: --imu-nuisance on together with --joint-check on has no C "
                              "export yet (each alone has); retrain with --imu-nuisance off (or auto, which is off beside "
                              "the joint check) or --joint-check off to export")
+    # a named cylinder pressure drops its joint (degraded_pressures; health.py's ep_hm_substitute)
+    drops = momentum and bool(est.degraded_pressures())
+    dropped_at_centre = "\n                                                            && !(s->ring_drop[centre_slot] >> j & 1)" \
+        if drops else ""
     sensors = est.sensor_set
     n = len(sensors.signals)
     h = int(kernel.half_window)
@@ -349,7 +353,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         s->terms_used[slot] = s->ring_used[centre_slot];
         for (j = 0; j < 3; ++j)
             s->terms_inside[slot * 3 + j] = (unsigned char)(x[EP_ANGLES[j]] >= EP_COVERAGE_LOW[j]
-                                                            && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]);
+                                                            && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]{dropped_at_centre});
         s->terms_next = (slot + 1) % EP_BALANCE;
         if (s->terms_filled < EP_BALANCE) s->terms_filled += 1;
         if (s->terms_filled == EP_BALANCE && s->terms_used[(s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE]) {{
@@ -439,11 +443,17 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
     else s->ring_filled = 0;"""
     if momentum:  # CalibratedKernel.restart_window: both rings restart
         on_gap = on_gap[:-len("s->ring_filled = 0;")] + "{ s->ring_filled = 0; s->terms_filled = 0; s->terms_next = 0; }"
+    if drops:  # CalibratedKernel.drop: each sample's joints dropped, read at the window's centre
+        step = step.replace("    s->ring_used[newest] = 1;\n",
+                            "    s->ring_used[newest] = 1;\n"
+                            "    s->ring_drop[newest] = (unsigned char)EP_HM_DROPPED(s);  /* CalibratedKernel.drop */\n")
     fields = ["ep_real num;   /* sum of w phi r */",
               "ep_real info;  /* sum of w phi^2: information, 1/variance of the estimate */",
               "ep_real ring[EP_RING * EP_N_SIGNALS];  /* the last samples, as measured (outliers repaired) */"]
     if not calibrated:
         fields.append("ep_real ring_time[EP_RING];  /* their times */")
+    if drops:
+        fields.append("unsigned char ring_drop[EP_RING];  /* joints (bit j) a named pressure dropped from each sample */")
     fields += ["unsigned char ring_used[EP_RING];  /* 0: a rejected sample's slot */",
                "int ring_next;    /* slot the next sample goes to (the oldest once full) */",
                "int ring_filled;  /* samples in the ring (saturates at EP_RING) */"]

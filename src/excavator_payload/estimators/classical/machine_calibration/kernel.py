@@ -65,6 +65,12 @@ class CalibratedKernel(PressureRegression):
     """
 
     _imu_nuisance = None  # ``--imu-nuisance on``: an ImuNuisanceFilter (use_imu_nuisance)
+    #: Per joint (boom, dipper, bucket): the next sample's cylinder pressures are not to be
+    #: weighed (a degraded estimator sets it while the health monitor names one; the
+    #: estimator's ``_drop_joints``). A balance window holding such a sample gives that joint no
+    #: weight, so it is weighed again only once its windows are clean; the sums it gave before
+    #: are kept.
+    drop = (False, False, False)
 
     def __init__(self, cal, half_window: int, forgetting: float, low_speed: str,
                  outside_calibration: str = "auto", wait_for_boom: str = "auto", new_load: str = "auto"):
@@ -147,6 +153,7 @@ class CalibratedKernel(PressureRegression):
         length = getattr(self, "_width", 1) + LOOK_AHEAD
         self._ring = np.zeros((2 * length, len(SIGNALS)))
         self._ring_used = np.zeros(2 * length, bool)
+        self._ring_drop = np.zeros((2 * length, 3), bool)  # each sample's joints dropped (drop)
         self._count = 0
         b = getattr(self, "_balance_len", 1)  # reset() runs in the base __init__ before it is set
         self._terms = np.zeros((2 * b, getattr(self, "_n_out", 24)))  # per-sample balance terms, doubled as the ring
@@ -234,6 +241,7 @@ class CalibratedKernel(PressureRegression):
         pos = self._count % length
         self._ring[pos] = self._ring[pos + length] = values
         self._ring_used[pos] = self._ring_used[pos + length] = True
+        self._ring_drop[pos] = self._ring_drop[pos + length] = self.drop
         self._count += 1
         self.rejected = False
         if self.judge and self._count >= 4:  # the sample two before this one, between its neighbours
@@ -274,7 +282,8 @@ class CalibratedKernel(PressureRegression):
         # a rejected sample's repaired slot stays in the balance (its interval is part of the
         # integral) but is never a window's centre
         self._terms_used[slot] = self._terms_used[slot + b] = centre_used
-        self._terms_inside[slot] = self._terms_inside[slot + b] = self._inside(centre)
+        self._terms_inside[slot] = self._terms_inside[slot + b] = \
+            self._inside(centre) & ~self._ring_drop[pos + 1 + self.half_window]
         if self._imu_nuisance is not None:
             self._imu_nuisance.sample(self, slot)
         self._terms_count += 1
