@@ -7,7 +7,7 @@ The model is the README's: ``calibrated`` believing cat345c-hydraulic-3pct, fitt
 calibration swings (session 1) and zeroed on an empty swing of the working session; the data
 are the true cat345c-hydraulic in session 2. Test families: the simulator's ``operator``,
 ``work-cycle`` (up to the dump) and ``nmpc`` with seeds the thresholds never saw (they were set
-on seed 100, session 2 of cat345c-hydraulic-3pct), and the held-out ``lever`` generator
+on seed 100, session 2 of cat345c-hydraulic-3pct), and the held-out ``lever`` and ``joystick`` generators
 (held_out_motions.py; judged only).
 
 False alarms: share of samples after each experiment's first second that are ``sensor_fault``
@@ -42,7 +42,8 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from held_out_motions import lever_trajectory  # noqa: E402
+from bench_false_alarms import feasible  # noqa: E402
+from held_out_motions import joystick_trajectory, lever_trajectory  # noqa: E402
 
 from excavator_payload.data.dataset import Dataset  # noqa: E402
 from excavator_payload.data.io import read_dataset, write_dataset  # noqa: E402
@@ -81,6 +82,9 @@ def families(n: int, seed: int) -> dict:
         "nmpc": lambda: simulate_dataset(max(1, n // 2), seed=seed + 2, motion="nmpc", **common),
         "lever (held out)": lambda: dm.simulate_trajectory(lever_trajectory(n, seed + 3), seed + 3,
                                                            dm.SESSION_WORK),
+        # last: the families before it draw their cases as they did without it
+        "joystick (held out)": lambda: dm.simulate_trajectory(feasible(joystick_trajectory(n, seed + 4)), seed + 4,
+                                                              dm.SESSION_WORK),
     }
 
 

@@ -319,3 +319,35 @@ def test_c_weighs_without_a_named_pressures_joint_as_python_does(single, models,
     assert len(named) >= 2
     text = export_c(models["inverse-dynamics"], tmp_path / "id")[1].read_text()
     assert "ring_drop" not in text and "EP_HM_DROP_JOINT" not in text
+
+
+@pytest.fixture(scope="module")
+def angle_faults(clean):
+    """The clean work with a boom angle stuck for 8 s (past the substitute's bound) and a bucket
+    angle stuck for 3 s: ``calibrated`` (momentum) integrates the rate from the last healthy angle."""
+    frame = clean.frame.copy()
+    rng = np.random.default_rng(11)
+    r0, r1 = (frame.index[frame["experiment"] == e] for e in clean.experiment_ids)
+    for rows, signal, kind, a, b, size in [
+        (r0, "boom_angle", "stuck", 500, 1300, None),
+        (r1, "bucket_angle", "stuck", 600, 900, None),
+        (r1, "dipper_angle", "stuck", 1500, 1800, None),
+    ]:
+        _inject(frame, rows, signal, kind, a, b, size, rng)
+    return Dataset(frame, clean.meta)
+
+
+@pytest.mark.parametrize("single", [False, True])
+def test_c_integrates_a_lost_angle_as_python_does(single, models, angle_faults, tmp_path):
+    """A stuck link angle in C: the same degraded statuses while its reference plus the integrated
+    rate stands in (health.ANGLE_SUBSTITUTE_LIMIT), then sensor_fault, the estimates and sigma
+    equal to Python's."""
+    est = models["calibrated-momentum"]
+    header, source = export_c(est, tmp_path / "export", precision="float32" if single else "float64")
+    assert "ep_hm_angle_refs" in source.read_text()
+    py = _assert_equal(est, source, angle_faults, tmp_path / "build", single=single)
+    degraded = (py["status"] == Status.DEGRADED.value).to_numpy()
+    assert degraded.sum() > 50
+    assert all("_angle:" in f for f in py["fault"][degraded])
+    text = export_c(models["inverse-dynamics"], tmp_path / "id")[1].read_text()
+    assert "ep_hm_angle_refs" not in text and "EP_HM_INT_LINK" not in text

@@ -174,6 +174,9 @@ class Estimator(ABC):
     #: (stuck, dropout, noise): the joint dropped from the weighing, status ``degraded``
     #: (:meth:`degraded_pressures` per instance, :meth:`_drop_joints`). None by default.
     DEGRADED_PRESSURES: ClassVar[tuple[str, ...]] = ()
+    #: The link angles it weighs on with the rate integrated from the last healthy angle while
+    #: the monitor names them (stuck, dropout), for a bounded time (:meth:`degraded_angles`).
+    DEGRADED_ANGLES: ClassVar[tuple[str, ...]] = ()
     #: Whether it borrows its statistical gate (it has no noise model of its own), see
     #: :meth:`_borrows_gate`.
     BORROWS_GATE: ClassVar[bool] = False
@@ -475,6 +478,17 @@ class Estimator(ABC):
         """
         return self.DEGRADED_PRESSURES
 
+    def degraded_angles(self) -> tuple[str, ...]:
+        """The link angles this estimator weighs on with the integrated rate
+        (:attr:`DEGRADED_ANGLES`; an estimator whose options change it overrides it).
+
+        Returns
+        -------
+        tuple of str
+            Signal names (empty: a named angle stops the weighing).
+        """
+        return self.DEGRADED_ANGLES
+
     def _drop_joints(self, joints: tuple[bool, ...]) -> None:
         """Weigh the next sample without these link joints (boom, dipper, bucket; all False:
         every joint), for an estimator with :meth:`degraded_pressures`.
@@ -528,7 +542,8 @@ class Estimator(ABC):
             fault = self._health.step(time, values) if self._health is not None else ""
             if fault:
                 pressures = self.degraded_pressures()
-                substituted = self._health.substitute(values, self.degraded_rates(), pressures)
+                substituted = self._health.substitute(values, self.degraded_rates(), pressures,
+                                                      self.degraded_angles())
                 if substituted is None:
                     # not used: the next healthy sample sees a hole in time and bridges it as a gap
                     return StepResult(self._last_estimate, Status.SENSOR_FAULT, self._last_sigma, fault)

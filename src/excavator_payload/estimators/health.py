@@ -4,8 +4,9 @@ Every sample an estimator of the machine set uses passes :meth:`HealthMonitor.st
 (:meth:`~excavator_payload.estimators.base.Estimator.step_values`); while it reports a fault
 the sample is not used and the result is ``sensor_fault`` with the estimate kept (never
 ``ok``), naming the faulty signal(s) and kind(s) in ``StepResult.fault``, e.g.
-``"boom_head_pressure:stuck"`` (several comma-separated); where only link rates the estimator
-can weigh without are named, it weighs on with their substitutes instead, ``degraded``
+``"boom_head_pressure:stuck"`` (several comma-separated); where only link rates and cylinder pressures the estimator
+can weigh without are named, it weighs on with their substitutes instead (a rate: its angle's
+slope; a pressure: its joint dropped from the weighing), ``degraded``
 (:meth:`HealthMonitor.substitute`). Each kind comes from the data and
 the model's redundancy (a link's angle against its own rate, a cylinder's pressures against
 its joint's motion, the fitting data's noise):
@@ -121,8 +122,17 @@ GAIN_SAMPLES = 10
 #: :data:`SUBSTITUTE_WINDOW` (s; 21 samples at 100 Hz: the length with the least error against
 #: the true rate on clean tuning data, 0.37/2.3/4.7 °/s rms for boom/dipper/bucket,
 #: docs/sensor-health.md). ``disagree``, ``offset`` and ``gain`` name the angle too: no substitute.
+#: A cylinder pressure named with one of these kinds is set to 0 and its joint dropped from the
+#: weighing of an estimator that weighs without it (``degraded_pressures``; :meth:`named_joints`).
 SUBSTITUTE_KINDS = ("stuck", "dropout", "noise")
 SUBSTITUTE_WINDOW = 0.2
+#: A link's angle named with one of these kinds (its rate healthy) is replaced by the last
+#: healthy angle plus the rate integrated since (:meth:`HealthMonitor.substitute`): the
+#: reference is the angle − integrated rate averaged over :data:`SUBSTITUTE_WINDOW` ending
+#: :data:`STUCK_WINDOW` before the angle was named, for at most :data:`ANGLE_SUBSTITUTE_LIMIT`
+#: (s; the gyro's bias drifts the integral: docs/sensor-health.md), then no substitute.
+ANGLE_SUBSTITUTE_KINDS = ("stuck", "dropout")
+ANGLE_SUBSTITUTE_LIMIT = 5.0
 #: While degraded, sigma is the estimator's own times this: on degraded samples of the tuning
 #: data (benchmarks/bench_faults.py, seed 9300, rates) |error| <= 2 sigma held on 88 % of them
 #: with the own sigma, 95 % with 1.5 times it, 97 % with 2 (docs/sensor-health.md). A factor, not
@@ -176,6 +186,7 @@ class HealthMonitor:
         self.n_smooth = samples(OFFSET_SMOOTH)
         self.n_gain = samples(GAIN_WINDOW)
         self.n_sub = samples(SUBSTITUTE_WINDOW)
+        self.n_angle_limit = int(round(ANGLE_SUBSTITUTE_LIMIT / self.period))
         centred = np.arange(self.n_sub) - (self.n_sub - 1) / 2
         #: weights of the least-squares slope over the last n_sub samples, oldest first, 1/s
         self.sub_weights = centred / float(centred @ centred) / self.period
@@ -223,12 +234,20 @@ class HealthMonitor:
         """Forget the history (a new experiment, or a hole in time)."""
         self.active: dict[tuple[int, str], int] = {}  # (signal, kind) -> samples since last seen
         self.last_time: float | None = None
+        # per link while its angle is named: the substitute's reference (angle − integrated
+        # rate; NaN: none to be had) and the samples since it was taken; None while not named
+        self.angle_ref: list = [None] * len(self.link_angle)
+        self.angle_age = [0] * len(self.link_angle)
+        self.angle_clean = [0] * len(self.link_angle)  # samples since the angle was last named
         self._restart()
 
     def _restart(self) -> None:
         """Start the windows again (after a hole in time); active faults keep their hold."""
         n, L = len(self.signals), len(self.link_angle)
         self.count = 0
+        # the integral starts again: a reference taken is lost (no substitute until not named)
+        self.angle_ref = [None if ref is None else math.nan for ref in getattr(self, "angle_ref", [None] * L)]
+        self.angle_clean = [0] * L
         # the last `size` samples, written twice (at k and k + size) so that any window is one
         # ordered slice; and per sample each link's (angle − integrated rate, cumulative sums)
         self.buffer = np.zeros((2 * self.size, n))
@@ -275,9 +294,34 @@ class HealthMonitor:
                     del active[key]
         for key in found:
             active[key] = 0
+        self._angle_references()
         if not active:
             return ""
         return ",".join(f"{self.signals[i]}:{kind}" for i, kind in sorted(active))
+
+    def _angle_references(self) -> None:
+        """Per link: take the angle substitute's reference when its angle is first named (the
+        mean of angle − integrated rate over :attr:`n_sub` samples ending :attr:`n_stuck`
+        samples back, none of them named), count the samples since, forget it once the angle is
+        no longer named."""
+        back = self.n_stuck + self.n_sub
+        for j, a in enumerate(self.link_angle):
+            named = any((a, kind) in self.active for kind in KINDS)
+            if not named:
+                self.angle_ref[j] = None
+                self.angle_clean[j] += 1
+                continue
+            if self.angle_ref[j] is None:
+                if self.count > back and self.angle_clean[j] >= back:
+                    total = 0.0
+                    for k in range(self.n_stuck + 1, back + 1):  # oldest last; C sums the same samples
+                        total += self.ring[(self.count - k) % self.size][0][j]
+                    self.angle_ref[j] = total / self.n_sub
+                else:
+                    self.angle_ref[j] = math.nan
+                self.angle_age[j] = 0
+            self.angle_age[j] += 1
+            self.angle_clean[j] = 0
 
     def _is_active(self, signal: int, kinds) -> bool:
         return any((signal, k) in self.active for k in kinds)
@@ -464,7 +508,7 @@ class HealthMonitor:
         var = sxx / m - (sx / m) ** 2
         return (sxy / m - sx * sy / m / m) / var if var >= GAIN_MIN_STD ** 2 else 0.0
 
-    def substitute(self, values, rates=None, pressures=()):
+    def substitute(self, values, rates=None, pressures=(), angles=()):
         """The sample with each named link rate replaced by its angle's slope (and each named
         cylinder pressure of ``pressures`` by 0: its joint is dropped from the weighing, see
         :meth:`named_joints`), when the active faults (after the last :meth:`step`) allow
@@ -485,6 +529,11 @@ class HealthMonitor:
         pressures : collection of str
             The cylinder pressures whose joint the estimator weighs on without (its
             ``degraded_pressures()``); empty: none.
+        angles : collection of str
+            The link angles it weighs on with the integrated rate (its ``degraded_angles()``):
+            while named with a kind of :data:`ANGLE_SUBSTITUTE_KINDS` (and maybe ``disagree``,
+            its rate then too, with nothing else: the rate is weighed as measured), for at most
+            :data:`ANGLE_SUBSTITUTE_LIMIT` after the angle was named; empty: none.
 
         Returns
         -------
@@ -495,14 +544,33 @@ class HealthMonitor:
             return None
         allowed = self.substitutable(rates)
         dropped = self.droppable(pressures)
-        if any(kind not in SUBSTITUTE_KINDS or (i not in allowed and i not in dropped) for i, kind in self.active):
-            return None
+        integrated = self.integrable(angles)
+        lost = self._lost_angles(integrated)
+        explained = [self.link_rate[self.link_angle.index(a)] for a in lost]
+        for i, kind in self.active:
+            if i in lost:
+                if kind not in ANGLE_SUBSTITUTE_KINDS and kind != "disagree":
+                    return None
+            elif i in explained:
+                if kind != "disagree":
+                    return None  # the pair's disagreement is the lost angle's doing; nothing else
+            elif kind not in SUBSTITUTE_KINDS or (i not in allowed and i not in dropped):
+                return None
         end = (self.count - 1) % self.size + self.size + 1  # one past the newest sample
         window = self.buffer[end - self.n_sub:end]
         out = np.array(values, dtype=float)
         for i in {i for i, _ in self.active}:
             if i in dropped:
                 out[i] = 0.0  # its joint is not weighed (named_joints); 0 never stands out as a spike
+                continue
+            if i in explained:
+                continue  # the rate is weighed as measured
+            if i in lost:  # the reference + the rate integrated since, for a bounded time
+                j = self.link_angle.index(i)
+                ref = self.angle_ref[j]
+                if ref is None or math.isnan(ref) or self.angle_age[j] > self.n_angle_limit:
+                    return None
+                out[i] = ref + self.integral[j]
                 continue
             a = self.link_angle[self.link_rate.index(i)]
             slope = 0.0
@@ -531,6 +599,21 @@ class HealthMonitor:
             Pressure names allowed (empty: none).
         """
         return [i for i in self.pressure_joint if self.signals[i] in pressures]
+
+    def _lost_angles(self, integrated: list) -> list[int]:
+        """The angles of ``integrated`` named stuck or dropped out (:data:`ANGLE_SUBSTITUTE_KINDS`)."""
+        return [a for a in integrated if any((a, kind) in self.active for kind in ANGLE_SUBSTITUTE_KINDS)]
+
+    def integrable(self, angles=()) -> list[int]:
+        """Column indices of the link angles in ``angles``: those :meth:`substitute` may replace
+        by the integrated rate.
+
+        Parameters
+        ----------
+        angles : collection of str
+            Angle names allowed (empty: none).
+        """
+        return [a for a in self.link_angle if self.signals[a] in angles]
 
     def named_joints(self, pressures=()) -> tuple[bool, ...]:
         """Per link joint (boom, dipper, bucket): whether one of its cylinder's pressures in

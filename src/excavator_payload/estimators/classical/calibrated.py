@@ -311,6 +311,9 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     #: weighs on the other joints' windows (CalibratedKernel.drop; docs/sensor-health.md)
     DEGRADED_PRESSURES = ("boom_head_pressure", "boom_rod_pressure", "dipper_head_pressure",
                           "dipper_rod_pressure", "bucket_head_pressure", "bucket_rod_pressure")
+    #: a stuck or dropped-out link angle: the last healthy one plus the integrated rate, for
+    #: health.ANGLE_SUBSTITUTE_LIMIT (docs/sensor-health.md)
+    DEGRADED_ANGLES = ("boom_angle", "dipper_angle", "bucket_angle")
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
         "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),
@@ -449,6 +452,16 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         if self.options.get("balance") != "momentum" or not isinstance(self.kernel, WeighingKernel):
             return ()
         return self.DEGRADED_PRESSURES
+
+    def degraded_angles(self) -> tuple[str, ...]:
+        """Every link's angle with the momentum balance (measured); none otherwise.
+
+        Returns
+        -------
+        tuple of str
+            Signal names (empty: a named angle stops the weighing).
+        """
+        return self.DEGRADED_ANGLES if self.options.get("balance") == "momentum" else ()
 
     def _drop_joints(self, joints: tuple[bool, ...]) -> None:
         """The kernel weighs the next sample's windows without these joints

@@ -202,6 +202,19 @@ unsigned long ep_faults(const ep_state *s, int kind);
     for i in m.droppable(est.degraded_pressures()):
         drop_joint[i] = m.pressure_joint[i]
     drops = any(j >= 0 for j in drop_joint)  # else not a byte of it (the other models' C as before)
+    # per signal: the link whose lost angle (degraded_angles) it is, or whose rate, else -1
+    int_link = [-1] * n
+    for j, a in enumerate(m.link_angle):
+        if a in m.integrable(est.degraded_angles()):
+            int_link[a] = int_link[m.link_rate[j]] = j
+    angles = any(j >= 0 for j in int_link)
+    more = drops or angles  # the extended substitute (pressures' joints, lost angles)
+    if angles:
+        fields = fields.replace("    int hm_reported;",
+                                "    ep_real hm_angle_ref[EP_HM_N_LINKS];  /* a lost angle's reference (angle - integral) */\n"
+                                "    int hm_angle_state[EP_HM_N_LINKS];    /* 0 not named, 1 reference taken, 2 none to be had */\n"
+                                "    int hm_angle_age[EP_HM_N_LINKS], hm_angle_clean[EP_HM_N_LINKS];\n"
+                                "    int hm_reported;")
     if drops:
         header += """
 #if EP_HEALTH  /* the joints (bit j: boom, dipper, bucket) a named pressure drops from this sample */
@@ -246,7 +259,8 @@ unsigned long ep_faults(const ep_state *s, int kind);
 {_ints("EP_HM_GROUP", group)}{_ints("EP_HM_PARTNER", partner)}{_ints("EP_HM_IS_RATE", is_rate)}\
 {_ints("EP_HM_LONE", lone)}{c_array("EP_HM_QUANTUM", m.quantum)}{c_array("EP_HM_NOISE_LIMIT", m.noise_limit)}\
 {c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}
-{_ints("EP_HM_DROP_JOINT", drop_joint) if drops else ""}{_C_FUNCTIONS}{_C_SUBSTITUTE_DROP if drops else _C_SUBSTITUTE}
+{_more_defines(m, drop_joint, int_link, kind_of) if more else ""}\
+{_angle_functions(_C_FUNCTIONS) if angles else _C_FUNCTIONS}{_C_SUBSTITUTE_MORE if more else _C_SUBSTITUTE}
 #endif
 """
     fmis = ", ".join(str(H.FMI[k]) for k in kinds)
@@ -275,9 +289,12 @@ unsigned long ep_faults(const ep_state *s, int kind)
 }}
 """
     parts = CHealth(header, fields, definitions, api_decl, api)
+    if more:
+        parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, &s->hm_drop)")
     if drops:
         parts.clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n    s->hm_drop = 0;\n#endif\n"
-        parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, &s->hm_drop)")
+    elif angles:
+        parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, 0)")
     return parts
 
 
@@ -631,22 +648,128 @@ static int ep_hm_substitute(const ep_state *s, const ep_real v[EP_N_SIGNALS], ep
 }
 """
 
-# HealthMonitor.substitute for a model with degraded_pressures: a named cylinder pressure is set
-# to 0 and its joint dropped (CalibratedKernel.drop: the kernel's ring_drop)
-_C_SUBSTITUTE_DROP = (_C_SUBSTITUTE
-                      .replace(" * their angles' least-squares slope over the last EP_HM_N_SUB raw samples (summed oldest\n"
-                               " * first), when every active fault is a link rate's of a kind in EP_HM_SUB_KINDS and the\n"
-                               " * windows hold",
-                               " * their angles' least-squares slope over the last EP_HM_N_SUB raw samples (summed oldest\n"
-                               " * first) and each named pressure of EP_HM_DROP_JOINT by 0 with its joint's bit set in\n"
-                               " * *drop, when every active fault is a link rate's or such a pressure's, of a kind in\n"
-                               " * EP_HM_SUB_KINDS, and the\n * windows hold")
-                      .replace(" * EP_HM_SUB_KINDS, and the\n * windows hold windows hold EP_HM_N_SUB samples;",
-                               " * EP_HM_SUB_KINDS, and the windows hold EP_HM_N_SUB samples;")
-                      .replace("ep_real out[EP_N_SIGNALS])", "ep_real out[EP_N_SIGNALS],\n"
-                               "                            unsigned int *drop)")
-                      .replace("(EP_HM_SUB_ANGLE[i] < 0 ||", "((EP_HM_SUB_ANGLE[i] < 0 && EP_HM_DROP_JOINT[i] < 0) ||")
-                      .replace("        if (named) {", "        if (named && EP_HM_DROP_JOINT[i] >= 0) {\n"
-                               "            out[i] = EP_C(0.0);\n"
-                               "            *drop |= 1u << EP_HM_DROP_JOINT[i];\n"
-                               "        } else if (named) {"))
+def _more_defines(m, drop_joint, int_link, kind_of) -> str:
+    """The extended substitute's tables: each pressure's joint, each lost angle's link."""
+    if any(j >= 0 for j in int_link):
+        value = ("#define EP_HM_ANGLE_REF_OK(s, j) ((s)->hm_angle_state[j] == 1 && (s)->hm_angle_age[j] <= EP_HM_ANGLE_LIMIT)\n"
+                 "#define EP_HM_ANGLE_VALUE(s, j) ((s)->hm_angle_ref[j] + (s)->hm_integral[j])  /* reference + integral */\n")
+    else:
+        value = "#define EP_HM_ANGLE_REF_OK(s, j) 0\n#define EP_HM_ANGLE_VALUE(s, j) EP_C(0.0)\n"
+    return value + (f"#define EP_HM_ANGLE_KINDS {_mask(kind_of[k] for k in H.ANGLE_SUBSTITUTE_KINDS)}"
+            "  /* kinds a lost angle is integrated under */\n"
+            f"#define EP_HM_ANGLE_BACK {m.n_stuck + m.n_sub}  /* its reference: y of the samples EP_HM_N_STUCK"
+            " ... this - 1 back */\n"
+            f"#define EP_HM_ANGLE_LIMIT {m.n_angle_limit}  /* samples a lost angle is integrated for */\n"
+            + _ints("EP_HM_DROP_JOINT", drop_joint) + _ints("EP_HM_INT_LINK", int_link))
+
+
+def _angle_functions(text: str) -> str:
+    """:data:`_C_FUNCTIONS` with HealthMonitor._angle_references (a lost angle's reference and
+    age, after every step) and its restart and reset."""
+    text = text.replace("    s->hm_tilt_tracked = 0;\n    s->hm_tilt_run = 0;\n",
+                        "    for (j = 0; j < EP_HM_N_LINKS; ++j) {  /* the integral restarts: a reference is lost */\n"
+                        "        if (s->hm_angle_state[j]) s->hm_angle_state[j] = 2;\n"
+                        "        s->hm_angle_clean[j] = 0;\n"
+                        "    }\n"
+                        "    s->hm_tilt_tracked = 0;\n    s->hm_tilt_run = 0;\n", 1)
+    text = text.replace("    s->hm_last_time = EP_C(0.0);\n    ep_hm_restart(s);\n",
+                        "    s->hm_last_time = EP_C(0.0);\n"
+                        "    for (i = 0; i < EP_HM_N_LINKS; ++i) s->hm_angle_state[i] = s->hm_angle_age[i] = 0;\n"
+                        "    ep_hm_restart(s);\n", 1)
+    text = text.replace("/* HealthMonitor.step: judge one finite", _C_ANGLE_REFS + "\n/* HealthMonitor.step: judge one finite", 1)
+    text = text.replace("    if (!any && !s->hm_any_active) return 0;\n",
+                        "    if (!any && !s->hm_any_active) {\n        ep_hm_angle_refs(s);\n        return 0;\n    }\n", 1)
+    text = text.replace("    s->hm_any_active = any;\n    return any;\n",
+                        "    s->hm_any_active = any;\n    ep_hm_angle_refs(s);\n    return any;\n", 1)
+    return text
+
+
+_C_ANGLE_REFS = r"""
+/* HealthMonitor._angle_references: a link's lost-angle reference is taken when its angle is first
+ * named (y = angle - integrated rate, the mean of the EP_HM_N_SUB samples EP_HM_N_STUCK back, none
+ * of them named), its age counted, and forgotten once the angle is no longer named */
+static void ep_hm_angle_refs(ep_state *s)
+{
+    int j, k, back;
+    for (j = 0; j < EP_HM_N_LINKS; ++j) {
+        int a = EP_HM_LINK_ANGLE[j], named = 0;
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k) named |= s->hm_age[a][k] >= 0;
+        if (!named) {
+            s->hm_angle_state[j] = 0;
+            if (s->hm_angle_clean[j] < EP_HM_CAP) s->hm_angle_clean[j] += 1;
+            continue;
+        }
+        if (s->hm_angle_state[j] == 0) {
+            if (s->hm_count > EP_HM_ANGLE_BACK && s->hm_angle_clean[j] >= EP_HM_ANGLE_BACK) {
+                ep_real total = EP_C(0.0);
+                for (back = EP_HM_N_STUCK; back < EP_HM_ANGLE_BACK; ++back) total += s->hm_y[EP_HM_SUM_AT(s, back)][j];
+                s->hm_angle_ref[j] = total / (ep_real)EP_HM_N_SUB;
+                s->hm_angle_state[j] = 1;
+            } else {
+                s->hm_angle_state[j] = 2;
+            }
+            s->hm_angle_age[j] = 0;
+        }
+        if (s->hm_angle_age[j] <= EP_HM_ANGLE_LIMIT) s->hm_angle_age[j] += 1;
+        s->hm_angle_clean[j] = 0;
+    }
+}
+"""
+
+# HealthMonitor.substitute for a model that weighs without a pressure's joint or a lost angle
+# (degraded_pressures, degraded_angles): a named pressure is set to 0 and its joint's bit set in
+# *drop (CalibratedKernel.drop: the kernel's ring_drop); a lost angle is its reference plus the
+# integrated rate, its rate weighed as measured
+_C_SUBSTITUTE_MORE = r"""
+/* HealthMonitor.substitute: 1 with `out` the sample whose named link rates are replaced by their
+ * angles' least-squares slope over the last EP_HM_N_SUB raw samples (summed oldest first), each
+ * named pressure of EP_HM_DROP_JOINT by 0 with its joint's bit set in *drop, and each lost angle
+ * (EP_HM_INT_LINK: named stuck or dropped out, its rate named at most `disagree`) by its reference
+ * plus the integrated rate for EP_HM_ANGLE_LIMIT samples; when every active fault is one of these
+ * and the windows hold EP_HM_N_SUB samples; else 0 (the sample is not used) */
+static int ep_hm_substitute(const ep_state *s, const ep_real v[EP_N_SIGNALS], ep_real out[EP_N_SIGNALS],
+                            unsigned int *drop)
+{
+    int i, k, back, lost[EP_HM_N_LINKS];
+    unsigned int dropped = 0;
+    if (s->hm_count < EP_HM_N_SUB) return 0;
+    for (k = 0; k < EP_HM_N_LINKS; ++k) {
+        int a = EP_HM_LINK_ANGLE[k];
+        lost[k] = EP_HM_INT_LINK[a] == k && (s->hm_age[a][EP_FAULT_STUCK] >= 0 || s->hm_age[a][EP_FAULT_DROPOUT] >= 0);
+    }
+    for (i = 0; i < EP_N_SIGNALS; ++i)
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k) {
+            int j = EP_HM_INT_LINK[i];
+            if (s->hm_age[i][k] < 0) continue;
+            if (j >= 0 && lost[j] && i == EP_HM_LINK_ANGLE[j]) {
+                if (!(EP_HM_ANGLE_KINDS & EP_HM_BIT(k)) && k != EP_FAULT_DISAGREE) return 0;
+            } else if (j >= 0 && lost[j]) {
+                if (k != EP_FAULT_DISAGREE) return 0;  /* the pair's disagreement is the lost angle's doing */
+            } else if ((EP_HM_SUB_ANGLE[i] < 0 && EP_HM_DROP_JOINT[i] < 0) || !(EP_HM_SUB_KINDS & EP_HM_BIT(k))) {
+                return 0;
+            }
+        }
+    for (i = 0; i < EP_N_SIGNALS; ++i) {
+        int named = 0, j = EP_HM_INT_LINK[i];
+        out[i] = v[i];
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k) named |= s->hm_age[i][k] >= 0;
+        if (!named) continue;
+        if (EP_HM_DROP_JOINT[i] >= 0) {
+            out[i] = EP_C(0.0);
+            dropped |= 1u << EP_HM_DROP_JOINT[i];
+        } else if (j >= 0 && lost[j]) {
+            if (i != EP_HM_LINK_ANGLE[j]) continue;  /* the rate: weighed as measured */
+            if (!EP_HM_ANGLE_REF_OK(s, j)) return 0;
+            out[i] = EP_HM_ANGLE_VALUE(s, j);
+        } else {
+            ep_real slope = EP_C(0.0);
+            for (back = EP_HM_N_SUB - 1; back >= 0; --back)
+                slope += EP_HM_SUB_WEIGHTS[EP_HM_N_SUB - 1 - back]
+                         * s->hm_raw[EP_HM_RAW_AT(s, back)][EP_HM_SUB_ANGLE[i]];
+            out[i] = slope;
+        }
+    }
+    if (drop) *drop |= dropped;
+    return 1;
+}
+"""
