@@ -4,10 +4,11 @@ Every sample an estimator of the machine set uses passes :meth:`HealthMonitor.st
 (:meth:`~excavator_payload.estimators.base.Estimator.step_values`); while it reports a fault
 the sample is not used and the result is ``sensor_fault`` with the estimate kept (never
 ``ok``), naming the faulty signal(s) and kind(s) in ``StepResult.fault``, e.g.
-``"boom_head_pressure:stuck"`` (several comma-separated); where only link rates and cylinder pressures the estimator
-can weigh without are named, it weighs on with their substitutes instead (a rate: its angle's
-slope; a pressure: its joint dropped from the weighing), ``degraded``
-(:meth:`HealthMonitor.substitute`). Each kind comes from the data and
+``"boom_head_pressure:stuck"`` (several comma-separated); where only link rates, cylinder
+pressures and link angles the estimator can weigh without are named, it weighs on with their
+substitutes instead (a rate: its angle's slope; a pressure: its joint dropped from the weighing;
+a stuck or dropped-out angle: the last healthy one plus the integrated rate, for a bounded
+time), ``degraded`` (:meth:`HealthMonitor.substitute`). Each kind comes from the data and
 the model's redundancy (a link's angle against its own rate, a cylinder's pressures against
 its joint's motion, the fitting data's noise):
 
