@@ -176,9 +176,14 @@ def _smooth(x: np.ndarray, period: float) -> np.ndarray:
     return np.convolve(x, np.ones(n) / n, mode="same")
 
 
-def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int, float]]:
+def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray | None = None) -> list[tuple[int, int, float]]:
     """The bucket's moves: (first sample, last sample, change of angle in rad) of each run where
     its smoothed rate stays beyond :data:`MOVE_RATE` in one direction (+: opening, −: curling).
+
+    The rate is the bucket angle's own slope: a dig and a dump are defined by the angle, and a
+    lost rate sensor (at 0 or frozen) read as the rate lost 11 of 25 passes of a shift, silently,
+    and put its trucks' totals up to 11 t short. The rate sensor serves only where the angle is
+    not finite.
 
     Parameters
     ----------
@@ -186,11 +191,18 @@ def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[
         s, sample times (evenly spaced: the median step is the period).
     angle : ndarray
         rad, the bucket angle per sample.
-    rate : ndarray
-        rad/s, the bucket's angular rate per sample.
+    rate : ndarray, optional
+        rad/s, the bucket's measured angular rate per sample (where the angle is not finite).
     """
+    time, angle = np.asarray(time, float), np.asarray(angle, float)
     period = float(np.median(np.diff(time))) if len(time) > 1 else 0.01
-    r = _smooth(rate, period)
+    if len(angle) < 2:
+        slope = np.zeros(len(angle))
+    else:  # over the samples' own times where they rise (a gap is not a fast move)
+        slope = np.gradient(angle, time if np.all(np.diff(time) > 0) else period)
+    if rate is not None:
+        slope = np.where(np.isfinite(slope), slope, np.asarray(rate, float))
+    r = _smooth(np.where(np.isfinite(slope), slope, 0.0), period)
     sign = np.where(r > MOVE_RATE, 1, np.where(r < -MOVE_RATE, -1, 0))
     moves = []
     edges = np.flatnonzero(np.diff(np.r_[0, sign, 0]))
@@ -200,7 +212,7 @@ def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[
     return moves
 
 
-def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int]]:
+def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray | None = None) -> list[tuple[int, int]]:
     """(dig end, dump start) sample of each pass, from the bucket's moves (module doc).
 
     Parameters
@@ -209,8 +221,9 @@ def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[t
         s, sample times.
     angle : ndarray
         rad, the bucket angle per sample.
-    rate : ndarray
-        rad/s, the bucket's angular rate per sample.
+    rate : ndarray, optional
+        rad/s, the bucket's measured angular rate per sample (where the angle is not finite;
+        :func:`bucket_moves`).
     """
     passes, dig = [], None
     for a, b, change in bucket_moves(time, angle, rate):
