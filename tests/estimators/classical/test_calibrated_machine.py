@@ -598,6 +598,33 @@ def test_zero_says_which_cylinders_it_could_not_check(setup):
 
 
 
+def test_outside_calibration_arm_weighs_no_joint_while_any_is_outside(momentum, setup):
+    """--outside-calibration arm: with the dipper's covered range narrowed, a sample whose dipper
+    lies outside it gives no joint weight (skip would weigh all three there), the estimate
+    differs from skip's, and the note names the arm and the angle reached."""
+    from excavator_payload.estimators.classical.pressure_regression import ANGLES
+
+    test = setup["test"]
+    dipper = test.frame["dipper_angle"].to_numpy(float)
+    offset = momentum.calibration.offset_vector()[ANGLES[1]]
+    ests = {}
+    for mode in ("skip", "arm"):
+        est = copy.deepcopy(momentum)
+        est.options["outside_calibration"] = mode
+        est.calibration.angle_coverage[1] = (np.median(dipper) - offset, np.radians(60))
+        est.use_calibration()
+        ests[mode] = est
+    sample = test.frame.iloc[int(np.argmin(dipper))][list(cm.SIGNALS)].to_numpy(float)
+    assert not ests["arm"].kernel.regression._inside(sample).any()
+    assert ests["skip"].kernel.regression._inside(sample).tolist() == [True, True, True]
+    a, b = (ests[m].estimate(test)["payload_estimate"].to_numpy() for m in ("skip", "arm"))
+    assert not np.array_equal(a, b, equal_nan=True)
+    notes = ests["arm"].estimate_notes(test)
+    assert any("dipper angle lay outside" in n and "the arm is not weighed" in n and "it reached" in n
+               for n in notes), notes
+    assert not any("dipper" in n for n in ests["skip"].estimate_notes(test))
+
+
 def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(momentum, setup, tmp_path, capsys):
     """fit records the boom, dipper and bucket angle range of the calibration motions (offsets
     removed, 0.5-99.5 percentiles ± 5°); the momentum form does not weigh a joint outside it
