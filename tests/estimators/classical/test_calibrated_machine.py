@@ -963,3 +963,15 @@ def test_joint_check_names_a_boom_pressure_offset_and_never_calls_it_ok(momentum
     finally:
         est.options["joint_check"] = "on"
     np.testing.assert_array_equal(unchecked["status"].to_numpy(), off["status"].to_numpy())
+
+
+def test_the_fit_report_names_the_ranges_the_calibration_left_out():
+    """Stretches of a joint's range of 10° or more that the calibration motions did not reach are
+    named (the boom's 9° is not); a calibration covering everything names nothing."""
+    from excavator_payload.estimators.classical.machine_calibration.weighing import uncovered_ranges
+
+    deg = np.pi / 180
+    ranges = np.array([[-45, 60], [-150, -15], [-126, 29], [-3, 3]]) * deg
+    covered = np.array([[-44, 51], [-114, -43], [-106, -31]]) * deg
+    assert uncovered_ranges(covered, ranges) == "dipper -150…-114° and -43…-15°, bucket -126…-106° and -31…29°"
+    assert uncovered_ranges(np.array([[-50, 70], [-160, -10], [-130, 30]]) * deg, ranges) == ""

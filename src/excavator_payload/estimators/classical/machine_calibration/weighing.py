@@ -33,6 +33,32 @@ from excavator_payload.model.hydraulic import HydraulicArmModel
 from excavator_payload.platforms import HYDRAULIC
 
 
+#: A stretch of a joint's range the calibration did not reach is named in the fit report from
+#: this size on (rad).
+UNCOVERED_REPORTED = 10.0 * DEG
+
+
+def uncovered_ranges(coverage: np.ndarray, ranges: np.ndarray) -> str:
+    """The stretches of the boom's, dipper's and bucket's ranges (the machine file's) that the
+    calibration's covered angles leave out, :data:`UNCOVERED_REPORTED` or longer, for humans
+    (e.g. ``"dipper -150…-114° and -43…-15°"``; empty: none).
+
+    Parameters
+    ----------
+    coverage : ndarray
+        (3, 2) covered [low, high] per joint, rad (offsets removed).
+    ranges : ndarray
+        The machine's angle ranges, (≥ 3, 2), rad.
+    """
+    parts = []
+    for j, joint in enumerate(("boom", "dipper", "bucket")):
+        (lo, hi), (r_lo, r_hi) = np.asarray(coverage, float)[j], np.asarray(ranges, float)[j]
+        gaps = [(a, b) for a, b in ((r_lo, min(lo, r_hi)), (max(hi, r_lo), r_hi)) if b - a >= UNCOVERED_REPORTED]
+        if gaps:
+            parts.append(f"{joint} " + " and ".join(f"{a / DEG:.0f}…{b / DEG:.0f}°" for a, b in gaps))
+    return ", ".join(parts)
+
+
 def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str]:
     """A note per limited joint (:data:`COVERAGE_JOINTS`) whose angle leaves the range the
     calibration covered on some of ``dataset``'s samples, while ``--outside-calibration`` skips it:
@@ -293,6 +319,12 @@ class MachineWeighing:
         report.append(
             "calibration covers boom {:.0f}…{:.0f}°, dipper {:.0f}…{:.0f}°, bucket {:.0f}…{:.0f}° "
             "(beyond, {})".format(low[0], high[0], low[1], high[1], low[2], high[2], beyond))
+        gaps = uncovered_ranges(cal.angle_coverage, arm.machine.angle_ranges)
+        if gaps:
+            report.append(
+                f"calibration: of the machine's ranges the calibration motions did not reach {gaps}: "
+                "to weigh loads carried there, add calibration motions with known loads that take "
+                "those joints there")
         return weighing, {"warnings": warnings, "refusals": refusals, "report": report}
 
     # -- zero check ---------------------------------------------------------------------------
