@@ -34,7 +34,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_any_motion import alarms_and_coverage, zero_part  # noqa: E402
-from held_out_motions import joystick_trajectory, lever_trajectory  # noqa: E402
+from held_out_motions import joystick_trajectory, lever_trajectory, multisine_trajectory  # noqa: E402
 
 from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
@@ -61,7 +61,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=7, help="the study's seed (draw 0 = its calibration)")
     ap.add_argument("--out", type=Path, default=Path("machine-draws"))
     ap.add_argument("--sets", nargs="+", default=list(SETS),
-                    choices=[*SETS, "swing", "hand-made trajectory", "lever", "joystick"], help="test sets")
+                    choices=[*SETS, "swing", "hand-made trajectory", "lever", "joystick", "multisine",
+                             "multisine-creep"], help="test sets")
     ap.add_argument("--motions", type=int, nargs="+", default=[10],
                     help="calibration motions per draw, cycled over the draws")
     ap.add_argument("--zeros", nargs="+", default=["empty-swing"], choices=["empty-swing", "slow-lever"],
@@ -83,6 +84,12 @@ def main() -> None:
     if "joystick" in a.sets:
         tests["joystick"] = dm.simulate_trajectory(joystick_trajectory(a.n_test, a.seed + 5), a.seed + 5,
                                                    dm.SESSION_WORK)
+    if "multisine" in a.sets:  # held out since 2026-11-29
+        tests["multisine"] = dm.simulate_trajectory(multisine_trajectory(a.n_test, a.seed + 6), a.seed + 6,
+                                                    dm.SESSION_WORK)
+    if "multisine-creep" in a.sets:
+        tests["multisine-creep"] = dm.simulate_trajectory(multisine_trajectory(a.n_test, a.seed + 7, creep=True),
+                                                          a.seed + 7, dm.SESSION_WORK)
     print(f"test sets simulated in {time.time() - t0:.0f} s", flush=True)
     rows = []
     for draw in range(a.draws):

@@ -13,6 +13,11 @@ Usage::
 
     PYTHONPATH=src python benchmarks/bench_shift.py --calibration 10 --cal-seed 0 --zero-seed 1 \\
         --shift 777:20000 --shift 2026:15000 --shift 31337:25000
+
+``--rate-fault dropout|stuck`` loses one link rate (boom, dipper or bucket, drawn per pass) from
+the start of each pass's fill to 0.5 s after its release: at 0 (dropout) or frozen at its value
+(stuck). The passes the estimator weighs on without it are ``degraded``; their errors and σ are
+reported apart.
 """
 
 from __future__ import annotations
@@ -37,6 +42,8 @@ def main() -> None:
     ap.add_argument("--zero-seed", type=int, default=1, help="seed of the empty swing (session 2)")
     ap.add_argument("--shift", action="append", default=None, help="SEED:TRUCK_TARGET_KG (repeatable)")
     ap.add_argument("--trucks", type=int, default=10)
+    ap.add_argument("--rate-fault", choices=["dropout", "stuck"], default=None,
+                    help="lose a link rate during every pass (module doc)")
     a = ap.parse_args()
     shifts = [tuple(map(float, s.split(":"))) for s in (a.shift or ["777:20000", "2026:15000", "31337:25000"])]
     t0 = time.time()
@@ -49,6 +56,8 @@ def main() -> None:
     for seed, target in shifts:
         t1 = time.time()
         data = simulate_machine_dataset(a.trucks, seed=int(seed), session=2, motion="shift", truck_target=target)
+        if a.rate_fault:
+            data = with_rate_faults(data, a.rate_fault, int(seed))
         trucks = run_loadout(est, data, None, "", None)
         passes = passes_frame(trucks)
         tk = [{"total": t.total, "true_total": t.true_total, "passes": len(t.passes),
@@ -62,6 +71,30 @@ def main() -> None:
               f"RMS {s['pass_error_rms']:.1f} / largest {s['pass_error_max']:.1f} kg; within 2σ "
               f"{100 * covered:.1f} %; trucks within 0.5 % {100 * s['trucks_within_half_pct']:.0f} % "
               f"(largest {s['truck_error_max']:.1f} kg); {time.time() - t1:.0f} s", flush=True)
+        if a.rate_fault:
+            counts = passes["status"].value_counts().to_dict()
+            bad = passes[passes["status"] == "degraded"]
+            e = (bad["weight"] - bad["true_weight"]).abs()
+            print(f"  with a {a.rate_fault} rate in every pass: statuses {counts}; degraded passes: "
+                  f"error median {e.median():.1f} / largest {e.max():.1f} kg, within 1 % "
+                  f"{100 * float(np.mean(e <= 0.01 * RATED)):.1f} %, within 2σ "
+                  f"{100 * float(np.mean(e <= 2 * bad['sigma'])):.1f} %", flush=True)
+
+
+def with_rate_faults(data, kind: str, seed: int):
+    """``data`` with one link rate lost during every simulated pass (module doc)."""
+    from excavator_payload.data.dataset import Dataset
+
+    rng = np.random.default_rng(seed)
+    frame = data.frame.copy()
+    for k, meta in data.experiment_meta.items():
+        rows = frame["experiment"] == k
+        for p in meta.get("passes", []):
+            signal = str(rng.choice(["boom_rate", "dipper_rate", "bucket_rate"]))
+            lost = rows & (frame["time"] > p["fill"][0]) & (frame["time"] < p["release"][0] + 0.5)
+            first = frame.index[lost][0]
+            frame.loc[lost, signal] = 0.0 if kind == "dropout" else frame.at[first, signal]
+    return Dataset(frame, data.meta)
 
 
 if __name__ == "__main__":

@@ -218,3 +218,57 @@ def joystick_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", p
             frame["ground_roll"] = math.radians(slope_deg) * math.sin(d)
         rows.append(frame)
     return pd.concat(rows, ignore_index=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Held out since 2026-11-29: every joint moving at once, smoothly, all the time. Judge on it;
+# never tune on it.
+
+
+def multisine_motion(rng: np.random.Generator, arm: HydraulicArmModel, duration: float = 14.0,
+                     rate: float = 100.0, share: float = 0.6, creep: bool = False) -> np.ndarray:
+    """(n, 5) time and angles (boom, dipper, bucket, slew) of one motion in which every joint
+    follows a sum of three sines (0.05–0.5 Hz, random phases and amplitudes) inside its range,
+    scaled so that its fastest rate is ``share`` of the pumps' (``creep``: a fifth of that, at
+    0.4 × the frequencies — a slow trim of every joint at once). Unlike the other families there
+    is no lift, pause or target: the arm never stops, and the joints' motions are unrelated."""
+    r = arm.machine.angle_ranges.copy()
+    r[:, 0] += 8 * DEG
+    r[:, 1] -= 8 * DEG
+    t = np.arange(int(round(duration * rate)) + 1) / rate
+    limits = _rate_limits(arm) * share * (0.2 if creep else 1.0)
+    out = np.empty((len(t), 5))
+    out[:, 0] = t
+    for j in range(4):
+        freq = rng.uniform(0.05, 0.5, 3) * (0.4 if creep else 1.0)
+        phase = rng.uniform(0, 2 * math.pi, 3)
+        amp = rng.uniform(0.3, 1.0, 3)
+        x = sum(amp[k] * (np.sin(2 * math.pi * freq[k] * t + phase[k]) - math.sin(phase[k])) for k in range(3))
+        x = x * limits[j] / max(float(np.abs(np.gradient(x, t)).max()), 1e-9)
+        if j < 3:
+            low, high = r[j]
+            span = float(x.max() - x.min())
+            if span > high - low:
+                x = x * (high - low) / span
+            x = x + float(np.clip(rng.uniform(low, high), low - x.min(), high - x.max()))
+        else:
+            x = x * min(1.0, 1.4 / max(float(np.abs(x).max()), 1e-9))  # slew within ±80°
+        out[:, j + 1] = x
+    return out
+
+
+def multisine_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payloads=None,
+                         creep: bool = False) -> pd.DataFrame:
+    """A trajectory table of ``n`` multi-sine motions (:func:`multisine_motion`; payloads uniform
+    in 0…rated unless given)."""
+    m = load_machine(machine)
+    arm = HydraulicArmModel(m)
+    rng = np.random.default_rng([seed, 777])
+    rows = []
+    for k in range(n):
+        motion = multisine_motion(rng, arm, creep=creep)
+        payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
+        rows.append(pd.DataFrame({"experiment": k, "time": motion[:, 0], "boom_angle": motion[:, 1],
+                                  "dipper_angle": motion[:, 2], "bucket_angle": motion[:, 3],
+                                  "slew_angle": motion[:, 4], "payload": payload}))
+    return pd.concat(rows, ignore_index=True)

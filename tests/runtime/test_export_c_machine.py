@@ -182,6 +182,29 @@ def test_c_equals_python_outside_the_calibrated_range(name, machine_models, mach
         _assert_c_equals_python(est, source, machine_faulty, tmp_path / "build", single)
 
 
+@pytest.mark.parametrize("name", ["calibrated-skip", "calibrated-momentum"])
+def test_c_equals_python_with_the_arm_outside_the_calibrated_range(name, machine_models, machine_faulty, tmp_path):
+    """--outside-calibration arm: the dipper's covered range narrowed to the middle of these
+    swings' dipper angles, so the whole arm goes in and out of it; C stops weighing on the same
+    samples as Python."""
+    est = copy.deepcopy(machine_models[name])
+    est.options["outside_calibration"] = "arm"
+    dipper = machine_faulty.frame["dipper_angle"].to_numpy(float)
+    middle = float(np.nanmedian(dipper[np.isfinite(dipper) & (np.abs(dipper) < 10)]))
+    est.calibration.angle_coverage[1] = (middle - 0.2, middle + 0.2)
+    est.use_calibration()
+    skip = copy.deepcopy(est)
+    skip.options["outside_calibration"] = "skip"
+    skip.use_calibration()
+    arm_py = est.estimate(machine_faulty)["payload_estimate"].to_numpy(float)
+    skip_py = skip.estimate(machine_faulty)["payload_estimate"].to_numpy(float)
+    assert not np.array_equal(arm_py, skip_py, equal_nan=True)  # the whole-arm guard changed the weighing
+    source = export_c(est, tmp_path / "export")[1]
+    assert "ep_arm_outside" in source.read_text()
+    for single in (False, True):
+        _assert_c_equals_python(est, source, machine_faulty, tmp_path / "build", single)
+
+
 def test_c_equals_python_where_a_new_load_is_detected(machine_models, tmp_path):
     """--new-load detect (the momentum form's default) where it bites: two swings of 500 kg and
     4500 kg streamed as one experiment, as a sensor on a running machine sees one load after

@@ -145,9 +145,11 @@ def test_loadout_messages_in_the_dbc_keep_the_old_ids_and_flag_bad_values():
 
     truck = Truck(3, target=None)
     truck.passes = [Pass(3, 1, 1.0, 2.0, None, None, None, "not_weighed"),
-                    Pass(3, 2, 3.0, 4.0, 3.5, -9000.0, 5.0, "ok")]
+                    Pass(3, 2, 3.0, 4.0, 3.5, -9000.0, 5.0, "ok"),
+                    Pass(3, 3, 5.0, 6.0, 5.5, 2100.0, 12.0, "degraded", "weighed without boom_rate:dropout")]
     pub = _Publisher()
-    unweighed, impossible = (decode_loadout(pub.pass_frames(truck, p)[0]) for p in truck.passes)
+    unweighed, impossible, degraded = (decode_loadout(pub.pass_frames(truck, p)[0]) for p in truck.passes)
+    assert degraded["PassStatus"] == 2 and degraded["PassWeight"] == 2100.0
     assert math.isnan(unweighed["PassWeight"]) and unweighed["PassStatus"] == 1
     assert math.isnan(impossible["PassWeight"]) and impossible["PassSigma"] == 5.0
     total = decode_loadout(pub.truck_frame(truck))

@@ -80,6 +80,9 @@ VEHICLE_WEIGHT_MESSAGE = "VehicleWeight"
 #: running total from the payload ECU, and the operator's "new truck" button.
 LOADOUT_PASS_PGN = 0xFF81
 LOADOUT_PASS_MESSAGE = "LoadoutPass"
+#: A pass's status on the bus, by code (``PassStatus``): a degraded pass was weighed without a
+#: sensor the health monitor named (its σ widened); appended, so older codes keep their numbers.
+PASS_STATUSES = ("ok", "not_weighed", "degraded")
 LOADOUT_TRUCK_PGN = 0xFF82
 LOADOUT_TRUCK_MESSAGE = "LoadoutTruck"
 LOADOUT_CONTROL_PGN = 0xFF83
@@ -401,7 +404,7 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
               _sg(("PassWeight", 24, 16, PAYLOAD_RESOLUTION, PAYLOAD_OFFSET, PAYLOAD_OFFSET, payload_max,
                    "kg"), OPERATOR_NODE),
               _sg(("PassSigma", 40, 16, PAYLOAD_RESOLUTION, 0, 0, sigma_max, "kg"), OPERATOR_NODE),
-              _sg(("PassStatus", 56, 8, 1, 0, 0, 1, ""), OPERATOR_NODE),
+              _sg(("PassStatus", 56, 8, 1, 0, 0, len(PASS_STATUSES) - 1, ""), OPERATOR_NODE),
               "",
               f"BO_ {truck_id} {LOADOUT_TRUCK_MESSAGE}: 8 {ESTIMATOR_NODE}",
               _sg(("TruckNumber", 0, 16, 1, 0, 0, valid_raw_max(16), ""), OPERATOR_NODE),
@@ -466,7 +469,7 @@ def generate_dbc(sensor_set: SensorSet | str) -> str:
         *attributes,
         *spns,
         f"VAL_ {est_id} PayloadStatus " + " ".join(f'{i} "{n}"' for i, n in enumerate(statuses)) + " ;",
-        f'VAL_ {pass_id} PassStatus 0 "ok" 1 "not_weighed" ;',
+        f"VAL_ {pass_id} PassStatus " + " ".join(f'{i} "{n}"' for i, n in enumerate(PASS_STATUSES)) + " ;",
         f'VAL_ {control_id} NewTruck 0 "released" 1 "pressed" 2 "error" 3 "not_available" ;',
         "",
     ]

@@ -20,8 +20,10 @@ The estimator (the ``calibrated`` one restarts on a new load by itself: statuses
 ``load_changing`` while a load leaves or enters, ``warming_up`` until the boom has been
 weighed again) runs over the whole log; a pass's weight is its **last** ``ok`` estimate and σ
 between the dig's end and the dump's start, locked at that time. A pass with no ``ok``
-estimate there is reported with status ``not_weighed`` and the reason (the statuses it had
-instead), never skipped or guessed.
+estimate there takes its last ``degraded`` one (weighed without a sensor the health monitor
+named, σ widened; status ``degraded``, the sensor in the reason) and is counted in the truck's
+total; a pass with neither is reported with status ``not_weighed`` and the reason (the
+statuses it had instead), never skipped or guessed.
 
 Trucks
 ------
@@ -50,6 +52,10 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.errors import DatasetError
+from excavator_payload.estimators.status import Status
+
+#: A pass weighed without a sensor the health monitor named (:func:`lock_weight`).
+DEGRADED = Status.DEGRADED.value
 
 #: A curl of the bucket by more than this (rad) ends a dig: the cut fills the bucket. Work
 #: cycles curl 65-125° (halved near the end of the bucket's range); the bucket's "ready" curl
@@ -90,9 +96,11 @@ class Pass:
     sigma : float or None
         kg, its one-sigma uncertainty (NaN when the estimator gives none); None when not weighed.
     status : str
-        ``"ok"`` or ``"not_weighed"``.
+        ``"ok"``, ``"degraded"`` (weighed without a sensor the health monitor named, σ widened)
+        or ``"not_weighed"``.
     reason : str, optional
-        Why it was not weighed (the statuses it had instead).
+        Why it was not weighed (the statuses it had instead), or which sensors a degraded weight
+        was weighed without.
     true_weight : float or None, optional
         kg, the simulated truth of the pass, where the data has it.
     """
@@ -104,7 +112,7 @@ class Pass:
     time_lock: float | None  # the sample the weight was locked at
     weight: float | None
     sigma: float | None
-    status: str  # "ok" or "not_weighed"
+    status: str  # "ok", "degraded" or "not_weighed"
     reason: str = ""
     true_weight: float | None = None
 
@@ -153,6 +161,11 @@ class Truck:
         return sum(p.weight is None for p in self.passes)
 
     @property
+    def degraded(self) -> int:
+        """Passes weighed without a sensor the health monitor named (in the total, σ widened)."""
+        return sum(p.status == DEGRADED for p in self.passes)
+
+    @property
     def remaining(self) -> float | None:
         """What the last pass should carry: the target less the total so far."""
         return None if self.target is None else self.target - self.total
@@ -163,9 +176,14 @@ def _smooth(x: np.ndarray, period: float) -> np.ndarray:
     return np.convolve(x, np.ones(n) / n, mode="same")
 
 
-def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int, float]]:
+def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray | None = None) -> list[tuple[int, int, float]]:
     """The bucket's moves: (first sample, last sample, change of angle in rad) of each run where
     its smoothed rate stays beyond :data:`MOVE_RATE` in one direction (+: opening, −: curling).
+
+    The rate is the bucket angle's own slope: a dig and a dump are defined by the angle, and a
+    lost rate sensor (at 0 or frozen) read as the rate lost 11 of 25 passes of a shift, silently,
+    and put its trucks' totals up to 11 t short. The rate sensor serves only where the angle is
+    not finite.
 
     Parameters
     ----------
@@ -173,11 +191,18 @@ def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[
         s, sample times (evenly spaced: the median step is the period).
     angle : ndarray
         rad, the bucket angle per sample.
-    rate : ndarray
-        rad/s, the bucket's angular rate per sample.
+    rate : ndarray, optional
+        rad/s, the bucket's measured angular rate per sample (where the angle is not finite).
     """
+    time, angle = np.asarray(time, float), np.asarray(angle, float)
     period = float(np.median(np.diff(time))) if len(time) > 1 else 0.01
-    r = _smooth(rate, period)
+    if len(angle) < 2:
+        slope = np.zeros(len(angle))
+    else:  # over the samples' own times where they rise (a gap is not a fast move)
+        slope = np.gradient(angle, time if np.all(np.diff(time) > 0) else period)
+    if rate is not None:
+        slope = np.where(np.isfinite(slope), slope, np.asarray(rate, float))
+    r = _smooth(np.where(np.isfinite(slope), slope, 0.0), period)
     sign = np.where(r > MOVE_RATE, 1, np.where(r < -MOVE_RATE, -1, 0))
     moves = []
     edges = np.flatnonzero(np.diff(np.r_[0, sign, 0]))
@@ -187,7 +212,7 @@ def bucket_moves(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[
     return moves
 
 
-def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[tuple[int, int]]:
+def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray | None = None) -> list[tuple[int, int]]:
     """(dig end, dump start) sample of each pass, from the bucket's moves (module doc).
 
     Parameters
@@ -196,8 +221,9 @@ def find_passes(time: np.ndarray, angle: np.ndarray, rate: np.ndarray) -> list[t
         s, sample times.
     angle : ndarray
         rad, the bucket angle per sample.
-    rate : ndarray
-        rad/s, the bucket's angular rate per sample.
+    rate : ndarray, optional
+        rad/s, the bucket's measured angular rate per sample (where the angle is not finite;
+        :func:`bucket_moves`).
     """
     passes, dig = [], None
     for a, b, change in bucket_moves(time, angle, rate):
@@ -237,8 +263,14 @@ def phases(frame: pd.DataFrame) -> np.ndarray:
 
 
 def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, status: np.ndarray,
-                start: int, stop: int) -> tuple[float | None, float | None, float | None, str]:
-    """The last ``ok`` estimate in samples ``start … stop-1``: (time, weight, σ, reason if none).
+                start: int, stop: int, fault: np.ndarray | None = None
+                ) -> tuple[float | None, float | None, float | None, str, str]:
+    """The pass's weight from samples ``start … stop-1``: (time, weight, σ, reason, status).
+
+    The last ``ok`` estimate, status ``ok``; without one, the last ``degraded`` estimate (weighed
+    without a sensor the health monitor named, its σ widened), status ``degraded`` and the reason
+    naming the sensors; without either, nothing, status ``not_weighed`` and the statuses seen.
+    A pass weighed on an ``ok`` sample is never reported degraded because a fault came earlier.
 
     Parameters
     ----------
@@ -252,15 +284,23 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
         The estimates' statuses.
     start, stop : int
         Samples ``start`` to ``stop - 1`` are searched (the dig's end to the dump's start).
+    fault : ndarray of str, optional
+        The estimates' ``fault`` column (the named sensors, ``signal:kind;…``), for a degraded
+        pass's reason.
     """
-    window = np.asarray(status[start:stop]) == "ok"
-    ok = np.flatnonzero(window & np.isfinite(estimate[start:stop]))
-    if len(ok):
-        i = start + int(ok[-1])
-        return float(time[i]), float(estimate[i]), float(sigma[i]), ""
+    finite = np.isfinite(estimate[start:stop])
+    for wanted in ("ok", DEGRADED):
+        found = np.flatnonzero((np.asarray(status[start:stop]) == wanted) & finite)
+        if len(found):
+            i = start + int(found[-1])
+            reason = ""
+            if wanted == DEGRADED:
+                named = str(fault[i]) if fault is not None and fault[i] not in (None, "") else "a sensor"
+                reason = f"weighed without {named} (σ widened)"
+            return float(time[i]), float(estimate[i]), float(sigma[i]), reason, wanted
     seen = pd.Series(status[start:stop]).value_counts()
     what = ", ".join(f"{k} {100 * v / max(stop - start, 1):.0f} %" for k, v in seen.items()) or "no samples"
-    return None, None, None, f"no ok estimate between the dig and the dump ({what})"
+    return None, None, None, f"no ok estimate between the dig and the dump ({what})", "not_weighed"
 
 
 def split_trucks(frame: pd.DataFrame) -> list[pd.DataFrame]:
@@ -324,9 +364,9 @@ def weigh_truck(estimator, rows: pd.DataFrame, truck: int, target: float | None,
         out.faults = fault_episodes(estimator.sensor_set, time, est["fault"].to_numpy(object))
     for k, (dig, dump) in enumerate(find_passes(time, rows["bucket_angle"].to_numpy(float),
                                                 rows["bucket_rate"].to_numpy(float)), start=1):
-        t_lock, w, s, reason = lock_weight(time, estimate, sigma, status, dig, dump)
-        out.passes.append(Pass(truck, k, float(time[dig]), float(time[dump]), t_lock, w, s,
-                               "ok" if w is not None else "not_weighed", reason))
+        t_lock, w, s, reason, pass_status = lock_weight(
+            time, estimate, sigma, status, dig, dump, est["fault"].to_numpy(object) if "fault" in est else None)
+        out.passes.append(Pass(truck, k, float(time[dig]), float(time[dump]), t_lock, w, s, pass_status, reason))
     if truth:
         out.matched = _truth_match(out.passes, truth)
         out.true_passes = len(truth)
@@ -648,7 +688,8 @@ def split_trucks_of(rows: pd.DataFrame, dataset) -> list[int]:
 
 def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | None = None) -> dict:
     """Counts and, where the record has the truth, errors: passes within 1 % of ``rated`` (kg;
-    without it not counted), trucks within 0.5 % of their load.
+    without it not counted), trucks within 0.5 % of their load. Degraded passes are weighed
+    passes (counted in ``degraded`` too).
 
     Parameters
     ----------
@@ -657,9 +698,9 @@ def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | Non
     rated : float, optional
         kg, the rated payload (the 1 % pass criterion is left out without it).
     """
-    weighed = passes[passes["status"] == "ok"]
-    out = {"trucks": int(len(trucks)), "passes": int(len(passes)), "not_weighed": int((passes["status"] != "ok").sum()),
-           "total": float(trucks["total"].sum())}
+    weighed = passes[passes["status"].isin(["ok", DEGRADED])]
+    out = {"trucks": int(len(trucks)), "passes": int(len(passes)), "not_weighed": int(len(passes) - len(weighed)),
+           "degraded": int((passes["status"] == DEGRADED).sum()), "total": float(trucks["total"].sum())}
     known = weighed.dropna(subset=["true_weight"])
     if len(known):
         err = (known["weight"] - known["true_weight"]).to_numpy(float)
@@ -703,7 +744,7 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
     out.mkdir(parents=True, exist_ok=True)
     s = shift_summary(passes, trucks, rated)
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    weights = passes.loc[passes["status"] == "ok", "weight"].to_numpy(float)
+    weights = passes.loc[passes["status"].isin(["ok", DEGRADED]), "weight"].to_numpy(float)
     ax.hist(weights, bins=max(5, min(30, len(weights) // 2 or 1)), color="#4477aa")
     ax.set_xlabel("pass weight, kg")
     ax.set_ylabel("passes")
@@ -719,7 +760,9 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
         return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
 
     lines = ["# Shift report", "", f"Record: `{db}`", "",
-             f"- trucks: {s['trucks']}", f"- passes: {s['passes']} ({s['not_weighed']} not weighed)",
+             f"- trucks: {s['trucks']}",
+             f"- passes: {s['passes']} ({s['not_weighed']} not weighed"
+             + (f", {s['degraded']} weighed without a faulty sensor, σ widened)" if s["degraded"] else ")"),
              f"- total loaded: {num(s['total'])} kg"]
     if "pass_error_rms" in s:
         lines += [f"- pass weight error against the truth: RMS {s['pass_error_rms']:.1f} kg, "

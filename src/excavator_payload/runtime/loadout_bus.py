@@ -53,7 +53,7 @@ import numpy as np
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.loadout import (
-    TRUCK_GAP, Pass, ShiftRecord, Truck, _truth_match, episode_row, find_passes, lock_weight)
+    DEGRADED, TRUCK_GAP, Pass, ShiftRecord, Truck, _truth_match, episode_row, find_passes, lock_weight)
 
 #: The truck's passes are looked for again every this many samples (0.1 s at 100 Hz): a pass
 #: is locked at most this late after its dump opened the bucket by DUMP_OPEN.
@@ -231,6 +231,7 @@ class TruckTracker:
         # look for passes copy the whole truck)
         self._num = np.empty((5, 4096))  # time, angle, rate, estimate, sigma
         self._status = np.empty(4096, dtype=object)
+        self._fault = np.empty(4096, dtype=object)  # the named sensors, for a degraded pass's reason
         self.samples = 0
         self._held = (0.0, 0.0)  # the last finite bucket angle and rate (a stale sample holds them)
 
@@ -254,9 +255,11 @@ class TruckTracker:
         if n == self._num.shape[1]:
             self._num = np.concatenate([self._num, np.empty_like(self._num)], axis=1)
             self._status = np.concatenate([self._status, np.empty_like(self._status)])
+            self._fault = np.concatenate([self._fault, np.empty_like(self._fault)])
         self._num[:, n] = (float(output.time) - self.truck.start, angle, rate, float(output.estimate),
                            float(output.sigma))
         self._status[n] = output.status
+        self._fault[n] = getattr(output, "fault", "") or ""
         self.samples = n + 1
         if self.samples % EVALUATE_EVERY:
             return []
@@ -270,9 +273,10 @@ class TruckTracker:
         new = []
         for dig, dump in found[len(self.truck.passes):]:
             # locked passes stay as sent; a new one is weighed on the estimates before its dump
-            t_lock, w, s, reason = lock_weight(time, estimate, sigma, self._status[:self.samples], dig, dump)
+            t_lock, w, s, reason, status = lock_weight(time, estimate, sigma, self._status[:self.samples], dig,
+                                                       dump, self._fault[:self.samples])
             p = Pass(self.truck.truck, len(self.truck.passes) + 1, float(time[dig]), float(time[dump]),
-                     t_lock, w, s, "ok" if w is not None else "not_weighed", reason)
+                     t_lock, w, s, status, reason)
             self.truck.passes.append(p)
             new.append(p)
         return new
@@ -384,7 +388,7 @@ class BusLoadout:
             was = self.guard.flagged
             if self.guard.add(output.time, output.values):
                 self._judged(was)
-            if self.guard.flagged and output.status == "ok":
+            if self.guard.flagged and output.status in ("ok", DEGRADED):
                 output = replace(output, status=GUARDED)  # no weight while a signal's unit is wrong
         out = self.sensor.frames(output) if self.send else []
         if not self.send:
@@ -531,7 +535,7 @@ class _Publisher:
             {"PassTruck": truck.truck % (dbc.valid_raw_max(16) + 1), "PassNumber": min(p.index, dbc.valid_raw_max(8)),
              "PassWeight": j1939_raw(weight, dbc.PAYLOAD_RESOLUTION, dbc.PAYLOAD_OFFSET),
              "PassSigma": j1939_raw(sigma, dbc.PAYLOAD_RESOLUTION, 0.0),
-             "PassStatus": 0 if p.status == "ok" else 1}, scaling=False, padding=True, strict=False)
+             "PassStatus": dbc.PASS_STATUSES.index(p.status) if p.status in dbc.PASS_STATUSES else 1}, scaling=False, padding=True, strict=False)
         return [can.Message(arbitration_id=self.pass_message.frame_id, is_extended_id=True, data=data),
                 self.truck_frame(truck)]
 

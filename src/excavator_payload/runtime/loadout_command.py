@@ -115,7 +115,9 @@ def register(app: typer.Typer) -> None:
                                stale_tolerance, truth, bitrate, duration)
         n_pass = sum(len(t.passes) for t in trucks)
         n_bad = sum(t.unweighed for t in trucks)
-        console.print(f"{len(trucks)} trucks, {n_pass} passes ({n_bad} not weighed), "
+        n_degraded = sum(t.degraded for t in trucks)
+        degraded = f", {n_degraded} weighed without a faulty sensor" if n_degraded else ""
+        console.print(f"{len(trucks)} trucks, {n_pass} passes ({n_bad} not weighed{degraded}), "
                       f"{sum(t.total for t in trucks):,.0f} kg; recorded in {db}")
         if out is not None:
             frame = passes_frame(trucks)
@@ -142,6 +144,8 @@ def show_truck(truck) -> None:
         line += f" of {truck.target:,.0f} kg target ({truck.target - truck.total:,.0f} kg left)"
     if truck.unweighed:
         line += f"; {truck.unweighed} pass(es) not weighed"
+    if truck.degraded:
+        line += f"; {truck.degraded} pass(es) weighed without a faulty sensor (σ widened)"
     console.print(line)
     for fault in truck.faults:
         console.print(f"truck {truck.truck}: " + fault_line(fault), markup=False, highlight=False)

@@ -598,6 +598,33 @@ def test_zero_says_which_cylinders_it_could_not_check(setup):
 
 
 
+def test_outside_calibration_arm_weighs_no_joint_while_any_is_outside(momentum, setup):
+    """--outside-calibration arm: with the dipper's covered range narrowed, a sample whose dipper
+    lies outside it gives no joint weight (skip would weigh all three there), the estimate
+    differs from skip's, and the note names the arm and the angle reached."""
+    from excavator_payload.estimators.classical.pressure_regression import ANGLES
+
+    test = setup["test"]
+    dipper = test.frame["dipper_angle"].to_numpy(float)
+    offset = momentum.calibration.offset_vector()[ANGLES[1]]
+    ests = {}
+    for mode in ("skip", "arm"):
+        est = copy.deepcopy(momentum)
+        est.options["outside_calibration"] = mode
+        est.calibration.angle_coverage[1] = (np.median(dipper) - offset, np.radians(60))
+        est.use_calibration()
+        ests[mode] = est
+    sample = test.frame.iloc[int(np.argmin(dipper))][list(cm.SIGNALS)].to_numpy(float)
+    assert not ests["arm"].kernel.regression._inside(sample).any()
+    assert ests["skip"].kernel.regression._inside(sample).tolist() == [True, True, True]
+    a, b = (ests[m].estimate(test)["payload_estimate"].to_numpy() for m in ("skip", "arm"))
+    assert not np.array_equal(a, b, equal_nan=True)
+    notes = ests["arm"].estimate_notes(test)
+    assert any("dipper angle lay outside" in n and "the arm is not weighed" in n and "it reached" in n
+               for n in notes), notes
+    assert not any("dipper" in n for n in ests["skip"].estimate_notes(test))
+
+
 def test_calibration_records_the_angles_it_covered_and_weighing_keeps_inside(momentum, setup, tmp_path, capsys):
     """fit records the boom, dipper and bucket angle range of the calibration motions (offsets
     removed, 0.5-99.5 percentiles ± 5°); the momentum form does not weigh a joint outside it
@@ -936,3 +963,15 @@ def test_joint_check_names_a_boom_pressure_offset_and_never_calls_it_ok(momentum
     finally:
         est.options["joint_check"] = "on"
     np.testing.assert_array_equal(unchecked["status"].to_numpy(), off["status"].to_numpy())
+
+
+def test_the_fit_report_names_the_ranges_the_calibration_left_out():
+    """Stretches of a joint's range of 10° or more that the calibration motions did not reach are
+    named (the boom's 9° is not); a calibration covering everything names nothing."""
+    from excavator_payload.estimators.classical.machine_calibration.weighing import uncovered_ranges
+
+    deg = np.pi / 180
+    ranges = np.array([[-45, 60], [-150, -15], [-126, 29], [-3, 3]]) * deg
+    covered = np.array([[-44, 51], [-114, -43], [-106, -31]]) * deg
+    assert uncovered_ranges(covered, ranges) == "dipper -150…-114° and -43…-15°, bucket -126…-106° and -31…29°"
+    assert uncovered_ranges(np.array([[-50, 70], [-160, -10], [-130, 30]]) * deg, ranges) == ""

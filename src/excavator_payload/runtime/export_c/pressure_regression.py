@@ -152,6 +152,15 @@ def pressure_regression_model(est) -> CModel:
             f"static const int EP_ANGLES[3] = {{{', '.join(str(i) for i in ANGLES)}}};",
             c_array("EP_COVERAGE_LOW", kernel._raw_low).rstrip(),
             c_array("EP_COVERAGE_HIGH", kernel._raw_high).rstrip(),
+            *([] if not getattr(kernel, "whole_arm", False) else [
+                "/* --outside-calibration arm: any arm joint outside its range, and no joint is weighed */",
+                "static int ep_arm_outside(const ep_real *x)",
+                "{",
+                "    int j;",
+                "    for (j = 0; j < 3; ++j)",
+                "        if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) return 1;",
+                "    return 0;",
+                "}"]),
             "/* CalibratedKernel.ready (--wait-for-boom): no estimate until the boom joint has been",
             " * weighed in EP_BOOM_READY windows */",
             f"#define EP_WAIT_FOR_BOOM {1 if kernel.wait_for_boom else 0}",
@@ -202,6 +211,10 @@ def pressure_regression_model(est) -> CModel:
         d_num += wt * (out[3 + j] * out[j]);
         d_info += wt * (out[3 + j] * out[3 + j]);
     }}"""
+        if getattr(kernel, "whole_arm", False):
+            weights = weights.replace(
+                "if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt",
+                "if (ep_arm_outside(x)) wt")
         description = (f"calibrated on the machine sensor set: weighing regression from cylinder pressures "
                        f"and IMUs with the identified machine (from {est.machine.name}), sensor offsets and "
                        f"pressure noise {kernel.pressure_var ** 0.5:.4g} Pa, --low-speed {kernel.low_speed}, "
@@ -338,7 +351,16 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         weights_m = weights.replace("out[", "bal[").replace(
             "wt = EP_C(1.0) / var;", "var = var + bal_rate[j];\n        wt = EP_C(1.0) / var;").replace(
             "if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt",
-            "if (!bal_inside[j]) wt")
+            "if (!bal_inside[j]) wt").replace("if (ep_arm_outside(x)) wt", "if (!bal_inside[j]) wt")
+        inside_terms = (
+            """        for (j = 0; j < 3; ++j)
+            s->terms_inside[slot * 3 + j] = (unsigned char)(x[EP_ANGLES[j]] >= EP_COVERAGE_LOW[j]
+                                                            && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]"""
+            + dropped_at_centre + ");"
+            if not getattr(kernel, "whole_arm", False) else
+            """        for (j = 0; j < 3; ++j)
+            s->terms_inside[slot * 3 + j] = (unsigned char)"""
+            + ("(!ep_arm_outside(x)" + dropped_at_centre + ");" if dropped_at_centre else "!ep_arm_outside(x);"))
         regress = f"""    if (s->ring_filled == EP_RING) {{
         /* the differentiator window's centre: its balance terms (its qdd serves the IMU
          * correction only) go into the balance's ring, a rejected slot too (its interval
@@ -351,9 +373,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         slot = s->terms_next;
         for (i = 0; i < 24; ++i) s->terms[slot * 24 + i] = out[i];
         s->terms_used[slot] = s->ring_used[centre_slot];
-        for (j = 0; j < 3; ++j)
-            s->terms_inside[slot * 3 + j] = (unsigned char)(x[EP_ANGLES[j]] >= EP_COVERAGE_LOW[j]
-                                                            && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]{dropped_at_centre});
+{inside_terms}
         s->terms_next = (slot + 1) % EP_BALANCE;
         if (s->terms_filled < EP_BALANCE) s->terms_filled += 1;
         if (s->terms_filled == EP_BALANCE && s->terms_used[(s->terms_next + EP_BALANCE_CENTRE) % EP_BALANCE]) {{

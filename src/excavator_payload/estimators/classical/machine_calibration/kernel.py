@@ -90,8 +90,11 @@ class CalibratedKernel(PressureRegression):
             outside_calibration = "skip" if self.balance == "momentum" else "use"
         self.outside_calibration = outside_calibration
         coverage = np.tile([-NO_LIMIT, NO_LIMIT], (3, 1))
-        if outside_calibration == "skip":
-            limited = np.array(COVERAGE_JOINTS)
+        #: ``--outside-calibration arm``: a sample with any arm joint outside its covered range
+        #: weighs no joint
+        self.whole_arm = outside_calibration == "arm"
+        if outside_calibration in ("skip", "arm"):
+            limited = np.ones(3, bool) if self.whole_arm else np.array(COVERAGE_JOINTS)
             coverage[limited] = np.asarray(cal.angle_coverage, float)[limited]
         self._raw_low = np.clip(coverage[:, 0] + self._offset[ANGLES], -NO_LIMIT, NO_LIMIT)
         self._raw_high = np.clip(coverage[:, 1] + self._offset[ANGLES], -NO_LIMIT, NO_LIMIT)
@@ -229,9 +232,13 @@ class CalibratedKernel(PressureRegression):
         return np.ones(3, bool)
 
     def _inside(self, sample: np.ndarray) -> np.ndarray:
-        """Each joint's angle inside the range calibration covered (``--outside-calibration``)."""
+        """Each joint's angle inside the range calibration covered (``--outside-calibration``;
+        ``arm``: every joint inside, or none)."""
         angles = sample[ANGLES]
-        return (angles >= self._raw_low) & (angles <= self._raw_high)
+        inside = (angles >= self._raw_low) & (angles <= self._raw_high)
+        if getattr(self, "whole_arm", False):  # a kernel pickled before the option has none
+            return np.full(3, bool(inside.all()))
+        return inside
 
     def update(self, time: float, values: np.ndarray) -> bool:
         # ring of the window (2·half_window + 1 samples) and the newest, not yet judged samples,

@@ -83,10 +83,13 @@ ZERO_OFFSET_WARNING = 25.0
 #: Choices of ``--low-speed``.
 LOW_SPEED_CHOICES = ("model", "downweight", "skip")
 #: Choices of ``--outside-calibration``: what becomes of a joint's window where the joint's angle
-#: lies outside the range the calibration motions covered. ``auto``: ``skip`` in the momentum
-#: form, ``use`` in the per-sample form (whose boom and dipper alone, through the
+#: lies outside the range the calibration motions covered. ``skip``: the bucket joint gets no
+#: weight there (:data:`COVERAGE_JOINTS`); ``arm``: while any of boom, dipper or bucket lies
+#: outside its covered range, no joint gets weight (the arm's pose was not calibrated: every
+#: joint's balance carries the links beyond it); ``use``: weighed anyway. ``auto``: ``skip`` in
+#: the momentum form, ``use`` in the per-sample form (whose boom and dipper alone, through the
 #: differentiator, are worse than its extrapolated bucket).
-OUTSIDE_CALIBRATION_CHOICES = ("auto", "skip", "use")
+OUTSIDE_CALIBRATION_CHOICES = ("auto", "skip", "arm", "use")
 #: Choices of ``--wait-for-boom``: report no estimate until the boom joint has been weighed
 #: (a 0.5 s window of boom motion). ``auto``: ``yes`` in the momentum form, ``no`` in the
 #: per-sample form.

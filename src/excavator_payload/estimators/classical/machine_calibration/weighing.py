@@ -33,6 +33,32 @@ from excavator_payload.model.hydraulic import HydraulicArmModel
 from excavator_payload.platforms import HYDRAULIC
 
 
+#: A stretch of a joint's range the calibration did not reach is named in the fit report from
+#: this size on (rad).
+UNCOVERED_REPORTED = 10.0 * DEG
+
+
+def uncovered_ranges(coverage: np.ndarray, ranges: np.ndarray) -> str:
+    """The stretches of the boom's, dipper's and bucket's ranges (the machine file's) that the
+    calibration's covered angles leave out, :data:`UNCOVERED_REPORTED` or longer, for humans
+    (e.g. ``"dipper -150…-114° and -43…-15°"``; empty: none).
+
+    Parameters
+    ----------
+    coverage : ndarray
+        (3, 2) covered [low, high] per joint, rad (offsets removed).
+    ranges : ndarray
+        The machine's angle ranges, (≥ 3, 2), rad.
+    """
+    parts = []
+    for j, joint in enumerate(("boom", "dipper", "bucket")):
+        (lo, hi), (r_lo, r_hi) = np.asarray(coverage, float)[j], np.asarray(ranges, float)[j]
+        gaps = [(a, b) for a, b in ((r_lo, min(lo, r_hi)), (max(hi, r_lo), r_hi)) if b - a >= UNCOVERED_REPORTED]
+        if gaps:
+            parts.append(f"{joint} " + " and ".join(f"{a / DEG:.0f}…{b / DEG:.0f}°" for a, b in gaps))
+    return ", ".join(parts)
+
+
 def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str]:
     """A note per limited joint (:data:`COVERAGE_JOINTS`) whose angle leaves the range the
     calibration covered on some of ``dataset``'s samples, while ``--outside-calibration`` skips it:
@@ -49,23 +75,30 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
     dataset : Dataset
         The data weighed.
     """
-    if kernel.outside_calibration != "skip":
+    if kernel.outside_calibration not in ("skip", "arm"):
         return []
+    whole_arm = kernel.outside_calibration == "arm"
     notes = []
     for j, joint in enumerate(("boom", "dipper", "bucket")):
-        if not COVERAGE_JOINTS[j]:
+        if not (whole_arm or COVERAGE_JOINTS[j]):
             continue
         a = dataset.frame[SIGNALS[ANGLES[j]]].to_numpy(float)
         a = a[np.isfinite(a)]
         if not len(a):
             continue
-        outside = float(np.mean((a < kernel._raw_low[j]) | (a > kernel._raw_high[j])))
+        below, above = a < kernel._raw_low[j], a > kernel._raw_high[j]
+        outside = float(np.mean(below | above))
         if outside > 0:
             low, high = calibration.angle_coverage[j] / DEG
+            # the angles reached, offsets removed, as the calibration's range is given
+            offset = (kernel._raw_low[j] - calibration.angle_coverage[j][0]) / DEG
+            reached = [f"{(v / DEG - offset):.0f}°" for v, hit in ((a.min(), below.any()), (a.max(), above.any())) if hit]
             notes.append(f"{name}: the {joint} angle lay outside the range the calibration "
-                         f"motions covered ({low:.0f}…{high:.0f}°) on {100 * outside:.1f} % of the samples; "
-                         f"the {joint} is not weighed there. Calibrate with motions that cover the "
-                         f"{joint} angles you work at (or train with --outside-calibration use)")
+                         f"motions covered ({low:.0f}…{high:.0f}°) on {100 * outside:.1f} % of the samples "
+                         f"(it reached {' and '.join(reached)}); "
+                         f"{'the arm' if whole_arm else f'the {joint}'} is not weighed there. To weigh there, "
+                         f"add calibration motions with known loads that take the {joint} to those angles "
+                         "(or train with --outside-calibration use)")
     return notes
 
 
@@ -279,9 +312,19 @@ class MachineWeighing:
                     f"of each estimate then carries the sensor noise only; {MIN_CROSS_EXPERIMENTS} or "
                     "more calibrate a model error into it)")
         low, high = cal.angle_coverage[:, 0] / DEG, cal.angle_coverage[:, 1] / DEG
+        mode = options.get("outside_calibration", "auto")
+        if mode == "auto":
+            mode = "skip" if options.get("balance") == "momentum" else "use"
+        beyond = {"arm": "the arm is not weighed", "use": "the model extrapolates"}.get(mode, "the bucket is not weighed")
         report.append(
             "calibration covers boom {:.0f}…{:.0f}°, dipper {:.0f}…{:.0f}°, bucket {:.0f}…{:.0f}° "
-            "(beyond, the bucket is not weighed)".format(low[0], high[0], low[1], high[1], low[2], high[2]))
+            "(beyond, {})".format(low[0], high[0], low[1], high[1], low[2], high[2], beyond))
+        gaps = uncovered_ranges(cal.angle_coverage, arm.machine.angle_ranges)
+        if gaps:
+            report.append(
+                f"calibration: of the machine's ranges the calibration motions did not reach {gaps}: "
+                "to weigh loads carried there, add calibration motions with known loads that take "
+                "those joints there")
         return weighing, {"warnings": warnings, "refusals": refusals, "report": report}
 
     # -- zero check ---------------------------------------------------------------------------
