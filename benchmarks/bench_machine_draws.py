@@ -54,6 +54,22 @@ def judge(est, ds, label, bound) -> dict:
     return {**row, **alarms_and_coverage(ds, frame, zero_part(est))}
 
 
+def calibration(motions: int, seed: int, reach: int):
+    """``motions`` calibration motions of draw ``seed``: swings (the study's), the last ``reach``
+    of them `reach` motions (random known loads) instead."""
+    from excavator_payload.data.dataset import Dataset
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    swings = dm.calibration_data(motions - reach, seed)
+    if not reach:
+        return swings
+    extra = simulate_dataset(reach, seed=seed, machine="cat345c-hydraulic", motion="reach",
+                             session=dm.SESSION_CALIBRATION, with_truth=True, workers=1, progress=False)
+    frame = extra.frame.assign(experiment=extra.frame["experiment"] + int(swings.frame["experiment"].max()) + 1)
+    columns = [c for c in swings.frame.columns if c in frame.columns]
+    return Dataset(pd.concat([swings.frame[columns], frame[columns]], ignore_index=True), swings.meta)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--draws", type=int, default=5)
@@ -67,6 +83,9 @@ def main() -> None:
                     help="calibration motions per draw, cycled over the draws")
     ap.add_argument("--zeros", nargs="+", default=["empty-swing"], choices=["empty-swing", "slow-lever"],
                     help="zero motion per draw, cycled over the draws")
+    ap.add_argument("--reach", type=int, default=0,
+                    help="of each draw's calibration motions, this many are `reach` motions (every joint "
+                         "through its range at once) instead of swings")
     ap.add_argument("--balance", choices=cm.BALANCE_CHOICES, action="append",
                     help="the form(s) to calibrate (default: both)")
     ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
@@ -96,7 +115,7 @@ def main() -> None:
         seed = a.seed + 1000 * draw  # draw 0: the study's calibration and zero check
         motions = a.motions[draw % len(a.motions)]
         zero_kind = a.zeros[draw % len(a.zeros)]
-        cal = dm.calibration_data(motions, seed)
+        cal = calibration(motions, seed, a.reach)
         if zero_kind == "empty-swing":
             zero = dm.zero_data(seed + 1)
         else:  # a slow empty-bucket motion of the held-out lever model

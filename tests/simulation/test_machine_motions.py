@@ -37,3 +37,34 @@ def test_operator_motions_trimmed_far_out_of_range_are_brought_back():
         q, _, _ = motion.sample(np.linspace(0, motion.duration, 400))
         worst = max(worst, float(np.max(q[:, :3] - ranges[:, 1])), float(np.max(ranges[:, 0] - q[:, :3])))
     assert worst <= 1e-9, f"a planned operator motion leaves its range by {np.degrees(worst):.2f}°"
+
+
+def test_reach_motions_cover_the_ranges_swings_leave_and_stay_inside():
+    """`reach` calibration motions: every joint inside its range, within the pumps' speed (each
+    step no shorter than the hydraulics allow), and together they visit far more of the dipper's
+    and bucket's ranges than swings do (the stretches swings never reach)."""
+    import numpy as np
+
+    from excavator_payload.model.hydraulic import HydraulicArmModel
+    from excavator_payload.model.machine import load_machine
+    from excavator_payload.simulation.machine_motions import reach_motion, shortest_duration, swing_motion
+
+    machine = load_machine("cat345c-hydraulic")
+    arm = HydraulicArmModel(machine)
+    ranges = machine.angle_ranges[:3]
+
+    def visited(make):
+        q_all = []
+        for k in range(10):
+            motion = make(np.random.default_rng([k, 5]), arm)
+            q, _, _ = motion.sample(np.linspace(0, motion.duration, 400))
+            assert np.all(q[:, :3] <= ranges[:, 1] + 1e-9) and np.all(q[:, :3] >= ranges[:, 0] - 1e-9)
+            q_all.append(q[:, :3])
+            if make is reach_motion:
+                assert all(st.duration >= 0.99 * shortest_duration(arm, st.joint, 0.0, st.delta) or st.joint < 3
+                           for st in motion.steps)
+        q = np.concatenate(q_all)
+        return (q.max(axis=0) - q.min(axis=0)) / (ranges[:, 1] - ranges[:, 0])
+
+    reach, swings = visited(reach_motion), visited(swing_motion)
+    assert np.all(reach[1:] > 0.8) and np.all(reach[1:] > swings[1:] + 0.2), (reach, swings)

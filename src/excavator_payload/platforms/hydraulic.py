@@ -198,6 +198,8 @@ class HydraulicPlatform(Platform):
                         description="slow calibration lifts"),
         "operator": Motion(f"{_SIM}:operator_experiment", machine_chunk_size, SIMULATION_FAILURES,
                            description="operator-like lift and slew: a pause, an overshoot, trims all along"),
+        "reach": Motion(f"{_SIM}:reach_experiment", machine_chunk_size, SIMULATION_FAILURES,
+                        description="calibration motions: every joint through its range at once, slewing"),
         "trajectory": Motion("excavator_payload.simulation.trajectory:trajectory_experiment",
                              machine_chunk_size, SIMULATION_FAILURES,
                              description="prescribed motions replayed from a trajectory file"),

@@ -662,6 +662,51 @@ def operator_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
     return _clip_to_ranges(motion, machine)
 
 
+def reach_motion(rng, arm: HydraulicArmModel, waypoints: int = 4) -> Motion:
+    """A calibration motion that takes every joint through most of its range, the joints moving
+    at once: each of boom, dipper and bucket steps through ``waypoints`` targets drawn over its
+    whole range (5° inside the ends), the house slews back and forth by up to 90°, every step at
+    50–90 % of the pumps' speed and the joints' steps unrelated in time.
+
+    Swings leave the dipper's and bucket's ranges partly unvisited and never combine the joints
+    the way a busy operator does; a calibration from them weighs such motions 10–30 kg off
+    (findings: "Every joint at once"). This is the motion to add.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Stream of the motion's draws.
+    arm : HydraulicArmModel
+        The machine's model.
+    waypoints : int
+        Targets per joint after the start.
+
+    Returns
+    -------
+    Motion
+        The planned motion, kept inside the angle ranges.
+    """
+    machine = arm.machine
+    r = _inside(machine)
+    start = np.array([_uniform(rng, r[j, 0], r[j, 1]) for j in range(3)] + [0.0])
+    steps: list[Step] = []
+    for joint in range(4):
+        angle, t = float(start[joint]), _uniform(rng, 0.2, 1.0)
+        for _ in range(waypoints):
+            if joint < 3:
+                target = _uniform(rng, r[joint, 0], r[joint, 1])
+            else:
+                target = _uniform(rng, -90 * DEG, 90 * DEG)
+            step = _paced_step(rng, arm, joint, t, angle, target - angle, _uniform(rng, 0.5, 0.9))
+            steps.append(step)
+            angle = target
+            t = step.start + step.duration + _uniform(rng, 0.0, 0.6)
+    duration = max(s.start + s.duration for s in steps) + _uniform(rng, 0.5, 1.0)
+    payload = _uniform(rng, 0.0, machine.max_payload)
+    motion = Motion(start, steps, duration, payload=payload, info={"start_pose": start.tolist()})
+    return _clip_to_ranges(motion, machine)
+
+
 def _clip_to_ranges(motion: Motion, machine) -> Motion:
     """Shrink steps that would leave an angle range (corrections near an end).
 

@@ -431,6 +431,27 @@ def operator_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
     return _generated(spec, experiment, lambda k, rng, arm: mm.operator_motion(rng, arm))
 
 
+def reach_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """Calibration motion ``experiment`` of the run ``spec`` that takes every joint through its
+    range at once (:func:`~.machine_motions.reach_motion`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description (payload in kg, start pose in rad, peak pressure in Pa, draws, …).
+    """
+    return _generated(spec, experiment, lambda k, rng, arm: mm.reach_motion(rng, arm))
+
+
 def nmpc_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
     """NMPC swing ``experiment`` of the run ``spec`` (:func:`simulate_nmpc_experiment`).
 
