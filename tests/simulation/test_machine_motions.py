@@ -68,3 +68,22 @@ def test_reach_motions_cover_the_ranges_swings_leave_and_stay_inside():
 
     reach, swings = visited(reach_motion), visited(swing_motion)
     assert np.all(reach[1:] > 0.8) and np.all(reach[1:] > swings[1:] + 0.2), (reach, swings)
+
+
+def test_the_calibration_mix_is_swings_with_three_reach_motions_in_ten():
+    """`--motion calibration`: experiments 2, 5 and 8 of every ten are `reach` motions, the rest
+    swings, each experiment the same as the family's own with the same seed and number."""
+    import numpy as np
+
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    common = dict(seed=3, machine="cat345c-hydraulic", session=1, workers=1, progress=False)
+    mix = simulate_dataset(4, motion="calibration", first_experiment=4, **common)
+    kinds = {k: m["calibration_motion"] for k, m in mix.experiment_meta.items()}
+    assert kinds == {4: "swing", 5: "reach", 6: "swing", 7: "swing"}
+    reach = simulate_dataset(1, motion="reach", first_experiment=5, **common)
+    swing = simulate_dataset(1, motion="swing", first_experiment=6, **common)
+    for own in (reach, swing):
+        k = int(own.experiment_ids[0])
+        got = mix.frame[mix.frame["experiment"] == k].reset_index(drop=True)
+        np.testing.assert_array_equal(got["boom_angle"].to_numpy(), own.frame["boom_angle"].to_numpy())

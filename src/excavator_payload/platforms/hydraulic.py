@@ -200,6 +200,8 @@ class HydraulicPlatform(Platform):
                            description="operator-like lift and slew: a pause, an overshoot, trims all along"),
         "reach": Motion(f"{_SIM}:reach_experiment", machine_chunk_size, SIMULATION_FAILURES,
                         description="calibration motions: every joint through its range at once, slewing"),
+        "calibration": Motion(f"{_SIM}:calibration_experiment", machine_chunk_size, SIMULATION_FAILURES,
+                              description="the recommended calibration mix: swings, 3 in 10 reach motions"),
         "trajectory": Motion("excavator_payload.simulation.trajectory:trajectory_experiment",
                              machine_chunk_size, SIMULATION_FAILURES,
                              description="prescribed motions replayed from a trajectory file"),

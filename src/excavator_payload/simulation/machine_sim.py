@@ -452,6 +452,35 @@ def reach_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
     return _generated(spec, experiment, lambda k, rng, arm: mm.reach_motion(rng, arm))
 
 
+#: ``--motion calibration``: of every ten experiments these are `reach` motions, the rest swings
+#: (three in ten: findings, "Every joint at once").
+CALIBRATION_REACH = (2, 5, 8)
+
+
+def calibration_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
+    """The recommended calibration mix, experiment ``experiment`` of the run ``spec``: a swing
+    (:func:`swing_experiment`), or every ten experiments three `reach` motions
+    (:func:`reach_experiment`, :data:`CALIBRATION_REACH`).
+
+    Parameters
+    ----------
+    spec : RunSpec
+        The run (hydraulic machine, noise, options ``session``, ``payload``).
+    experiment : int
+        Experiment number; its motion and noise come from the streams of ``(spec.seed, experiment)``.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        The experiment's rows.
+    meta : dict
+        Its description, with ``calibration_motion`` (``swing`` or ``reach``).
+    """
+    reach = experiment % 10 in CALIBRATION_REACH
+    frame, meta = (reach_experiment if reach else swing_experiment)(spec, experiment)
+    return frame, {**meta, "calibration_motion": "reach" if reach else "swing"}
+
+
 def nmpc_experiment(spec, experiment: int) -> tuple[pd.DataFrame, dict]:
     """NMPC swing ``experiment`` of the run ``spec`` (:func:`simulate_nmpc_experiment`).
 
