@@ -756,7 +756,7 @@ def test_estimate_says_why_a_motion_without_boom_motion_got_no_estimate(momentum
 
     notes = waiting(momentum, still_boom)
     assert len(notes) == 1 and "no estimate in 1 of 1 experiments" in notes[0]
-    assert "--wait-for-boom no" in notes[0]
+    assert "--wait-for-boom no" in notes[0] and "stiction band (boom rod" in notes[0]
     assert waiting(momentum, setup["test"]) == []
     # the per-sample form reports at once: nothing to say
     assert waiting(setup["zeroed"], still_boom) == []

@@ -132,9 +132,11 @@ def waiting_notes(name: str, kernel, estimates) -> list[str]:
     if not silent:
         return []
     shown = ", ".join(str(e) for e in silent[:5]) + (", …" if len(silent) > 5 else "")
+    still = 3e3 * float(kernel._v_stribeck[0])  # mm/s: below it a seal's force is not known
     return [f"{name}: no estimate in {len(silent)} of {len(names)} experiments ({shown}): the "
             f"boom never moved for {2 * BALANCE_HALF_WINDOW / MACHINE_SENSORS.sample_rate:.1f} s "
-            "without a stop, and the weighing waits until it has weighed the boom (a standing "
+            f"without a stop or faster than its seals' stiction band (boom rod {still:.0f} mm/s), and the "
+            "weighing waits until it has weighed the boom (a standing or creeping "
             "boom's seals hold an unknown force). Move the boom while weighing, or train with "
             "--wait-for-boom no to weigh from the dipper and bucket"]
 
