@@ -130,12 +130,7 @@ def test_streaming_equals_batch_and_save_load(models, swing, tmp_path):
     bad = _with(swing, signal, a, a + 150, how)
     batch = est.estimate(bad)
     assert (batch["status"] == Status.DEGRADED.value).any()
-    est.reset()
-    stream = [est.step(row) for row in bad.frame.to_dict("records")]
-    assert [r.status.value for r in stream] == list(batch["status"])
-    assert [r.fault for r in stream] == list(batch["fault"])
-    np.testing.assert_array_equal(np.array([r.estimate for r in stream]), batch["payload_estimate"].to_numpy())
-    np.testing.assert_array_equal(np.array([r.sigma for r in stream]), batch["sigma"].to_numpy())
+    assert_stream_equals_batch(est, bad, batch)
     est.save(tmp_path / "model")
     again = load_estimator(tmp_path / "model").estimate(bad)
     assert list(again["status"]) == list(batch["status"])
@@ -147,3 +142,14 @@ def test_degraded_status_keeps_every_old_code():
     """Appended last: every status code on the bus and in C keeps its number."""
     statuses = list(Status)
     assert statuses[-1] is Status.DEGRADED and statuses.index(Status.SENSOR_FAULT) == 12
+
+
+def assert_stream_equals_batch(est, bad, batch) -> None:
+    """``est`` stepped over ``bad`` from a reset gives ``batch`` (its ``estimate``): statuses,
+    faults, estimates and sigmas alike."""
+    est.reset()
+    stream = [est.step(row) for row in bad.frame.to_dict("records")]
+    assert [r.status.value for r in stream] == list(batch["status"])
+    assert [r.fault for r in stream] == list(batch["fault"])
+    np.testing.assert_array_equal(np.array([r.estimate for r in stream]), batch["payload_estimate"].to_numpy())
+    np.testing.assert_array_equal(np.array([r.sigma for r in stream]), batch["sigma"].to_numpy())

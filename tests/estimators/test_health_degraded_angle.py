@@ -12,7 +12,7 @@ from excavator_payload.estimators import health
 from excavator_payload.estimators.base import Status
 
 from .test_health import _with  # a signal of one experiment rewritten on rows a:b
-from .test_health_degraded import _moving, models, swing  # noqa: F401  (fixtures)
+from .test_health_degraded import _moving, assert_stream_equals_batch, models, swing  # noqa: F401  (fixtures)
 
 
 def test_reference_plus_integrated_rate():
@@ -65,12 +65,7 @@ def test_streaming_equals_batch_on_a_lost_angle(models, swing):  # noqa: F811
     bad = _with(swing, "boom_angle", a, a + 300, lambda v, a, b: v[a - 1])
     batch = est.estimate(bad)
     assert (batch["status"] == Status.DEGRADED.value).sum() >= 20
-    est.reset()
-    stream = [est.step(row) for row in bad.frame.to_dict("records")]
-    assert [r.status.value for r in stream] == list(batch["status"])
-    assert [r.fault for r in stream] == list(batch["fault"])
-    np.testing.assert_array_equal(np.array([r.estimate for r in stream]), batch["payload_estimate"].to_numpy())
-    np.testing.assert_array_equal(np.array([r.sigma for r in stream]), batch["sigma"].to_numpy())
+    assert_stream_equals_batch(est, bad, batch)
 
 
 def test_no_reference_after_a_hole_in_time():

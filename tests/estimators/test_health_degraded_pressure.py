@@ -14,7 +14,7 @@ from excavator_payload.estimators import health
 from excavator_payload.estimators.base import Status
 
 from .test_health import _with  # a signal of one experiment rewritten on rows a:b
-from .test_health_degraded import _moving, models, swing  # noqa: F401  (fixtures)
+from .test_health_degraded import _moving, assert_stream_equals_batch, models, swing  # noqa: F401  (fixtures)
 
 BAR = 1e5
 SIGNALS = list(MACHINE_SENSORS.signals)
@@ -106,12 +106,7 @@ def test_streaming_equals_batch_on_a_degraded_pressure_run(models, swing):  # no
     bad = _with(swing, signal, a, a + 150, how)
     batch = est.estimate(bad)
     assert (batch["status"] == Status.DEGRADED.value).sum() >= 20
-    est.reset()
-    stream = [est.step(row) for row in bad.frame.to_dict("records")]
-    assert [r.status.value for r in stream] == list(batch["status"])
-    assert [r.fault for r in stream] == list(batch["fault"])
-    np.testing.assert_array_equal(np.array([r.estimate for r in stream]), batch["payload_estimate"].to_numpy())
-    np.testing.assert_array_equal(np.array([r.sigma for r in stream]), batch["sigma"].to_numpy())
+    assert_stream_equals_batch(est, bad, batch)
 
 
 def test_other_estimators_stop_on_a_pressure(models, swing):  # noqa: F811
