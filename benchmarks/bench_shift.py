@@ -39,6 +39,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--calibration", type=int, default=10, help="calibration swings (session 1)")
     ap.add_argument("--cal-seed", type=int, default=0)
+    ap.add_argument("--calibration-motion", default="swing", choices=["swing", "calibration"],
+                    help="the calibration motions: swings, or the recommended mix with reach motions")
     ap.add_argument("--zero-seed", type=int, default=1, help="seed of the empty swing (session 2)")
     ap.add_argument("--shift", action="append", default=None, help="SEED:TRUCK_TARGET_KG (repeatable)")
     ap.add_argument("--trucks", type=int, default=10)
@@ -47,11 +49,11 @@ def main() -> None:
     a = ap.parse_args()
     shifts = [tuple(map(float, s.split(":"))) for s in (a.shift or ["777:20000", "2026:15000", "31337:25000"])]
     t0 = time.time()
-    cal = simulate_machine_dataset(a.calibration, seed=a.cal_seed, session=1)
+    cal = simulate_machine_dataset(a.calibration, seed=a.cal_seed, session=1, motion=a.calibration_motion)
     empty = simulate_machine_dataset(1, seed=a.zero_seed, session=2, payload=0.0)
     est = create_estimator("calibrated", machine="cat345c-hydraulic-3pct").fit(cal)
     est.zero(empty)
-    print(f"calibrated on {a.calibration} swings (seed {a.cal_seed}), zeroed (seed {a.zero_seed}): "
+    print(f"calibrated on {a.calibration} {a.calibration_motion} motions (seed {a.cal_seed}), zeroed (seed {a.zero_seed}): "
           f"{time.time() - t0:.0f} s", flush=True)
     for seed, target in shifts:
         t1 = time.time()
