@@ -326,7 +326,7 @@ class MachineWeighing:
             report.append(
                 f"calibration: of the machine's ranges the calibration motions did not reach {gaps}: "
                 "to weigh loads carried there, add calibration motions with known loads that take "
-                "those joints there")
+                "those joints there, every joint moving at once (simulated: --motion reach)")
         return weighing, {"warnings": warnings, "refusals": refusals, "report": report}
 
     # -- zero check ---------------------------------------------------------------------------
