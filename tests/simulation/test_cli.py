@@ -92,7 +92,9 @@ def test_real_ctrl_c_on_a_local_cluster_keeps_chunks_and_leaves_no_worker(tmp_pa
     out = tmp_path / "d.parquet"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}
     proc = subprocess.Popen([sys.executable, "-c", "from excavator_payload.cli import run; run()", "simulate",
-                             "-n", "80", "--out", str(out), "--workers", "2", "--quiet"],
+                             # enough work that the run is still going when the first chunk lands
+                             # (80 finished before the signal on an idle machine)
+                             "-n", "400", "--out", str(out), "--workers", "2", "--quiet"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True, preexec_fn=_default_sigint)
     folder = tmp_path / "d.parquet.partial"
