@@ -8,6 +8,7 @@ message instead of a traceback.
 
 from __future__ import annotations
 
+import os
 import sys
 import tempfile
 import traceback
@@ -113,6 +114,19 @@ def error_line(message: str) -> None:
                       soft_wrap=True)
 
 
+def tolerate_narrow_encodings() -> None:
+    """Let stdout and stderr replace what their encoding cannot show (a C, latin-1 or cp1252
+    console: the tables' "—", "σ" and "≤" raised UnicodeEncodeError, an internal error after
+    the work was done) instead of failing; a UTF-8 terminal is left as it is."""
+    for stream in (sys.stdout, sys.stderr):
+        encoding = (getattr(stream, "encoding", None) or "").lower().replace("-", "").replace("_", "")
+        if encoding and encoding not in ("utf8", "utf8sig") and hasattr(stream, "reconfigure"):
+            try:
+                stream.reconfigure(errors="replace")
+            except (ValueError, OSError):  # a closed or detached stream: nothing to show anyway
+                pass
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI; user errors print one line and exit with status 2.
 
@@ -126,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     int
         The exit status: 0 success, 2 user error, 1 internal error, 130 interrupted.
     """
+    tolerate_narrow_encodings()
     try:
         code = app(args=argv, standalone_mode=False)
         if code == 130:  # typer turns Ctrl-C into a silent exit status 130
@@ -144,7 +159,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except OSError as exc:  # a path the user gave cannot be read or written
         where = f" ('{exc.filename}')" if getattr(exc, "filename", None) else ""
+        if not where and isinstance(exc, FileNotFoundError) and not _cwd_exists():
+            where = " (the current folder was deleted: cd to one that exists, or give absolute paths)"
         error_line(f"{exc.strerror or type(exc).__name__}{where}")
+        return 2
+    except UnicodeEncodeError as exc:
+        # a non-UTF-8 locale (LC_ALL=C with PYTHONUTF8=0, a latin-1 system): a path with "ü" reaches
+        # us as undecodable bytes, which pyarrow and the text files cannot write
+        error_line(f"a path or text cannot be encoded in this locale ({exc.encoding}: {exc.reason}); run with a "
+                   "UTF-8 locale (LANG=C.UTF-8) or PYTHONUTF8=1, or use ASCII paths")
         return 2
     except MemoryError:
         error_line("out of memory: use smaller data or a smaller model")
@@ -159,6 +182,14 @@ def main(argv: list[str] | None = None) -> int:
                                         f" {type(exc).__name__}: {exc} (details in {log}; please report it)"),
                           soft_wrap=True)
         return 1
+
+
+def _cwd_exists() -> bool:
+    try:
+        os.getcwd()
+        return True
+    except OSError:
+        return False
 
 
 def _interrupted() -> int:

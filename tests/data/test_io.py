@@ -279,3 +279,11 @@ def test_an_angle_beyond_any_degrees_is_a_glitch_not_a_unit(machine_frame):
     degrees = machine_frame.assign(bucket_angle=np.degrees(machine_frame["bucket_angle"]))
     with pytest.raises(DatasetError, match="degrees instead of SI"):
         validate_frame(degrees, sensor_set="machine")
+
+
+def test_a_true_false_column_is_not_a_measurement(small, tmp_path):
+    """A boolean angle column (a flag written where the angle belongs) was read as 0 and 1 rad."""
+    frame = small.frame.copy()
+    frame["dipper_angle"] = frame["dipper_angle"] > -1.0
+    with pytest.raises(DatasetError, match=r"column 'dipper_angle' must be numeric, found bool \(true/false"):
+        read_dataset(_write_frame(frame, tmp_path / "d.parquet"))

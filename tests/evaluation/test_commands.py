@@ -183,3 +183,22 @@ def test_estimate_command_on_workers(files, mj_dataset, monkeypatch, capsys):
     assert "estimating" in capsys.readouterr().out  # the progress bar of the first run
     assert main(["estimate", "--model", str(d / "idyn2"), "--data", str(data), "--out", str(d / "e3.parquet"),
                  "--workers", "-1"]) == 2
+
+
+def test_an_experiment_without_any_estimate_is_named_not_averaged_silently(files, mj_dataset, tmp_path, capsys):
+    """An experiment whose every estimate is NaN was left out of the MAX and RMS means while the
+    title counted it among the experiments: the note names it."""
+    d, data, plus10, _ = files
+    f = mj_dataset.frame
+    est = f["payload"].to_numpy() + 10.0
+    lost = int(mj_dataset.experiment_ids[1])
+    est[f["experiment"].to_numpy() == lost] = np.nan
+    path = tmp_path / "est.parquet"
+    write_estimates(pd.DataFrame({"experiment": f["experiment"], "time": f["time"], "payload_estimate": est}), path)
+    capsys.readouterr()
+    assert main(["evaluate", "--data", str(data), "--estimates", str(path)]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    n = mj_dataset.n_experiments
+    assert f"1 of {n} experiments have no estimate to judge" in out and f"(experiment {lost}:" in out
+    assert main(["evaluate", "--data", str(data), "--estimates", str(plus10)]) == 0
+    assert "no estimate to judge" not in capsys.readouterr().out

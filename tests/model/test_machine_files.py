@@ -93,3 +93,13 @@ def test_not_toml_and_missing_file(tmp_path):
         load_machine(tmp_path / "nowhere.toml")
     with pytest.raises(MachineError, match="unknown machine"):
         load_machine("cat999")
+
+
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16"])
+def test_a_machine_file_saved_by_a_windows_editor_loads(tmp_path, encoding):
+    """A byte-order mark (Notepad) or UTF-16 (PowerShell's Out-File) with CRLF line ends was
+    "not valid TOML: Invalid statement (at line 1, column 1)"."""
+    (tmp_path / "windows").mkdir()
+    path = tmp_path / "windows" / "arm.toml"
+    path.write_bytes(GOOD.replace("\n", "\r\n").encode(encoding))
+    assert load_machine(path) == load_machine(_write(tmp_path, GOOD))

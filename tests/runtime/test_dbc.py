@@ -102,3 +102,21 @@ def test_signal_map_errors(tmp_path):
     junk.write_text("BO_ this is not a dbc")
     with pytest.raises(dbc.CanConfigError, match="not a readable DBC"):
         dbc.load_dbc(junk)
+
+
+@pytest.mark.parametrize("encoding", ["utf-8-sig", "utf-16"])
+def test_a_signal_map_saved_by_a_windows_editor_is_read(tmp_path, encoding):
+    """Notepad's UTF-8 with a byte-order mark, PowerShell's UTF-16 and CRLF line ends: were
+    "not valid TOML: Invalid statement (at line 1, column 1)"."""
+    text = "# Schaufel\r\n[signals.boom_angle]\r\nmessage = 'Arm1'\r\nsignal = 'BoomAngle'\r\nfactor = 0.01745\r\n"
+    path = tmp_path / "map.toml"
+    path.write_bytes(text.encode(encoding))
+    assert read_signal_map(path)["boom_angle"].factor == pytest.approx(0.01745)
+
+
+@pytest.mark.parametrize("value", ['"0.01745"', "true"])
+def test_a_signal_map_factor_in_quotes_is_refused(tmp_path, value):
+    path = tmp_path / "map.toml"
+    path.write_text(f"[signals.boom_angle]\nmessage = 'Arm1'\nsignal = 'BoomAngle'\nfactor = {value}\n")
+    with pytest.raises(dbc.CanConfigError, match="factor must be a number"):
+        read_signal_map(path)

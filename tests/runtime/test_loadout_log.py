@@ -139,3 +139,24 @@ def test_a_shift_replayed_from_a_trajectory_file_is_weighed_against_its_load(shi
     assert len(got) == len(passes) and all(true is not None for *_, true in got)
     # a 4-swing calibration: within 3 % of rated (docs/loadout.md has the 1 % on 10 swings)
     assert all(abs(w - true) < 150.0 for _, _, w, true in got)
+
+
+def test_a_log_whose_sensor_frames_are_all_short_is_one_line_and_records_nothing(runs, shift, tmp_path, capsys):
+    """Every frame 4 bytes where the DBC says 8 (a logger set to another DLC): an empty truck of
+    0 passes was recorded with exit status 0."""
+    import can
+
+    from excavator_payload.runtime.logs import read_frames
+
+    folder, _, dbc_path, map_path = shift
+    short = tmp_path / "short.log"
+    with can.Logger(str(short)) as writer:
+        for message in read_frames(folder / "shift.mf4"):
+            message.data, message.dlc = message.data[:4], 4
+            writer.on_message_received(message)
+    db = tmp_path / "r.sqlite"
+    code = main(["loadout", "--model", str(folder / "model"), "--db", str(db), "--log", str(short),
+                 "--dbc", str(dbc_path), "--signal-map", str(map_path)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "no sample in it has all the signals" in err and len(err.splitlines()) == 1, err
+    assert not db.exists()

@@ -107,8 +107,9 @@ def read_field_table(path: str | Path, *, validate: bool = True, segment_gap: fl
     signals = list(sensors.signals)
     extra = [c for c in ("payload",) if c in frame.columns]
     for c in [time_column, *signals, *extra]:
-        if not pd.api.types.is_numeric_dtype(frame[c]):
-            raise DatasetError(f"{path}: column '{c}' must be numeric, found {frame[c].dtype}")
+        if not pd.api.types.is_numeric_dtype(frame[c]) or pd.api.types.is_bool_dtype(frame[c]):
+            raise DatasetError(f"{path}: column '{c}' must be numeric, found {frame[c].dtype}"
+                               + (" (true/false, not a measurement)" if pd.api.types.is_bool_dtype(frame[c]) else ""))
     times = frame[time_column].to_numpy(dtype=float)
     values = frame[signals + extra].to_numpy(dtype=float)
     keep = np.isfinite(times) & np.isfinite(values[:, :len(signals)]).any(axis=1)

@@ -73,8 +73,9 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
         raise DatasetError(f"{source}: has no rows")
     has_payload = "payload" in frame.columns
     for c in required + (["payload"] if has_payload else []):
-        if not pd.api.types.is_numeric_dtype(frame[c]):
-            raise DatasetError(f"{source}: column '{c}' must be numeric, found {frame[c].dtype}")
+        if not pd.api.types.is_numeric_dtype(frame[c]) or pd.api.types.is_bool_dtype(frame[c]):
+            raise DatasetError(f"{source}: column '{c}' must be numeric, found {frame[c].dtype}"
+                               + (" (true/false, not a measurement)" if pd.api.types.is_bool_dtype(frame[c]) else ""))
     exp = frame["experiment"].to_numpy()
     if not np.all(np.isfinite(exp)) or not np.all(exp == np.round(exp)):
         raise DatasetError(f"{source}: column 'experiment' must hold whole numbers")

@@ -838,7 +838,7 @@ class Estimator(ABC):
         tmp = directory / (ARRAYS_FILE + tag + ".npz")
         np.savez(tmp, **arrays)
         tmp.replace(directory / ARRAYS_FILE)
-        (directory / (CONFIG_FILE + tag)).write_text(text)
+        (directory / (CONFIG_FILE + tag)).write_text(text, encoding="utf-8")
         (directory / (CONFIG_FILE + tag)).replace(directory / CONFIG_FILE)
         return directory
 

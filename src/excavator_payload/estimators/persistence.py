@@ -66,7 +66,7 @@ def load_estimator(directory: str | Path, expected: type | None = None):
     if not cfg_path.is_file():
         raise EstimatorError(f"'{directory}' is not a saved estimator (no {CONFIG_FILE})")
     try:
-        config = json.loads(cfg_path.read_text())
+        config = json.loads(cfg_path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise EstimatorError(f"'{cfg_path}' is corrupt: {exc}") from None
     if not isinstance(config, dict) or config.get("format") != SAVE_FORMAT:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.text import Text
@@ -65,6 +66,18 @@ def register(app: typer.Typer) -> None:
         console.print(summary_table(evaluations, f"Payload accuracy on {data} "
                                                  f"({dataset.n_experiments} experiments, first {discard} "
                                                  "samples discarded)"))
+        for ev in evaluations:
+            unjudged = ev.per_experiment.loc[~np.isfinite(ev.per_experiment["max_error"].to_numpy(float)),
+                                             "experiment"].tolist()
+            if unjudged:
+                # an experiment whose every sample was invalid (a NaN-only one) was left out of the
+                # means silently while the title counted it
+                names = ", ".join(map(str, unjudged[:8])) + (", …" if len(unjudged) > 8 else "")
+                console.print(Text.assemble(
+                    ("note: ", "bold"), f"{ev.label}: {len(unjudged)} of {len(ev.per_experiment)} experiments have "
+                    f"no estimate to judge after the discarded samples (experiment {names}: every sample invalid, "
+                    f"missing or NaN?); MAX and RMS are means over the other "
+                    f"{len(ev.per_experiment) - len(unjudged)}, ≤1% counts them as failing"))
         dumps = evaluations[0].summary.get("judged_to_the_dump", 0) if evaluations else 0
         if dumps:
             console.print(Text.assemble(

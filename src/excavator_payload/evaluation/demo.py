@@ -643,6 +643,6 @@ def run_demo(out: str | Path = "excavator-payload-demo", scale: str = "quick", w
 def _log_failure(out: Path, label: str, exc: BaseException) -> None:
     """Keep the full traceback of a failed estimator for its author (the console shows one line)."""
     log = out / "failures.log"
-    with log.open("a") as fh:
+    with log.open("a", encoding="utf-8") as fh:
         fh.write(f"--- {label} ({time.strftime('%Y-%m-%d %H:%M:%S')})\n")
         fh.write("".join(traceback.format_exception(exc)))

@@ -649,6 +649,6 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
                   "with known loads, which this demo does not simulate (see the guide to the machine).", ""]
     if failed:
         lines += ["Failed:", ""] + [f"- {k}: {v}" for k, v in failed.items()]
-    (out / "report.md").write_text("\n".join(lines) + "\n")
+    (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
     say(f"report: {out / 'report.md'}")
     return {"table": table, "failures": fit["failures"]}

@@ -29,7 +29,7 @@ from excavator_payload.platforms import HYDRAULIC
 def _model_options(model_dir: Path) -> tuple[str | None, dict, str | None]:
     """Estimator name, options and machine name from a saved model's ``estimator.json``."""
     try:
-        cfg = json.loads((model_dir / "estimator.json").read_text())
+        cfg = json.loads((model_dir / "estimator.json").read_text(encoding="utf-8"))
         return cfg.get("estimator"), dict(cfg.get("options") or {}), (cfg.get("machine") or {}).get("name")
     except (OSError, ValueError, AttributeError):
         return None, {}, None
@@ -148,5 +148,5 @@ def write_json(path: Path, payload: dict) -> None:
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # private: concurrent runs never share it
-    tmp.write_text(json.dumps(to_jsonable(payload), indent=2))
+    tmp.write_text(json.dumps(to_jsonable(payload), indent=2), encoding="utf-8")
     tmp.replace(path)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from excavator_payload.errors import ExcavatorPayloadError
+from excavator_payload.textfiles import read_config_text
 
 
 #: Axes of the grid (list-valued in a study file) and their defaults.
@@ -215,7 +216,7 @@ def load_study(config: str | Path) -> Study:
     """
     path = find_study(config)
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        raw = tomllib.loads(read_config_text(path))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise StudyError(f"{path}: not a valid TOML file ({exc})") from None
     return parse_study(raw, source=str(path))

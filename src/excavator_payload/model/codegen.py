@@ -82,12 +82,12 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder) as tmp:
         c_file = Path(tmp) / f"{name}.c"
-        c_file.write_text(source)
+        c_file.write_text(source, encoding="utf-8")
         built = Path(tmp) / library.name
         subprocess.run([cc, *FLAGS, str(c_file), "-o", str(built), "-lm"], check=True,
                        capture_output=True, text=True, timeout=600)
         checksum = Path(tmp) / (library.name + ".sha256")
-        checksum.write_text(file_sha256(built))
+        checksum.write_text(file_sha256(built), encoding="utf-8")
         # The library first, its checksum second: a library without a matching checksum next
         # to it is never loaded (a reader in between just builds it again).
         os.replace(built, library)
@@ -128,7 +128,7 @@ def verified(library: Path) -> bool:
     try:
         if not library.is_file():
             return False
-        return _checksum_path(library).read_text().strip() == file_sha256(library)
+        return _checksum_path(library).read_text(encoding="utf-8").strip() == file_sha256(library)
     except OSError:
         return False
 

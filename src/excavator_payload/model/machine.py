@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from excavator_payload.errors import MachineError
+from excavator_payload.textfiles import read_config_text
 
 GRAVITY = 9.81  # m/s², as the thesis
 
@@ -219,12 +220,12 @@ def load_machine(name_or_path: str | Path | Machine) -> Machine:
     path = Path(text_name)
     if text_name in list_presets():
         source = f"preset '{text_name}'"
-        text = (resources.files("excavator_payload.model") / "presets" / f"{text_name}.toml").read_text()
+        text = (resources.files("excavator_payload.model") / "presets" / f"{text_name}.toml").read_text(encoding="utf-8")
     elif path.suffix == ".toml" or path.exists():
         if not path.is_file():
             raise MachineError(f"machine file '{path}' does not exist")
         source = f"machine file '{path}'"
-        text = path.read_text(encoding="utf-8", errors="replace")
+        text = read_config_text(path, errors="replace")
     else:
         raise MachineError(
             f"unknown machine '{text_name}': give a preset ({', '.join(list_presets())}) "

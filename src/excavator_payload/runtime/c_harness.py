@@ -229,7 +229,7 @@ def build(c_file: str | Path, folder: str | Path, single: bool = False, optimise
     if result.returncode != 0 or result.stderr.strip():
         raise CompileError(f"{c_file.name} does not compile cleanly:\n{result.stderr}")
     harness = folder / "harness.c"
-    harness.write_text(HARNESS.replace("HEADER", str(c_file.with_suffix(".h").resolve())))
+    harness.write_text(HARNESS.replace("HEADER", str(c_file.with_suffix(".h").resolve())), encoding="utf-8")
     binary = folder / (c_file.stem + ("_f32" if single else "_f64"))
     result = subprocess.run([cc, "-std=c99", optimise, *defines, str(harness), str(obj), "-o",
                              str(binary), "-lm"], capture_output=True, text=True)

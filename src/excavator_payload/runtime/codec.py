@@ -16,6 +16,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from excavator_payload.data.schema import SensorSet, get_sensor_set
+from excavator_payload.textfiles import read_config_text
 from excavator_payload.runtime.dbc import (
     NULL_ADDRESS, CanConfigError, _pgn, error_indicator, is_j1939, load_dbc, not_available,
     sensor_layout, sensor_set_database, valid_raw_max)
@@ -367,7 +368,7 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
     if not path.is_file():
         raise CanConfigError(f"signal map '{path}' does not exist")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(read_config_text(path))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise CanConfigError(f"signal map '{path}' is not valid TOML: {exc}") from None
     table = data.get("signals")
@@ -381,6 +382,11 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
         if extra:  # a misspelt 'factor' was ignored: the DBC's unit read as SI
             raise CanConfigError(f"signal map '{path}': [signals.{name}] has unknown key(s) "
                                  f"{', '.join(map(repr, extra))} (known: message, signal, factor, offset)")
+        for key in ("factor", "offset"):
+            value = entry.get(key)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+                raise CanConfigError(f"signal map '{path}': [signals.{name}] {key} must be a number, got "
+                                     f"{value!r} (write {key} = 0.01745, without quotes)")
         try:
             out[name] = SignalSource(str(entry["message"]), str(entry["signal"]),
                                      float(entry.get("factor", 1.0)), float(entry.get("offset", 0.0)))
@@ -411,7 +417,7 @@ def read_message_map(path: str | Path) -> dict[str, MessageOptions]:
 
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(read_config_text(path))
     except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise CanConfigError(f"signal map '{path}' is not valid TOML: {exc}") from None
     table = data.get("messages", {})

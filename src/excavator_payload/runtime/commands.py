@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
         if out.suffix.lower() != ".dbc":  # `--out data.parquet` replaced a dataset with DBC text
             raise DatasetError(f"--out must end in .dbc, got '{out.name}'")
         tmp = out.with_name(out.name + ".tmp")
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
         tmp.replace(out)
         console.print(f"wrote [bold]{out}[/bold]")
 

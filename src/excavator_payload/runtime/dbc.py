@@ -496,7 +496,7 @@ def write_shipped_dbcs() -> list[Path]:
     for sensors in SENSOR_SETS.values():
         path = shipped_dbc_path(sensors)
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(generate_dbc(sensors))
+        path.write_text(generate_dbc(sensors), encoding="utf-8")
         paths.append(path)
     return paths
 

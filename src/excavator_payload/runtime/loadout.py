@@ -43,8 +43,6 @@ from __future__ import annotations
 
 import hashlib
 import math
-import sqlite3
-import time as _time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -53,6 +51,8 @@ import pandas as pd
 
 from excavator_payload.errors import DatasetError
 from excavator_payload.estimators.status import Status
+from excavator_payload.runtime.shift_record import (  # noqa: F401  (the record's home; kept importable here)
+    SCHEMA, SCHEMA_VERSION, ShiftRecord, check_record_schema, read_record, record_error)
 
 #: A pass weighed without a sensor the health monitor named (:func:`lock_weight`).
 DEGRADED = Status.DEGRADED.value
@@ -435,154 +435,6 @@ def file_key(path: str | Path) -> str:
     return h.hexdigest()
 
 
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS runs (
-    run INTEGER PRIMARY KEY AUTOINCREMENT, source TEXT NOT NULL, data TEXT, model TEXT,
-    rated REAL, started REAL, finished REAL);
-CREATE TABLE IF NOT EXISTS passes (
-    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, pass INTEGER NOT NULL,
-    time_dig REAL, time_dump REAL, time_lock REAL, weight REAL, sigma REAL, status TEXT NOT NULL,
-    reason TEXT, true_weight REAL,
-    UNIQUE (source, truck, pass));
-CREATE TABLE IF NOT EXISTS trucks (
-    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, passes INTEGER NOT NULL,
-    total REAL NOT NULL, target REAL, unweighed INTEGER NOT NULL, true_total REAL,
-    true_passes INTEGER, matched INTEGER, start REAL,
-    UNIQUE (source, truck));
-CREATE TABLE IF NOT EXISTS faults (
-    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, spn INTEGER NOT NULL,
-    fmi INTEGER NOT NULL, signal TEXT, kind TEXT, start REAL, "end" REAL);
-"""
-
-
-class ShiftRecord:
-    """The shift's SQLite record (module doc): rerunning the same data replaces, never doubles.
-
-    Parameters
-    ----------
-    path : str or Path
-        The SQLite file (created if missing; an older record gains the newer columns).
-    """
-
-    def __init__(self, path: str | Path):
-        path = Path(path)
-        if path.is_dir():
-            raise DatasetError(f"--db '{path}' is a folder; give a file name such as shift.sqlite")
-        try:
-            self.db = sqlite3.connect(path)
-            self.db.executescript(SCHEMA)
-            columns = {row[1] for row in self.db.execute("PRAGMA table_info(trucks)")}
-            if "start" not in columns:  # a record made before trucks had a start time
-                with self.db:
-                    self.db.execute("ALTER TABLE trucks ADD COLUMN start REAL")
-        except sqlite3.DatabaseError as exc:
-            raise DatasetError(f"--db '{path}' is not a usable SQLite database: {exc}") from None
-
-    def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
-        """Record the start of a loadout run over ``source`` (the data's hash); returns its id.
-
-        Parameters
-        ----------
-        source : str
-            SHA-256 of the data file (:func:`file_key`).
-        data : str
-            The data's name as given (for the record's reader).
-        model : str
-            The model's name as given.
-        rated : float, optional
-            kg, the model's rated payload, if any.
-        """
-        with self.db:
-            cur = self.db.execute("INSERT INTO runs (source, data, model, rated, started) VALUES (?, ?, ?, ?, ?)",
-                                  (source, data, model, rated, _time.time()))
-        return int(cur.lastrowid)
-
-    def finish_run(self, run: int) -> None:
-        """Mark run ``run`` finished (a run without it was interrupted).
-
-        Parameters
-        ----------
-        run : int
-            The id :meth:`start_run` returned.
-        """
-        with self.db:
-            self.db.execute("UPDATE runs SET finished = ? WHERE run = ?", (_time.time(), run))
-
-    def write_truck(self, source: str, run: int, truck: Truck) -> None:
-        """One truck, its passes and faults in one transaction; an earlier run's rows of it replaced
-        (a live truck is written again with each pass: the latest state of it, never twice).
-
-        Parameters
-        ----------
-        source : str
-            SHA-256 of the data file.
-        run : int
-            The run that weighed it.
-        truck : Truck
-            The truck, its passes and faults.
-        """
-        with self.db:
-            self.db.execute("DELETE FROM passes WHERE source = ? AND truck = ?", (source, truck.truck))
-            self.db.execute("DELETE FROM faults WHERE source = ? AND truck = ?", (source, truck.truck))
-            self.db.executemany(
-                'INSERT INTO faults (source, run, truck, spn, fmi, signal, kind, start, "end") '
-                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [(source, run, truck.truck, f["spn"], f["fmi"], f["signal"], f["kind"], f["start"],
-                  f["end"] if math.isfinite(f["end"]) else None) for f in truck.faults])
-            self.db.executemany(
-                "INSERT INTO passes (source, run, truck, pass, time_dig, time_dump, time_lock, weight, "
-                "sigma, status, reason, true_weight) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [(source, run, p.truck, p.index, p.time_dig, p.time_dump, p.time_lock, p.weight, p.sigma,
-                  p.status, p.reason, p.true_weight) for p in truck.passes])
-            self.db.execute(
-                "INSERT INTO trucks (source, run, truck, passes, total, target, unweighed, true_total, "
-                "true_passes, matched, start) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) "
-                "DO UPDATE SET run = excluded.run, passes = excluded.passes, total = excluded.total, "
-                "target = excluded.target, unweighed = excluded.unweighed, true_total = excluded.true_total, "
-                "true_passes = excluded.true_passes, matched = excluded.matched, start = excluded.start",
-                (source, run, truck.truck, len(truck.passes), truck.total, truck.target, truck.unweighed,
-                 truck.true_total, truck.true_passes, truck.matched, truck.start))
-
-    def close(self) -> None:
-        """Close the database."""
-        self.db.close()
-
-
-def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
-    payload the runs' models had, kg, if one; ``attrs["faults"]``: the ``faults`` table's rows
-    as dicts, none for a record made before it had one — a list, not a frame: pandas compares
-    attrs when frames are merged, and a frame there made every merge raise).
-
-    Parameters
-    ----------
-    path : str or Path
-        A shift record made by ``loadout --db``.
-
-    Raises
-    ------
-    DatasetError
-        The file is missing or not a shift record.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"--db '{path}' does not exist")
-    try:
-        with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
-            passes = pd.read_sql_query("SELECT * FROM passes ORDER BY source, truck, pass", db)
-            trucks = pd.read_sql_query("SELECT * FROM trucks ORDER BY source, truck", db)
-            rated = db.execute("SELECT MAX(rated) FROM runs").fetchone()[0]
-            has_faults = db.execute("SELECT 1 FROM sqlite_master WHERE name = 'faults'").fetchone()
-            faults = (pd.read_sql_query("SELECT * FROM faults ORDER BY source, truck, start", db)
-                      if has_faults else pd.DataFrame(columns=["source", "truck", "spn", "fmi", "signal",
-                                                               "kind", "start", "end"]))
-    except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
-        raise DatasetError(f"--db '{path}' is not a shift record (made by `loadout --db`): {exc}") from None
-    passes.attrs["rated"] = rated
-    passes.attrs["faults"] = faults.to_dict("records")
-    return passes, trucks
-
-
 def passes_frame(trucks: list[Truck]) -> pd.DataFrame:
     """Every pass of ``trucks`` as a table (the Parquet export).
 
@@ -799,6 +651,6 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
                          f"{r['kind']} | {num(r['start'], '.2f')} | {until} |")
     md = out / "shift.md"
     tmp = out / ".shift.md.tmp"
-    tmp.write_text("\n".join(lines) + "\n")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
     tmp.replace(md)
     return md

@@ -52,6 +52,7 @@ import numpy as np
 
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
+from excavator_payload.textfiles import read_config_text
 from excavator_payload.runtime.loadout import (
     DEGRADED, TRUCK_GAP, Pass, ShiftRecord, Truck, _truth_match, episode_row, find_passes, lock_weight)
 
@@ -128,7 +129,7 @@ class TruckButton:
         if path is None:
             return cls.default()
         try:
-            table = tomllib.loads(open(path, encoding="utf-8").read()).get("truck_button")
+            table = tomllib.loads(read_config_text(path)).get("truck_button")
         except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise dbc.CanConfigError(f"signal map '{path}' is not valid TOML: {exc}") from None
         if table is None:
@@ -652,19 +653,32 @@ def check_log_units(path, sensor, guard, source: str) -> None:
     """
     from excavator_payload.runtime.logs import read_frames
 
+    from excavator_payload.runtime import dbc
+
     sensor.reset()
+    readable, judged, fed = False, False, 0
     try:
         for message in read_frames(path):
             spec = sensor.accepts(message)
             if spec is None or not math.isfinite(float(message.timestamp)):
                 continue
+            fed += 1
             for output in sensor.feed(message, spec=spec):
-                if output.values is not None and guard.add(output.time, output.values):
+                readable = readable or output.status not in ("invalid_input", dbc.STALE)
+                if not judged and output.values is not None and guard.add(output.time, output.values):
                     if guard.flagged:
                         raise DatasetError(guard.message(source))
-                    if guard.moving or guard.judged >= PREPASS_WINDOWS:
-                        return
-        if guard.finish() and guard.flagged:
+                    judged = guard.moving or guard.judged >= PREPASS_WINDOWS
+            if judged and readable:
+                return
+        if not judged and guard.finish() and guard.flagged:
             raise DatasetError(guard.message(source))
+        if fed and not readable:
+            # frames shorter than the DBC says, or all out of its ranges: every sample was
+            # invalid, and an empty truck of 0 passes was recorded with exit status 0
+            raise DatasetError(f"{source}: no sample in it has all the signals of the model's "
+                               f"{sensor.sensor_set.name} sensor set readable ({sensor.counters['bad_frames']} "
+                               f"of {fed} sensor frames shorter than the DBC's messages, out of its ranges or "
+                               "not available); recorded with another DBC (--dbc, --signal-map)?")
     finally:
         sensor.reset()

@@ -49,6 +49,9 @@ except ImportError:  # asammdf is optional to python-can; without it .mf4 fails 
     pass
 
 _CANUTILS = re.compile(r"^\s*\(\s*-?[0-9.]+\s*\)\s+\S+\s+[0-9A-Fa-f]+#")
+#: A whole ``candump -l`` line: (time) interface id#data, id##flags+data (CAN FD) or id#R (remote).
+_CANUTILS_LINE = re.compile(r"^\(\s*-?[0-9]+(?:\.[0-9]+)?\s*\)\s+\S+\s+[0-9A-Fa-f]{1,8}"
+                            r"(?:#(?:[0-9A-Fa-f]{2})*|#R[0-9A-Fa-f]?|##[0-9A-Fa-f](?:[0-9A-Fa-f]{2})*)(?:\s+[RT])?$")
 _SCREEN = re.compile(
     r"^\s*(?:\((?P<ts>[^)]*)\)\s+)?(?P<ifc>\S+)\s+(?:(?:RX|TX)\s+\S+\s+\S+\s+)?"
     r"(?P<id>[0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})\s+\[(?P<len>\d{1,2})\]"
@@ -165,6 +168,38 @@ def read_frames(path: str | Path, skipped: list[int] | None = None) -> Iterator[
     yield from _python_can(path, skipped, can.LogReader)
 
 
+def _bad_text_line(path: Path) -> str | None:
+    """The first line of a ``candump -l`` log that is no frame line, as a sentence (python-can
+    said only "not enough values to unpack"); None if every line looks like one."""
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for number, line in enumerate(f, 1):
+            text = line.strip()
+            if text and not text.startswith("#") and not _CANUTILS_LINE.match(text):
+                return (f"line {number} is not a `candump -l` frame line: {text[:60]!r} (a log cut short or "
+                        "edited by hand? delete that line)")
+    return None
+
+
+def _collect_quietly() -> None:
+    """Collect the garbage a failed reader left without asammdf's complaints: an MDF4 object
+    whose constructor failed on a truncated file prints "Exception ignored in MDF4.__del__" and
+    a traceback when it is collected, breaking the one-line rule (even in a later, good run)."""
+    import gc
+    import sys
+
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if not str(getattr(unraisable.object, "__module__", "") or "").startswith("asammdf"):
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        gc.collect()
+    finally:
+        sys.unraisablehook = previous
+
+
 def _python_can(path: Path, skipped: list[int], reader) -> Iterator[can.Message]:
     readers = logging.getLogger("can.io")
     handler = _SkippedRecords()
@@ -175,8 +210,15 @@ def _python_can(path: Path, skipped: list[int], reader) -> Iterator[can.Message]
         yield from reader(str(path))
     except UNREADABLE_LOG as exc:
         kind = ("truncated or not a BLF file" if isinstance(exc, (struct.error, zlib.error, BLFParseError))
+                else "truncated or damaged MF4 file" if path.suffix.lower() == ".mf4" and isinstance(exc, ValueError)
                 else type(exc).__name__)
-        raise DatasetError(f"CAN log '{path}' could not be read ({kind}): {exc}") from None
+        where = _bad_text_line(path) if path.suffix.lower() in (".log", ".txt") else None
+        message = (f"CAN log '{path}': {where}" if where else
+                   f"CAN log '{path}' could not be read ({kind}): {exc}")
+        exc.__traceback__ = None  # the reader's frames (a half-built MDF among them) go now
+        del exc
+        _collect_quietly()
+        raise DatasetError(message) from None
     finally:
         readers.removeHandler(handler)
         readers.propagate = propagate

@@ -745,7 +745,7 @@ def simulate_spec_to_file(out: str | Path, spec: RunSpec, workers: int | None = 
     parts: dict[int, tuple] = {}
     if run_file.exists():
         try:
-            previous = json.loads(run_file.read_text())
+            previous = json.loads(run_file.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError):
             previous = None
         if previous != json.loads(json.dumps(settings)):
@@ -761,7 +761,7 @@ def simulate_spec_to_file(out: str | Path, spec: RunSpec, workers: int | None = 
     else:
         try:
             folder.mkdir(parents=True, exist_ok=True)
-            run_file.write_text(json.dumps(settings))
+            run_file.write_text(json.dumps(settings), encoding="utf-8")
         except OSError as exc:
             raise DatasetError(f"cannot write next to '{out}': {exc}") from None
 

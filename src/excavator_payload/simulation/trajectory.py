@@ -153,8 +153,9 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
     if len(frame) == 0:
         raise DatasetError(f"{source}: trajectory has no rows")
     for c in REQUIRED + tuple(c for c in OPTIONAL if c in frame.columns):
-        if not pd.api.types.is_numeric_dtype(frame[c]):
-            raise DatasetError(f"{source}: column '{c}' must be numeric, found {frame[c].dtype}")
+        if not pd.api.types.is_numeric_dtype(frame[c]) or pd.api.types.is_bool_dtype(frame[c]):
+            raise DatasetError(f"{source}: column '{c}' must be numeric, found {frame[c].dtype}"
+                               + (" (true/false, not a measurement)" if pd.api.types.is_bool_dtype(frame[c]) else ""))
         if not np.all(np.isfinite(frame[c].to_numpy(dtype=float))):
             raise DatasetError(f"{source}: column '{c}' has NaN or infinite values")
     for c in ANGLE_COLUMNS[:3]:

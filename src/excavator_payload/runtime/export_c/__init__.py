@@ -106,7 +106,7 @@ def export_c(estimator: Estimator, out: str | Path, precision: str = "float64") 
     for name, text in ((f"{base}.h", header), (f"{base}.c", source)):
         path = out / name
         tmp = out / (name + ".tmp")
-        tmp.write_text(text)
+        tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
         paths.append(path)
     return paths

@@ -1,0 +1,306 @@
+"""The shift's SQLite record (``loadout --db``) and its reader (``report --db``).
+
+Split from :mod:`excavator_payload.runtime.loadout` (the weighing): the tables, the layout
+version kept in ``PRAGMA user_version``, and the checks that a database is a shift record of
+a version this package reads before anything is written to it or reported from it. SQLite
+failures (locked, read-only, damaged) are one line naming the record, never a traceback; each
+truck is one transaction, so the trucks written before a failure stay.
+"""
+
+from __future__ import annotations
+
+import math
+import sqlite3
+import time as _time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pandas as pd
+
+from excavator_payload.errors import DatasetError
+
+if TYPE_CHECKING:
+    from excavator_payload.runtime.loadout import Truck
+
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    run INTEGER PRIMARY KEY AUTOINCREMENT, source TEXT NOT NULL, data TEXT, model TEXT,
+    rated REAL, started REAL, finished REAL);
+CREATE TABLE IF NOT EXISTS passes (
+    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, pass INTEGER NOT NULL,
+    time_dig REAL, time_dump REAL, time_lock REAL, weight REAL, sigma REAL, status TEXT NOT NULL,
+    reason TEXT, true_weight REAL,
+    UNIQUE (source, truck, pass));
+CREATE TABLE IF NOT EXISTS trucks (
+    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, passes INTEGER NOT NULL,
+    total REAL NOT NULL, target REAL, unweighed INTEGER NOT NULL, true_total REAL,
+    true_passes INTEGER, matched INTEGER, start REAL,
+    UNIQUE (source, truck));
+CREATE TABLE IF NOT EXISTS faults (
+    source TEXT NOT NULL, run INTEGER NOT NULL, truck INTEGER NOT NULL, spn INTEGER NOT NULL,
+    fmi INTEGER NOT NULL, signal TEXT, kind TEXT, start REAL, "end" REAL);
+"""
+
+
+#: The record's layout version (``PRAGMA user_version``): a record written by a newer version of
+#: the package (a higher number) is refused, never half-understood; 0 is a record made before
+#: the number was kept (read as version 1).
+SCHEMA_VERSION = 1
+
+#: The columns each table of a shift record must have (the reader and writer use them all).
+RECORD_COLUMNS = {
+    "runs": ("run", "source", "data", "model", "rated", "started", "finished"),
+    "passes": ("source", "run", "truck", "pass", "time_dig", "time_dump", "time_lock", "weight", "sigma",
+               "status", "reason", "true_weight"),
+    "trucks": ("source", "run", "truck", "passes", "total", "target", "unweighed", "true_total",
+               "true_passes", "matched"),
+    "faults": ("source", "run", "truck", "spn", "fmi", "signal", "kind", "start", "end"),
+}
+
+
+def record_error(path: str | Path, exc: sqlite3.Error, what: str) -> DatasetError:
+    """One line for an SQLite failure on the shift record ``path`` (what it means, not the
+    library's words alone).
+
+    Parameters
+    ----------
+    path : str or Path
+        The record.
+    exc : sqlite3.Error
+        What SQLite raised.
+    what : str
+        What was being done, e.g. ``"open"`` or ``"write truck 3 to"``.
+    """
+    text = str(exc)
+    if "locked" in text or "busy" in text:
+        why = "another program holds it locked (a loadout or report still running on it?); try again when it ends"
+    elif "readonly" in text or "read-only" in text:
+        why = "it is read-only (the file's or its folder's permissions); give a writable --db"
+    elif "malformed" in text or "not a database" in text or "corrupt" in text:
+        why = f"the file is damaged or not SQLite ({text}); restore a copy or give a new --db"
+    elif "unable to open" in text:
+        why = "the file cannot be created or opened (does its folder exist, and may you write there?)"
+    elif "disk is full" in text or "disk I/O" in text:
+        why = f"the disk failed or is full ({text})"
+    else:
+        why = text
+    return DatasetError(f"--db '{path}': could not {what} the shift record: {why}")
+
+
+def check_record_schema(db: sqlite3.Connection, path: str | Path) -> None:
+    """Refuse a database that is another program's (a table of ours with other columns) or a
+    shift record of a newer version, before anything is written or read.
+
+    Parameters
+    ----------
+    db : sqlite3.Connection
+        The open database.
+    path : str or Path
+        Its file (for the message).
+
+    Raises
+    ------
+    DatasetError
+        A newer record, or a table named as ours without our columns.
+    """
+    version = db.execute("PRAGMA user_version").fetchone()[0]
+    if version > SCHEMA_VERSION:
+        raise DatasetError(f"--db '{path}' is a shift record of a newer excavator-payload (layout version "
+                           f"{version}, this one reads up to {SCHEMA_VERSION}); upgrade, or give a new --db")
+    for table, needed in RECORD_COLUMNS.items():
+        have = {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
+        missing = [c for c in needed if c not in have]
+        if have and missing:
+            raise DatasetError(f"--db '{path}' has a table '{table}' without the shift record's column(s) "
+                               f"{', '.join(missing)}: it is another program's database (or another "
+                               f"record layout); give a new --db")
+
+
+class ShiftRecord:
+    """The shift's SQLite record (module doc): rerunning the same data replaces, never doubles.
+
+    Parameters
+    ----------
+    path : str or Path
+        The SQLite file (created if missing; an older record gains the newer columns).
+    """
+
+    def __init__(self, path: str | Path):
+        path = Path(path)
+        self.path = path
+        if path.is_dir():
+            raise DatasetError(f"--db '{path}' is a folder; give a file name such as shift.sqlite")
+        try:
+            self.db = sqlite3.connect(path)
+            check_record_schema(self.db, path)
+            self.db.executescript(SCHEMA)
+            columns = {row[1] for row in self.db.execute("PRAGMA table_info(trucks)")}
+            if "start" not in columns:  # a record made before trucks had a start time
+                with self.db:
+                    self.db.execute("ALTER TABLE trucks ADD COLUMN start REAL")
+            if self.db.execute("PRAGMA user_version").fetchone()[0] == 0:
+                self.db.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+        except sqlite3.Error as exc:
+            raise record_error(path, exc, "open") from None
+
+    def _write(self, what: str, statements) -> sqlite3.Cursor:
+        """Run ``statements(db)`` in one transaction; an SQLite failure (locked, read-only, full
+        disk, corrupt pages) is one :class:`DatasetError` line naming the record: the trucks
+        written before stay, the transaction that failed is rolled back whole."""
+        try:
+            with self.db:
+                return statements(self.db)
+        except sqlite3.Error as exc:
+            raise record_error(self.path, exc, what) from None
+
+    def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
+        """Record the start of a loadout run over ``source`` (the data's hash); returns its id.
+
+        Parameters
+        ----------
+        source : str
+            SHA-256 of the data file (:func:`file_key`).
+        data : str
+            The data's name as given (for the record's reader).
+        model : str
+            The model's name as given.
+        rated : float, optional
+            kg, the model's rated payload, if any.
+        """
+        cur = self._write("record the run in", lambda db: db.execute(
+            "INSERT INTO runs (source, data, model, rated, started) VALUES (?, ?, ?, ?, ?)",
+            (source, data, model, rated, _time.time())))
+        return int(cur.lastrowid)
+
+    def finish_run(self, run: int) -> None:
+        """Mark run ``run`` finished (a run without it was interrupted).
+
+        Parameters
+        ----------
+        run : int
+            The id :meth:`start_run` returned.
+        """
+        self._write("finish the run in", lambda db: db.execute("UPDATE runs SET finished = ? WHERE run = ?",
+                                                                (_time.time(), run)))
+
+    def write_truck(self, source: str, run: int, truck: Truck) -> None:
+        """One truck, its passes and faults in one transaction; an earlier run's rows of it replaced
+        (a live truck is written again with each pass: the latest state of it, never twice).
+
+        Parameters
+        ----------
+        source : str
+            SHA-256 of the data file.
+        run : int
+            The run that weighed it.
+        truck : Truck
+            The truck, its passes and faults.
+        """
+        def statements(db):
+            db.execute("DELETE FROM passes WHERE source = ? AND truck = ?", (source, truck.truck))
+            db.execute("DELETE FROM faults WHERE source = ? AND truck = ?", (source, truck.truck))
+            db.executemany(
+                'INSERT INTO faults (source, run, truck, spn, fmi, signal, kind, start, "end") '
+                "VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(source, run, truck.truck, f["spn"], f["fmi"], f["signal"], f["kind"], f["start"],
+                  f["end"] if math.isfinite(f["end"]) else None) for f in truck.faults])
+            db.executemany(
+                "INSERT INTO passes (source, run, truck, pass, time_dig, time_dump, time_lock, weight, "
+                "sigma, status, reason, true_weight) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [(source, run, p.truck, p.index, p.time_dig, p.time_dump, p.time_lock, p.weight, p.sigma,
+                  p.status, p.reason, p.true_weight) for p in truck.passes])
+            db.execute(
+                "INSERT INTO trucks (source, run, truck, passes, total, target, unweighed, true_total, "
+                "true_passes, matched, start) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?) ON CONFLICT (source, truck) "
+                "DO UPDATE SET run = excluded.run, passes = excluded.passes, total = excluded.total, "
+                "target = excluded.target, unweighed = excluded.unweighed, true_total = excluded.true_total, "
+                "true_passes = excluded.true_passes, matched = excluded.matched, start = excluded.start",
+                (source, run, truck.truck, len(truck.passes), truck.total, truck.target, truck.unweighed,
+                 truck.true_total, truck.true_passes, truck.matched, truck.start))
+
+        self._write(f"write truck {truck.truck} to", statements)
+
+    def close(self) -> None:
+        """Close the database."""
+        self.db.close()
+
+
+def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The ``passes`` and ``trucks`` tables of a shift record (``attrs["rated"]``: the rated
+    payload the runs' models had, kg, if one; ``attrs["faults"]``: the ``faults`` table's rows
+    as dicts, none for a record made before it had one — a list, not a frame: pandas compares
+    attrs when frames are merged, and a frame there made every merge raise).
+
+    Parameters
+    ----------
+    path : str or Path
+        A shift record made by ``loadout --db``.
+
+    Raises
+    ------
+    DatasetError
+        The file is missing or not a shift record.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"--db '{path}' does not exist")
+    try:
+        with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
+            check_record_schema(db, path)
+            passes = pd.read_sql_query("SELECT * FROM passes ORDER BY source, truck, pass", db)
+            trucks = pd.read_sql_query("SELECT * FROM trucks ORDER BY source, truck", db)
+            rated = db.execute("SELECT MAX(rated) FROM runs").fetchone()[0]
+            has_faults = db.execute("SELECT 1 FROM sqlite_master WHERE name = 'faults'").fetchone()
+            faults = (pd.read_sql_query("SELECT * FROM faults ORDER BY source, truck, start", db)
+                      if has_faults else pd.DataFrame(columns=["source", "truck", "spn", "fmi", "signal",
+                                                               "kind", "start", "end"]))
+    except (sqlite3.DatabaseError, pd.errors.DatabaseError) as exc:
+        text = str(exc).split("': ")[-1] if str(exc).startswith("Execution failed on sql") else str(exc)
+        if "locked" in text or "busy" in text:
+            raise DatasetError(f"--db '{path}' is locked by another program (a loadout still writing it?); "
+                               "try again when it ends") from None
+        raise DatasetError(f"--db '{path}' is not a shift record (made by `loadout --db`): {text}") from None
+    _check_record_values(path, passes, trucks, faults)
+    passes.attrs["rated"] = rated
+    passes.attrs["faults"] = faults.to_dict("records")
+    return passes, trucks
+
+
+#: Per table, the columns that must be numbers (or empty) and those that may not be empty.
+_RECORD_NUMBERS = {
+    "passes": ("truck", "pass", "time_dig", "time_dump", "time_lock", "weight", "sigma", "true_weight"),
+    "trucks": ("truck", "passes", "total", "target", "unweighed", "true_total", "true_passes", "matched"),
+    "faults": ("truck", "spn", "fmi", "start", "end"),
+}
+_RECORD_REQUIRED = {"passes": ("source", "truck", "pass", "status"),
+                    "trucks": ("source", "truck", "passes", "total", "unweighed"),
+                    "faults": ("source", "truck", "spn", "fmi")}
+
+
+def _check_record_values(path, passes: pd.DataFrame, trucks: pd.DataFrame, faults: pd.DataFrame) -> None:
+    """A record edited by hand or by another tool (SQLite stores any value in any column): text
+    where a number belongs, or an empty key, is one line naming the table, column, row and value
+    (it was an internal error in the report, or an empty status counted as a pass not weighed)."""
+    for name, table in (("passes", passes), ("trucks", trucks), ("faults", faults)):
+        for column in _RECORD_REQUIRED[name]:
+            if column in table and table[column].isna().any():
+                row = int(np.flatnonzero(table[column].isna().to_numpy())[0])
+                raise DatasetError(f"--db '{path}': table '{name}' has an empty '{column}' (row {row + 1}); "
+                                   "the record was edited by another tool: fix or delete that row")
+        for column in _RECORD_NUMBERS[name]:
+            if column not in table:
+                continue
+            values = table[column]
+            numeric = pd.to_numeric(values, errors="coerce")
+            bad = numeric.isna() & values.notna()
+            if bool(bad.any()):
+                row = int(np.flatnonzero(bad.to_numpy())[0])
+                raise DatasetError(f"--db '{path}': table '{name}' column '{column}' holds {values.iloc[row]!r} "
+                                   f"(row {row + 1}) where a number belongs; the record was edited by another "
+                                   "tool: fix or delete that row")
+            table[column] = numeric
+        for column in ("source", "status"):
+            if column in table:
+                table[column] = table[column].astype(str).where(table[column].notna(), None)
