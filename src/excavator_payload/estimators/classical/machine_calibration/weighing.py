@@ -60,8 +60,9 @@ def uncovered_ranges(coverage: np.ndarray, ranges: np.ndarray) -> str:
 
 
 def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str]:
-    """A note per limited joint (:data:`COVERAGE_JOINTS`) whose angle leaves the range the
-    calibration covered on some of ``dataset``'s samples, while ``--outside-calibration`` skips it:
+    """A note per limited joint (:data:`COVERAGE_JOINTS`; with ``--outside-calibration arm``
+    every arm joint) whose angle leaves the range the calibration covered on some of
+    ``dataset``'s samples, while ``--outside-calibration`` skips it:
     the weighing then rests on the other joints there.
 
     Parameters
