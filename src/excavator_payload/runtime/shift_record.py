@@ -13,15 +13,11 @@ import math
 import sqlite3
 import time as _time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from excavator_payload.errors import DatasetError
-
-if TYPE_CHECKING:
-    from excavator_payload.runtime.loadout import Truck
 
 
 SCHEMA = """
@@ -185,7 +181,7 @@ class ShiftRecord:
         self._write("finish the run in", lambda db: db.execute("UPDATE runs SET finished = ? WHERE run = ?",
                                                                 (_time.time(), run)))
 
-    def write_truck(self, source: str, run: int, truck: Truck) -> None:
+    def write_truck(self, source: str, run: int, truck) -> None:
         """One truck, its passes and faults in one transaction; an earlier run's rows of it replaced
         (a live truck is written again with each pass: the latest state of it, never twice).
 
@@ -195,7 +191,7 @@ class ShiftRecord:
             SHA-256 of the data file.
         run : int
             The run that weighed it.
-        truck : Truck
+        truck : excavator_payload.runtime.loadout.Truck
             The truck, its passes and faults.
         """
         def statements(db):
