@@ -88,6 +88,13 @@ def lever_motion(rng: np.random.Generator, arm: HydraulicArmModel, duration: flo
     return out
 
 
+def _table(k: int, motion: np.ndarray, payload: float) -> pd.DataFrame:
+    """Experiment ``k`` of a trajectory table: a motion's (n, 5) time and angles, its payload."""
+    return pd.DataFrame({"experiment": k, "time": motion[:, 0], "boom_angle": motion[:, 1],
+                         "dipper_angle": motion[:, 2], "bucket_angle": motion[:, 3],
+                         "slew_angle": motion[:, 4], "payload": payload})
+
+
 def lever_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payloads=None,
                      slow: bool = False, slope_deg: float | None = None) -> pd.DataFrame:
     """A trajectory table of ``n`` operator-driven motions (payloads uniform in 0…rated unless given)."""
@@ -98,9 +105,7 @@ def lever_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payl
     for k in range(n):
         motion = lever_motion(rng, arm, slow=slow)
         payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
-        frame = pd.DataFrame({"experiment": k, "time": motion[:, 0], "boom_angle": motion[:, 1],
-                              "dipper_angle": motion[:, 2], "bucket_angle": motion[:, 3],
-                              "slew_angle": motion[:, 4], "payload": payload})
+        frame = _table(k, motion, payload)
         if slope_deg is not None:
             d = rng.uniform(0, 2 * math.pi)
             frame["ground_pitch"] = math.radians(slope_deg) * math.cos(d)
@@ -209,9 +214,7 @@ def joystick_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", p
     for k in range(n):
         motion = joystick_motion(rng, arm)
         payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
-        frame = pd.DataFrame({"experiment": k, "time": motion[:, 0], "boom_angle": motion[:, 1],
-                              "dipper_angle": motion[:, 2], "bucket_angle": motion[:, 3],
-                              "slew_angle": motion[:, 4], "payload": payload})
+        frame = _table(k, motion, payload)
         if slope_deg is not None:
             d = rng.uniform(0, 2 * math.pi)
             frame["ground_pitch"] = math.radians(slope_deg) * math.cos(d)
@@ -268,7 +271,5 @@ def multisine_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", 
     for k in range(n):
         motion = multisine_motion(rng, arm, creep=creep)
         payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
-        rows.append(pd.DataFrame({"experiment": k, "time": motion[:, 0], "boom_angle": motion[:, 1],
-                                  "dipper_angle": motion[:, 2], "bucket_angle": motion[:, 3],
-                                  "slew_angle": motion[:, 4], "payload": payload}))
+        rows.append(_table(k, motion, payload))
     return pd.concat(rows, ignore_index=True)

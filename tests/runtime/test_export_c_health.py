@@ -137,25 +137,32 @@ def _inject(frame, rows, signal, kind, a, b, size, rng):
         frame.loc[idx, signal] *= size
 
 
+def _with_faults(clean, seed, cases):
+    """The clean work with ``cases`` — (experiment 0 or 1, signal, kind, first row, end row,
+    size) — injected by :func:`_inject`, drawing from ``seed``: the frame (a copy) and the two
+    experiments' row indices."""
+    frame = clean.frame.copy()
+    rng = np.random.default_rng(seed)
+    rows = [frame.index[frame["experiment"] == e] for e in clean.experiment_ids]
+    for which, signal, kind, a, b, size in cases:
+        _inject(frame, rows[which], signal, kind, a, b, size, rng)
+    return frame, rows
+
+
 @pytest.fixture(scope="module")
 def faulty(clean):
     """The clean work with faults of every kind (as benchmarks/bench_faults.py injects them) and a
     hole in time (the monitor's windows restart)."""
-    frame = clean.frame.copy()
-    rng = np.random.default_rng(5)
-    ids = list(clean.experiment_ids)
-    r0, r1 = (frame.index[frame["experiment"] == e] for e in ids)
-    for rows, signal, kind, a, b, size in [
-        (r0, "boom_head_pressure", "stuck", 300, 420, None),
-        (r0, "dipper_rod_pressure", "dropout", 600, 650, None),
-        (r0, "boom_angle", "offset", 900, 1300, 5 * DEG),         # disagree at its edges, then offset
-        (r0, "bucket_head_pressure", "noise", 1400, 1600, 10 * BAR),
-        (r1, "dipper_angle", "gain", 400, 1600, 1.25),
-        (r1, "house_pitch", "offset", 2000, 2400, 5 * DEG),
-        (r1, "slew_rate", "stuck", 2600, 2800, None),
-        (r1, "boom_rate", "noise", 3000, 3200, 1.5 * DEG),
-    ]:
-        _inject(frame, rows, signal, kind, a, b, size, rng)
+    frame, (_, r1) = _with_faults(clean, 5, [
+        (0, "boom_head_pressure", "stuck", 300, 420, None),
+        (0, "dipper_rod_pressure", "dropout", 600, 650, None),
+        (0, "boom_angle", "offset", 900, 1300, 5 * DEG),         # disagree at its edges, then offset
+        (0, "bucket_head_pressure", "noise", 1400, 1600, 10 * BAR),
+        (1, "dipper_angle", "gain", 400, 1600, 1.25),
+        (1, "house_pitch", "offset", 2000, 2400, 5 * DEG),
+        (1, "slew_rate", "stuck", 2600, 2800, None),
+        (1, "boom_rate", "noise", 3000, 3200, 1.5 * DEG),
+    ])
     frame = frame.drop(index=list(r1[1800:1830])).reset_index(drop=True)  # 0.3 s hole
     return Dataset(frame, clean.meta)
 
@@ -258,16 +265,12 @@ def test_float_monitor_does_no_double_maths(models, tmp_path):
 def rate_faults(clean):
     """The clean work with a link rate stuck, dropped out and noisy (the monitor names only the
     rate: degraded weighing on the angle's slope), and the slew rate stuck (no substitute)."""
-    frame = clean.frame.copy()
-    rng = np.random.default_rng(7)
-    r0, r1 = (frame.index[frame["experiment"] == e] for e in clean.experiment_ids)
-    for rows, signal, kind, a, b, size in [
-        (r0, "boom_rate", "stuck", 500, 700, None),
-        (r0, "dipper_rate", "dropout", 1200, 1400, None),
-        (r1, "bucket_rate", "noise", 600, 900, 1.5 * DEG),
-        (r1, "slew_rate", "stuck", 1500, 1700, None),
-    ]:
-        _inject(frame, rows, signal, kind, a, b, size, rng)
+    frame, _ = _with_faults(clean, 7, [
+        (0, "boom_rate", "stuck", 500, 700, None),
+        (0, "dipper_rate", "dropout", 1200, 1400, None),
+        (1, "bucket_rate", "noise", 600, 900, 1.5 * DEG),
+        (1, "slew_rate", "stuck", 1500, 1700, None),
+    ])
     return Dataset(frame, clean.meta)
 
 
@@ -290,16 +293,12 @@ def test_c_weighs_degraded_as_python_does(name, single, models, rate_faults, tmp
 def pressure_faults(clean):
     """The clean work with a boom head pressure stuck, a dipper rod pressure dropped out and a
     bucket head pressure noisy: ``calibrated`` (momentum) weighs on without their joints."""
-    frame = clean.frame.copy()
-    rng = np.random.default_rng(9)
-    r0, r1 = (frame.index[frame["experiment"] == e] for e in clean.experiment_ids)
-    for rows, signal, kind, a, b, size in [
-        (r0, "boom_head_pressure", "stuck", 500, 800, None),
-        (r0, "dipper_rod_pressure", "dropout", 1200, 1400, None),
-        (r1, "bucket_head_pressure", "noise", 600, 900, 10 * BAR),
-        (r1, "boom_rod_pressure", "dropout", 1500, 1600, None),
-    ]:
-        _inject(frame, rows, signal, kind, a, b, size, rng)
+    frame, _ = _with_faults(clean, 9, [
+        (0, "boom_head_pressure", "stuck", 500, 800, None),
+        (0, "dipper_rod_pressure", "dropout", 1200, 1400, None),
+        (1, "bucket_head_pressure", "noise", 600, 900, 10 * BAR),
+        (1, "boom_rod_pressure", "dropout", 1500, 1600, None),
+    ])
     return Dataset(frame, clean.meta)
 
 
@@ -325,15 +324,11 @@ def test_c_weighs_without_a_named_pressures_joint_as_python_does(single, models,
 def angle_faults(clean):
     """The clean work with a boom angle stuck for 8 s (past the substitute's bound) and a bucket
     angle stuck for 3 s: ``calibrated`` (momentum) integrates the rate from the last healthy angle."""
-    frame = clean.frame.copy()
-    rng = np.random.default_rng(11)
-    r0, r1 = (frame.index[frame["experiment"] == e] for e in clean.experiment_ids)
-    for rows, signal, kind, a, b, size in [
-        (r0, "boom_angle", "stuck", 500, 1300, None),
-        (r1, "bucket_angle", "stuck", 600, 900, None),
-        (r1, "dipper_angle", "stuck", 1500, 1800, None),
-    ]:
-        _inject(frame, rows, signal, kind, a, b, size, rng)
+    frame, _ = _with_faults(clean, 11, [
+        (0, "boom_angle", "stuck", 500, 1300, None),
+        (1, "bucket_angle", "stuck", 600, 900, None),
+        (1, "dipper_angle", "stuck", 1500, 1800, None),
+    ])
     return Dataset(frame, clean.meta)
 
 

@@ -152,7 +152,7 @@ def pressure_regression_model(est) -> CModel:
             f"static const int EP_ANGLES[3] = {{{', '.join(str(i) for i in ANGLES)}}};",
             c_array("EP_COVERAGE_LOW", kernel._raw_low).rstrip(),
             c_array("EP_COVERAGE_HIGH", kernel._raw_high).rstrip(),
-            *([] if not getattr(kernel, "whole_arm", False) else [
+            *([] if not kernel.whole_arm else [
                 "/* --outside-calibration arm: any arm joint outside its range, and no joint is weighed */",
                 "static int ep_arm_outside(const ep_real *x)",
                 "{",
@@ -211,7 +211,7 @@ def pressure_regression_model(est) -> CModel:
         d_num += wt * (out[3 + j] * out[j]);
         d_info += wt * (out[3 + j] * out[3 + j]);
     }}"""
-        if getattr(kernel, "whole_arm", False):
+        if kernel.whole_arm:
             weights = weights.replace(
                 "if (x[EP_ANGLES[j]] < EP_COVERAGE_LOW[j] || x[EP_ANGLES[j]] > EP_COVERAGE_HIGH[j]) wt",
                 "if (ep_arm_outside(x)) wt")
@@ -357,7 +357,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
             s->terms_inside[slot * 3 + j] = (unsigned char)(x[EP_ANGLES[j]] >= EP_COVERAGE_LOW[j]
                                                             && x[EP_ANGLES[j]] <= EP_COVERAGE_HIGH[j]"""
             + dropped_at_centre + ");"
-            if not getattr(kernel, "whole_arm", False) else
+            if not kernel.whole_arm else
             """        for (j = 0; j < 3; ++j)
             s->terms_inside[slot * 3 + j] = (unsigned char)"""
             + ("(!ep_arm_outside(x)" + dropped_at_centre + ");" if dropped_at_centre else "!ep_arm_outside(x);"))

@@ -90,9 +90,6 @@ class CalibratedKernel(PressureRegression):
             outside_calibration = "skip" if self.balance == "momentum" else "use"
         self.outside_calibration = outside_calibration
         coverage = np.tile([-NO_LIMIT, NO_LIMIT], (3, 1))
-        #: ``--outside-calibration arm``: a sample with any arm joint outside its covered range
-        #: weighs no joint
-        self.whole_arm = outside_calibration == "arm"
         if outside_calibration in ("skip", "arm"):
             limited = np.ones(3, bool) if self.whole_arm else np.array(COVERAGE_JOINTS)
             coverage[limited] = np.asarray(cal.angle_coverage, float)[limited]
@@ -236,9 +233,15 @@ class CalibratedKernel(PressureRegression):
         ``arm``: every joint inside, or none)."""
         angles = sample[ANGLES]
         inside = (angles >= self._raw_low) & (angles <= self._raw_high)
-        if getattr(self, "whole_arm", False):  # a kernel pickled before the option has none
+        if self.whole_arm:
             return np.full(3, bool(inside.all()))
         return inside
+
+    @property
+    def whole_arm(self) -> bool:
+        """``--outside-calibration arm``: a sample with any arm joint outside its covered range
+        weighs no joint."""
+        return self.outside_calibration == "arm"
 
     def update(self, time: float, values: np.ndarray) -> bool:
         # ring of the window (2·half_window + 1 samples) and the newest, not yet judged samples,

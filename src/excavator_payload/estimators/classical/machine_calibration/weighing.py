@@ -78,7 +78,7 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
     """
     if kernel.outside_calibration not in ("skip", "arm"):
         return []
-    whole_arm = kernel.outside_calibration == "arm"
+    whole_arm = kernel.whole_arm
     notes = []
     for j, joint in enumerate(("boom", "dipper", "bucket")):
         if not (whole_arm or COVERAGE_JOINTS[j]):
@@ -92,7 +92,7 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
         if outside > 0:
             low, high = calibration.angle_coverage[j] / DEG
             # the angles reached, offsets removed, as the calibration's range is given
-            offset = (kernel._raw_low[j] - calibration.angle_coverage[j][0]) / DEG
+            offset = calibration.offset_vector()[ANGLES[j]] / DEG
             reached = [f"{(v / DEG - offset):.0f}°" for v, hit in ((a.min(), below.any()), (a.max(), above.any())) if hit]
             notes.append(f"{name}: the {joint} angle lay outside the range the calibration "
                          f"motions covered ({low:.0f}…{high:.0f}°) on {100 * outside:.1f} % of the samples "
