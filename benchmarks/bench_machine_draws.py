@@ -56,18 +56,8 @@ def judge(est, ds, label, bound) -> dict:
 
 def calibration(motions: int, seed: int, reach: int):
     """``motions`` calibration motions of draw ``seed``: swings (the study's), the last ``reach``
-    of them `reach` motions (random known loads) instead."""
-    from excavator_payload.data.dataset import Dataset
-    from excavator_payload.simulation.generate import simulate_dataset
-
-    swings = dm.calibration_data(motions - reach, seed)
-    if not reach:
-        return swings
-    extra = simulate_dataset(reach, seed=seed, machine="cat345c-hydraulic", motion="reach",
-                             session=dm.SESSION_CALIBRATION, with_truth=True, workers=1, progress=False)
-    frame = extra.frame.assign(experiment=extra.frame["experiment"] + int(swings.frame["experiment"].max()) + 1)
-    columns = [c for c in swings.frame.columns if c in frame.columns]
-    return Dataset(pd.concat([swings.frame[columns], frame[columns]], ignore_index=True), swings.meta)
+    of them `reach` motions (random known loads) instead (:func:`dm.calibration_mix`)."""
+    return dm.calibration_mix(motions, seed, reach=reach)
 
 
 def main() -> None:

@@ -3,9 +3,10 @@
 As a service technician would set the weighing up:
 
 1. **session A** — calibration motions with known payloads (empty bucket and known weights:
-   0, half the rated payload, the rated payload in turn; 0, 2500, 5000 kg on the preset), made
-   as trajectory files of swing motions (slewing included) and pushed through the simulator
-   (``--motion trajectory``);
+   0, half the rated payload, the rated payload in turn; 0, 2500, 5000 kg on the preset), the
+   recommended mix (:func:`calibration_mix`): swings (slewing included, made as trajectory files
+   and pushed through the simulator, ``--motion trajectory``) and, 3 in 10, `reach` motions that
+   take every joint through its range at once;
 2. ``calibrated`` identified from them, starting from the machine file every parameter of which
    is 3 % off (:func:`~excavator_payload.model.hydraulic_machine.off_by`; for the preset that
    is ``cat345c-hydraulic-3pct``);
@@ -185,6 +186,82 @@ def calibration_data(n: int = 10, seed: int = 100, machine="cat345c-hydraulic") 
     """
     return simulate_trajectory(motion_trajectory(n, seed, calibration_payloads(machine), machine), seed,
                                SESSION_CALIBRATION, machine)
+
+
+def reach_count(n: int) -> int:
+    """How many of ``n`` recommended calibration motions are `reach` motions: as many as
+    ``simulate --motion calibration`` makes (3 in 10,
+    :data:`~excavator_payload.simulation.machine_sim.CALIBRATION_REACH`).
+
+    Parameters
+    ----------
+    n : int
+        Number of calibration motions.
+    """
+    from excavator_payload.simulation.machine_sim import CALIBRATION_REACH
+
+    return sum(k % 10 in CALIBRATION_REACH for k in range(n))
+
+
+def calibration_mix(n: int = 10, seed: int = 100, machine="cat345c-hydraulic",
+                    reach: int | None = None) -> Dataset:
+    """The recommended calibration: ``n`` motions with known payloads, session A, of which
+    ``reach`` are `reach` motions (every joint through its whole range at once while slewing;
+    random known loads), the others the planned swings of :func:`calibration_data`. Swings alone
+    leave stretches of the joints' ranges out, where the calibrated model extrapolates
+    (docs/findings/any-motion.md, "Every joint at once").
+
+    Parameters
+    ----------
+    n : int
+        Number of motions.
+    seed : int
+        Seed of the motions and of the simulation.
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+    reach : int or None
+        How many of them are `reach` motions (after the swings); None: as many as
+        ``simulate --motion calibration`` makes of ``n`` (3 in 10,
+        :data:`~excavator_payload.simulation.machine_sim.CALIBRATION_REACH`).
+    """
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    if reach is None:
+        reach = reach_count(n)
+    reach = min(max(int(reach), 0), n)
+    swings = calibration_data(n - reach, seed, machine) if n > reach else None
+    if not reach:
+        return swings
+    extra = simulate_dataset(reach, seed=seed, machine=machine, motion="reach", session=SESSION_CALIBRATION,
+                             with_truth=True, workers=1, progress=False)
+    if swings is None:
+        return extra
+    frame = extra.frame.assign(experiment=extra.frame["experiment"] + int(swings.frame["experiment"].max()) + 1)
+    columns = [c for c in swings.frame.columns if c in frame.columns]
+    return Dataset(pd.concat([swings.frame[columns], frame[columns]], ignore_index=True), swings.meta)
+
+
+def calibration_trajectory(n: int, seed: int, machine="cat345c-hydraulic") -> pd.DataFrame:
+    """The motions of :func:`calibration_mix` as one trajectory table (for ``simulate --motion
+    trajectory``): the planned swings, then the `reach` motions' true angles; known payloads
+    cycled as in :func:`calibration_payloads`.
+
+    Parameters
+    ----------
+    n : int
+        Number of motions.
+    seed : int
+        Seed of the motions.
+    machine : HydraulicMachine or str
+        The hydraulic machine (or preset name or TOML file).
+    """
+    reach = reach_count(n)
+    payloads = calibration_payloads(machine)
+    parts = [motion_trajectory(n - reach, seed, payloads, machine)] if n > reach else []
+    if reach:
+        extra = motion_trajectory(reach, seed, payloads, machine, motion="reach")
+        parts.append(extra.assign(experiment=extra["experiment"] + n - reach))
+    return pd.concat(parts, ignore_index=True)
 
 
 #: Least travel of each arm joint in the zero check's swing (rad): a cylinder that stands still
@@ -576,7 +653,8 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
     say = console.print if console is not None else (lambda *a, **k: None)
     say(f"simulating: {n_cal} calibration motions (session {SESSION_CALIBRATION}), zero check and "
         f"4 × {n_test} test motions (session {SESSION_WORK})")
-    cal = calibration_data(n_cal, seed, machine)
+    cal = calibration_mix(n_cal, seed, machine)
+    n_reach = reach_count(n_cal)
     from excavator_payload.simulation.generate import simulate_dataset
 
     lifts = simulate_dataset(max(n_cal, 6), seed=seed + 4, machine=machine, motion="lifts",
@@ -587,8 +665,7 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
         write_dataset(ds, out / "data" / f"{name}.parquet")
     # trajectory files for the CLI flow (simulate --motion trajectory --trajectory FILE)
     (out / "trajectories").mkdir(exist_ok=True)
-    motion_trajectory(n_cal, seed, calibration_payloads(machine), machine).to_parquet(
-        out / "trajectories" / "calibration.parquet")
+    calibration_trajectory(n_cal, seed, machine).to_parquet(out / "trajectories" / "calibration.parquet")
     motion_trajectory(1, seed + 1, (0.0,), machine).to_parquet(out / "trajectories" / "zero_check.parquet")
     hand_made_trajectory(max(n_test, 2), seed + 3, rated).to_parquet(out / "trajectories" / "hand_made.parquet")
     names = machine_estimators()
@@ -605,11 +682,15 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
         other = fit_estimators(cal, zero, ["calibrated"], prior_machine=prior,
                                options={"calibrated": {"balance": "differentiated"}})
         for name, est in other["fitted"].items():
+            if est.fit_refusals:  # `train` would not save it (the recommended mix's reach motions)
+                other["failures"][name] = "calibration refused, as train refuses it: " + est.fit_refusals[0]
+                continue
             fit["fitted"][f"{name} --balance differentiated"] = est
         fit["failures"].update({f"{k} --balance differentiated": v for k, v in other["failures"].items()})
     rows = []
     # the bound from the per-sample form's calibration, as the study's: a form that trusts its
-    # calibration less must not get a looser bound for it
+    # calibration less must not get a looser bound for it (the default's own where the per-sample
+    # form refused the calibration motions)
     reference = fit["fitted"].get("calibrated --balance differentiated", fit["fitted"].get("calibrated"))
     default = {}  # the default calibrated estimator's evaluation per test set, for the figure
     for set_name, ds in tests.items():
@@ -635,7 +716,7 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
     lines = ["# Weighing on the hydraulic machine", "",
              f"Machine `{machine.name}`, rated payload {rated:g} kg (1 % = {0.01 * rated:g} kg). "
              f"Calibrated from `{prior.name}` (every parameter 3 % off) with {n_cal} motions of known payload "
-             f"(session {SESSION_CALIBRATION}), zeroed on one empty-bucket swing and tested on "
+             f"({n_reach} of them `reach` motions, the rest swings; session {SESSION_CALIBRATION}), zeroed on one empty-bucket swing and tested on "
              f"{n_test} experiment{'s' if n_test != 1 else ''} per set (session {SESSION_WORK}); first "
              "second not judged; work cycles judged up to the dump.", ""]
     if scale == "tiny":

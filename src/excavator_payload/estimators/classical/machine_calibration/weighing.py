@@ -60,10 +60,10 @@ def uncovered_ranges(coverage: np.ndarray, ranges: np.ndarray) -> str:
 
 
 def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str]:
-    """A note per limited joint (:data:`COVERAGE_JOINTS`; with ``--outside-calibration arm``
-    every arm joint) whose angle leaves the range the calibration covered on some of
-    ``dataset``'s samples, while ``--outside-calibration`` skips it:
-    the weighing then rests on the other joints there.
+    """A note per arm joint whose angle leaves the range the calibration covered on some of
+    ``dataset``'s samples: where ``--outside-calibration`` skips it (a limited joint,
+    :data:`COVERAGE_JOINTS`, or with ``arm`` every arm joint) the weighing rests on the other
+    joints there; elsewhere it was weighed by extrapolation, which the note says.
 
     Parameters
     ----------
@@ -76,24 +76,35 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
     dataset : Dataset
         The data weighed.
     """
-    if kernel.outside_calibration not in ("skip", "arm"):
-        return []
+    skips = kernel.outside_calibration in ("skip", "arm")
     whole_arm = kernel.whole_arm
     notes = []
     for j, joint in enumerate(("boom", "dipper", "bucket")):
-        if not (whole_arm or COVERAGE_JOINTS[j]):
-            continue
+        skipped = skips and (whole_arm or COVERAGE_JOINTS[j])
         a = dataset.frame[SIGNALS[ANGLES[j]]].to_numpy(float)
         a = a[np.isfinite(a)]
         if not len(a):
             continue
-        below, above = a < kernel._raw_low[j], a > kernel._raw_high[j]
+        # the covered range in raw (measured) units, as the kernel compares it where it skips
+        raw_low, raw_high = np.asarray(calibration.angle_coverage[j], float) + calibration.offset_vector()[ANGLES[j]]
+        below, above = a < raw_low, a > raw_high
         outside = float(np.mean(below | above))
         if outside > 0:
             low, high = calibration.angle_coverage[j] / DEG
             # the angles reached, offsets removed, as the calibration's range is given
             offset = calibration.offset_vector()[ANGLES[j]] / DEG
             reached = [f"{(v / DEG - offset):.0f}°" for v, hit in ((a.min(), below.any()), (a.max(), above.any())) if hit]
+            if not skipped:
+                # weighed there all the same: the calibrated model extrapolates, and its cross-checked
+                # error (in sigma) was measured inside the covered range only
+                notes.append(f"{name}: the {joint} angle lay outside the range the calibration motions "
+                             f"covered ({low:.0f}…{high:.0f}°) on {100 * outside:.1f} % of the samples (it "
+                             f"reached {' and '.join(reached)}), and was weighed there by extrapolation: "
+                             "the error can exceed its sigma (measured up to 24 kg where swings alone had "
+                             "calibrated). Add calibration motions with known loads that take the "
+                             f"{joint} there (simulate --motion reach), or weigh with --outside-calibration "
+                             "arm to report nothing there")
+                continue
             notes.append(f"{name}: the {joint} angle lay outside the range the calibration "
                          f"motions covered ({low:.0f}…{high:.0f}°) on {100 * outside:.1f} % of the samples "
                          f"(it reached {' and '.join(reached)}); "
