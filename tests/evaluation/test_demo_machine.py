@@ -100,3 +100,23 @@ def test_the_reports_table_reads_as_a_table_for_people():
     text = dm.markdown_table(table)
     assert text.splitlines()[0] == "| test motions | estimator | mean MAX (kg) | MAX ≤ 1 % rated | ≤ 0.25 % | efficiency |"
     assert text.splitlines()[2] == "| nmpc | calibrated | 9.61 | 100% | 78% | — |"
+
+
+def test_the_recommended_calibration_mix_holds_swings_then_reach_motions():
+    """calibration_mix: as many reach motions as `simulate --motion calibration` makes (3 in
+    10), after the swings; its trajectory file has the same motions, experiments numbered on."""
+    assert [dm.reach_count(n) for n in (1, 2, 3, 5, 9, 10, 13)] == [0, 0, 1, 1, 3, 3, 4]
+    mix = dm.calibration_mix(3, 17)
+    swings = dm.calibration_data(2, 17)
+    assert list(mix.experiment_ids) == [0, 1, 2]
+    f = mix.frame
+    for k in (0, 1):  # the swings are the study's, unchanged
+        a = f[f["experiment"] == k]["boom_angle"].to_numpy()
+        b = swings.frame[swings.frame["experiment"] == k]["boom_angle"].to_numpy()
+        assert a.shape == b.shape and (a == b).all()
+    # the reach motion takes every arm joint through far more of its range than a swing
+    spans = f.groupby("experiment")[["boom_angle", "dipper_angle", "bucket_angle"]].agg(lambda x: x.max() - x.min())
+    assert (spans.loc[2] > spans.loc[[0, 1]].max()).sum() >= 2
+    table = dm.calibration_trajectory(3, 17)
+    assert sorted(table["experiment"].unique()) == [0, 1, 2]
+    assert set(table["payload"]) <= set(dm.calibration_payloads())
