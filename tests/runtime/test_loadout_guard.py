@@ -214,3 +214,23 @@ def test_the_window_rate_ratio_is_the_dataset_checks(unit):
     want = _rate_ratios(frame, "a", "r", 0.01, 0.02)[1]
     got = rate_ratio(t, angle, rate, 0.01, 0.02)
     assert got == pytest.approx(want, rel=1e-12) and got == pytest.approx(unit, rel=0.1)
+
+
+def test_a_log_cut_short_is_weighed_to_the_cut_with_one_warning(shift, tmp_path, capsys):
+    """The truck's BLF cut at 60 % (its last container incomplete): the passes before the cut are
+    weighed and recorded, and one line on stderr says the log ends early (it was weighed as if
+    whole, without a word); the whole log says nothing."""
+    folder, _, dbc_path, map_path = shift
+    cut = tmp_path / "cut.blf"
+    raw = (folder / "truck.blf").read_bytes()
+    cut.write_bytes(raw[:int(0.6 * len(raw))])
+    code = main(["loadout", "--model", str(folder / "model"), "--log", str(cut), "--dbc", str(dbc_path),
+                 "--signal-map", str(map_path), "--db", str(tmp_path / "cut.sqlite"), "--target", "8000"])
+    out = capsys.readouterr()
+    lines = [line for line in out.err.splitlines() if line.strip()]
+    assert code == 0 and len(lines) == 1, out.err
+    assert lines[0].startswith("warning: CAN log") and "ends early" in lines[0] and "last truck may be partial" in lines[0]
+    with sqlite3.connect(tmp_path / "cut.sqlite") as con:
+        assert con.execute("SELECT COUNT(*) FROM passes WHERE status = 'ok'").fetchone()[0] >= 1
+    code, whole = _loadout(["--target", "8000"], shift, tmp_path, capsys, dbc_path)
+    assert code == 0 and "ends early" not in whole.err

@@ -216,6 +216,8 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
                       f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more; "
                       f"units judged on {bus.guard.judged} windows of {bus.guard.size} samples",
                       markup=False, highlight=False)
+        if bus.log_end:  # a cut log's trucks looked complete (its last one may be partial)
+            typer.echo(f"warning: {bus.log_end}; its last truck may be partial", err=True)
         return trucks
     return _live(sensor, button, db, target, model, interface, channel, bitrate, duration, guard())
 
