@@ -281,6 +281,14 @@ def _to_degrees(*columns):
     return fn
 
 
+def _to_radians(*columns):
+    def fn(frame):
+        for c in columns:
+            frame[c] = np.radians(frame[c])
+        return frame
+    return fn
+
+
 BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
     # °/s pass the 50 rad/s limit and were weighed as rad/s: -3700 kg 'ok' for 1890 kg.
     "rates-in-degrees": (_machine_edit(_to_degrees("boom_rate", "dipper_rate", "slew_rate")),
@@ -289,6 +297,11 @@ BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
     "dipper-rate-in-degrees": (_machine_edit(_to_degrees("dipper_rate")), "'dipper_rate'"),
     # A machine on a slope of several degrees: its tilt in degrees is no tilt in radians.
     "house-tilt-in-degrees": (_machine_edit(_to_degrees("house_pitch", "house_roll")), "house_"),
+    # An angle scaled to radians twice (57 times too small): blamed on the dipper's swapped lines,
+    # or weighed nothing without a word; each angle named as a unit, never as the wiring.
+    **{f"{joint}-angle-scaled-to-radians-twice": (_machine_edit(_to_radians(f"{joint}_angle")),
+                                                  f"'{joint}_angle'")
+       for joint in ("boom", "dipper", "bucket")},
 }
 
 

@@ -234,3 +234,25 @@ def test_a_log_cut_short_is_weighed_to_the_cut_with_one_warning(shift, tmp_path,
         assert con.execute("SELECT COUNT(*) FROM passes WHERE status = 'ok'").fetchone()[0] >= 1
     code, whole = _loadout(["--target", "8000"], shift, tmp_path, capsys, dbc_path)
     assert code == 0 and "ends early" not in whole.err
+
+
+@pytest.mark.parametrize("signal, name", [("BoomAngle", "boom_angle"), ("DipperAngle", "dipper_angle"),
+                                          ("BucketAngle", "bucket_angle")])
+def test_an_angle_scaled_to_radians_twice_is_named_as_a_unit_not_as_the_wiring(shift, tmp_path, capsys, signal,
+                                                                                name):
+    """A DBC already in rad whose angle got the degree factor too (57 times too small): the dipper's
+    was blamed on its swapped head and rod lines (loadout and can-replay), the boom's and bucket's
+    weighed nothing (`not_weighed`, exit 0) or blamed the bucket's lines. Now each is one line
+    naming the angle as a unit mistake, before the wiring check; loadout says the factor to set."""
+    folder, _, _, map_path = shift
+    dbc_path = _dbc(shift, tmp_path, {signal: (math.pi / 180, "rad")})
+    code, out = _loadout(["--target", "8000"], shift, tmp_path, capsys, dbc_path)
+    err = out.err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert name in err and "π/180" in err and f"set factor = 57.29577951 in [signals.{name}]" in err, err
+    assert "swapped" not in err and not (tmp_path / "shift.sqlite").exists()
+    code = main(["can-replay", "--model", str(folder / "model"), "--log", str(folder / "truck.blf"), "--dbc",
+                 str(dbc_path), "--signal-map", str(map_path), "--out", str(tmp_path / "e.parquet")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert f"'{name}'" in err and "π/180" in err and "swapped" not in err, err

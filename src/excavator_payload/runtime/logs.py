@@ -242,7 +242,7 @@ def _python_can(path: Path, skipped: list[int], reader) -> Iterator[can.Message]
     except UNREADABLE_LOG as exc:
         kind = ("truncated or not a BLF file" if isinstance(exc, (struct.error, zlib.error, BLFParseError))
                 else "truncated or damaged MF4 file" if path.suffix.lower() == ".mf4" and (
-                    isinstance(exc, ValueError) or type(exc).__name__ == "MdfException")
+                    isinstance(exc, ValueError) or "exceeds the file" in str(exc))
                 else type(exc).__name__)
         where = _bad_text_line(path) if path.suffix.lower() in (".log", ".txt") else None
         message = (f"CAN log '{path}': {where}" if where else
