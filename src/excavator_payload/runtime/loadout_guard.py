@@ -256,8 +256,9 @@ class UnitGuard:
             if signal not in frame or rate not in frame:
                 continue
             time, angle = frame["time"].to_numpy(dtype=float), frame[signal].to_numpy(dtype=float)
-            shrunk = shrunk_angle(time, angle, frame[rate].to_numpy(dtype=float), self.sensors.sample_period,
-                                  min_change, self.sensors.plausible_abs[signal])
+            shrunk = None if self.sensors.units[signal] != "rad" else shrunk_angle(
+                time, angle, frame[rate].to_numpy(dtype=float), self.sensors.sample_period, min_change,
+                self.sensors.plausible_abs[signal])
             if shrunk is not None:  # before the rate (°/s?) and the wiring (swapped?) are blamed
                 peak = float(np.nanmax(np.abs(angle)))
                 found.append((signal, f"{self._where(signal)} changes {shrunk:.3g} times less than {rate} "
