@@ -470,3 +470,30 @@ def test_a_live_shift_whose_record_fails_keeps_the_truck_in_hand(shift, tmp_path
     assert "the disk failed or is full" in lines[0] and f"kept in '{fallback}'" in lines[0]
     assert f"1 truck(s) not in it (1 passes, {truck['total']:,.0f} kg)" in lines[0]
     assert f"truck 1: 1 passes, total {truck['total']:,.0f} kg" in " ".join(out.out.split())  # shown
+
+
+def test_the_cab_view_says_when_the_record_fails(shift, tmp_path):
+    """A live record that cannot be written: the view's first line says so in red, with where the
+    trucks are kept."""
+    import sqlite3
+
+    from rich.console import Console
+
+    from excavator_payload.runtime.loadout_live import live_view
+    from excavator_payload.runtime.shift_record import KeptRecord, ShiftRecord
+
+    record = KeptRecord(ShiftRecord(tmp_path / "v.sqlite"))
+    loadout = _loadout(shift, record=record, source="live")
+    console = Console(width=400, record=True)
+    console.print(live_view(loadout))
+    assert "NOT RECORDED" not in console.export_text()
+    record.record.db.close()
+    record.record.db = sqlite3.connect(f"file:{tmp_path / 'v.sqlite'}?mode=ro", uri=True)
+    loadout.new_truck()  # nothing loaded: no truck, no write
+    from excavator_payload.runtime.loadout import Truck
+
+    record.write_truck("live", loadout.run, Truck(1, [], target=8000.0))
+    console.print(live_view(loadout))
+    text = " ".join(console.export_text().split())
+    assert "NOT RECORDED: --db" in text and "read-only" in text and "v.sqlite.unsaved.json" in text
+    record.close()
