@@ -281,6 +281,14 @@ def _to_degrees(*columns):
     return fn
 
 
+def _to_radians(*columns):
+    def fn(frame):
+        for c in columns:
+            frame[c] = np.radians(frame[c])
+        return frame
+    return fn
+
+
 BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
     # °/s pass the 50 rad/s limit and were weighed as rad/s: -3700 kg 'ok' for 1890 kg.
     "rates-in-degrees": (_machine_edit(_to_degrees("boom_rate", "dipper_rate", "slew_rate")),
@@ -289,6 +297,11 @@ BAD_MACHINE_DATASETS: dict[str, tuple[Callable, str | None]] = {
     "dipper-rate-in-degrees": (_machine_edit(_to_degrees("dipper_rate")), "'dipper_rate'"),
     # A machine on a slope of several degrees: its tilt in degrees is no tilt in radians.
     "house-tilt-in-degrees": (_machine_edit(_to_degrees("house_pitch", "house_roll")), "house_"),
+    # An angle scaled to radians twice (57 times too small): blamed on the dipper's swapped lines,
+    # or weighed nothing without a word; each angle named as a unit, never as the wiring.
+    **{f"{joint}-angle-scaled-to-radians-twice": (_machine_edit(_to_radians(f"{joint}_angle")),
+                                                  f"'{joint}_angle'")
+       for joint in ("boom", "dipper", "bucket")},
 }
 
 
@@ -1001,6 +1014,28 @@ def _trc_bad_line(work, inputs):
     return _write(path, "\n".join(lines) + "\n")
 
 
+def _cut_log(name: str, share: float, whole_lines: bool = False):
+    """A good log written as ``work/name`` and cut after ``share`` of its bytes (mid-line, or for
+    ``whole_lines`` at the line end before: an ASC that lost only its ``End TriggerBlock``)."""
+    def make(work, inputs):
+        raw = _can_log(name, lambda m: m)(work, inputs).read_bytes()
+        cut = int(len(raw) * share) + 7
+        if whole_lines:
+            cut = raw.rindex(b"\n", 0, cut) + 1
+        return _write(work / name, raw[:cut])
+    return make
+
+
+def _replay_warned(n_ok: int):
+    """Weighed up to the cut, and one warning line that says the log ends early."""
+    def check(work, inputs, out, err):
+        _replay_ok(n_ok)(work, inputs, out, err)
+        said = [line for line in err.splitlines() if line.strip()]
+        assert len(said) == 1 and said[0].startswith("warning:") and "ends early" in said[0], err
+        assert "frames over" in said[0] and "were read" in said[0], err
+    return check
+
+
 def _user_dbc_and_map(work, inputs):
     # a user DBC and signal map (the generated ones, the map with a name a log could have)
     from excavator_payload.runtime.dbc import generate_dbc, sensor_layout
@@ -1087,6 +1122,16 @@ CAN_LOGS_OK: dict[str, tuple[Callable, int, str | None]] = {
     "inf-timestamp": (_inf_timestamp, 550, "1 unreadable log records skipped"),
     "trc-line-cut": (_trc_bad_line, 550, "1 unreadable log records skipped"),
 }
+#: Logs cut short (a logger that lost power, a copy that stopped): weighed up to the cut with one
+#: warning line (they were weighed as if whole, without a word).
+CAN_LOGS_CUT: dict[str, tuple[Callable, int]] = {
+    "blf-cut": (_cut_log("log.blf", 0.7), 350),
+    "asc-cut-mid-line": (_cut_log("log.asc", 0.7), 350),
+    "asc-without-end-triggerblock": (_cut_log("log.asc", 0.7, whole_lines=True), 350),
+    "candump-cut-mid-line": (_cut_log("log.log", 0.7), 350),
+    "csv-cut-mid-line": (_cut_log("log.csv", 0.7), 350),
+    "trc-cut-mid-line": (_cut_log("log.trc", 0.7), 350),
+}
 
 
 def can_cases() -> list[Case]:
@@ -1096,6 +1141,8 @@ def can_cases() -> list[Case]:
         c.append(Case(f"can-{key}", "CAN logs", replay, expect, message, setup, outputs=["{work}/e.parquet"]))
     for key, (setup, n_ok, said) in CAN_LOGS_OK.items():
         c.append(Case(f"can-ok-{key}", "CAN logs", replay, "ok", setup=setup, check=_replay_ok(n_ok, said)))
+    for key, (setup, n_ok) in CAN_LOGS_CUT.items():
+        c.append(Case(f"can-ok-{key}", "CAN logs", replay, "ok", setup=setup, check=_replay_warned(n_ok)))
     for key, (setup, message) in BAD_USER_DBC.items():
         c.append(Case(f"can-{key}", "CAN logs", replay + ["--dbc", "{work}/thesis.dbc", "--signal-map",
                                                             "{work}/map.toml"], "error", message, setup,

@@ -214,3 +214,45 @@ def test_the_window_rate_ratio_is_the_dataset_checks(unit):
     want = _rate_ratios(frame, "a", "r", 0.01, 0.02)[1]
     got = rate_ratio(t, angle, rate, 0.01, 0.02)
     assert got == pytest.approx(want, rel=1e-12) and got == pytest.approx(unit, rel=0.1)
+
+
+def test_a_log_cut_short_is_weighed_to_the_cut_with_one_warning(shift, tmp_path, capsys):
+    """The truck's BLF cut at 60 % (its last container incomplete): the passes before the cut are
+    weighed and recorded, and one line on stderr says the log ends early (it was weighed as if
+    whole, without a word); the whole log says nothing."""
+    folder, _, dbc_path, map_path = shift
+    cut = tmp_path / "cut.blf"
+    raw = (folder / "truck.blf").read_bytes()
+    cut.write_bytes(raw[:int(0.6 * len(raw))])
+    code = main(["loadout", "--model", str(folder / "model"), "--log", str(cut), "--dbc", str(dbc_path),
+                 "--signal-map", str(map_path), "--db", str(tmp_path / "cut.sqlite"), "--target", "8000"])
+    out = capsys.readouterr()
+    lines = [line for line in out.err.splitlines() if line.strip()]
+    assert code == 0 and len(lines) == 1, out.err
+    assert lines[0].startswith("warning: CAN log") and "ends early" in lines[0] and "last truck may be partial" in lines[0]
+    with sqlite3.connect(tmp_path / "cut.sqlite") as con:
+        assert con.execute("SELECT COUNT(*) FROM passes WHERE status = 'ok'").fetchone()[0] >= 1
+    code, whole = _loadout(["--target", "8000"], shift, tmp_path, capsys, dbc_path)
+    assert code == 0 and "ends early" not in whole.err
+
+
+@pytest.mark.parametrize("signal, name", [("BoomAngle", "boom_angle"), ("DipperAngle", "dipper_angle"),
+                                          ("BucketAngle", "bucket_angle")])
+def test_an_angle_scaled_to_radians_twice_is_named_as_a_unit_not_as_the_wiring(shift, tmp_path, capsys, signal,
+                                                                                name):
+    """A DBC already in rad whose angle got the degree factor too (57 times too small): the dipper's
+    was blamed on its swapped head and rod lines (loadout and can-replay), the boom's and bucket's
+    weighed nothing (`not_weighed`, exit 0) or blamed the bucket's lines. Now each is one line
+    naming the angle as a unit mistake, before the wiring check; loadout says the factor to set."""
+    folder, _, _, map_path = shift
+    dbc_path = _dbc(shift, tmp_path, {signal: (math.pi / 180, "rad")})
+    code, out = _loadout(["--target", "8000"], shift, tmp_path, capsys, dbc_path)
+    err = out.err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert name in err and "π/180" in err and f"set factor = 57.29577951 in [signals.{name}]" in err, err
+    assert "swapped" not in err and not (tmp_path / "shift.sqlite").exists()
+    code = main(["can-replay", "--model", str(folder / "model"), "--log", str(folder / "truck.blf"), "--dbc",
+                 str(dbc_path), "--signal-map", str(map_path), "--out", str(tmp_path / "e.parquet")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert f"'{name}'" in err and "π/180" in err and "swapped" not in err, err

@@ -397,3 +397,103 @@ def test_live_loadout_bus_lost_and_back(shift, caplog):
     # stale estimates at the sample rate while the bus was up (≤ 2 s of 3.5 s), none while lost
     rate = loadout.sensor.estimator.sensor_set.sample_rate
     assert 0 < len(SENT.get(channel, [])) <= 2 * 2.0 * rate
+
+
+def test_a_live_shift_whose_record_fails_keeps_the_truck_in_hand(shift, tmp_path, monkeypatch, capsys):
+    """`loadout --interface virtual …` whose record cannot be written once the shift runs (every
+    truck write raises SQLite's "database or disk is full"): the shift goes on, truck 1's pass is
+    weighed, shown and kept in ``<record>.unsaved.json``; the end (`q`) is one error line (exit 2)
+    naming the record, the failure, the truck's totals and the file (the run stopped at the
+    first pass and the truck in hand was lost)."""
+    import json
+    import os
+    import sqlite3
+
+    from can.interfaces.virtual import channels
+
+    from excavator_payload.cli import main
+    from excavator_payload.runtime import shift_record
+
+    def full(self, source, run, truck):
+        raise shift_record.record_error(self.path, sqlite3.OperationalError("database or disk is full"),
+                                        f"write truck {truck.truck} to")
+
+    monkeypatch.setattr(shift_record.ShiftRecord, "write_truck", full)
+    read_end, write_end = os.pipe()
+    monkeypatch.setattr(sys, "stdin", os.fdopen(read_end, "r"))
+    keys = os.fdopen(write_end, "w")
+    first = _first_pass(shift, tmp_path, 0, 0.0)
+    channel = f"loadout-full-{id(first)}"
+    feeder = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
+    db = tmp_path / "full.sqlite"
+    result = {}
+    run = threading.Thread(target=lambda: result.update(code=main([
+        "loadout", "--model", str(shift[0] / "model"), "--interface", "virtual", "--channel", channel,
+        "--dbc", str(shift[2]), "--signal-map", str(shift[3]), "--duration", "300", "--db", str(db),
+        "--target", "8000"])))
+    weighed = [0]
+
+    def wait(condition, what):
+        deadline = time.monotonic() + 120
+        while not condition():
+            assert time.monotonic() < deadline and run.is_alive(), f"waited for {what}"
+            time.sleep(0.05)
+
+    def pass_sent():  # the LoadoutPass frame the command sends when it weighs the pass
+        while (m := feeder.recv(timeout=0)) is not None:
+            decoded = decode_loadout(m)
+            weighed[0] += decoded is not None and decoded["message"] == dbc.LOADOUT_PASS_MESSAGE
+        return weighed[0] >= 1
+
+    run.start()
+    try:
+        wait(lambda: len(channels.get(channel, ())) >= 2, "the command's bus")
+        for f in first:
+            feeder.send(f)
+        wait(pass_sent, "truck 1's pass")  # the shift went on after the failed write
+        keys.write("q\n")
+        keys.flush()
+        run.join(60)
+    finally:
+        keys.close()
+        run.join(60)
+        feeder.shutdown()
+    assert not run.is_alive() and result["code"] == 2
+    fallback = tmp_path / "full.sqlite.unsaved.json"
+    body = json.loads(fallback.read_text())
+    (truck,) = body["trucks"]
+    assert truck["truck"] == 1 and len(truck["passes"]) == 1 and truck["passes"][0]["status"] == "ok"
+    assert truck["total"] == pytest.approx(truck["passes"][0]["weight"]) and truck["total"] > 1000
+    out = capsys.readouterr()
+    lines = [line for line in out.err.splitlines() if line.strip() and not line.startswith("--db")]
+    assert len(lines) == 1 and lines[0].startswith("error: --db"), out.err
+    assert "the disk failed or is full" in lines[0] and f"kept in '{fallback}'" in lines[0]
+    assert f"1 truck(s) not in it (1 passes, {truck['total']:,.0f} kg)" in lines[0]
+    assert f"truck 1: 1 passes, total {truck['total']:,.0f} kg" in " ".join(out.out.split())  # shown
+
+
+def test_the_cab_view_says_when_the_record_fails(shift, tmp_path):
+    """A live record that cannot be written: the view's first line says so in red, with where the
+    trucks are kept."""
+    import sqlite3
+
+    from rich.console import Console
+
+    from excavator_payload.runtime.loadout_live import live_view
+    from excavator_payload.runtime.shift_record import KeptRecord, ShiftRecord
+
+    record = KeptRecord(ShiftRecord(tmp_path / "v.sqlite"))
+    loadout = _loadout(shift, record=record, source="live")
+    console = Console(width=400, record=True)
+    console.print(live_view(loadout))
+    assert "NOT RECORDED" not in console.export_text()
+    record.record.db.close()
+    record.record.db = sqlite3.connect(f"file:{tmp_path / 'v.sqlite'}?mode=ro", uri=True)
+    loadout.new_truck()  # nothing loaded: no truck, no write
+    from excavator_payload.runtime.loadout import Truck
+
+    record.write_truck("live", loadout.run, Truck(1, [], target=8000.0))
+    console.print(live_view(loadout))
+    text = " ".join(console.export_text().split())
+    assert "NOT RECORDED: --db" in text and "read-only" in text and "v.sqlite.unsaved.json" in text
+    record.close()

@@ -133,3 +133,87 @@ def test_a_good_record_still_reports(tmp_path, capsys):
     assert main(["report", "--db", str(path), "--out", str(tmp_path / "r")]) == 0
     text = (tmp_path / "r" / "shift.md").read_text(encoding="utf-8")
     assert "- trucks: 2" in text and "- total loaded: 16,006 kg" in text
+
+
+def _read_only(path):
+    return sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+
+
+def test_a_live_record_that_fails_mid_shift_keeps_the_trucks_in_a_file_and_catches_up(tmp_path, caplog):
+    """The record turns read-only after truck 1 (a real SQLite 'attempt to write a readonly
+    database'): truck 2's passes are kept in ``<record>.unsaved.json`` (said once, naming the
+    file), the shift goes on; when the record takes writes again (after RETRY_SECONDS) the kept
+    truck is written to it, the file removed, and the run finished."""
+    import json
+
+    from excavator_payload.runtime.shift_record import RETRY_SECONDS, KeptRecord
+
+    path = tmp_path / "s.sqlite"
+    now = [0.0]
+    kept = KeptRecord(ShiftRecord(path), clock=lambda: now[0])
+    run = kept.start_run("live", "bus", "model")
+    kept.write_truck("live", run, _truck(1))
+    writable, kept.record.db = kept.record.db, _read_only(path)
+    truck = _truck(2)
+    with caplog.at_level("WARNING"):
+        kept.write_truck("live", run, Truck(2, truck.passes[:1], target=8000.0))  # its first pass
+        now[0] += 1.0
+        kept.write_truck("live", run, truck)  # its second: not tried yet, kept
+    fallback = path.with_name("s.sqlite.unsaved.json")
+    assert kept.fallback == fallback and fallback.is_file()
+    warned = [r.getMessage() for r in caplog.records if "unsaved" in r.getMessage()]
+    assert len(warned) == 1 and "read-only" in warned[0] and str(fallback) in warned[0]
+    body = json.loads(fallback.read_text())
+    assert [t["truck"] for t in body["trucks"]] == [2] and len(body["trucks"][0]["passes"]) == 2
+    assert body["trucks"][0]["total"] == pytest.approx(8003.0) and body["record"] == str(path)
+    assert "kept in" in kept.lost_line() and "1 truck(s) not in it (2 passes, 8,003 kg)" in kept.lost_line()
+    kept.record.db.close()
+    kept.record.db = writable
+    now[0] += RETRY_SECONDS
+    kept.write_truck("live", run, _truck(3))
+    kept.finish_run(run)
+    kept.close()
+    assert kept.lost_line() is None and not fallback.exists()
+    passes, trucks = read_record(path)
+    assert list(trucks["truck"]) == [1, 2, 3] and len(passes) == 6
+    with sqlite3.connect(path) as db:
+        assert db.execute("SELECT COUNT(*) FROM runs WHERE finished IS NOT NULL").fetchone() == (1,)
+
+
+@pytest.mark.parametrize("failure", ["database or disk is full", "database is locked", "folder gone"])
+def test_a_record_that_never_comes_back_leaves_the_trucks_in_a_file(tmp_path, monkeypatch, failure):
+    """Disk full, locked beyond the timeout, or the record's folder deleted mid-shift: every
+    truck not in the record is in the fallback file at the end (beside the record, or in the
+    temporary folder when its folder is gone) and the end's one line names it."""
+    import json
+    import shutil
+
+    from excavator_payload.runtime.shift_record import KeptRecord
+
+    import tempfile
+
+    folder = tmp_path / "shift"
+    folder.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    (tmp_path / "tmp").mkdir()
+    path = folder / "s.sqlite"
+    kept = KeptRecord(ShiftRecord(path))
+    run = kept.start_run("live", "bus", "model")
+    kept.write_truck("live", run, _truck(1))
+    if failure == "folder gone":  # a real failure: SQLite refuses to write a file that was deleted
+        shutil.rmtree(folder)
+    else:
+        def fail(*args, text=failure):
+            raise shift_record.record_error(path, sqlite3.OperationalError(text), "write truck 2 to")
+
+        monkeypatch.setattr(kept.record, "write_truck", fail)
+        monkeypatch.setattr(kept.record, "finish_run", fail)
+    kept.write_truck("live", run, _truck(2))
+    kept.write_truck("live", run, _truck(3))
+    kept.finish_run(run)
+    lost = kept.lost_line()
+    assert lost.startswith(f"--db '{path}': could not write truck 2 to the shift record")
+    assert "2 truck(s) not in it (4 passes, 16,006 kg)" in lost and str(kept.fallback) in lost
+    where = path.parent if path.parent.exists() else tmp_path / "tmp"
+    assert kept.fallback.parent == where
+    assert [t["truck"] for t in json.loads(kept.fallback.read_text())["trucks"]] == [2, 3]

@@ -238,7 +238,7 @@ def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rat
 
 
 def window_ratios(time: np.ndarray, signal: np.ndarray, rate: np.ndarray, period: float,
-                  min_change: float) -> np.ndarray:
+                  min_change: float, by_rate: bool = False) -> np.ndarray:
     """How many times its signal's change a rate's integral is, per moving window of one run.
 
     The run is cut into windows of :data:`RATE_WINDOW` (the last one may be shorter); over a
@@ -255,6 +255,10 @@ def window_ratios(time: np.ndarray, signal: np.ndarray, rate: np.ndarray, period
         s, the sample period.
     min_change : float
         The signal's change over a window that makes it moving.
+    by_rate : bool, default False
+        Moving windows are those whose rate integrates to more than ``min_change``, and the
+        ratio is the other way round (the signal's change / the rate's integral): an angle
+        scaled far too small (:func:`shrunk_angle`) has no window where it changes enough.
 
     Returns
     -------
@@ -279,8 +283,81 @@ def window_ratios(time: np.ndarray, signal: np.ndarray, rate: np.ndarray, period
         bad = np.logical_or.reduceat(bad_sample, starts) | np.logical_or.reduceat(np.r_[False, bad_step], starts)
         ends = np.r_[starts[1:], n] - 1
         change = x[ends] - x[starts]
+        if by_rate:
+            moving = ~bad & (ends > starts) & (np.abs(integral) > min_change)
+            return change[moving] / integral[moving]
         moving = ~bad & (ends > starts) & (np.abs(change) > min_change)
         return integral[moving] / change[moving]
+
+
+#: An angle scaled to radians twice (a DBC already in rad given the degree factor π/180, or a
+#: degree factor applied on top of the DBC's) changes π/180 times what its rate integrates to:
+#: named when the median of that ratio over the rate's moving windows lies within this factor of
+#: π/180 ...
+SHRUNK_TOLERANCE = 2.0
+#: ... and this share of those windows agrees in sign with it (a stuck angle's changes are noise
+#: of either sign: a sensor fault, not a unit).
+SHRUNK_AGREEMENT = 0.8
+
+
+def shrunk_angle(time: np.ndarray, angle: np.ndarray, rate: np.ndarray, period: float, min_change: float,
+                 plausible: float) -> float | None:
+    """How many times too small an angle scaled from degrees to radians once too often is (≈ 57.3),
+    or None when it is not.
+
+    Such an angle never leaves ±``plausible`` × π/180 and barely changes, so the rate check's
+    windows (where the angle moves) never judge it and the arm's balance blamed the cylinder
+    lines instead ("dipper head and rod swapped?"). Judged where the *rate* says the joint moves
+    (:func:`window_ratios` with ``by_rate``): there the angle changes π/180 times the rate's
+    integral, consistently (:data:`SHRUNK_TOLERANCE`, :data:`SHRUNK_AGREEMENT`).
+
+    Parameters
+    ----------
+    time, angle, rate : numpy.ndarray
+        s, the angle (rad) and its rate (rad/s), one value per sample of one run.
+    period : float
+        s, the sample period.
+    min_change : float
+        rad, the rate's integral over a window that makes it moving.
+    plausible : float
+        rad, the largest magnitude the angle has (the sensor set's limit, 2π).
+
+    Returns
+    -------
+    float or None
+        The factor the angle is too small by, or None.
+    """
+    values = np.abs(np.asarray(angle, dtype=float))
+    values = values[np.isfinite(values)]
+    if not values.size or values.max() > 1.05 * plausible * math.pi / 180.0:
+        return None
+    ratios = window_ratios(time, angle, rate, period, min_change, by_rate=True)
+    if len(ratios) < RATE_MIN_WINDOWS:
+        return None
+    middle = float(np.median(ratios))
+    if middle == 0 or abs(math.log(abs(middle) / (math.pi / 180.0))) > math.log(SHRUNK_TOLERANCE):
+        return None
+    if np.mean(np.sign(ratios) == np.sign(middle)) < SHRUNK_AGREEMENT:
+        return None
+    return 1.0 / abs(middle)
+
+
+def shrunk_message(column: str, rate: str, factor: float, peak: float) -> str:
+    """``column 'dipper_angle' changes 57.3 times less than …``: the one line's words for
+    :func:`shrunk_angle` (the factor to set is said by the caller, which knows the signal map).
+
+    Parameters
+    ----------
+    column, rate : str
+        The angle and its rate.
+    factor : float
+        How many times too small the angle is.
+    peak : float
+        rad, the angle's largest magnitude.
+    """
+    return (f"'{column}' changes {factor:.3g} times less than '{rate}' integrates to and never leaves "
+            f"±{peak:.3g} rad: an angle in radians scaled by π/180 once more (a degree factor on a signal "
+            f"already in rad)? Its values must be {180 / math.pi:.4g} times larger; the unit, not the wiring")
 
 
 def _rate_ratios(frame: pd.DataFrame, signal: str, rate: str, period: float,
@@ -318,6 +395,8 @@ def _check_rates(frame: pd.DataFrame, sensors: SensorSet, source: str) -> None:
     weighed as rad/s without a word (-3700 kg 'ok' for a 1890 kg payload).
     """
     for signal, rate, unit, min_change in sensors.rate_pairs:
+        if sensors.units[signal] == "rad":  # an angle (the thesis set also pairs rates with accelerations)
+            _check_shrunk(frame, sensors, signal, rate, min_change, source)
         judged, pooled = _rate_ratios(frame, signal, rate, sensors.sample_period, min_change)
         worst = judged[judged.abs() > RATE_RATIO_LIMIT]
         where = f" (experiment {worst.index[0]})" if len(worst) else ""
@@ -326,6 +405,26 @@ def _check_rates(frame: pd.DataFrame, sensors: SensorSet, source: str) -> None:
             degrees = unit.replace("rad", "°")
             raise DatasetError(f"{source}: column '{rate}' is {ratio:.3g} times the rate of change of "
                                f"'{signal}'{where}; is it in {degrees} instead of {unit}?")
+
+
+def _check_shrunk(frame: pd.DataFrame, sensors: SensorSet, signal: str, rate: str, min_change: float,
+                  source: str) -> None:
+    """Refuse an experiment whose angle is scaled to radians twice (:func:`shrunk_angle`), before
+    the rate check blames its rate and the wiring check its cylinder lines."""
+    codes, ids = pd.factorize(frame["experiment"].to_numpy())
+    order = np.argsort(codes, kind="stable")
+    codes = codes[order]
+    t = frame["time"].to_numpy(dtype=float)[order]
+    x = frame[signal].to_numpy(dtype=float)[order]
+    r = frame[rate].to_numpy(dtype=float)[order]
+    bounds = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1], True])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        factor = shrunk_angle(t[a:b], x[a:b], r[a:b], sensors.sample_period, min_change,
+                              sensors.plausible_abs[signal])
+        if factor is not None:
+            peak = float(np.nanmax(np.abs(x[a:b])))
+            raise DatasetError(f"{source}: experiment {ids[codes[a]]}: column "
+                               + shrunk_message(signal, rate, factor, peak))
 
 
 #: Segments of a CAN log whose samples :class:`SampleWatch` keeps for the rate and balance checks

@@ -85,6 +85,8 @@ def check_wiring(frame: pd.DataFrame, sensors, machine, source: str) -> None:
 
     if not sensors.cylinder_chambers or not isinstance(machine, HydraulicMachine):
         return
+    # an angle in the wrong unit breaks the balance as swapped lines do: say the unit first
+    check_angle_scale(frame, sensors, machine, source)
     table = balance_agreement(frame, sensors, machine)
     swapped = table[table["agreement"] < AGREEMENT_LIMIT]
     if len(swapped):
@@ -99,6 +101,76 @@ def check_wiring(frame: pd.DataFrame, sensors, machine, source: str) -> None:
             f"annulus area) {got} on {100 * (1 - first['agreement']):.0f} % of the {first['judged']} "
             f"samples where the arm's balance needs it to {need}: are '{name}_head_pressure' and "
             f"'{name}_rod_pressure' swapped?{also}")
+
+
+#: rad by which a joint's range is widened before an angle is judged outside it (more than the
+#: angle sensors' plausibility margin, 0.094 rad boom, 0.173 rad dipper and bucket).
+RANGE_MARGIN = 0.2
+
+
+def check_angle_scale(frame: pd.DataFrame, sensors, machine, source: str) -> None:
+    """Refuse an experiment whose boom, dipper or bucket angle is scaled to radians twice (a DBC
+    already in rad given the degree factor π/180): it weighed nothing, and the arm's balance
+    blamed the cylinder's head and rod lines ("dipper … swapped?"). Judged, per experiment and
+    angle, by the machine's joint range (every value outside it, widened by
+    :data:`RANGE_MARGIN`, while 180/π times every value lies inside: a dipper, whose range stops
+    short of 0, at any motion) or by the angle's rate
+    (:func:`~excavator_payload.data.units.shrunk_angle`: the angle changes π/180 times what the
+    rate integrates to; a boom or bucket, whose ranges hold 0, once it moves).
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        ``experiment``, ``time`` and the machine sensor set's signals.
+    sensors : SensorSet
+        Its sensor set.
+    machine : HydraulicMachine
+        Its joints' angle ranges (rows boom, dipper, bucket).
+    source : str
+        The start of the error message.
+
+    Raises
+    ------
+    DatasetError
+        One line naming the experiment and the angle, saying it is the unit and not the wiring.
+    """
+    import math
+
+    from excavator_payload.data.units import shrunk_angle, shrunk_message
+
+    ranges = np.asarray(machine.angle_ranges, dtype=float)
+    codes, ids = pd.factorize(frame["experiment"].to_numpy())
+    order = np.argsort(codes, kind="stable")
+    codes = codes[order]
+    bounds = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1], True])
+    time = frame["time"].to_numpy(dtype=float)[order]
+    scale = 180.0 / math.pi
+    for j, name in enumerate(CYLINDER_NAMES):
+        column, rate = f"{name}_angle", f"{name}_rate"
+        if column not in frame:
+            continue
+        angle = frame[column].to_numpy(dtype=float)[order]
+        rates = frame[rate].to_numpy(dtype=float)[order] if rate in frame else None
+        low, high = ranges[j, 0] - RANGE_MARGIN, ranges[j, 1] + RANGE_MARGIN
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            values = angle[a:b][np.isfinite(angle[a:b])]
+            if values.size < 2:
+                continue
+            where = f"{source}: experiment {ids[codes[a]]}: column '{column}'"
+            outside = np.all((values < low) | (values > high))
+            if outside and np.all((values * scale >= low) & (values * scale <= high)):
+                raise DatasetError(
+                    f"{where} reads {values.min():.3g} … {values.max():.3g} rad, outside the machine's {name} "
+                    f"range ({ranges[j, 0]:.3g} … {ranges[j, 1]:.3g} rad), and {scale:.4g} times that lies "
+                    f"inside it: an angle in radians scaled by π/180 once more (a degree factor on a signal "
+                    f"already in rad)? The unit, not the wiring")
+            if rates is not None:
+                factor = shrunk_angle(time[a:b], angle[a:b], rates[a:b], sensors.sample_period, 0.02,
+                                      sensors.plausible_abs[column])
+                if factor is not None:
+                    peak = float(np.max(np.abs(values)))
+                    raise DatasetError(f"{source}: experiment {ids[codes[a]]}: column "
+                                       + shrunk_message(column, rate, factor, peak))
 
 
 def balance_agreement(frame: pd.DataFrame, sensors, machine) -> pd.DataFrame:

@@ -154,6 +154,8 @@ def register(app: typer.Typer) -> None:
                           markup=False, highlight=False)
         for line in sensor.dm1.summary():  # what the bus would have carried (J1939 DM1)
             console.print(line, markup=False, highlight=False)
+        if frame.attrs.get("log_end"):  # a cut log's estimates looked complete
+            typer.echo(f"warning: {frame.attrs['log_end']}", err=True)
 
     @app.command("can-run")
     def can_run(

@@ -338,6 +338,7 @@ class BusLoadout:
         self.samples = 0
         self._episodes = 0
         self.summary = ""  # what a replayed log held (LogSummary.describe)
+        self.log_end = ""  # ... and the line that says it ends early (truncated), if it does
         self.publisher = _Publisher()
         self.guard, self.refuse_units = guard, refuse_units
         self.guard_source = data_name or source  # names the log / bus in the guard's line
@@ -580,7 +581,8 @@ def decode_loadout(frame: can.Message) -> dict | None:
 # -- a log -------------------------------------------------------------------------------------
 def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Truck]:
     """Every frame of the CAN log ``path`` through ``loadout``; the trucks (one line if nothing
-    in the log is the sensor's, saying what it holds).
+    in the log is the sensor's, saying what it holds). A log that ends early is weighed up to
+    where it ends; ``loadout.log_end`` is then the line that says so.
 
     Parameters
     ----------
@@ -600,6 +602,7 @@ def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Tr
     from excavator_payload.runtime.replay import _expected, _foreign
 
     summary = LogSummary()
+    ending: list[str] = []
     bar = None
     if progress:
         from rich.progress import Progress
@@ -608,7 +611,7 @@ def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Tr
         bar.start()
         task = bar.add_task("replaying (frames)", total=None)
     try:
-        for i, message in enumerate(read_frames(path)):
+        for i, message in enumerate(read_frames(path, ending=ending)):
             summary.add(message)
             loadout.feed(message, float(message.timestamp))
             if bar is not None and i % 5000 == 0:
@@ -627,6 +630,7 @@ def replay_loadout(path, loadout: BusLoadout, progress: bool = False) -> list[Tr
                            f"{summary.describe()}. Another DBC (--dbc, --signal-map)?")
     trucks = loadout.finish()
     loadout.summary = summary.describe()
+    loadout.log_end = ending[0] if ending else ""
     return trucks
 
 

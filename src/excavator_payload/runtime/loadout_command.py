@@ -216,6 +216,8 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
                       f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more; "
                       f"units judged on {bus.guard.judged} windows of {bus.guard.size} samples",
                       markup=False, highlight=False)
+        if bus.log_end:  # a cut log's trucks looked complete (its last one may be partial)
+            typer.echo(f"warning: {bus.log_end}; its last truck may be partial", err=True)
         return trucks
     return _live(sensor, button, db, target, model, interface, channel, bitrate, duration, guard())
 
@@ -234,13 +236,16 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
     from excavator_payload.runtime.loadout import ShiftRecord
     from excavator_payload.runtime.loadout_bus import BusLoadout
     from excavator_payload.runtime.loadout_live import COMMAND_HELP, live_view, read_commands, readable_commands, run_live, terminal_keys
+    from excavator_payload.runtime.shift_record import KeptRecord
 
     kwargs = {"bitrate": bitrate} if bitrate else {}
     try:
         bus = can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
         raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
-    record = ShiftRecord(db)
+    # a write that fails mid-shift (disk full, read-only, locked, folder gone) keeps the trucks
+    # in hand in a file and tries again; the shift goes on (it stopped and lost the truck)
+    record = KeptRecord(ShiftRecord(db))
     # a live session is its own source: a restart appends, never replaces the earlier trucks
     source = f"live {interface}:{channel} {datetime.datetime.now(datetime.timezone.utc).isoformat()}"
     stop = threading.Event()
@@ -310,4 +315,7 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
                      if counters.get("bus_lost") else "")
                   + (f"; bus-off {counters['bus_off']} time(s), {counters['bus_off_seconds']:g} s"
                      if counters.get("bus_off") else ""), markup=False, highlight=False)
+    lost = record.lost_line()
+    if lost:  # the trucks are shown above and kept in the fallback file: the exit status says it
+        raise DatasetError(lost)
     return loadout.trucks

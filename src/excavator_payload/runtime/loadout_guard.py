@@ -15,7 +15,10 @@ cylinder's head and rod swapped):
   named is the DBC's own unit string when it is one, else every unit that puts the peak within
   the machine's back to relief pressure;
 * an angle's rate whose integral is :data:`~excavator_payload.data.units.RATE_RATIO_LIMIT`
-  times (or its inverse) the angle's change: the rate in °/s, or the angle in degrees;
+  times (or its inverse) the angle's change: the rate in °/s, or the angle in degrees; an angle
+  that changes π/180 times what its rate integrates to and never leaves ±2π·π/180: scaled to
+  radians twice (:func:`~excavator_payload.data.units.shrunk_angle`; it was blamed on the
+  cylinder lines by the balance check);
 * no unit finding: the platform's own plausibility (:meth:`Platform.check_plausible`).
 
 Only what was seen is blamed: an idle window (the arm still: the engine may be off) judges
@@ -34,7 +37,8 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.units import (
-    HOUSE_TILT_LIMIT, MIN_PEAK_PRESSURE, PRESSURE_UNITS, RATE_MIN_WINDOWS, RATE_RATIO_LIMIT, window_ratios)
+    HOUSE_TILT_LIMIT, MIN_PEAK_PRESSURE, PRESSURE_UNITS, RATE_MIN_WINDOWS, RATE_RATIO_LIMIT, shrunk_angle,
+    window_ratios)
 from excavator_payload.errors import DatasetError
 
 #: Length of the windows the guard judges, s (the first of a log before anything is recorded).
@@ -149,8 +153,12 @@ class UnitGuard:
                 self.platform.check_plausible(frame, self.machine, "")
             except DatasetError as exc:
                 # "…: experiment 0: the boom cylinder's net force …": the window has no experiment
-                found.append(re.sub(r"^:?\s*experiment \S+:\s*", "", str(exc)))
-                short.append("head and rod pressures swapped?")
+                text = re.sub(r"^:?\s*experiment \S+:\s*", "", str(exc))
+                angle = re.match(r"column '(\w+_angle)'", text) if "π/180" in text else None
+                if angle:  # an angle scaled to radians twice (wiring.check_angle_scale), not the lines
+                    text = f"{self._where(angle.group(1))}{text[angle.end():]} ({self._factor(angle.group(1), 180 / math.pi)})"
+                found.append(text)
+                short.append("scaled by π/180 twice?" if angle else "head and rod pressures swapped?")
         self.judged += 1
         self.moving += int(moving)
         if found:
@@ -246,6 +254,17 @@ class UnitGuard:
         found = []
         for signal, rate, unit, min_change in self.sensors.rate_pairs:
             if signal not in frame or rate not in frame:
+                continue
+            time, angle = frame["time"].to_numpy(dtype=float), frame[signal].to_numpy(dtype=float)
+            shrunk = None if self.sensors.units[signal] != "rad" else shrunk_angle(
+                time, angle, frame[rate].to_numpy(dtype=float), self.sensors.sample_period, min_change,
+                self.sensors.plausible_abs[signal])
+            if shrunk is not None:  # before the rate (°/s?) and the wiring (swapped?) are blamed
+                peak = float(np.nanmax(np.abs(angle)))
+                found.append((signal, f"{self._where(signal)} changes {shrunk:.3g} times less than {rate} "
+                                      f"integrates to and never leaves ±{peak:.3g} rad: scaled by π/180 once "
+                                      f"more (a degree factor on a signal already in rad)? "
+                                      f"({self._factor(signal, 180 / math.pi)})", "scaled by π/180 twice?"))
                 continue
             ratio = rate_ratio(frame["time"].to_numpy(dtype=float), frame[signal].to_numpy(dtype=float),
                                frame[rate].to_numpy(dtype=float), self.sensors.sample_period, min_change)

@@ -220,8 +220,8 @@ def advice(truck: Truck) -> str:
 
 def live_view(loadout: BusLoadout, footer: str = ""):
     """The cab's view (rich): the truck being loaded (its passes, running total against the
-    target, what the last pass should carry), the current estimate, a unit guard's finding and
-    active sensor faults in red, the trucks done, and ``footer`` (the operator's keys).
+    target, what the last pass should carry), the current estimate, a failing record, a unit
+    guard's finding and active sensor faults in red, the trucks done, and ``footer`` (the operator's keys).
 
     Parameters
     ----------
@@ -239,6 +239,10 @@ def live_view(loadout: BusLoadout, footer: str = ""):
     truck = loadout.current
     last = loadout.sensor.last_output
     guard = loadout.guard
+    failing = getattr(loadout.record, "failure", None)  # a KeptRecord that cannot write
+    if failing:
+        parts.append(Text(f"NOT RECORDED: {failing}; the trucks are kept {loadout.record.kept_where()}",
+                          style="bold red"))
     if guard is not None and guard.flagged:
         parts.append(Text(f"NOT WEIGHING: {guard.message(loadout.guard_source)}", style="bold red"))
     elif last is not None:

@@ -17,6 +17,7 @@ in which nothing matches the sensor's DBC gets a one-line account of what it doe
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 import re
@@ -124,11 +125,15 @@ def text_format(path: Path) -> str:
     return "unknown"
 
 
-def read_frames(path: str | Path, skipped: list[int] | None = None) -> Iterator[can.Message]:
+def read_frames(path: str | Path, skipped: list[int] | None = None,
+                ending: list[str] | None = None) -> Iterator[can.Message]:
     """Iterate the frames of a CAN log (see the module docstring), one clear line on errors.
 
     ``skipped``, if given (a list ``[n]``), has the records the reader could not parse and
-    skipped added to ``n``.
+    skipped added to ``n``. A log that ends early (:func:`log_end`: a BLF whose last container
+    is cut, an ASC without its ``End TriggerBlock``, a text log cut mid-line) is read up to the
+    cut (a cut last line is not read: its frame would be partial) and ``ending``, if given, gets
+    the one line that says so, how many frames were read and where they stop.
 
     Parameters
     ----------
@@ -136,13 +141,30 @@ def read_frames(path: str | Path, skipped: list[int] | None = None) -> Iterator[
         The log file; its suffix says the format.
     skipped : list of int, optional
         A one-element counter ``[n]`` the unparsable records are added to.
+    ending : list of str, optional
+        Gets one line when the log ends early (nothing when it is whole).
 
     Raises
     ------
     DatasetError
         A folder, a missing file, an unknown or unreadable format.
     """
-    path = Path(path)
+    count = [0, math.inf, -math.inf]  # frames, first and last finite timestamp
+    for message in _read_frames(Path(path), skipped):
+        count[0] += 1
+        t = float(message.timestamp)
+        if math.isfinite(t):
+            count[1], count[2] = min(count[1], t), max(count[2], t)
+        yield message
+    if ending is not None:
+        why = log_end(Path(path))
+        if why:
+            span = count[2] - count[1] if count[0] and math.isfinite(count[1]) else 0.0
+            ending.append(f"CAN log '{path}' ends early ({why}): {count[0]} frames over {span:.4g} s were read "
+                          "and are weighed, the rest of the recording is missing")
+
+
+def _read_frames(path: Path, skipped: list[int] | None) -> Iterator[can.Message]:
     if path.is_dir():
         raise DatasetError(f"CAN log '{path}' is a folder, not a log file")
     if not path.is_file():
@@ -207,10 +229,20 @@ def _python_can(path: Path, skipped: list[int], reader) -> Iterator[can.Message]
     readers.addHandler(handler)
     readers.propagate = False
     try:
-        yield from reader(str(path))
+        cut = _text_cut(path) if path.suffix.lower() in TEXT_SUFFIXES else None
+        if cut is None:
+            yield from reader(str(path))
+        else:  # a line cut mid-way parses as a partial frame or fails: the whole lines only
+            import locale
+
+            with open(path, "rb") as raw:
+                text = io.TextIOWrapper(io.BufferedReader(_Upto(raw, cut[0])),
+                                        encoding=locale.getpreferredencoding(False))
+                yield from _READERS[path.suffix.lower()](text)
     except UNREADABLE_LOG as exc:
         kind = ("truncated or not a BLF file" if isinstance(exc, (struct.error, zlib.error, BLFParseError))
-                else "truncated or damaged MF4 file" if path.suffix.lower() == ".mf4" and isinstance(exc, ValueError)
+                else "truncated or damaged MF4 file" if path.suffix.lower() == ".mf4" and (
+                    isinstance(exc, ValueError) or "exceeds the file" in str(exc))
                 else type(exc).__name__)
         where = _bad_text_line(path) if path.suffix.lower() in (".log", ".txt") else None
         message = (f"CAN log '{path}': {where}" if where else
@@ -236,7 +268,10 @@ def _read_screen(path: Path, skipped: list[int]) -> Iterator[can.Message]:
     """candump's screen format. Delta timestamps (``-t d``) are told from absolute and zero-based
     ones by going back (they do, the others never): a whole log is read first to tell."""
     rows = []
-    with open(path, encoding="utf-8", errors="replace") as f:
+    cut = _text_cut(path)
+    with open(path, "rb") as raw:
+        f = io.TextIOWrapper(io.BufferedReader(_Upto(raw, cut[0])) if cut else raw, encoding="utf-8",
+                             errors="replace")
         for line in f:
             if not line.strip():
                 continue
@@ -269,6 +304,114 @@ def _read_screen(path: Path, skipped: list[int]) -> Iterator[can.Message]:
         yield can.Message(timestamp=stamp, arbitration_id=int(ident, 16), is_extended_id=len(ident) == 8,
                           data=data, channel=m.group("ifc"), is_remote_frame="remote request" in rest,
                           is_error_frame="ERRORFRAME" in rest, check=False)
+
+
+# -- a log that ends early ---------------------------------------------------------------------
+#: Text log formats (read line by line: a log cut mid-line ends in a partial line).
+TEXT_SUFFIXES = (".asc", ".log", ".txt", ".csv", ".trc")
+_READERS = {".asc": can.ASCReader, ".log": can.io.canutils.CanutilsLogReader,
+            ".txt": can.io.canutils.CanutilsLogReader, ".csv": can.CSVReader, ".trc": can.TRCReader}
+
+
+class _Upto(io.RawIOBase):
+    """The first ``limit`` bytes of the binary file ``raw`` (a log without its cut last line)."""
+
+    def __init__(self, raw, limit: int) -> None:
+        super().__init__()
+        self.raw, self.left = raw, limit
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        view = memoryview(buffer)[: max(0, self.left)]
+        n = self.raw.readinto(view) if len(view) else 0
+        self.left -= n
+        return n
+
+
+def _text_cut(path: Path) -> tuple[int, str] | None:
+    """``(bytes before the cut line, the cut line)`` when a text log's last line has no line end
+    (every logger ends its lines: the file was cut mid-line), else None."""
+    size = path.stat().st_size
+    if size == 0:
+        return None
+    with open(path, "rb") as f:
+        f.seek(max(0, size - 4096))
+        tail = f.read()
+    if tail.endswith(b"\n"):
+        return None
+    start = tail.rfind(b"\n") + 1
+    if start == 0 and size > len(tail):  # a last "line" of more than 4 KiB: no log line
+        return size - len(tail), tail[:60].decode("utf-8", "replace")
+    return size - len(tail) + start, tail[start:].decode("utf-8", "replace")
+
+
+def log_end(path: str | Path) -> str | None:
+    """Why the CAN log ``path`` ends early, or None when it ends whole (as far as its format tells).
+
+    A BLF's objects (its compressed containers) each say their size: a last object larger than
+    what is left of the file, or a file shorter than its header's size, was cut. An ASC that
+    has its ``Begin Triggerblock`` ends with ``End TriggerBlock``. A text log (ASC, candump,
+    CSV, TRC, candump's screen format) cut mid-line ends without a line end. A text log cut
+    exactly at a line end (but for an ASC) cannot be told from a whole one. MF4: asammdf cannot
+    read a cut file at all (:func:`read_frames` refuses it in one line).
+
+    Parameters
+    ----------
+    path : str or Path
+        The CAN log.
+
+    Returns
+    -------
+    str or None
+        ``"its last BLF container is cut after 812 of its 16,412 bytes"``, ``"no End TriggerBlock
+        line"``, ``"its last line is cut mid-way, not read: '(0.2555'"``; None if whole.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".blf":
+        return _blf_end(path)
+    if suffix not in TEXT_SUFFIXES:
+        return None
+    cut = _text_cut(path)
+    if cut is not None:
+        return f"its last line is cut mid-way, not read: {cut[1].strip()[:60]!r}"
+    if suffix == ".asc":
+        with open(path, "rb") as f:
+            head = f.read(8192).lower()
+            f.seek(max(0, path.stat().st_size - 4096))
+            lines = [line.strip() for line in f.read().lower().splitlines() if line.strip()]
+        if b"begin triggerblock" in head and not (lines and lines[-1].startswith(b"end triggerblock")):
+            return "no 'End TriggerBlock' line after its last frame: cut short"
+    return None
+
+
+def _blf_end(path: Path) -> str | None:
+    from can.io.blf import FILE_HEADER_STRUCT, OBJ_HEADER_BASE_STRUCT
+
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        data = f.read(FILE_HEADER_STRUCT.size)
+        if len(data) < FILE_HEADER_STRUCT.size:
+            return None  # not read at all: read_frames said why
+        header = FILE_HEADER_STRUCT.unpack(data)
+        position, declared = header[1], header[10]
+        while position < size:
+            f.seek(position)
+            base = f.read(OBJ_HEADER_BASE_STRUCT.size)
+            if len(base) < OBJ_HEADER_BASE_STRUCT.size:
+                return f"it stops inside an object's header, at byte {size:,}"
+            signature, _, _, object_size, _ = OBJ_HEADER_BASE_STRUCT.unpack(base)
+            if signature != b"LOBJ" or object_size < OBJ_HEADER_BASE_STRUCT.size:
+                return None  # not a cut: python-can reads or refuses it
+            if position + object_size > size:
+                return (f"its last BLF container is cut after {size - position:,} of its {object_size:,} "
+                        f"bytes, at byte {size:,}")
+            position += object_size + object_size % 4
+    if declared > size:
+        return f"the file has {size:,} bytes where its header says {declared:,}"
+    return None
 
 
 # -- what a log holds --------------------------------------------------------------------------

@@ -68,7 +68,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     pandas.DataFrame
         One row per estimate: ``experiment``, ``time`` (s from the segment's start),
         ``payload_estimate`` and ``payload_sigma`` (kg), ``status``, ``log_time`` (s),
-        ``stale_signals``, ``fault``.
+        ``stale_signals``, ``fault``; ``attrs["log_end"]``: the line that says the log ends
+        early (truncated; :func:`~excavator_payload.runtime.logs.log_end`), empty when it is whole.
 
     Raises
     ------
@@ -77,6 +78,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     """
     rows: list[tuple] = []
     skipped = [0]
+    ending: list[str] = []  # the line that says the log ends early (truncated)
     fed = 0
     bad_before = sensor.counters["bad_frames"]
     experiment = -1
@@ -108,7 +110,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         bar.start()
         task = bar.add_task("replaying (frames)", total=None)
     try:
-        for i, message in enumerate(read_frames(path, skipped)):
+        for i, message in enumerate(read_frames(path, skipped, ending)):
             summary.add(message)
             spec = sensor.accepts(message)
             if spec is None:
@@ -172,6 +174,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                                         "payload_sigma", "log_time", "stale_signals", "fault"])
     frame["experiment"] = frame["experiment"].astype("int64")
     frame.attrs["skipped_records"] = skipped[0]
+    frame.attrs["log_end"] = ending[0] if ending else ""
     frame.attrs["summary"] = summary.describe()
     return frame
 

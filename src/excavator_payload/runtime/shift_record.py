@@ -9,6 +9,7 @@ truck is one transaction, so the trucks written before a failure stay.
 
 from __future__ import annotations
 
+import logging
 import math
 import sqlite3
 import time as _time
@@ -19,6 +20,7 @@ import pandas as pd
 
 from excavator_payload.errors import DatasetError
 
+_log = logging.getLogger(__name__)
 
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -221,6 +223,180 @@ class ShiftRecord:
     def close(self) -> None:
         """Close the database."""
         self.db.close()
+
+
+#: s between two attempts to write a failing record again on a live bus (each attempt may wait
+#: SQLite's 5 s lock timeout while the bus queues up); the shift's end always tries.
+RETRY_SECONDS = 30.0
+
+
+def _plain(value):
+    """``value`` (a truck as dicts and lists) with NaN and ±inf as None: strict JSON."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+class KeptRecord:
+    """A live shift's record that never loses the trucks in hand (``loadout --interface``).
+
+    A write to the :class:`ShiftRecord` that fails mid-shift (the disk full, the file made
+    read-only, locked beyond SQLite's timeout, its folder deleted) stopped the shift with one
+    line and the truck in hand was lost. Here the failure is said once (a logged warning naming
+    the record and the fallback file) and the shift goes on: every truck not yet in the record
+    is kept, in memory and in a JSON file (:attr:`fallback`: ``<record>.unsaved.json`` beside the
+    record, or in the temporary folder when that cannot be written), with the record's columns;
+    the record is tried again at most every :data:`RETRY_SECONDS` and at the shift's end. Once it takes them all the file is removed. Opening the record and starting the
+    run still fail at once, before anything is weighed.
+
+    Parameters
+    ----------
+    record : ShiftRecord
+        The open record.
+    clock : callable, optional
+        s, monotonic: when to try again.
+    """
+
+    def __init__(self, record: ShiftRecord, clock=_time.monotonic) -> None:
+        self.record, self.path, self.clock = record, record.path, clock
+        #: the first failure's line (None while every write succeeded, or after it recovered)
+        self.failure: str | None = None
+        #: the trucks not in the record (by number: their latest state)
+        self.unsaved: dict = {}
+        #: where they are kept (None: nowhere but memory, or nothing to keep)
+        self.fallback: Path | None = None
+        self.recovered = 0  # trucks written to the record after a failure
+        self._next_try = -math.inf
+        self._where: tuple[str, int] | None = None
+        self._finish: int | None = None
+
+    def start_run(self, source: str, data: str, model: str, rated: float | None = None) -> int:
+        """:meth:`ShiftRecord.start_run` (a failure is an error: nothing is weighed yet).
+
+        Parameters
+        ----------
+        source, data, model : str
+            The session's key, the data's and the model's names.
+        rated : float, optional
+            kg, the model's rated payload.
+        """
+        return self.record.start_run(source, data, model, rated)
+
+    def write_truck(self, source: str, run: int, truck) -> None:
+        """Keep ``truck``'s latest state and write every kept truck to the record (if it is time
+        to try); a failure is kept, not raised.
+
+        Parameters
+        ----------
+        source : str
+            The session's key.
+        run : int
+            The run that weighed it.
+        truck : excavator_payload.runtime.loadout.Truck
+            The truck (copied: a live truck keeps growing).
+        """
+        from dataclasses import replace
+
+        self._where = (source, run)
+        self.unsaved[truck.truck] = replace(truck, passes=[replace(p) for p in truck.passes],
+                                            faults=[dict(f) for f in truck.faults])
+        self._flush(force=False)
+
+    def finish_run(self, run: int) -> None:
+        """Write what is kept and mark the run finished (always tried).
+
+        Parameters
+        ----------
+        run : int
+            The id :meth:`start_run` returned.
+        """
+        self._finish = run
+        self._flush(force=True)
+
+    def _flush(self, force: bool) -> None:
+        if self.failure is not None and not force and self.clock() < self._next_try:
+            self._keep()
+            return
+        try:
+            for number in sorted(self.unsaved):
+                self.record.write_truck(*self._where, self.unsaved[number])
+                del self.unsaved[number]
+                self.recovered += self.failure is not None
+            if self._finish is not None:
+                self.record.finish_run(self._finish)
+                self._finish = None
+        except DatasetError as exc:
+            first = self.failure is None
+            self.failure = self.failure or str(exc)
+            self._next_try = self.clock() + RETRY_SECONDS
+            self._keep()
+            if first:
+                _log.warning("%s; the shift goes on: its trucks not in the record are kept %s and written "
+                             "to the record when it takes them", exc, self.kept_where())
+            return
+        if self.failure is not None:
+            _log.warning("--db '%s': the shift record takes writes again: %d kept truck(s) written to it",
+                         self.path, self.recovered)
+            if self.fallback is not None:
+                self.fallback.unlink(missing_ok=True)
+            self.failure, self.fallback = None, None
+
+    def kept_where(self) -> str:
+        """``in '/x/shift.sqlite.unsaved.json'`` or ``in memory only (…)``: where the trucks are."""
+        return f"in '{self.fallback}'" if self.fallback is not None else "in memory only (no file could be written)"
+
+    def _keep(self) -> None:
+        """Write the kept trucks to the fallback file (beside the record, else the temp folder)."""
+        import json
+        import os
+        import tempfile
+        from dataclasses import asdict
+
+        body = json.dumps(_plain({
+            "record": str(self.path), "error": self.failure, "source": self._where and self._where[0],
+            "run": self._where and self._where[1], "saved": _time.time(),
+            "columns": {"trucks": list(RECORD_COLUMNS["trucks"]) + ["start"], "passes": list(RECORD_COLUMNS["passes"])},
+            "trucks": [{**asdict(t), "total": t.total, "unweighed": t.unweighed}
+                       for _, t in sorted(self.unsaved.items())]}), indent=1)
+        places = [self.path.with_name(self.path.name + ".unsaved.json"),
+                  Path(tempfile.gettempdir()) / f"{self.path.stem}-{os.getpid()}.unsaved.json"]
+        if self.fallback is not None and self.fallback != places[0]:
+            places.insert(0, self.fallback)
+        for place in places:
+            tmp = place.with_name(f".{place.name}.tmp")
+            try:
+                tmp.write_text(body, encoding="utf-8")
+                tmp.replace(place)
+            except OSError:
+                try:
+                    tmp.unlink(missing_ok=True)
+                except OSError:
+                    pass
+                continue
+            self.fallback = place
+            return
+        self.fallback = None
+
+    def lost_line(self) -> str | None:
+        """The one line for the end of a shift whose record still fails (None when all is in it)."""
+        if self.failure is None:
+            return None
+        trucks = [t for _, t in sorted(self.unsaved.items())]
+        passes = sum(len(t.passes) for t in trucks)
+        total = sum(t.total for t in trucks)
+        what = f"the shift's {len(trucks)} truck(s) not in it ({passes} passes, {total:,.0f} kg)" if trucks else \
+            "the run is not marked finished in it"
+        return f"{self.failure}; {what} kept {self.kept_where()}"
+
+    def close(self) -> None:
+        """Close the record."""
+        self.record.close()
 
 
 def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
