@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from excavator_payload.data.units import SampleWatch
+from excavator_payload.data.log_watch import SampleWatch
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.can_sensor import PayloadSensor
