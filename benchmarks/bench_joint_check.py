@@ -136,9 +136,13 @@ def main() -> None:
     ap.add_argument("--off", action="store_true",
                     help="also run each case with the health monitor and the check off")
     ap.add_argument("--out", type=Path, default=None, help="CSV of the cases")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="an option of the estimator (repeatable), e.g. imu_nuisance=on")
     a = ap.parse_args()
     est = load_estimator(a.model)
-    est.options["joint_check"] = "on"  # the estimator's option (off by default)
+    est.options["joint_check"] = "on"  # the estimator's option
+    est.options.update(dict(o.split("=", 1) for o in a.option))
+    est.use_calibration()  # the kernel built again with these options
     rng = np.random.default_rng(a.seed)
     rows = []
     for path in a.data:

@@ -355,7 +355,7 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         "imu_nuisance": Option(str, "auto", "machine sensor set, momentum form: re-estimate the IMU "
                                "lag and the house IMU's acceleration sensitivity per load while weighing, the "
                                "calibration's posterior as their prior (docs/findings/nuisance-oracle.md); "
-                               "auto: on in the momentum form unless --joint-check on",
+                               "auto: on in the momentum form",
                                IMU_NUISANCE_CHOICES),
         "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
                             "estimate's sigma: cross (two-fold cross-fit of the calibration "

@@ -79,6 +79,7 @@ class JointCheck:
         self.paused = 0  # windows of the current pause (0: not paused)
         self.armed = True  # a pause may start (again only once no joint is off)
         self.loads = 0  # the kernel's new loads seen
+        self.dumping = False  # the bucket dumps (the kernel's dumping): the sums restart after it
 
     def update(self, kernel, d_num: list, d_info: list) -> None:
         """One balance window, after the kernel has accumulated it.
@@ -96,6 +97,12 @@ class JointCheck:
         if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
             self.loads = kernel.new_loads
             self._resume()
+        self.dumping = kernel.dumping
+        if self.dumping:  # the load leaves: nothing weighed now is one load, nothing new is named
+            self._resume()
+            self.armed = True
+            self._judge(kernel)
+            return
         n, i = self.num, self.info
         for j in range(3):
             n[j] = lam * n[j] + d_num[j]
@@ -129,8 +136,9 @@ class JointCheck:
 
     @property
     def pausing(self) -> bool:
-        """Whether the check pauses (a joint sees the load change): the kernel says ``load_changing``."""
-        return self.paused > 0
+        """Whether the check pauses (a joint sees the load change, or the bucket dumps): the kernel
+        says ``load_changing``."""
+        return self.paused > 0 or self.dumping
 
     def _judge(self, kernel) -> None:
         nj, ij, extra = self.num, self.info, self.extra
@@ -147,7 +155,10 @@ class JointCheck:
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
-        held = failing and not self.fault and (kernel.changing or self.paused > 0) and not self._leads(joints, m, w)
+        # before the weighing is ready (a new load's first windows: the fill, the dig) nothing is
+        # named either
+        held = failing and not self.fault and (not kernel.ready or (kernel.changing or self.paused > 0)
+                                               and not self._leads(joints, m, w))
         if self.fault and not failing and not set(self.named) < set(joints):
             failing = True  # a named joint is cleared only by agreeing with another compared joint
         if failing != bool(self.fault):
