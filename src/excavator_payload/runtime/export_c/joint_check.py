@@ -122,7 +122,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * cylinder's pressures are named (EP_FAULT_BALANCE, FMI 13). Paused while the short memory has left
  * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time; while the bucket dumps
  * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
- * and starts its sums again after it; before the weighing is ready it names nothing new. */
+ * and sums nothing; before the weighing is ready it names nothing new. */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
@@ -284,7 +284,7 @@ static void ep_jc_judge(ep_state *s)
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
      * unless its joint holds most of the information (JointCheck._leads) */
     held = failing && !s->jc_named
-           && (!(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* not ready: nothing named */
+           && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
                || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total)));
     /* a named joint is cleared only by agreeing with another compared joint */
     if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
@@ -319,9 +319,7 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
         ep_jc_clear(s);
     }}
     s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
-    if (s->jc_dumping) {{  /* the load leaves: nothing weighed now is one load, nothing new is named */
-        ep_jc_clear(s);
-        s->jc_armed = 1;
+    if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
         ep_jc_judge(s);
         return;
     }}
@@ -349,7 +347,7 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
  * weighing without it when one joint stands out (else NaN) */
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
-    if (status == EP_STATUS_OK && (s->jc_paused || s->jc_dumping)) status = EP_STATUS_LOAD_CHANGING;
+    if (status == EP_STATUS_OK && s->jc_paused) status = EP_STATUS_LOAD_CHANGING;
     if (status == EP_STATUS_OK && !s->jc_checked) status = EP_STATUS_WARMING_UP;
     if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{
         *estimate = s->jc_degraded;

@@ -79,7 +79,7 @@ class JointCheck:
         self.paused = 0  # windows of the current pause (0: not paused)
         self.armed = True  # a pause may start (again only once no joint is off)
         self.loads = 0  # the kernel's new loads seen
-        self.dumping = False  # the bucket dumps (the kernel's dumping): the sums restart after it
+        self.dumping = False  # the bucket dumps (the kernel's dumping): its windows are not summed
 
     def update(self, kernel, d_num: list, d_info: list) -> None:
         """One balance window, after the kernel has accumulated it.
@@ -98,9 +98,7 @@ class JointCheck:
             self.loads = kernel.new_loads
             self._resume()
         self.dumping = kernel.dumping
-        if self.dumping:  # the load leaves: nothing weighed now is one load, nothing new is named
-            self._resume()
-            self.armed = True
+        if self.dumping:  # the load leaves: what the joints weigh now is no one load (not summed)
             self._judge(kernel)
             return
         n, i = self.num, self.info
@@ -136,9 +134,8 @@ class JointCheck:
 
     @property
     def pausing(self) -> bool:
-        """Whether the check pauses (a joint sees the load change, or the bucket dumps): the kernel
-        says ``load_changing``."""
-        return self.paused > 0 or self.dumping
+        """Whether the check pauses (a joint sees the load change): the kernel says ``load_changing``."""
+        return self.paused > 0
 
     def _judge(self, kernel) -> None:
         nj, ij, extra = self.num, self.info, self.extra
@@ -155,9 +152,9 @@ class JointCheck:
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
-        # before the weighing is ready (a new load's first windows: the fill, the dig) nothing is
-        # named either
-        held = failing and not self.fault and (not kernel.ready or (kernel.changing or self.paused > 0)
+        # nor while the bucket dumps or before the weighing is ready (a new load's first windows:
+        # the fill, a dig), whichever joint leads
+        held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
                                                and not self._leads(joints, m, w))
         if self.fault and not failing and not set(self.named) < set(joints):
             failing = True  # a named joint is cleared only by agreeing with another compared joint

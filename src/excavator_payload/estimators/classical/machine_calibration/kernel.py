@@ -366,7 +366,7 @@ class CalibratedKernel(PressureRegression):
     def dumping(self) -> bool:
         """Whether the bucket dumps: it opened faster than :data:`~.settings.DUMP_OPENING_RATE`
         within the last :data:`~.settings.DUMP_HOLD` s (the joint check names nothing new and
-        starts its sums again after it)."""
+        does not sum the window)."""
         return self._dump_left > 0
 
     @property
