@@ -18,7 +18,11 @@ pause, so that it compares what the joints weighed under one load:
   ends when the memories agree again (the check then starts from nothing) or after
   :data:`~.settings.JOINT_PAUSE_WINDOWS` windows that weigh anything (a lasting difference: a
   held fault is named at once). A fault whose one joint holds more than half of the compared
-  information is not held: the whole weighing follows that joint, the change is its doing.
+  information is not held: the whole weighing follows that joint, the change is its doing;
+* **dump**: while the bucket opens fast (the kernel's ``dumping``,
+  :data:`~.settings.DUMP_OPENING_RATE`, held :data:`~.settings.DUMP_HOLD` s) a load can leave,
+  so a window then is not summed and a new fault is held whichever joint leads; so too before
+  the weighing is ready (a new load's first windows: a fill, a dig).
 
 What was measured with it is in docs/sensor-health.md ("The joint check").
 """
