@@ -88,6 +88,16 @@ def test_c_equals_python_with_the_joint_check_beside(models, tmp_path):
     truck = simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
     py = _assert_equal(both, source, truck, tmp_path / "clean")
     assert "ok" in set(py["status"])  # (this three-swing model names sound cylinders too: parity, not silence)
+    # streaming step equals the batch, and the dumps were seen (the dump rule in both)
+    both.reset()
+    f = truck.frame
+    dumping, streamed = [], []
+    for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
+        streamed.append(both.step_values(t, row))
+        dumping.append(both.kernel.regression.dumping)
+    assert [r.status.value for r in streamed] == list(py["status"])
+    assert [r.fault for r in streamed] == list(py["fault"])
+    assert 0 < sum(dumping) < len(dumping) // 4
     frame = truck.frame.copy()
     frame.loc[frame.index[400:], "boom_head_pressure"] += 10 * BAR
     bad = type(truck)(frame, truck.meta)
