@@ -115,3 +115,14 @@ def test_the_kernel_dumps_while_the_bucket_opens_fast(kernel, machine_calibratio
         seen.append(kernel.dumping)
     seen = np.array(seen)
     assert not seen[:200].any() and seen[200:229 + hold].all() and not seen[229 + hold:].any()
+
+
+def test_on_by_default_beside_the_imu_dynamics():
+    """The default ``calibrated`` runs the check (with the health monitor) and re-estimates the IMU
+    dynamics beside it; ``--joint-check off`` still turns it off."""
+    from excavator_payload.estimators.classical.machine_calibration.weighing import imu_nuisance_on
+
+    est = create_estimator("calibrated", "cat345c-hydraulic-3pct")
+    assert est.options["joint_check"] == "on" and est.health
+    assert imu_nuisance_on(est.options, "momentum")
+    assert create_estimator("calibrated", "cat345c-hydraulic-3pct", joint_check="off").options["joint_check"] == "off"
