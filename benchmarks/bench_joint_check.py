@@ -4,9 +4,11 @@ alarms on clean data, and pressure offset, gain and drift named or not.
     python benchmarks/bench_joint_check.py MODEL clean-a.parquet [clean-b.parquet ...] --draws 1 --seed 1
 
 MODEL: a fitted, zeroed ``calibrated`` model of the machine sensor set (momentum form; the bench
-turns its ``joint_check`` option on) (bench_faults.py makes
-one: ``--out DIR`` writes ``DIR/model-SEED``); the parquet files: clean test data (their
-``payload`` column the truth), one family each (the name is the file's). Per file:
+turns its ``joint_check`` option on, a model saved before it was the default has it off) (bench_faults.py
+makes one: ``--out DIR`` writes ``DIR/model-SEED``); ``--option KEY=VALUE`` sets another option (the
+kernel is built again with them: ``--option imu_nuisance=on``, as the defaults weigh); the parquet
+files: clean test data (their ``payload`` column the truth), one family each (the name is the
+file's). Per file:
 
 * false alarms: samples after each experiment's first second that are ``sensor_fault`` with a
   ``balance`` fault (and any ``sensor_fault``), and the samples ``ok``;
@@ -136,9 +138,13 @@ def main() -> None:
     ap.add_argument("--off", action="store_true",
                     help="also run each case with the health monitor and the check off")
     ap.add_argument("--out", type=Path, default=None, help="CSV of the cases")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="an option of the estimator (repeatable), e.g. imu_nuisance=on")
     a = ap.parse_args()
     est = load_estimator(a.model)
-    est.options["joint_check"] = "on"  # the estimator's option (off by default)
+    est.options["joint_check"] = "on"  # the estimator's option
+    est.options.update(dict(o.split("=", 1) for o in a.option))
+    est.use_calibration()  # the kernel built again with these options
     rng = np.random.default_rng(a.seed)
     rows = []
     for path in a.data:

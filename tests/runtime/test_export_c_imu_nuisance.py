@@ -69,12 +69,38 @@ def test_off_exports_the_kernel_as_before(models, tmp_path):
     assert "EP_NZ" not in header.read_text() and "nz_" not in source.read_text()
 
 
-def test_c_export_refuses_the_imu_dynamics_with_the_joint_check(models, tmp_path):
-    """Each option alone has its C; together their σ comes from different sums: refused, said why."""
-    from excavator_payload.errors import EstimatorError
+def test_c_equals_python_with_the_joint_check_beside(models, tmp_path):
+    """Both on (the defaults): the check judges the kernel's sums, the weighing reported is the
+    filter's (its marginal information in the warm-up test and σ), a named joint's degraded
+    weighing the kernel's without it; C equals Python on a truck loaded pass after pass (digs,
+    dumps: the dump rule) and on the same with a boom head pressure 10 bar high from the fourth
+    second (named: ``ep_faults`` against ``StepResult.fault``)."""
+    from tests.runtime.test_export_c_health import BAR, _assert_equal
 
     both = copy.deepcopy(models["on"])
     both.options["joint_check"] = "on"
     both.health = True
-    with pytest.raises(EstimatorError, match="--imu-nuisance on together with --joint-check on"):
-        export_c(both, tmp_path / "export")
+    both.use_calibration()
+    assert both.kernel.regression._imu_nuisance is not None
+    header, source = export_c(both, tmp_path / "export")
+    text = source.read_text()
+    assert "ep_jc_update" in text and "EP_JC_WEIGHED_INFO(s) EP_NZ_INFO(s)" in text
+    truck = simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
+    py = _assert_equal(both, source, truck, tmp_path / "clean")
+    assert "ok" in set(py["status"])  # (this three-swing model names sound cylinders too: parity, not silence)
+    # streaming step equals the batch, and the dumps were seen (the dump rule in both)
+    both.reset()
+    f = truck.frame
+    dumping, streamed = [], []
+    for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
+        streamed.append(both.step_values(t, row))
+        dumping.append(both.kernel.regression.dumping)
+    assert [r.status.value for r in streamed] == list(py["status"])
+    assert [r.fault for r in streamed] == list(py["fault"])
+    assert 0 < sum(dumping) < len(dumping) // 4
+    frame = truck.frame.copy()
+    frame.loc[frame.index[400:], "boom_head_pressure"] += 10 * BAR
+    bad = type(truck)(frame, truck.meta)
+    py = _assert_equal(both, source, bad, tmp_path / "bad")
+    assert py["fault"].str.contains("boom_head_pressure:balance", regex=False).any()
+    _assert_equal(both, source, bad, tmp_path / "float", single=True)

@@ -24,7 +24,8 @@ def model():
     est = create_estimator("calibrated", machine="cat345c-hydraulic-3pct", balance="momentum")
     est.fit(simulate_machine_dataset(3, seed=3))
     est.options["joint_check"] = "on"
-    est.use_calibration()  # the kernel again: --imu-nuisance auto is off beside the joint check
+    est.options["imu_nuisance"] = "off"  # the check alone (with the filter: test_export_c_imu_nuisance.py)
+    est.use_calibration()
     assert est.health and est.kernel.regression._imu_nuisance is None
     return est
 

@@ -45,7 +45,7 @@ its joint's motion, the fitting data's noise):
 * ``balance`` (FMI 13) is not this monitor's: the ``calibrated`` estimator's kernel names a
   cylinder's head and rod pressures when its joint's share of the weighing disagrees with the
   other joints' (:meth:`~excavator_payload.estimators.classical.machine_calibration.kernel
-  .CalibratedKernel._check_joints`; option ``joint_check``, off by default): a pressure
+  .CalibratedKernel._check_joints`; option ``joint_check``, on by default): a pressure
   offset, drift or gain error.
 
 A fault stays active until its condition has been clear for :data:`HOLD` (a spike of three

@@ -934,7 +934,7 @@ def test_joint_check_names_a_boom_pressure_offset_and_never_calls_it_ok(momentum
     from excavator_payload.estimators.health import FMI
 
     est = copy.deepcopy(momentum)
-    est.options["joint_check"] = "on"  # off by default (false alarms on swings and dumps)
+    est.options["joint_check"] = "on"  # the default (a model saved before it may say off)
     clean = est.estimate(setup["test"])
     assert not clean["fault"].str.contains("balance").any()
     bad, a = _boom_offset(setup["test"], 15.0)

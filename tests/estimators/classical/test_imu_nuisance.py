@@ -161,17 +161,18 @@ def test_the_cli_refuses_a_bad_choice_in_one_line_and_exports_c(fitted, tmp_path
     assert "EP_NZ" in (tmp_path / "c" / "ep_calibrated.h").read_text()  # parity: tests/runtime
 
 
-def test_auto_is_on_in_the_momentum_form_unless_the_joint_check_is():
+def test_auto_is_on_in_the_momentum_form_with_or_without_the_joint_check():
     """``--imu-nuisance auto`` (the default) re-estimates the IMU dynamics in the momentum form,
-    not with ``--joint-check on`` (no C for the two together) nor in the per-sample form;
-    ``on``/``off`` say so explicitly."""
+    with the joint check too (it judges the kernel's own sums; C for the two together:
+    tests/runtime/test_export_c_imu_nuisance.py), not in the per-sample form; ``on``/``off`` say
+    so explicitly."""
     from excavator_payload.estimators.classical.machine_calibration.weighing import imu_nuisance_on
 
     assert create_estimator("calibrated", PRIOR).options["imu_nuisance"] == "auto"
     assert imu_nuisance_on({"imu_nuisance": "auto", "joint_check": "off"}, "momentum")
-    assert not imu_nuisance_on({"imu_nuisance": "auto", "joint_check": "on"}, "momentum")
+    assert imu_nuisance_on({"imu_nuisance": "auto", "joint_check": "on"}, "momentum")
     assert imu_nuisance_on({"imu_nuisance": "on", "joint_check": "on"}, "momentum")
-    assert not imu_nuisance_on({"imu_nuisance": "off"}, "momentum")
+    assert not imu_nuisance_on({"imu_nuisance": "off", "joint_check": "on"}, "momentum")
     assert not imu_nuisance_on({"imu_nuisance": "auto"}, "differentiated")
 
 

@@ -345,17 +345,17 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",
                           BALANCE_CHOICES),
-        "joint_check": Option(str, "off", "machine sensor set, momentum form: name a cylinder whose "
+        "joint_check": Option(str, "on", "machine sensor set, momentum form: name a cylinder whose "
                               "joint's balance disagrees with the other joints' (a pressure offset, drift or "
                               "gain error; status sensor_fault, fault 'PRESSURE:balance', DM1 FMI 13), and "
-                              "call no estimate ok before two joints are weighed; runs with the sensor "
-                              "health monitor (in the C export too). Off by default: it still names sound "
-                              "cylinders on some held-out work (docs/sensor-health.md)",
+                              "call no estimate ok before two joints are weighed; nothing new is named while "
+                              "the bucket dumps or before the weighing is ready; runs with the sensor "
+                              "health monitor (in the C export too; docs/sensor-health.md)",
                               ("on", "off")),
         "imu_nuisance": Option(str, "auto", "machine sensor set, momentum form: re-estimate the IMU "
                                "lag and the house IMU's acceleration sensitivity per load while weighing, the "
                                "calibration's posterior as their prior (docs/findings/nuisance-oracle.md); "
-                               "auto: on in the momentum form unless --joint-check on",
+                               "auto: on in the momentum form",
                                IMU_NUISANCE_CHOICES),
         "model_std": Option(str, "cross", "machine sensor set: the model error carried in each "
                             "estimate's sigma: cross (two-fold cross-fit of the calibration "

@@ -91,9 +91,13 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         The calibration's model variance, kg² (the sigma).
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
-        CHANGING_SIGMAS, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
+        CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES,
+        JOINT_SAMPLES)
 
     check = kernel._joints
+    # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
+    # (PressureKernel.step reads weighed_info); the check's sums and the degraded weighing are the kernel's
+    weighed_info = "EP_NZ_INFO(s)" if getattr(kernel, "_imu_nuisance", None) is not None else "((s)->info)"
     masks = []
     for pair in JOINT_PRESSURES:
         bits = 0
@@ -109,13 +113,16 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
         "int jc_run;       /* windows in a row beyond (or, while failing, within) the limit */",
         "int jc_paused;    /* windows of the current pause (0: not paused) */",
-        "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap;",
+        "int jc_dump_left; /* samples the dump still lasts (CalibratedKernel.dumping) */",
+        "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping;",
     ]
     definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
  * estimate N_j / I_j against the others', chi2 about their 1/v_j-weighted mean with
  * v_j = EP_JC_INFLATION / I_j + EP_JC_EXTRA; beyond EP_JC_CHI2 on EP_JC_SAMPLES windows in a row a
  * cylinder's pressures are named (EP_FAULT_BALANCE, FMI 13). Paused while the short memory has left
- * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time. */
+ * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time; while the bucket dumps
+ * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
+ * and sums nothing; before the weighing is ready it names nothing new. */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
@@ -125,6 +132,9 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
+#define EP_JC_DUMP_RATE {c_number(DUMP_OPENING_RATE)}  /* rad/s: the bucket opening this fast dumps */
+#define EP_JC_DUMP_HOLD {kernel._dump_hold}  /* samples a dump lasts after its last fast opening */
+#define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
 
 static void ep_jc_clear(ep_state *s)
 {{
@@ -149,6 +159,8 @@ static void ep_jc_reset(ep_state *s)
     s->jc_new_load = 0;
     s->jc_reported = 0;
     s->jc_gap = 0;
+    s->jc_dump_left = 0;
+    s->jc_dumping = 0;
 }}
 
 #if EP_JOINT_CHECK
@@ -271,8 +283,9 @@ static void ep_jc_judge(ep_state *s)
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
      * unless its joint holds most of the information (JointCheck._leads) */
-    held = failing && !s->jc_named && (s->changing || s->jc_paused > 0)
-           && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total);
+    held = failing && !s->jc_named
+           && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
+               || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total)));
     /* a named joint is cleared only by agreeing with another compared joint */
     if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;
@@ -304,6 +317,11 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
     if (s->jc_new_load) {{  /* the weighing restarted: so do the check's sums (not a fault named) */
         s->jc_new_load = 0;
         ep_jc_clear(s);
+    }}
+    s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
+    if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
+        ep_jc_judge(s);
+        return;
     }}
     for (j = 0; j < 3; ++j) {{
         s->jc_num[j] = EP_FORGETTING * s->jc_num[j] + dn[j];
@@ -363,12 +381,15 @@ static unsigned long ep_jc_faults(const ep_state *s)
     unsigned char jc_gap = s->jc_gap;  /* this sample came after a gap (its status: gap) */
     s->jc_gap = 0;
     s->jc_reported = 0;
+    if (v[EP_RATES[2]] > EP_JC_DUMP_RATE) s->jc_dump_left = EP_JC_DUMP_HOLD;  /* the bucket opens fast */
+    else if (s->jc_dump_left) s->jc_dump_left -= 1;
 #endif
 """,
         status="""#if EP_JOINT_CHECK
-    s->jc_out_info = s->info;
+    s->jc_out_info = EP_JC_WEIGHED_INFO(s);
     if (rejected) return EP_STATUS_REJECTED;
-    return ep_jc_status(s, s->info < EP_WARM_INFO ? EP_STATUS_WARMING_UP : @KERNEL_STATUS@, estimate, jc_gap);
+    return ep_jc_status(s, EP_JC_WEIGHED_INFO(s) < EP_WARM_INFO ? EP_STATUS_WARMING_UP : @KERNEL_STATUS@, estimate,
+                        jc_gap);
 #endif""",
         on_gap="\n#if EP_JOINT_CHECK\n    s->jc_gap = 1;\n#endif",
         sigma=("    /* _estimate_sigma: sqrt(1/I + s_model^2), I of the estimate reported (the joint check's\n"
@@ -376,7 +397,7 @@ static unsigned long ep_jc_faults(const ep_state *s)
                "#if EP_JOINT_CHECK\n"
                "    ep_real info = s->jc_out_info;\n"
                "#else\n"
-               "    ep_real info = s->info;\n"
+               "    ep_real info = EP_JC_WEIGHED_INFO(s);\n"
                "#endif\n"
                f"    return info > EP_C(0.0) ? EP_MATH(sqrt)(EP_C(1.0) / info + {c_number(model_var)}) : EP_NAN;"),
     )

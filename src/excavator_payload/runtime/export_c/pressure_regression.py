@@ -69,11 +69,6 @@ def pressure_regression_model(est) -> CModel:
     model_var = float(kernel.model_std) ** 2
     calibrated = isinstance(kernel, CalibratedKernel)
     momentum = calibrated and kernel.balance == "momentum"
-    if nuisance and exports_joint_check(est, kernel):
-        # the C joint check reports σ from the kernel's held sums, the filter from its own
-        raise EstimatorError(f"{est.name}: --imu-nuisance on together with --joint-check on has no C "
-                             "export yet (each alone has); retrain with --imu-nuisance off (or auto, which is off beside "
-                             "the joint check) or --joint-check off to export")
     # a named cylinder pressure drops its joint (degraded_pressures; health.py's ep_hm_substitute)
     drops = momentum and bool(est.degraded_pressures())
     dropped_at_centre = "\n                                                            && !(s->ring_drop[centre_slot] >> j & 1)" \

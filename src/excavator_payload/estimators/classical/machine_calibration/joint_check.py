@@ -18,7 +18,11 @@ pause, so that it compares what the joints weighed under one load:
   ends when the memories agree again (the check then starts from nothing) or after
   :data:`~.settings.JOINT_PAUSE_WINDOWS` windows that weigh anything (a lasting difference: a
   held fault is named at once). A fault whose one joint holds more than half of the compared
-  information is not held: the whole weighing follows that joint, the change is its doing.
+  information is not held: the whole weighing follows that joint, the change is its doing;
+* **dump**: while the bucket opens fast (the kernel's ``dumping``,
+  :data:`~.settings.DUMP_OPENING_RATE`, held :data:`~.settings.DUMP_HOLD` s) a load can leave,
+  so a window then is not summed and a new fault is held whichever joint leads; so too before
+  the weighing is ready (a new load's first windows: a fill, a dig).
 
 What was measured with it is in docs/sensor-health.md ("The joint check").
 """
@@ -79,6 +83,7 @@ class JointCheck:
         self.paused = 0  # windows of the current pause (0: not paused)
         self.armed = True  # a pause may start (again only once no joint is off)
         self.loads = 0  # the kernel's new loads seen
+        self.dumping = False  # the bucket dumps (the kernel's dumping): its windows are not summed
 
     def update(self, kernel, d_num: list, d_info: list) -> None:
         """One balance window, after the kernel has accumulated it.
@@ -96,6 +101,10 @@ class JointCheck:
         if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
             self.loads = kernel.new_loads
             self._resume()
+        self.dumping = kernel.dumping
+        if self.dumping:  # the load leaves: what the joints weigh now is no one load (not summed)
+            self._judge(kernel)
+            return
         n, i = self.num, self.info
         for j in range(3):
             n[j] = lam * n[j] + d_num[j]
@@ -147,7 +156,10 @@ class JointCheck:
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
-        held = failing and not self.fault and (kernel.changing or self.paused > 0) and not self._leads(joints, m, w)
+        # nor while the bucket dumps or before the weighing is ready (a new load's first windows:
+        # the fill, a dig), whichever joint leads
+        held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
+                                               and not self._leads(joints, m, w))
         if self.fault and not failing and not set(self.named) < set(joints):
             failing = True  # a named joint is cleared only by agreeing with another compared joint
         if failing != bool(self.fault):

@@ -28,8 +28,8 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import balance_weights
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
-    NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE,
-    STEADY_WINDOWS)
+    DUMP_HOLD, DUMP_OPENING_RATE, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS,
+    SIGNALS, STEADY_SHARE, STEADY_WINDOWS)
 from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
@@ -104,6 +104,7 @@ class CalibratedKernel(PressureRegression):
         width = 2 * self.half_window + 1
         dt = 1.0 / MACHINE_SENSORS.sample_rate
         self._short_forgetting = math.exp(-dt / NEW_LOAD_MEMORY)
+        self._dump_hold = int(round(DUMP_HOLD / dt))  # samples a dump lasts after the bucket's last fast opening
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._steady_limit = STEADY_SHARE * float(cal.arm.machine.rated_payload)
@@ -155,6 +156,7 @@ class CalibratedKernel(PressureRegression):
         self._ring_used = np.zeros(2 * length, bool)
         self._ring_drop = np.zeros((2 * length, 3), bool)  # each sample's joints dropped (drop)
         self._count = 0
+        self._dump_left = 0  # samples the dump still lasts (dumping)
         b = getattr(self, "_balance_len", 1)  # reset() runs in the base __init__ before it is set
         self._terms = np.zeros((2 * b, getattr(self, "_n_out", 24)))  # per-sample balance terms, doubled as the ring
         self._terms_used = np.zeros(2 * b, bool)
@@ -254,6 +256,10 @@ class CalibratedKernel(PressureRegression):
         self._ring_drop[pos] = self._ring_drop[pos + length] = self.drop
         self._count += 1
         self.rejected = False
+        if values[RATES[2]] > DUMP_OPENING_RATE:  # the bucket opens fast: a dump (dumping)
+            self._dump_left = self._dump_hold
+        elif self._dump_left:
+            self._dump_left -= 1
         if self.judge and self._count >= 4:  # the sample two before this one, between its neighbours
             slots = [(pos - back) % length for back in (4, 3, 2, 1)]
             context = [self._ring[i] for i in slots] + [values]
@@ -355,6 +361,13 @@ class CalibratedKernel(PressureRegression):
         if self._imu_nuisance is not None and math.isfinite(self.info):
             return self._imu_nuisance.info if self.info > 0 else 0.0
         return self.info
+
+    @property
+    def dumping(self) -> bool:
+        """Whether the bucket dumps: it opened faster than :data:`~.settings.DUMP_OPENING_RATE`
+        within the last :data:`~.settings.DUMP_HOLD` s (the joint check names nothing new and
+        does not sum the window)."""
+        return self._dump_left > 0
 
     @property
     def checks_joints(self) -> bool:

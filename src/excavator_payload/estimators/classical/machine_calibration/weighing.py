@@ -186,19 +186,17 @@ def machine_arm(name: str, machine) -> HydraulicArmModel:
 
 def imu_nuisance_on(options: dict, balance: str) -> bool:
     """Whether the kernel re-estimates the IMU dynamics while weighing (``--imu-nuisance``):
-    ``on``; ``auto`` in the momentum form unless ``--joint-check on``; never in another form.
+    ``on`` or ``auto`` in the momentum form (with or without the joint check, which judges the
+    kernel's own sums); never in another form.
 
     Parameters
     ----------
     options : dict
-        The estimator's options (``imu_nuisance``, ``joint_check``).
+        The estimator's options (``imu_nuisance``).
     balance : str
         The kernel's form (``momentum`` or ``differentiated``).
     """
-    choice = options.get("imu_nuisance", "auto")
-    if balance != "momentum" or choice == "off":
-        return False
-    return choice == "on" or options.get("joint_check", "off") != "on"
+    return balance == "momentum" and options.get("imu_nuisance", "auto") != "off"
 
 
 class MachineWeighing:
