@@ -683,7 +683,8 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
                                options={"calibrated": {"balance": "differentiated"}})
         for name, est in other["fitted"].items():
             if est.fit_refusals:  # `train` would not save it (the recommended mix's reach motions)
-                other["failures"][name] = "calibration refused, as train refuses it: " + est.fit_refusals[0]
+                other["failures"][name] = ("not judged: the per-sample form refuses these calibration "
+                                           "motions, as `train` would: " + est.fit_refusals[0])
                 continue
             fit["fitted"][f"{name} --balance differentiated"] = est
         fit["failures"].update({f"{k} --balance differentiated": v for k, v in other["failures"].items()})
