@@ -50,6 +50,20 @@ def _loadout(shift, **kwargs):
 
 
 
+
+def _quit(keys, run) -> None:
+    """Type `q` at the live command's keyboard and wait for it to end."""
+    keys.write("q\n")
+    keys.flush()
+    run.join(60)
+
+
+def _close(keys, run, feeder) -> None:
+    """Whatever happened: the keyboard closed, the command's thread joined, the feeder stopped."""
+    keys.close()
+    run.join(60)
+    feeder.shutdown()
+
 def test_a_30s_gap_in_the_arms_frames_or_the_api_starts_a_truck(shift, tmp_path):
     """Truck 1's log with a 31 s silence of the arm between its passes, another ECU's traffic
     all through it: two trucks of one pass each; the API call at the same place: the same."""
@@ -268,13 +282,9 @@ def test_the_operator_closes_a_truck_and_ends_the_shift_from_the_terminal(shift,
             feeder.send(f)
         wait(drained, "truck 2's frames")
         wait(lambda: [t for t, _ in trucks()] == [1, 2] and trucks()[1][1] == 1, "truck 2's pass")
-        keys.write("q\n")
-        keys.flush()
-        run.join(60)
+        _quit(keys, run)
     finally:
-        keys.close()
-        run.join(60)
-        feeder.shutdown()
+        _close(keys, run, feeder)
     assert not run.is_alive() and result["code"] == 0 and time.monotonic() - started < 300
     assert trucks() == [(1, 1), (2, 1)]
     with sqlite3.connect(db) as con:
@@ -451,13 +461,9 @@ def test_a_live_shift_whose_record_fails_keeps_the_truck_in_hand(shift, tmp_path
         for f in first:
             feeder.send(f)
         wait(pass_sent, "truck 1's pass")  # the shift went on after the failed write
-        keys.write("q\n")
-        keys.flush()
-        run.join(60)
+        _quit(keys, run)
     finally:
-        keys.close()
-        run.join(60)
-        feeder.shutdown()
+        _close(keys, run, feeder)
     assert not run.is_alive() and result["code"] == 2
     fallback = tmp_path / "full.sqlite.unsaved.json"
     body = json.loads(fallback.read_text())
