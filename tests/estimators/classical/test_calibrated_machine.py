@@ -981,3 +981,17 @@ def test_the_fit_report_names_the_ranges_the_calibration_left_out():
     covered = np.array([[-44, 51], [-114, -43], [-106, -31]]) * deg
     assert uncovered_ranges(covered, ranges) == "dipper -150…-114° and -43…-15°, bucket -126…-106° and -31…29°"
     assert uncovered_ranges(np.array([[-50, 70], [-160, -10], [-130, 30]]) * deg, ranges) == ""
+
+
+def test_the_per_sample_form_says_why_it_refuses_the_recommended_mix():
+    """The recommended calibration (swings and `reach` motions) spoils the per-sample form's
+    differentiated rates: its cross-check refuses it and says to calibrate it from swings or to
+    use the default form, which weighs the same motions without that clause."""
+    from excavator_payload.evaluation import demo_machine as dm
+
+    mix = dm.calibration_mix(6, 7, reach=2)
+    per_sample = create_estimator("calibrated", PRIOR, balance="differentiated").fit(mix)
+    assert any("each half of the calibration motions" in r and "calibrate it from swings" in r
+               for r in per_sample.fit_refusals), per_sample.fit_refusals
+    default = create_estimator("calibrated", PRIOR).fit(mix)
+    assert not any("per-sample form" in r for r in default.fit_refusals)
