@@ -78,6 +78,7 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
     """
     skips = kernel.outside_calibration in ("skip", "arm")
     whole_arm = kernel.whole_arm
+    offsets = calibration.offset_vector()[ANGLES]  # raw (measured) = corrected + offset
     notes = []
     for j, joint in enumerate(("boom", "dipper", "bucket")):
         skipped = skips and (whole_arm or COVERAGE_JOINTS[j])
@@ -86,14 +87,14 @@ def coverage_notes(name: str, kernel, calibration, dataset: Dataset) -> list[str
         if not len(a):
             continue
         # the covered range in raw (measured) units, as the kernel compares it where it skips
-        raw_low, raw_high = np.asarray(calibration.angle_coverage[j], float) + calibration.offset_vector()[ANGLES[j]]
+        raw_low, raw_high = np.asarray(calibration.angle_coverage[j], float) + offsets[j]
         below, above = a < raw_low, a > raw_high
         outside = float(np.mean(below | above))
         if outside > 0:
             low, high = calibration.angle_coverage[j] / DEG
             # the angles reached, offsets removed, as the calibration's range is given
-            offset = calibration.offset_vector()[ANGLES[j]] / DEG
-            reached = [f"{(v / DEG - offset):.0f}°" for v, hit in ((a.min(), below.any()), (a.max(), above.any())) if hit]
+            reached = [f"{(v - offsets[j]) / DEG:.0f}°" for v, hit in ((a.min(), below.any()), (a.max(), above.any()))
+                       if hit]
             if not skipped:
                 # weighed there all the same: the calibrated model extrapolates, and its cross-checked
                 # error (in sigma) was measured inside the covered range only
@@ -313,17 +314,17 @@ class MachineWeighing:
                     f"±{2 * cal.model_std:.0f} kg (95 %) beyond the sensor noise; that model error is "
                     "carried in every estimate's sigma")
             if 2 * cal.model_std > 0.01 * rated:
+                # the per-sample form differentiates the rates: the recommended mix's fast reach
+                # motions spoil it (±130 kg measured) where the default form weighs within 1 %
+                per_sample = ("; the per-sample form (--balance differentiated) differentiates the rates, "
+                              "and fast motions such as the recommended `reach` ones spoil it: calibrate it "
+                              "from swings, or use the default momentum form"
+                              if options.get("balance") == "differentiated" else "")
                 refusals.append(
                     f"{name}: each half of the calibration motions weighs the other only within "
                     f"±{2 * cal.model_std:.0f} kg (95 %), more than 1 % of the rated payload "
                     f"({0.01 * rated:.0f} kg): add calibration motions with known loads that move the boom, "
-                    "dipper and bucket through the poses you work at, while slewing"
-                    # the per-sample form differentiates the rates: the recommended mix's fast reach
-                    # motions spoil it (±130 kg measured) where the default form weighs within 1 %
-                    + ("; the per-sample form (--balance differentiated) differentiates the rates, and "
-                       "fast motions such as the recommended `reach` ones spoil it: calibrate it from "
-                       "swings, or use the default momentum form" if options.get("balance") == "differentiated"
-                       else ""))
+                    f"dipper and bucket through the poses you work at, while slewing{per_sample}")
             if len(ids) < MIN_CROSS_EXPERIMENTS:
                 warnings.append(
                     f"{name}: {len(ids)} calibration motions cannot check themselves (the σ "
