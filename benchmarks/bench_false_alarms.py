@@ -48,7 +48,7 @@ CHUNK = 40
 #: Seeds: far from bench_any_motion's (9100…) and the calibration's (9200…).
 SEED = 40_000
 FAMILY_NAMES = ("nmpc", "work-cycle", "operator", "nmpc-slope5", "lever", "lever-slope5",
-                "joystick", "joystick-slope7")
+                "joystick", "joystick-slope7", "slopes", "shift")
 
 
 def feasible(table: pd.DataFrame) -> pd.DataFrame:
@@ -76,8 +76,10 @@ FEASIBLE_DROPPED: list[int] = []
 
 def simulate_family(family: str, n: int, seed: int):
     common = dict(machine=MACHINE, session=dm.SESSION_WORK, with_truth=True, workers=1, progress=False)
-    if family in ("nmpc", "operator"):
+    if family in ("nmpc", "operator", "slopes"):
         return simulate_dataset(n, seed=seed, motion=family, **common)
+    if family == "shift":  # truck loadings: their digs and dumps say load_changing / warming_up
+        return simulate_dataset(max(1, n // 8), seed=seed, motion=family, **common)
     if family == "work-cycle":
         return dm.before_release(simulate_dataset(n, seed=seed, motion="work-cycle", **common))
     if family == "nmpc-slope5":
@@ -101,11 +103,12 @@ def _judged_count(frame: pd.DataFrame) -> int:
     return int(((t - first) >= 1.0).sum())
 
 
-def chunks(family: str, samples: int, cache: Path, generate: bool = True):
-    """Yield (index, path) of cached chunks until ``samples`` judged samples are covered."""
-    folder = cache / family
+def chunks(family: str, samples: int, cache: Path, generate: bool = True, seed: int = SEED):
+    """Yield (index, path) of cached chunks until ``samples`` judged samples are covered (the
+    chunks of another ``seed`` than :data:`SEED` under ``cache/seed-SEED``)."""
+    folder = cache / family if seed == SEED else cache / f"seed-{seed}" / family
     folder.mkdir(parents=True, exist_ok=True)
-    seed0 = SEED + 1000 * FAMILY_NAMES.index(family)
+    seed0 = seed + 1000 * FAMILY_NAMES.index(family)
     total, k = 0, 0
     while total < samples:
         path = folder / f"chunk{k:03d}.parquet"
@@ -213,7 +216,7 @@ def judge_chunk(est, threshold: np.ndarray, family: str, k: int, path: Path) -> 
     return record, alarms
 
 
-def run(est, families: list[str], samples: int, cache: Path, out: Path, generate: bool) -> None:
+def run(est, families: list[str], samples: int, cache: Path, out: Path, generate: bool, seed: int = SEED) -> None:
     """Judge the families' chunks round-robin (every family grows alike; whatever is judged when
     stopped is reported), one JSON line per chunk in ``out/chunks.jsonl`` (resumed: chunks
     already there are skipped)."""
@@ -226,7 +229,7 @@ def run(est, families: list[str], samples: int, cache: Path, out: Path, generate
         for line in log.read_text().splitlines():
             r = json.loads(line)
             done[(r["family"], r["chunk"])] = r
-    streams = {f: chunks(f, samples, cache, generate) for f in families}
+    streams = {f: chunks(f, samples, cache, generate, seed) for f in families}
     judged = {f: sum(r["judged"] for (g, _), r in done.items() if g == f) for f in families}
     t0 = time.time()
     while streams:
@@ -282,6 +285,8 @@ def main() -> None:
     ap.add_argument("--generate-only", action="store_true", help="only fill the cache")
     ap.add_argument("--no-generate", action="store_true", help="judge only the chunks already cached")
     ap.add_argument("--report", action="store_true", help="only print the table of what --out holds")
+    ap.add_argument("--seed", type=int, default=SEED, help="first seed of the data (families 1000 apart; "
+                    "another than the default: fresh data, cached apart)")
     a = ap.parse_args()
     families = [f for f in a.families.split(",") if f]
     for f in families:
@@ -295,13 +300,13 @@ def main() -> None:
     t0 = time.time()
     if a.generate_only:
         for f in families:
-            n = sum(1 for _ in chunks(f, samples, a.cache))
+            n = sum(1 for _ in chunks(f, samples, a.cache, seed=a.seed))
             print(f"{f}: {n} chunks cached ({time.time() - t0:.0f} s)", flush=True)
         return
     out = a.out / a.calibration
     if not a.report:
         out.mkdir(parents=True, exist_ok=True)
-        run(calibrated(a.calibration, a.cache), families, samples, a.cache, out, not a.no_generate)
+        run(calibrated(a.calibration, a.cache), families, samples, a.cache, out, not a.no_generate, a.seed)
     table = report(out)
     table.to_csv(out / "false_alarms.csv", index=False)
     with pd.option_context("display.width", 200, "display.max_columns", 30):

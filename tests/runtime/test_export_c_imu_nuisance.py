@@ -87,7 +87,9 @@ def test_c_equals_python_with_the_joint_check_beside(models, tmp_path):
     assert "ep_jc_update" in text and "EP_JC_WEIGHED_INFO(s) EP_NZ_INFO(s)" in text
     truck = simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
     py = _assert_equal(both, source, truck, tmp_path / "clean")
-    assert "ok" in set(py["status"])  # (this three-swing model names sound cylinders too: parity, not silence)
+    # (this three-swing model names sound cylinders too: parity, not silence; its few ok samples,
+    # 9 of 8 350, are load_changing since the joint check's suspect rule: the joints part)
+    assert "load_changing" in set(py["status"])
     # streaming step equals the batch, and the dumps were seen (the dump rule in both)
     both.reset()
     f = truck.frame

@@ -81,3 +81,27 @@ def test_off_exports_no_check(model, work, tmp_path):
     assert "ep_jc_" not in source.read_text()
     py = _assert_equal(est, source, work[1], tmp_path / "build")
     assert not py["fault"].str.contains("balance").any()
+
+
+
+def test_c_suspect_and_monitor_faults_equal_python(model, tmp_path):
+    """The rule before a fault is named (JointCheck.suspect: ``load_changing`` while the joints part
+    or the weighing moves) in C as in Python, on a boom head pressure 10 bar high for 3 s and then
+    a boom rate 30 % high for 2 s; and a sample the monitor keeps from the kernel (the rate's
+    offset, named while a balance fault stood) reports only the monitor's faults: C once reported
+    the kernel's last balance fault beside them."""
+    clean = simulate_machine_dataset(2, seed=32, session=2, motion="operator")
+    frame = clean.frame.copy()
+    for e in clean.experiment_ids:
+        rows = frame.index[frame["experiment"] == e]
+        frame.loc[rows[400:700], "boom_head_pressure"] += 10 * BAR
+        frame.loc[rows[1000:1200], "boom_rate"] *= 1.3
+    source = export_c(model, tmp_path / "export")[1]
+    text = source.read_text()
+    assert "ep_jc_track_moving" in text and "ep_jc_restart" in text
+    py = _assert_equal(model, source, Dataset(frame, clean.meta), tmp_path / "build")
+    assert (py["status"] == "load_changing").any()
+    fault = py["fault"].astype(str)
+    after_balance = fault.shift().str.contains("balance").fillna(False).to_numpy()
+    monitor_only = (fault.str.contains(":offset") & ~fault.str.contains("balance")).to_numpy()
+    assert (after_balance & monitor_only).any()

@@ -182,6 +182,7 @@ class PressureRegression:
     joint_fault = ""
     joint_degraded = (math.nan, 0.0)
     joint_pausing = False
+    joint_suspect = False
     model_std = 0.0
 
     def __init__(self, arm: HydraulicArmModel, pressure_std: float, ripple_fraction: float = 0.0,
@@ -532,8 +533,11 @@ class PressureKernel(PayloadKernel):
         status = Status.OK if self.info >= self.warm_info else Status.WARMING_UP
         if regression.rejected:  # the sample before this one was a one-frame outlier
             status = Status.REJECTED
-        elif status is Status.OK and (regression.changing or (regression.joint_check and regression.joint_pausing)):
-            status = Status.LOAD_CHANGING  # the short memory has left the whole one
+        elif status is Status.OK and (regression.changing or (regression.joint_check and (
+                regression.joint_pausing or regression.joint_suspect))):
+            # the short memory has left the whole one; or the joints part, or the weighing moves,
+            # before a fault is named (machine_calibration/joint_check.py)
+            status = Status.LOAD_CHANGING
         if status is Status.OK and regression.joint_check and not regression.joint_checked:
             status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
         fault = regression.joint_fault if regression.joint_check else ""

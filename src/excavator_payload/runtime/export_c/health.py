@@ -293,6 +293,8 @@ unsigned long ep_faults(const ep_state *s, int kind)
         parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, &s->hm_drop)")
     if drops:
         parts.clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n    s->hm_drop = 0;\n#endif\n"
+    if balance:  # a sample the monitor keeps from the kernel reports no balance fault (as in Python)
+        parts.clear = parts.clear.replace("#endif\n", "    s->jc_reported = 0;\n#endif\n")
     elif angles:
         parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, 0)")
     return parts

@@ -91,13 +91,16 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         The calibration's model variance, kg² (the sigma).
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
-        CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES,
-        JOINT_SAMPLES)
+        CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_CHI2_OK, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
+        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
 
     check = kernel._joints
     # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
     # (PressureKernel.step reads weighed_info); the check's sums and the degraded weighing are the kernel's
-    weighed_info = "EP_NZ_INFO(s)" if getattr(kernel, "_imu_nuisance", None) is not None else "((s)->info)"
+    nuisance = getattr(kernel, "_imu_nuisance", None) is not None
+    weighed_info = "EP_NZ_INFO(s)" if nuisance else "((s)->info)"
+    # a restart of the weighing (a named joint cleared) reaches the IMU dynamics as a new load's
+    nz_restart = "\n        s->nz_restarts += 1;" if nuisance else ""
     masks = []
     for pair in JOINT_PRESSURES:
         bits = 0
@@ -110,11 +113,14 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "ep_real jc_num[3], jc_info[3];  /* the joint check's own sums (restart with loads and pauses) */",
         "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
         "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
+        "ep_real jc_chi2;  /* chi2 of the last judgement (JointCheck.chi2) */",
+        f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
+        "int jc_slot;      /* the ring's slot the next window writes */",
         "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
         "int jc_run;       /* windows in a row beyond (or, while failing, within) the limit */",
         "int jc_paused;    /* windows of the current pause (0: not paused) */",
         "int jc_dump_left; /* samples the dump still lasts (CalibratedKernel.dumping) */",
-        "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping;",
+        "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping, jc_moving, jc_restart;",
     ]
     definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
  * estimate N_j / I_j against the others', chi2 about their 1/v_j-weighted mean with
@@ -122,13 +128,18 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * cylinder's pressures are named (EP_FAULT_BALANCE, FMI 13). Paused while the short memory has left
  * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time; while the bucket dumps
  * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
- * and sums nothing; before the weighing is ready it names nothing new. */
+ * and sums nothing; before the weighing is ready it names nothing new. No estimate is ok while
+ * chi2 passes EP_JC_CHI2_OK or N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows
+ * (load_changing); a named joint that clears restarts the weighing. */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
 #define EP_JC_ENOUGH {c_number(check.enough)}  /* I_j for a joint to be compared (ok needs two) */
 #define EP_JC_CHI2 {c_number(JOINT_CHI2)}
 #define EP_JC_SAMPLES {JOINT_SAMPLES}
+#define EP_JC_CHI2_OK {c_number(JOINT_CHI2_OK)}  /* beyond it no estimate is ok (JointCheck.suspect) */
+#define EP_JC_MOVING {JOINT_MOVING_WINDOWS}  /* windows over which N / I must hold still */
+#define EP_JC_MOVING_LIMIT {c_number(check.moving_limit)}  /* kg */
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
@@ -161,6 +172,11 @@ static void ep_jc_reset(ep_state *s)
     s->jc_gap = 0;
     s->jc_dump_left = 0;
     s->jc_dumping = 0;
+    s->jc_chi2 = EP_C(0.0);
+    for (j = 0; j <= EP_JC_MOVING; ++j) s->jc_history[j] = EP_NAN;
+    s->jc_slot = 0;
+    s->jc_moving = 0;
+    s->jc_restart = 0;
 }}
 
 #if EP_JOINT_CHECK
@@ -187,6 +203,29 @@ static void ep_jc_reset_sums(ep_state *s)
     for (j = 0; j < 3; ++j)
         s->jc_num_joint[j] = s->jc_info_joint[j] = s->jc_num_short[j] = s->jc_info_short[j] = EP_C(0.0);
     s->jc_new_load = 1;
+}}
+
+/* CalibratedKernel._check_joints: a joint named has cleared, the weighing starts again
+ * (CalibratedKernel._restart_load, as a new load's) */
+static void ep_jc_restart(ep_state *s)
+{{
+    s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
+    ep_jc_reset_sums(s);
+    s->boom_windows = 0;
+    s->steady = !EP_WAIT_FOR_BOOM;
+    s->steady_count = 0;
+    s->changing_windows = 0;
+    s->changing = 0;{nz_restart}
+}}
+
+/* JointCheck._track_moving: N / I against its value EP_JC_MOVING windows back (NaN: not moving) */
+static void ep_jc_track_moving(ep_state *s)
+{{
+    ep_real now = s->info > EP_C(0.0) ? s->num / s->info : EP_NAN;
+    ep_real then = s->jc_history[(s->jc_slot + 1) % (EP_JC_MOVING + 1)];
+    s->jc_history[s->jc_slot] = now;
+    s->jc_slot = (s->jc_slot + 1) % (EP_JC_MOVING + 1);
+    s->jc_moving = (unsigned char)(EP_MATH(fabs)(now - then) > EP_JC_MOVING_LIMIT);
 }}
 
 /* CalibratedKernel._settle: the joints' whole memory takes the short one's sums */
@@ -279,6 +318,7 @@ static void ep_jc_judge(ep_state *s)
             if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
     }}
     s->jc_checked = (unsigned char)(n >= 2);
+    s->jc_chi2 = chi2;
     failing = chi2 > EP_JC_CHI2;
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
@@ -297,6 +337,7 @@ static void ep_jc_judge(ep_state *s)
     }}
     s->jc_run = 0;
     if (!failing) {{
+        s->jc_restart = (unsigned char)(s->jc_named != 0);  /* its biased windows: start again */
         s->jc_named = 0;
         s->jc_degraded = EP_NAN;
         s->jc_degraded_info = EP_C(0.0);
@@ -318,6 +359,7 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
         s->jc_new_load = 0;
         ep_jc_clear(s);
     }}
+    ep_jc_track_moving(s);
     s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
     if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
         ep_jc_judge(s);
@@ -347,7 +389,9 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
  * weighing without it when one joint stands out (else NaN) */
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
-    if (status == EP_STATUS_OK && s->jc_paused) status = EP_STATUS_LOAD_CHANGING;
+    /* paused, or (JointCheck.suspect) the joints part or the weighing moves before a fault is named */
+    if (status == EP_STATUS_OK && (s->jc_paused || s->jc_chi2 > EP_JC_CHI2_OK || s->jc_moving))
+        status = EP_STATUS_LOAD_CHANGING;
     if (status == EP_STATUS_OK && !s->jc_checked) status = EP_STATUS_WARMING_UP;
     if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{
         *estimate = s->jc_degraded;
@@ -376,7 +420,7 @@ static unsigned long ep_jc_faults(const ep_state *s)
         accumulate="#if EP_JOINT_CHECK\nep_jc_accumulate(s, jd_num, jd_info);\n#endif",
         restart="\n#if EP_JOINT_CHECK\n            ep_jc_reset_sums(s);\n#endif",
         settle="\n#if EP_JOINT_CHECK\n                ep_jc_settle(s);\n#endif",
-        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info);\n#else\n(void)jd_num;\n(void)jd_info;\n#endif",
+        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info);\nif (s->jc_restart) {\n    s->jc_restart = 0;\n    ep_jc_restart(s);\n}\n#else\n(void)jd_num;\n(void)jd_info;\n#endif",
         prologue="""#if EP_JOINT_CHECK
     unsigned char jc_gap = s->jc_gap;  /* this sample came after a gap (its status: gap) */
     s->jc_gap = 0;

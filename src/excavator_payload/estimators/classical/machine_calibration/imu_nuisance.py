@@ -197,12 +197,28 @@ class ImuNuisanceFilter:
             mu = kernel._short_forgetting
             self.S_short, self.t_short = mu * self.S_short + dS, mu * self.t_short + dt
         if kernel.new_loads != self._loads:  # the kernel restarted: a new load, per load
-            self._loads = kernel.new_loads
-            self.S[:], self.t[:], self.S_short[:], self.t_short[:] = 0.0, 0.0, 0.0, 0.0
-            self.m_lin = 0.5 * self.rated
+            self._empty(kernel)
         elif kernel.settles != self._settles:
             self._settles = kernel.settles
             self.S, self.t = self.S_short.copy(), self.t_short.copy()
+        self.solve()
+
+    def _empty(self, kernel) -> None:
+        self._loads = kernel.new_loads
+        self.S[:], self.t[:], self.S_short[:], self.t_short[:] = 0.0, 0.0, 0.0, 0.0
+        self.m_lin = 0.5 * self.rated
+
+    def restart(self, kernel) -> None:
+        """The kernel restarted after this window was added (its joint check cleared a named
+        joint): the sums start again now, this window's too, and the filter solves (the C export
+        follows the restart in the same window).
+
+        Parameters
+        ----------
+        kernel : CalibratedKernel
+            The kernel (its new-load count).
+        """
+        self._empty(kernel)
         self.solve()
 
     def solve(self) -> None:

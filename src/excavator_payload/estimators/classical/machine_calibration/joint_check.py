@@ -32,8 +32,8 @@ from __future__ import annotations
 import math
 
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MODEL_SHARE,
-    JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
+    CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_CHI2_OK, JOINT_INFO_INFLATION,
+    JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
 
 
 class JointCheck:
@@ -68,6 +68,7 @@ class JointCheck:
         self.enough = JOINT_INFO_INFLATION / (JOINT_CHECKED_SHARE * float(rated)) ** 2
 
         self.change_min = JOINT_CHANGE_SHARE * float(rated)
+        self.moving_limit = JOINT_MOVING_SHARE * float(rated)
         self.reset()
 
     def reset(self) -> None:
@@ -84,6 +85,11 @@ class JointCheck:
         self.armed = True  # a pause may start (again only once no joint is off)
         self.loads = 0  # the kernel's new loads seen
         self.dumping = False  # the bucket dumps (the kernel's dumping): its windows are not summed
+        # the whole weighing N / I of the last JOINT_MOVING_WINDOWS + 1 windows (NaN: none), a ring
+        self.history = [math.nan] * (JOINT_MOVING_WINDOWS + 1)
+        self.slot = 0  # the ring's slot the next window writes
+        self.moving = False  # N / I moved by more than moving_limit over JOINT_MOVING_WINDOWS windows
+        self.restart = False  # a named fault has cleared: the kernel restarts the weighing (its sums hold the fault)
 
     def update(self, kernel, d_num: list, d_info: list) -> None:
         """One balance window, after the kernel has accumulated it.
@@ -101,6 +107,7 @@ class JointCheck:
         if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
             self.loads = kernel.new_loads
             self._resume()
+        self._track_moving(kernel)
         self.dumping = kernel.dumping
         if self.dumping:  # the load leaves: what the joints weigh now is no one load (not summed)
             self._judge(kernel)
@@ -120,6 +127,22 @@ class JointCheck:
             if self.paused:
                 self._resume()
         self._judge(kernel)
+
+    def _track_moving(self, kernel) -> None:
+        """:attr:`moving`: the whole weighing N / I against its value :data:`JOINT_MOVING_WINDOWS`
+        windows back (a NaN on either side: not moving)."""
+        n = JOINT_MOVING_WINDOWS + 1
+        now = kernel.num / kernel.info if kernel.info > 0.0 else math.nan
+        then = self.history[(self.slot + 1) % n]  # the oldest of the ring (NaN until it is full)
+        self.history[self.slot] = now
+        self.slot = (self.slot + 1) % n
+        self.moving = abs(now - then) > self.moving_limit
+
+    @property
+    def suspect(self) -> bool:
+        """Whether the joints part beyond :data:`JOINT_CHI2_OK`, or the whole weighing moves
+        (:attr:`moving`): not ``ok`` (``load_changing``) until a fault is named or it passes."""
+        return self.chi2 > JOINT_CHI2_OK or self.moving
 
     def _resume(self) -> None:
         self.paused = 0
@@ -172,6 +195,8 @@ class JointCheck:
             return
         self.run = 0
         if not failing:
+            # the whole weighing still holds the windows the fault biased: it starts again
+            self.restart = bool(self.fault)
             self.fault, self.degraded, self.named = "", (math.nan, 0.0), ()
             return
         self._name(_named(joints, m, w))

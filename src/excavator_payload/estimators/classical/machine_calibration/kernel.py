@@ -375,8 +375,15 @@ class CalibratedKernel(PressureRegression):
         return self.balance == "momentum"
 
     def _check_joints(self, d_num: list, d_info: list) -> None:
-        """The joint consistency check of this window (:class:`~.joint_check.JointCheck`)."""
+        """The joint consistency check of this window (:class:`~.joint_check.JointCheck`); when a
+        joint it named has cleared, the weighing starts again (its sums hold the fault's windows)."""
         self._joints.update(self, d_num, d_info)
+        if self._joints.restart:
+            self._joints.restart = False
+            self._restart_load()
+            self.changing = False
+            if self._imu_nuisance is not None:
+                self._imu_nuisance.restart(self)
 
     # the check's state, read by PressureKernel.step (and the C export's parity tests)
     joint_fault = property(lambda self: self._joints.fault, doc="``signal:balance,...`` while the check fails.")
@@ -387,6 +394,8 @@ class CalibratedKernel(PressureRegression):
                              doc="Two joints weighed well enough to check one another.")
     joint_pausing = property(lambda self: self._joints.pausing,
                              doc="The check pauses: a joint sees the load change (``load_changing``).")
+    joint_suspect = property(lambda self: self._joints.suspect,
+                             doc="The joints part, or the weighing moves, before a fault is named (``load_changing``).")
 
     def _without(self, j: int) -> tuple[float, float]:
         """(estimate, information) of the weighing without joint ``j``'s share."""
@@ -436,13 +445,7 @@ class CalibratedKernel(PressureRegression):
             change = self.num_short / self.info_short - self.num / self.info
             spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)
             if abs(change) > max(self._new_load_min, NEW_LOAD_SIGMAS * math.sqrt(spread)):
-                self.num = self.info = self.num_short = self.info_short = 0.0
-                self.num_joint, self.info_joint = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
-                self.num_joint_short, self.info_joint_short = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
-                self.boom_windows = 0
-                self._restart_steady()
-                self.new_loads += 1
-                self.changing_windows = 0
+                self._restart_load()
                 return
             self.changing = abs(change) > max(self._changing_min, CHANGING_SIGMAS * math.sqrt(spread))
         if self.changing:
@@ -451,6 +454,18 @@ class CalibratedKernel(PressureRegression):
             if self.changing_windows >= SETTLE_WINDOWS:
                 self._settle()
             self.changing_windows = 0
+
+    def _restart_load(self) -> None:
+        """Start the weighing again (a new load; or a joint the check named has cleared, whose
+        biased windows the sums still hold): both memories, the joints' shares, the wait for the
+        boom and for a steady estimate; the IMU dynamics follow (``new_loads``)."""
+        self.num = self.info = self.num_short = self.info_short = 0.0
+        self.num_joint, self.info_joint = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        self.num_joint_short, self.info_joint_short = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        self.boom_windows = 0
+        self._restart_steady()
+        self.new_loads += 1
+        self.changing_windows = 0
 
     def _settle(self) -> None:
         """A load change smaller than a new load's (or one that began before a restart's wait
