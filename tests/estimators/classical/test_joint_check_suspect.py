@@ -1,9 +1,8 @@
 """The joint check's rules for the time before a fault is named and after it clears
 (machine_calibration/joint_check.py; docs/sensor-health.md, "Before the name, and after"): no
-``ok`` estimate while the joints part beyond JOINT_CHI2_OK or the whole weighing moves by more
-than JOINT_MOVING_SHARE of the rated payload over JOINT_MOVING_WINDOWS windows (``suspect``:
-``load_changing``), and a named joint that clears restarts the weighing (its sums hold the
-fault's windows). The check is driven through the stand-in kernel of test_joint_check.py."""
+``ok`` estimate while the whole weighing moves by more than JOINT_MOVING_SHARE of the rated
+payload over JOINT_MOVING_WINDOWS windows (``suspect``: ``load_changing``), and a named joint
+that clears restarts the weighing (its sums hold the fault's windows). The check is driven through the stand-in kernel of test_joint_check.py."""
 
 import copy
 
@@ -12,20 +11,20 @@ import pytest
 from excavator_payload.estimators.base import create_estimator
 from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    JOINT_CHI2, JOINT_CHI2_OK, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_SAMPLES)
+    JOINT_CHI2, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_SAMPLES)
 from excavator_payload.estimators.status import Status
 from tests.estimators.classical.test_joint_check import RATED, StandIn, _windows
 
 
-def test_joints_that_part_below_the_naming_limit_are_suspect():
-    """The dipper 110 kg below boom and bucket: χ² between JOINT_CHI2_OK and JOINT_CHI2, nothing
-    named, but suspect; 60 kg: within both."""
-    for apart, suspect in ((110.0, True), (60.0, False)):
-        kernel, check = StandIn(), JointCheck(RATED, 2.5)
-        _windows(check, kernel, (1000.0, 1000.0 - apart, 1000.0), 10 * JOINT_SAMPLES)
-        assert check.fault == "" and check.checked
-        assert (JOINT_CHI2_OK < check.chi2 < JOINT_CHI2) is suspect
-        assert check.suspect is suspect
+def test_joints_that_part_below_the_naming_limit_are_not_suspect_alone():
+    """The dipper 110 kg below boom and bucket (χ² between 10 and JOINT_CHI2): nothing named, and
+    not suspect while the weighing holds still (clean lever motions on a slope part the joints
+    that far with the estimate 4 kg off: a χ² rule below the naming one was dropped)."""
+    kernel, check = StandIn(), JointCheck(RATED, 2.5)
+    kernel.info, kernel.num = 1.0, 1000.0
+    _windows(check, kernel, (1000.0, 890.0, 1000.0), 10 * JOINT_SAMPLES)
+    assert check.fault == "" and check.checked and 10.0 < check.chi2 < JOINT_CHI2
+    assert not check.suspect
 
 
 def test_a_weighing_that_moves_is_suspect():
@@ -38,7 +37,7 @@ def test_a_weighing_that_moves_is_suspect():
         for k in range(3 * JOINT_MOVING_WINDOWS):
             kernel.num = 1000.0 + factor * limit * k / JOINT_MOVING_WINDOWS
             _windows(check, kernel, (1000.0, 1000.0, 1000.0), 1)
-        assert check.moving is moving and check.suspect is moving and check.chi2 < JOINT_CHI2_OK
+        assert check.moving is moving and check.suspect is moving and check.chi2 < 1.0
     kernel, check = StandIn(), JointCheck(RATED, 2.5)
     _windows(check, kernel, (1000.0, 1000.0, 1000.0), 3 * JOINT_MOVING_WINDOWS)
     assert kernel.info == 0.0 and not check.moving

@@ -535,8 +535,8 @@ class PressureKernel(PayloadKernel):
             status = Status.REJECTED
         elif status is Status.OK and (regression.changing or (regression.joint_check and (
                 regression.joint_pausing or regression.joint_suspect))):
-            # the short memory has left the whole one; or the joints part, or the weighing moves,
-            # before a fault is named (machine_calibration/joint_check.py)
+            # the short memory has left the whole one; or the weighing moves before a fault is
+            # named (machine_calibration/joint_check.py)
             status = Status.LOAD_CHANGING
         if status is Status.OK and regression.joint_check and not regression.joint_checked:
             status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it

@@ -91,7 +91,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         The calibration's model variance, kg² (the sigma).
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
-        CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_CHI2_OK, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
+        CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
         JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
 
     check = kernel._joints
@@ -113,7 +113,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "ep_real jc_num[3], jc_info[3];  /* the joint check's own sums (restart with loads and pauses) */",
         "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
         "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
-        "ep_real jc_chi2;  /* chi2 of the last judgement (JointCheck.chi2) */",
         f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
         "int jc_slot;      /* the ring's slot the next window writes */",
         "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
@@ -129,15 +128,14 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time; while the bucket dumps
  * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
  * and sums nothing; before the weighing is ready it names nothing new. No estimate is ok while
- * chi2 passes EP_JC_CHI2_OK or N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows
- * (load_changing); a named joint that clears restarts the weighing. */
+ * N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows (load_changing); a named
+ * joint that clears restarts the weighing. */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
 #define EP_JC_ENOUGH {c_number(check.enough)}  /* I_j for a joint to be compared (ok needs two) */
 #define EP_JC_CHI2 {c_number(JOINT_CHI2)}
 #define EP_JC_SAMPLES {JOINT_SAMPLES}
-#define EP_JC_CHI2_OK {c_number(JOINT_CHI2_OK)}  /* beyond it no estimate is ok (JointCheck.suspect) */
 #define EP_JC_MOVING {JOINT_MOVING_WINDOWS}  /* windows over which N / I must hold still */
 #define EP_JC_MOVING_LIMIT {c_number(check.moving_limit)}  /* kg */
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
@@ -172,7 +170,6 @@ static void ep_jc_reset(ep_state *s)
     s->jc_gap = 0;
     s->jc_dump_left = 0;
     s->jc_dumping = 0;
-    s->jc_chi2 = EP_C(0.0);
     for (j = 0; j <= EP_JC_MOVING; ++j) s->jc_history[j] = EP_NAN;
     s->jc_slot = 0;
     s->jc_moving = 0;
@@ -318,7 +315,6 @@ static void ep_jc_judge(ep_state *s)
             if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
     }}
     s->jc_checked = (unsigned char)(n >= 2);
-    s->jc_chi2 = chi2;
     failing = chi2 > EP_JC_CHI2;
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
@@ -389,8 +385,8 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
  * weighing without it when one joint stands out (else NaN) */
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
-    /* paused, or (JointCheck.suspect) the joints part or the weighing moves before a fault is named */
-    if (status == EP_STATUS_OK && (s->jc_paused || s->jc_chi2 > EP_JC_CHI2_OK || s->jc_moving))
+    /* paused, or (JointCheck.suspect) the weighing moves before a fault is named */
+    if (status == EP_STATUS_OK && (s->jc_paused || s->jc_moving))
         status = EP_STATUS_LOAD_CHANGING;
     if (status == EP_STATUS_OK && !s->jc_checked) status = EP_STATUS_WARMING_UP;
     if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_CHI2_OK, JOINT_INFO_INFLATION,
+    CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
     JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
 
 
@@ -140,9 +140,10 @@ class JointCheck:
 
     @property
     def suspect(self) -> bool:
-        """Whether the joints part beyond :data:`JOINT_CHI2_OK`, or the whole weighing moves
-        (:attr:`moving`): not ``ok`` (``load_changing``) until a fault is named or it passes."""
-        return self.chi2 > JOINT_CHI2_OK or self.moving
+        """Whether the whole weighing moves (:attr:`moving`) while the load-change test sees one
+        load: a fault not yet named (or a load change not yet seen); not ``ok``
+        (``load_changing``) until it holds still."""
+        return self.moving
 
     def _resume(self) -> None:
         self.paused = 0

@@ -395,7 +395,7 @@ class CalibratedKernel(PressureRegression):
     joint_pausing = property(lambda self: self._joints.pausing,
                              doc="The check pauses: a joint sees the load change (``load_changing``).")
     joint_suspect = property(lambda self: self._joints.suspect,
-                             doc="The joints part, or the weighing moves, before a fault is named (``load_changing``).")
+                             doc="The weighing moves before a fault is named (``load_changing``).")
 
     def _without(self, j: int) -> tuple[float, float]:
         """(estimate, information) of the weighing without joint ``j``'s share."""

@@ -152,16 +152,14 @@ JOINT_CHI2 = 15.0
 #: ... on this many samples in a row (a window's transient is not a sensor), and the fault
 #: clears after as many in a row below it.
 JOINT_SAMPLES = 10
-#: Before a fault is named, no estimate is ``ok`` (it says ``load_changing``) while the joints
-#: part beyond this χ² (a fault not yet named, or a load change the joints that move see
-#: first): the clean tuning data's `ok` samples reach 5.1, a pressure drift's estimate was
-#: 49-58 kg off at 10-14 (docs/sensor-health.md, "Suspect") ...
-JOINT_CHI2_OK = 10.0
-#: ... nor while the whole weighing N / I has moved by more than this share of the rated payload
-#: over the last :data:`JOINT_MOVING_WINDOWS` windows: one load weighs still (clean tuning data
-#: reach 20 kg in 0.2 s after a settle; a boom rate 20-30 % off moved it 45 kg in 0.11 s while the
-#: joints' χ² stayed below 5, and the estimate then stood 54-141 kg off, ``ok``).
-JOINT_MOVING_SHARE = 0.005
+#: Before a fault is named, no estimate is ``ok`` (it says ``load_changing``) while the whole
+#: weighing N / I has moved by more than this share of the rated payload over the last
+#: :data:`JOINT_MOVING_WINDOWS` windows: one load weighs still. Clean tuning data (seeds 9300 and
+#: 62000, ten families) move at most 12.5 kg in 0.2 s where the estimate is within 1 % of rated;
+#: a boom rate 20-30 % off moved it 45 kg in 0.11 s while the joints' χ² stayed below 5
+#: (docs/sensor-health.md, "Before the name, and after"). A χ² limit below the naming one was
+#: tried and dropped: clean lever motions on a slope reach χ² 15.7 with the estimate 4 kg off.
+JOINT_MOVING_SHARE = 0.003
 JOINT_MOVING_WINDOWS = 20
 #: The check pauses while the new-load test's short memory has left the whole weighing by this
 #: share of the rated payload (and CHANGING_SIGMAS): a dump, which the joints that move see
