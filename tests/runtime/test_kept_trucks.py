@@ -111,3 +111,15 @@ def test_kept_without_db_is_refused(tmp_path, capsys):
     assert main(["report", "--data", str(tmp_path / "x.parquet"), "--kept", str(tmp_path / "k.json"),
                  "--out", str(tmp_path / "r")]) == 2
     assert "--kept goes with --db" in capsys.readouterr().err
+
+
+def test_a_read_only_record_with_a_kept_file_still_reports_and_keeps_the_file(tmp_path, capsys):
+    path = _failed_shift(tmp_path)
+    bad = unsaved_beside(path)
+    body = json.loads(bad.read_text())
+    body["trucks"][0]["passes"][0]["status"] = "great"  # cannot be taken in: the report goes on
+    bad.write_text(json.dumps(body))
+    assert main(["report", "--db", str(path), "--out", str(tmp_path / "r")]) == 0
+    captured = capsys.readouterr()
+    assert "warning:" in captured.err and "'great'" in captured.err and bad.exists()
+    assert "- trucks: 1" in (tmp_path / "r" / "shift.md").read_text(encoding="utf-8")

@@ -148,7 +148,13 @@ def register(app: typer.Typer) -> None:
             if kept is not None or unsaved_beside(db).is_file():
                 if not db.is_file():
                     raise DatasetError(f"--db '{db}' does not exist")
-                open_record(db, kept, say=lambda line: console.print(line, markup=False, highlight=False)).close()
+                try:
+                    open_record(db, kept, say=lambda line: console.print(line, markup=False, highlight=False)).close()
+                except DatasetError as exc:
+                    if kept is not None:
+                        raise
+                    # the file beside a record that cannot take it (read-only): report what is in it
+                    typer.echo(f"warning: {exc}; the report shows the record without the kept trucks", err=True)
             md = write_shift_report(db, out, rated)
             console.print(Text.assemble("shift report: ", (str(md), "bold")))
             return
