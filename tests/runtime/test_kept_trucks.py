@@ -90,6 +90,11 @@ def test_loadout_takes_the_kept_trucks_in_before_it_weighs(tmp_path):
     ('{"source": "live can0", "run": 1, "trucks": [{"truck": 2, "passes": [{"truck": 2, "index": 1, "time_dig": 1, '
      '"time_dump": 2, "time_lock": 1.5, "weight": "heavy", "sigma": 1, "status": "ok"}]}]}', "'weight' is 'heavy'"),
     ('{"source": "live can0", "run": 1, "trucks": [{"truck": 0, "passes": []}]}', "truck entry 1 is not a kept truck"),
+    ('{"source": "live can0", "run": 1, "trucks": [{"truck": 2, "passes": [{"truck": 2, "index": "x", "time_dig": 1, '
+     '"time_dump": 2, "time_lock": 1.5, "weight": 1, "sigma": 1, "status": "ok"}]}]}', "has the number 'x'"),
+    ('{"source": "live can0", "run": 1, "trucks": [{"truck": 2, "passes": [], "faults": [{"spn": "a", "fmi": 2, '
+     '"signal": "s", "kind": "stuck", "start": 1}]}]}', "has spn 'a'"),
+    ('[1, 2]', "needs 'source', 'run' and 'trucks'"),
 ])
 def test_a_damaged_or_foreign_kept_file_is_one_line_and_the_record_untouched(tmp_path, capsys, body, message):
     path = tmp_path / "s.sqlite"

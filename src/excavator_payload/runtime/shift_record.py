@@ -482,12 +482,17 @@ def take_in_unsaved(record: ShiftRecord, kept: str | Path) -> str:
                 raise DatasetError(f"{where}: a pass of truck {truck['truck']} has the status {p['status']!r}")
             values = {k: number(p.get(k), f"truck {truck['truck']}'s pass {p.get('index')} '{k}'")
                       for k in ("time_dig", "time_dump", "time_lock", "weight", "sigma", "true_weight")}
-            passes.append(SimpleNamespace(truck=truck["truck"], index=int(p["index"]), status=p["status"],
+            if isinstance(p["index"], bool) or not isinstance(p["index"], int) or p["index"] < 1:
+                raise DatasetError(f"{where}: a pass of truck {truck['truck']} has the number {p['index']!r}")
+            passes.append(SimpleNamespace(truck=truck["truck"], index=p["index"], status=p["status"],
                                           reason=str(p.get("reason") or ""), **values))
         faults = []
         for f in truck.get("faults", []):
             if not (isinstance(f, dict) and all(k in f for k in ("spn", "fmi", "signal", "kind", "start"))):
                 raise DatasetError(f"{where}: a fault of truck {truck['truck']} lacks spn, fmi, signal, kind or start")
+            if not all(isinstance(f[k], int) and not isinstance(f[k], bool) for k in ("spn", "fmi")):
+                raise DatasetError(f"{where}: a fault of truck {truck['truck']} has spn {f['spn']!r}, fmi {f['fmi']!r}")
+            number(f["start"], f"truck {truck['truck']}'s fault start")
             end = number(f.get("end"), f"truck {truck['truck']}'s fault end")
             faults.append({**f, "end": math.nan if end is None else float(end)})
         weights = [p.weight for p in passes if p.weight is not None]
