@@ -3,6 +3,7 @@ give the estimate's own sensitivity to the zero's offsets, checked against finit
 the whole weighing; σ² = 1/I + s² + share²; streamed == batch; saved and loaded alike."""
 
 import copy
+import pickle
 
 import numpy as np
 import pytest
@@ -93,6 +94,8 @@ def test_sigma_adds_the_share_and_streams_as_the_batch(zeroed, test_swing, tmp_p
     est.save(tmp_path / "m")
     loaded = load_estimator(tmp_path / "m").estimate(test_swing)["sigma"].to_numpy(float)
     np.testing.assert_allclose(loaded[has], batch[has], rtol=1e-12)
+    copied = pickle.loads(pickle.dumps(est)).estimate(test_swing)["sigma"].to_numpy(float)
+    np.testing.assert_array_equal(copied, batch)
     # the grid's RMS share is no longer in σ: the per-estimate share replaces it
     assert est.kernel.regression.model_std == pytest.approx(s)
     assert np.median(share[has]) < est.calibration.zero_std
