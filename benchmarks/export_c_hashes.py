@@ -47,8 +47,13 @@ def models():
     for low_speed in ("skip", "downweight", "model"):
         yield f"machine/calibrated-{low_speed}", create_estimator(
             "calibrated", machine=HYD + "-3pct", low_speed=low_speed, wait_for_boom="no").fit(machine)
-    yield "machine/calibrated-momentum", create_estimator(
-        "calibrated", machine=HYD + "-3pct", balance="momentum").fit(machine)
+    momentum = create_estimator("calibrated", machine=HYD + "-3pct", balance="momentum").fit(machine)
+    yield "machine/calibrated-momentum", momentum
+    # zeroed: the zero's share of σ per estimate (runtime/export_c/offset_share.py)
+    from excavator_payload.evaluation import demo_machine as dm
+
+    momentum.zero(dm.zero_data(seed=6))
+    yield "machine/calibrated-momentum-zeroed", momentum
     yield "machine/calibrated-differentiated", create_estimator(
         "calibrated", machine=HYD + "-3pct", balance="differentiated").fit(machine)
     yield "machine/calibrated-new-load", create_estimator(
