@@ -10,9 +10,16 @@ refactoring of :mod:`excavator_payload.runtime.export_c` leaves the generated C 
 The header embeds the package version, so both runs must use the same version. Both runs must
 also be on one kind of CPU: the fitted constants are printed to the last bit, and another CPU's
 BLAS kernels sum in another order (an AMD EPYC changed 28 of the 60 files in their last digits).
+So does BLAS's thread count (the machine calibrations' constants: 10 machine files differed
+between one thread and two): the script runs BLAS on one thread, whatever the environment says.
 """
 
 from __future__ import annotations
+
+import os
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy loads BLAS
+    os.environ[_name] = "1"
 
 import argparse
 import hashlib
