@@ -60,6 +60,7 @@ import casadi as ca
 import numpy as np
 
 from excavator_payload.model.codegen import BufferedCall, native
+from excavator_payload.model.compiled_sqp import compiled_sqp
 from excavator_payload.model.hydraulic import HydraulicArmModel
 
 
@@ -104,6 +105,9 @@ class HydraulicNMPCSettings:
         Time constant of the lag from commanded to applied forces, s.
     qp_solver : str
         CasADi QP solver of the SQP (``qrqp``; ``qpoases``, ``daqp`` or ``osqp`` if installed).
+    generate_solver : bool
+        With ``qrqp`` and a C compiler: the SQP solvers as generated C compiled with the model
+        (:mod:`excavator_payload.model.compiled_sqp`; the same numbers, faster).
     """
 
     control_period: float = 0.25  # s (0.2 s: ~1.8× the time per experiment, same swings)
@@ -123,6 +127,7 @@ class HydraulicNMPCSettings:
     #: and pressure build-up), in the plant and in the prediction.
     force_lag: float = 0.06
     qp_solver: str = "qrqp"
+    generate_solver: bool = True
 
 
 def _dynamics(arm: HydraulicArmModel) -> ca.Function:
@@ -258,8 +263,9 @@ class HydraulicNMPC:
         xdot = _lagged_dynamics(arm, s.force_lag)
         self.nx = nx = 12  # q, q̇, applied forces (scaled, below)
         model = _rk4(xdot, s.control_period, s.substeps, "hyd_nmpc_model")
+        symbolic_model = [model, _rk4_jacobian(xdot, s.control_period, s.substeps, "hyd_nmpc_model")]
         # compiled with its chain-rule Jacobian, which CasADi finds in the library by name
-        self.model = native(model, _rk4_jacobian(xdot, s.control_period, s.substeps, "hyd_nmpc_model"))
+        self.model = native(*symbolic_model)
         rate = rate * s.speed_margin
 
         X = ca.MX.sym("X", nx, N + 1)
@@ -305,8 +311,16 @@ class HydraulicNMPC:
         nlp = {"x": w, "p": params, "f": cost, "g": g}
         self._sqp = ca.nlpsol("hyd_nmpc", "sqpmethod", nlp, {**opts, "max_iter": s.sqp_iterations})
         self._sqp_cold = ca.nlpsol("hyd_nmpc_cold", "sqpmethod", nlp, {**opts, "max_iter": s.cold_iterations})
-        # called through numpy buffers: no DM conversions, the same numbers
-        self._warm_call, self._cold_call = BufferedCall(self._sqp), BufferedCall(self._sqp_cold)
+        # The solvers as generated C compiled with the model where a compiler exists (the same
+        # numbers, no virtual machine), else CasADi's; called through numpy buffers either way.
+        generated = None
+        if s.generate_solver and s.qp_solver == "qrqp" and self.model.class_name() == "External":
+            generated = compiled_sqp([self._sqp, self._sqp_cold], symbolic_model, "hyd_nmpc_sqp")
+        self.generated_solver = generated is not None
+        if generated:
+            self._warm_call, self._cold_call = generated["hyd_nmpc"], generated["hyd_nmpc_cold"]
+        else:
+            self._warm_call, self._cold_call = BufferedCall(self._sqp), BufferedCall(self._sqp_cold)
         self._n_x, self._n_g = nx * (N + 1), g.shape[0]
         self._n_eq = nx * (N + 1)
         self._lbg = self._ubg = np.zeros(self._n_eq)
@@ -457,6 +471,8 @@ class HydraulicNMPCSimulator:
         self._xdot = native(xdot)
         self._interval = step.mapaccum("hyd_plant_interval", k)
         self._xdot_map = self._xdot.map(k)
+        # both called through numpy buffers (no DM conversions: the same numbers)
+        self._interval_call, self._xdot_map_call = BufferedCall(self._interval), BufferedCall(self._xdot_map)
 
     def run(self, start, target, tilt, payload, duration: float):
         """(time, q, q̇, q̈, applied forces, info) of one swing from rest at ``start`` towards
@@ -502,15 +518,16 @@ class HydraulicNMPCSimulator:
         states, accels = np.empty((n_intervals * k, 12)), np.empty((n_intervals * k, 4))
         for i in range(n_intervals):
             u = ctl.control(z)
-            after = np.asarray(self._interval(z, ca.repmat(u, 1, k), ca.repmat(tilt, 1, k),
-                                              ca.repmat(payload, 1, k)))
+            # column-major k columns: each the held input, the tilt and the payload
+            held = (np.tile(u, k), np.tile(tilt, k), np.full(k, float(payload)))
+            after = self._interval_call(x=z, u=held[0], tilt=held[1], payload=held[2])["xf"].reshape(k, 12).T
             block = np.column_stack([z, after[:, :-1]])  # states at the k sample instants
             if not np.all(np.isfinite(after)):
                 raise ControlFailure(f"plant state became non-finite near t = {time[min(i * k, n - 1)]:.2f} s")
             rows = slice(i * k, (i + 1) * k)
             states[rows] = block.T
-            accels[rows] = np.asarray(self._xdot_map(block, ca.repmat(u, 1, k), ca.repmat(tilt, 1, k),
-                                                     ca.repmat(payload, 1, k)))[4:8].T
+            rates = self._xdot_map_call(x=block.T.ravel(), u=held[0], tilt=held[1], payload=held[2])["xdot"]
+            accels[rows] = rates.reshape(k, 12)[:, 4:8]
             z = after[:, -1]
         states, accels = states[:n], accels[:n]
         q, qd, forces = states[:, :4], states[:, 4:8], states[:, 8:]

@@ -66,6 +66,7 @@ import casadi as ca
 import numpy as np
 
 from excavator_payload.model.codegen import BufferedCall, native
+from excavator_payload.model.compiled_sqp import compiled_sqp
 from excavator_payload.model.dynamics import ArmModel
 from excavator_payload.simulation.plant import rk4_interval
 
@@ -77,8 +78,9 @@ HORIZON = 2.0  # s, T_p
 TERMINAL_WEIGHT = (2e11, 2e11, 1e3, 1e3)  # P
 
 
-def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool) -> ca.Function:
-    """The prediction model ``(x, u, payload) -> x(t + duration)``, compiled to C when possible.
+def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool):
+    """The prediction model ``(x, u, payload) -> x(t + duration)``, compiled to C when possible,
+    and the SX functions behind it (the model and its Jacobian).
 
     The model and its Jacobian (``jac_nmpc_model``, which CasADi's ``external`` picks up for
     the derivatives) are compiled once per machine and cached (:mod:`excavator_payload.model.codegen`):
@@ -86,7 +88,8 @@ def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool) ->
     fails, the same function runs in the virtual machine (same results, slower).
     """
     model = rk4_interval(arm, duration, substeps, "nmpc_model")
-    return native(model, model.jacobian()) if jit else model
+    symbolic = [model, model.jacobian()]
+    return (native(*symbolic) if jit else model), symbolic
 
 
 class ControlFailure(RuntimeError):
@@ -122,6 +125,9 @@ class NMPCSettings:
         Largest shooting defect (rad or rad/s) accepted before falling back to IPOPT.
     jit : bool
         Compile the interval model and its Jacobian to C when a C compiler exists.
+    generate_solver : bool
+        With ``jit``: also generate the SQP solvers as C, compiled with the model
+        (:mod:`excavator_payload.model.compiled_sqp`; the same numbers, faster).
     extra : dict
         Further options of CasADi's ``sqpmethod``, passed as they are.
     """
@@ -137,6 +143,7 @@ class NMPCSettings:
     cold_iterations: int = 50  # SQP iterations of the first step of an experiment
     max_defect: float = 1e-2  # largest shooting defect accepted before falling back to IPOPT
     jit: bool = True  # compile the interval model and its Jacobian to C (if a C compiler exists)
+    generate_solver: bool = True  # with jit: the SQP solvers as generated C too
     extra: dict = field(default_factory=dict)
 
 
@@ -175,7 +182,7 @@ class NMPCController:
         self.settings = s = settings or NMPCSettings()
         self.n_intervals = N = int(round(s.horizon / s.control_period))
         self.limits = np.asarray(arm.machine.torque_limits, dtype=float)
-        F = _interval_model(arm, s.control_period, s.model_substeps, s.jit)
+        F, symbolic_model = _interval_model(arm, s.control_period, s.model_substeps, s.jit)
         self.compiled = F.class_name() == "External"
 
         # Multiple shooting in MX: the interval model F (and the Jacobian CasADi derives from
@@ -234,8 +241,14 @@ class NMPCController:
         # The first step of an experiment has no previous plan: iterate to convergence.
         self._sqp_cold = ca.nlpsol("nmpc_sqp_cold", "sqpmethod", nlp,
                                    {**sqp_opts, "max_iter": s.cold_iterations})
-        # the SQP solvers are called through numpy buffers (no DM conversions, same numbers)
-        self._buffered = {f.name(): BufferedCall(f) for f in (self._sqp, self._sqp_cold)}
+        # The SQP solvers as one generated C library with the model (where a compiler exists:
+        # the same numbers, no virtual machine), else CasADi's, called through numpy buffers
+        # (no DM conversions, same numbers).
+        generated = (compiled_sqp([self._sqp, self._sqp_cold], symbolic_model, "nmpc_sqp")
+                     if self.compiled and s.generate_solver else None)
+        self.generated_solver = generated is not None
+        calls = generated or {f.name(): BufferedCall(f) for f in (self._sqp, self._sqp_cold)}
+        self._warm_call, self._cold_call = calls[self._sqp.name()], calls[self._sqp_cold.name()]
         # Fallback: interior point with the same Gauss–Newton Hessian (IPOPT takes the upper
         # triangle), cold-started.
         hess_lag_triu = ca.Function("nmpc_gauss_newton_triu", [w_sx, p_sx, lam_f, lam_g],
@@ -285,9 +298,9 @@ class NMPCController:
     def _solve(self, solver: ca.Function, state: np.ndarray, w0, lam_x0, lam_g0):
         args = dict(x0=w0, p=self._params(state), lbx=self._lbx, ubx=self._ubx,
                     lbg=0.0, ubg=0.0, lam_x0=lam_x0, lam_g0=lam_g0)
-        call = self._buffered.get(solver.name())
-        if call is None:  # the IPOPT fallback, rare: called as it is
+        if solver is self._ipopt:  # the IPOPT fallback, rare: called as it is
             return solver(**args), solver.stats()
+        call = self._cold_call if solver is self._sqp_cold else self._warm_call
         return call(**args), call.stats()
 
     def control(self, state: np.ndarray) -> np.ndarray:
@@ -340,19 +353,26 @@ class NMPCController:
         return float(np.max(np.abs(g))) if g.size else 0.0
 
     def _store(self, w: np.ndarray, sol) -> None:
-        N = self.n_intervals
-        X = w[:self._n_x].reshape(N + 1, 4)
-        U = w[self._n_x:].reshape(N, 2)
-        self._u_applied = U[0].copy()
+        n_x = self._n_x
+        self._u_applied = w[n_x:n_x + 2].copy()
         # Shift the plan by one interval for the next warm start (last node/input repeated).
-        self._w = np.concatenate([np.vstack([X[1:], X[-1:]]).ravel(),
-                                  np.vstack([U[1:], U[-1:]]).ravel()])
-        lam_g = np.asarray(sol["lam_g"]).ravel()
-        lam_x = np.asarray(sol["lam_x"]).ravel()
-        lg = lam_g.reshape(N + 1, 4)
-        self._lam_g = np.vstack([lg[1:], lg[-1:]]).ravel()
-        lx_u = lam_x[self._n_x:].reshape(N, 2)
-        self._lam_x = np.concatenate([np.zeros(self._n_x), np.vstack([lx_u[1:], lx_u[-1:]]).ravel()])
+        self._w = _shifted(w, n_x, 4, 2)
+        self._lam_g = _shifted(np.asarray(sol["lam_g"]).ravel(), self._n_g, 4, 2)
+        lam_x = _shifted(np.asarray(sol["lam_x"]).ravel(), n_x, 4, 2)
+        lam_x[:n_x] = 0.0
+        self._lam_x = lam_x
+
+
+def _shifted(values: np.ndarray, n_states: int, state_size: int, input_size: int) -> np.ndarray:
+    """A plan ``[x_0 … x_N, u_0 … u_{N-1}]`` (the first ``n_states`` entries the nodes) shifted by
+    one interval, the last node and input repeated; a copy."""
+    out = np.empty_like(values)
+    out[:n_states - state_size] = values[state_size:n_states]
+    out[n_states - state_size:n_states] = values[n_states - state_size:n_states]
+    if values.size > n_states:
+        out[n_states:-input_size] = values[n_states + input_size:]
+        out[-input_size:] = values[-input_size:]
+    return out
 
 
 # -- one experiment ---------------------------------------------------------------------------
