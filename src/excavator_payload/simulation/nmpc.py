@@ -88,8 +88,22 @@ def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool):
     fails, the same function runs in the virtual machine (same results, slower).
     """
     model = rk4_interval(arm, duration, substeps, "nmpc_model")
-    symbolic = [model, model.jacobian()]
+    symbolic = [model, _state_input_jacobian(model)]
     return (native(*symbolic) if jit else model), symbolic
+
+
+def _state_input_jacobian(model: ca.Function) -> ca.Function:
+    """``jac_nmpc_model`` as CasADi's ``model.jacobian()`` names and lays it out, with the blocks
+    by state and input and none by payload (a structural zero): the payload is a parameter of the
+    NLP, never differentiated, and its column cost 1/8 of the Jacobian's operations. The two
+    blocks are CasADi's own, to the bit (a test compares them)."""
+    x, u, payload = model.sx_in()
+    xf = model(x, u, payload)
+    both = ca.jacobian(xf, ca.vertcat(x, u))
+    n_x = x.numel()
+    return ca.Function(f"jac_{model.name()}", [x, u, payload, ca.SX(ca.Sparsity(xf.numel(), 1))],
+                       [both[:, :n_x], both[:, n_x:], ca.SX(xf.numel(), 1)],
+                       ["x", "u", "payload", "out_xf"], ["jac_xf_x", "jac_xf_u", "jac_xf_payload"])
 
 
 class ControlFailure(RuntimeError):
