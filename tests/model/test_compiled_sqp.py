@@ -140,3 +140,25 @@ def test_hydraulic_nmpc_generated_solver_equals_casadis():
         _close(a, b)
     for key in ("n_solves", "n_retries", "n_plan_followed", "reached"):
         assert runs[0][5][key] == runs[1][5][key]
+
+
+def test_thesis_interval_jacobians_equal_casadis():
+    """The NMPC's state/input Jacobian is CasADi's own to the bit; the chain-rule one (the default)
+    equals it to rounding (1e-12 relative: the operations differ, the derivative does not)."""
+    from excavator_payload.simulation.nmpc import _chain_rule_jacobian, _state_input_jacobian
+    from excavator_payload.simulation.plant import rk4_interval
+
+    arm = ArmModel(MACHINE)
+    model = rk4_interval(arm, 0.1, 2, "nmpc_model")
+    full, blocks, chain = model.jacobian(), _state_input_jacobian(model), _chain_rule_jacobian(arm, 0.1, 2, "nmpc_model")
+    assert chain.n_instructions() < 0.6 * blocks.n_instructions() < 0.6 * full.n_instructions()
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        args = [np.r_[rng.uniform(-0.3, 0.8), rng.uniform(-2.2, -1.0), rng.normal(size=2)],
+                rng.uniform(-1, 1, 2) * MACHINE.torque_limits, rng.uniform(0, MACHINE.max_payload), np.zeros((4, 0))]
+        expected = [np.asarray(v) for v in full(*args)]
+        for i in range(2):
+            np.testing.assert_array_equal(np.asarray(blocks(*args)[i]), expected[i])
+            np.testing.assert_allclose(np.asarray(chain(*args)[i]), expected[i], rtol=1e-12,
+                                       atol=1e-12 * np.abs(expected[i]).max())
+    assert blocks.sparsity_out(2).nnz() == chain.sparsity_out(2).nnz() == 0  # payload: never differentiated

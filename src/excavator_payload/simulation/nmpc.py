@@ -78,7 +78,7 @@ HORIZON = 2.0  # s, T_p
 TERMINAL_WEIGHT = (2e11, 2e11, 1e3, 1e3)  # P
 
 
-def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool):
+def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool, chain_rule: bool = False):
     """The prediction model ``(x, u, payload) -> x(t + duration)``, compiled to C when possible,
     and the SX functions behind it (the model and its Jacobian).
 
@@ -88,8 +88,38 @@ def _interval_model(arm: ArmModel, duration: float, substeps: int, jit: bool):
     fails, the same function runs in the virtual machine (same results, slower).
     """
     model = rk4_interval(arm, duration, substeps, "nmpc_model")
-    symbolic = [model, _state_input_jacobian(model)]
+    jacobian = (_chain_rule_jacobian(arm, duration, substeps, model.name()) if chain_rule
+                else _state_input_jacobian(model))
+    symbolic = [model, jacobian]
     return (native(*symbolic) if jit else model), symbolic
+
+
+def _chain_rule_jacobian(arm: ArmModel, duration: float, substeps: int, name: str) -> ca.Function:
+    """``jac_<name>`` (as :func:`_state_input_jacobian`) by the chain rule through the RK4 stages:
+    one ẋ and ∂ẋ/∂(x, u) per stage, S ← S + h/6 (dk1 + 2dk2 + 2dk3 + dk4). The same derivative,
+    equal to rounding, in 13.9k operations instead of 28.2k."""
+    f = arm.casadi_function("state_derivative")
+    x, u, m = ca.SX.sym("x", 4), ca.SX.sym("u", 2), ca.SX.sym("payload")
+    xs, us = ca.SX.sym("xs", 4), ca.SX.sym("us", 2)
+    rate = f(xs, us, m)
+    with_jacobian = ca.Function("xdot_jac", [xs, us, m], [rate, ca.jacobian(rate, ca.vertcat(xs, us))])
+    held = ca.horzcat(ca.DM(2, 4), ca.DM.eye(2))  # the input is held: d u / d(x0, u) = [0 I]
+
+    def stage(state, sensitivity):
+        k, F = with_jacobian(state, u, m)
+        return k, ca.mtimes(F, ca.vertcat(sensitivity, held))
+
+    h = duration / substeps
+    xn, S = x, ca.horzcat(ca.DM.eye(4), ca.DM(4, 2))
+    for _ in range(substeps):
+        k1, d1 = stage(xn, S)
+        k2, d2 = stage(xn + h / 2 * k1, S + h / 2 * d1)
+        k3, d3 = stage(xn + h / 2 * k2, S + h / 2 * d2)
+        k4, d4 = stage(xn + h * k3, S + h * d3)
+        xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        S = S + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    return ca.Function(f"jac_{name}", [x, u, m, ca.SX(ca.Sparsity(4, 1))], [S[:, :4], S[:, 4:], ca.SX(ca.Sparsity(4, 1))],
+                       ["x", "u", "payload", "out_xf"], ["jac_xf_x", "jac_xf_u", "jac_xf_payload"])
 
 
 def _state_input_jacobian(model: ca.Function) -> ca.Function:
@@ -142,6 +172,9 @@ class NMPCSettings:
     generate_solver : bool
         With ``jit``: also generate the SQP solvers as C, compiled with the model
         (:mod:`excavator_payload.model.compiled_sqp`; the same numbers, faster).
+    chain_rule_jacobian : bool
+        The interval model's Jacobian by the chain rule through the RK4 stages (half the
+        operations; the same derivative, equal to rounding, so the data differ in the last bits).
     extra : dict
         Further options of CasADi's ``sqpmethod``, passed as they are.
     """
@@ -158,6 +191,7 @@ class NMPCSettings:
     max_defect: float = 1e-2  # largest shooting defect accepted before falling back to IPOPT
     jit: bool = True  # compile the interval model and its Jacobian to C (if a C compiler exists)
     generate_solver: bool = True  # with jit: the SQP solvers as generated C too
+    chain_rule_jacobian: bool = True  # the interval Jacobian by the chain rule (equal to rounding)
     extra: dict = field(default_factory=dict)
 
 
@@ -196,7 +230,8 @@ class NMPCController:
         self.settings = s = settings or NMPCSettings()
         self.n_intervals = N = int(round(s.horizon / s.control_period))
         self.limits = np.asarray(arm.machine.torque_limits, dtype=float)
-        F, symbolic_model = _interval_model(arm, s.control_period, s.model_substeps, s.jit)
+        F, symbolic_model = _interval_model(arm, s.control_period, s.model_substeps, s.jit,
+                                            s.chain_rule_jacobian)
         self.compiled = F.class_name() == "External"
 
         # Multiple shooting in MX: the interval model F (and the Jacobian CasADi derives from
