@@ -143,7 +143,7 @@ def test_hydraulic_nmpc_generated_solver_equals_casadis():
 
 
 def test_thesis_interval_jacobians_equal_casadis():
-    """The NMPC's state/input Jacobian is CasADi's own to the bit; the chain-rule one (the default)
+    """The NMPC's state/input Jacobian is CasADi's own to the bit; the chain-rule one (an option)
     equals it to rounding (1e-12 relative: the operations differ, the derivative does not)."""
     from excavator_payload.simulation.nmpc import _chain_rule_jacobian, _state_input_jacobian
     from excavator_payload.simulation.plant import rk4_interval

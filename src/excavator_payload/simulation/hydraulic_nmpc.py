@@ -33,7 +33,8 @@ Gauss–Newton Hessian, warm-started
 from a cold start; if that fails too, the previous plan is followed for that period, up to
 three periods in a row; after that, or if the very first solve fails, the simulator redraws
 the swing and counts it in ``controller_failures``), interval model compiled to C with its
-Jacobian by the chain rule through the RK4 stages (:func:`_rk4_jacobian`).
+Jacobian by the chain rule through the RK4 stages (:func:`_rk4_jacobian`), the SQP solvers
+generated as C with it (:mod:`excavator_payload.model.compiled_sqp`).
 Control period 0.25 s, horizon 2 s. The speed bounds hold at the nodes with a margin (85 %
 of the limit); between nodes the realised rates overshoot the plan, mostly by < 15 % but in
 about 5 % of the swings by more (a poorly converged step): the simulator redraws a swing

@@ -50,7 +50,9 @@ Multiple shooting, CasADi ``sqpmethod`` with the active-set QP solver ``qrqp`` a
 Gauss–Newton Hessian (the objective's own, constant Hessian), warm-started from the previous
 solution shifted by one interval, two SQP iterations per control step (real-time-iteration
 style; the first step of an experiment iterates to convergence). The interval model and its
-Jacobian are compiled to C and cached on disk when a C compiler is available. If a solve fails
+Jacobian are compiled to C and cached on disk when a C compiler is available, and the SQP
+solvers are generated as C with them
+(:mod:`excavator_payload.model.compiled_sqp`; see ``docs/speed-simulation.md``). If a solve fails
 (QP failure, non-finite plan, or a shooting defect above ``max_defect``), the step is retried
 from a cold start with IPOPT; if that fails too, the controller raises :class:`ControlFailure`
 and the caller skips the experiment with the reason.
@@ -173,8 +175,10 @@ class NMPCSettings:
         With ``jit``: also generate the SQP solvers as C, compiled with the model
         (:mod:`excavator_payload.model.compiled_sqp`; the same numbers, faster).
     chain_rule_jacobian : bool
-        The interval model's Jacobian by the chain rule through the RK4 stages (half the
-        operations; the same derivative, equal to rounding, so the data differ in the last bits).
+        The interval model's Jacobian by the chain rule through the RK4 stages: half the
+        operations, the same derivative to rounding, so the data differ in their last bits
+        (< 1e-15 relative) and so do estimators fitted on them; off by default, which keeps
+        every dataset and exported C file as it was.
     extra : dict
         Further options of CasADi's ``sqpmethod``, passed as they are.
     """
@@ -191,7 +195,7 @@ class NMPCSettings:
     max_defect: float = 1e-2  # largest shooting defect accepted before falling back to IPOPT
     jit: bool = True  # compile the interval model and its Jacobian to C (if a C compiler exists)
     generate_solver: bool = True  # with jit: the SQP solvers as generated C too
-    chain_rule_jacobian: bool = True  # the interval Jacobian by the chain rule (equal to rounding)
+    chain_rule_jacobian: bool = False  # the interval Jacobian by the chain rule (equal to rounding)
     extra: dict = field(default_factory=dict)
 
 

@@ -139,6 +139,22 @@ class Plant:
         # numpy in and out through buffers (no DM conversions: most of a step's cost)
         self._step_call = BufferedCall(self._step)
         self._xdot_call = BufferedCall(self._xdot)
+        self._hold_calls: dict[int, BufferedCall] = {}
+
+    def _hold_call(self, k: int) -> BufferedCall:
+        """One call for :meth:`hold`: the same compiled step and ẋ, ``k`` times, in one graph."""
+        if k not in self._hold_calls:
+            x, u, m = ca.MX.sym("x", 4), ca.MX.sym("u", 2), ca.MX.sym("payload")
+            states, accelerations = [], []
+            for _ in range(k):
+                states.append(x)
+                accelerations.append(self._xdot(x, u, m)[2:])
+                x = self._step(x, u, m)
+            hold = ca.Function("plant_hold", [states[0], u, m],
+                               [ca.horzcat(*states), ca.horzcat(*accelerations), x],
+                               ["x", "u", "payload"], ["states", "accelerations", "after"])
+            self._hold_calls[k] = BufferedCall(hold)
+        return self._hold_calls[k]
 
     def hold(self, state: np.ndarray, torque: np.ndarray, payload: float, k: int):
         """``k`` sample periods with ``torque`` held: the states at the ``k`` sample instants
@@ -164,14 +180,8 @@ class Plant:
         after : numpy.ndarray
             State after the ``k`` periods, shape (4,).
         """
-        states = np.empty((k, 4))
-        accelerations = np.empty((k, 2))
-        x = np.asarray(state, float)
-        for j in range(k):
-            states[j] = x
-            accelerations[j] = self._xdot_call(x=x, u=torque, payload=payload)["xdot"][2:]
-            x = self._step_call(x=x, u=torque, payload=payload)["xf"]
-        return states, accelerations, x
+        out = self._hold_call(int(k))(x=state, u=torque, payload=payload)
+        return out["states"].reshape(k, 4), out["accelerations"].reshape(k, 2), out["after"]
 
     def step(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
         """State after one sample period with ``torque`` held constant.
