@@ -63,6 +63,7 @@ import numpy as np
 from excavator_payload.model.codegen import BufferedCall, native
 from excavator_payload.model.compiled_sqp import compiled_sqp
 from excavator_payload.model.hydraulic import HydraulicArmModel
+from excavator_payload.simulation.plant import rk4_sensitivity
 
 
 #: Control periods in a row the controller may follow its previous plan after failed solves.
@@ -202,15 +203,7 @@ def _rk4_jacobian(f: ca.Function, duration: float, substeps: int, name: str,
         k, F = with_jacobian(state, u, tilt, m)
         return k, ca.mtimes(F, ca.vertcat(sensitivity, held))
 
-    h = duration / substeps
-    xn, S = x, ca.horzcat(ca.DM.eye(n), ca.DM(n, n_sens))
-    for _ in range(substeps):
-        k1, d1 = stage(xn, S)
-        k2, d2 = stage(xn + h / 2 * k1, S + h / 2 * d1)
-        k3, d3 = stage(xn + h / 2 * k2, S + h / 2 * d2)
-        k4, d4 = stage(xn + h * k3, S + h * d3)
-        xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        S = S + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    _, S = rk4_sensitivity(stage, x, ca.horzcat(ca.DM.eye(n), ca.DM(n, n_sens)), duration, substeps)
     by_parameters = ([S[:, n + 4:n + 6], S[:, n + 6]] if parameter_blocks
                      else [ca.SX(ca.Sparsity(n, 2)), ca.SX(ca.Sparsity(n, 1))])
     return ca.Function(f"jac_{name}", [x, u, tilt, m, ca.SX.sym("out_xf", n)],

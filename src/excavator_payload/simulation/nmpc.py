@@ -70,7 +70,7 @@ import numpy as np
 from excavator_payload.model.codegen import BufferedCall, native
 from excavator_payload.model.compiled_sqp import compiled_sqp
 from excavator_payload.model.dynamics import ArmModel
-from excavator_payload.simulation.plant import rk4_interval
+from excavator_payload.simulation.plant import rk4_interval, rk4_sensitivity
 
 log = logging.getLogger(__name__)
 
@@ -111,16 +111,9 @@ def _chain_rule_jacobian(arm: ArmModel, duration: float, substeps: int, name: st
         k, F = with_jacobian(state, u, m)
         return k, ca.mtimes(F, ca.vertcat(sensitivity, held))
 
-    h = duration / substeps
-    xn, S = x, ca.horzcat(ca.DM.eye(4), ca.DM(4, 2))
-    for _ in range(substeps):
-        k1, d1 = stage(xn, S)
-        k2, d2 = stage(xn + h / 2 * k1, S + h / 2 * d1)
-        k3, d3 = stage(xn + h / 2 * k2, S + h / 2 * d2)
-        k4, d4 = stage(xn + h * k3, S + h * d3)
-        xn = xn + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        S = S + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
-    return ca.Function(f"jac_{name}", [x, u, m, ca.SX(ca.Sparsity(4, 1))], [S[:, :4], S[:, 4:], ca.SX(ca.Sparsity(4, 1))],
+    _, S = rk4_sensitivity(stage, x, ca.horzcat(ca.DM.eye(4), ca.DM(4, 2)), duration, substeps)
+    return ca.Function(f"jac_{name}", [x, u, m, ca.SX(ca.Sparsity(4, 1))],
+                       [S[:, :4], S[:, 4:], ca.SX(ca.Sparsity(4, 1))],
                        ["x", "u", "payload", "out_xf"], ["jac_xf_x", "jac_xf_u", "jac_xf_payload"])
 
 

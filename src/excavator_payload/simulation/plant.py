@@ -59,6 +59,41 @@ def rk4_step(f: ca.Function, x, u, payload, h: float):
     return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def rk4_sensitivity(stage, x, sensitivity, duration: float, substeps: int):
+    """``substeps`` RK4 steps over ``duration`` of a state and its sensitivity by the chain rule
+    through the stages: ``stage(x, S)`` gives ẋ and ∂ẋ/∂x · S (plus the held inputs' part),
+    and S ← S + h/6 (dk1 + 2dk2 + 2dk3 + dk4), the derivative of the RK4 step.
+
+    Parameters
+    ----------
+    stage : callable
+        ``stage(x, S) -> (xdot, dxdot)`` at one RK4 stage (symbolic).
+    x : casadi.SX
+        State at the start.
+    sensitivity : casadi.SX
+        Its sensitivity at the start (identity for the state, zeros for the held inputs).
+    duration : float
+        Length of the interval, s.
+    substeps : int
+        Number of equal RK4 steps.
+
+    Returns
+    -------
+    tuple of casadi.SX
+        The state and its sensitivity at the end.
+    """
+    h = duration / substeps
+    S = sensitivity
+    for _ in range(substeps):
+        k1, d1 = stage(x, S)
+        k2, d2 = stage(x + h / 2 * k1, S + h / 2 * d1)
+        k3, d3 = stage(x + h / 2 * k2, S + h / 2 * d2)
+        k4, d4 = stage(x + h * k3, S + h * d3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        S = S + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    return x, S
+
+
 def rk4_interval(arm: ArmModel, duration: float, substeps: int, name: str = "rk4_interval") -> ca.Function:
     """CasADi function ``(x, u, payload) -> x(t + duration)`` by ``substeps`` RK4 steps, u held.
 
