@@ -103,6 +103,7 @@ def _status_edit(solvers: list[ca.Function]):
 
 class CompiledSQPCall:
     """One generated solver, called like :class:`~.codegen.BufferedCall`, with CasADi's status.
+    Not thread-safe (its buffers, and one status global per library): one per controller.
 
     Parameters
     ----------
