@@ -73,11 +73,14 @@ def zeros(seed: int) -> dict:
     }
 
 
-def alarms_and_coverage(ds, est_frame, zero_std: float = 0.0) -> dict:
+def alarms_and_coverage(ds, est_frame, zero_std: float = 0.0, sigma_without=None) -> dict:
     """False alarms (clean samples not ``ok`` after the first second, the documented wait for the
     boom's first weighing excepted) and the share of judged ``ok`` samples with |error| ≤ 2σ; also
-    with the zero's part ``zero_std`` (kg) taken out of σ² (σ as it was before the zero's offsets
-    entered it, on the same estimates)."""
+    with the zero's part taken out of σ (σ as it was before the zero's offsets entered it, on the
+    same estimates): ``sigma_without`` per sample when given (the zero's share per estimate,
+    :func:`sigma_without_zero`), else ``zero_std`` (kg) out of σ²; and, with ``sigma_without``,
+    with the zero's grid RMS ``zero_std`` in its place (σ as it was before the share per
+    estimate, ``sigma_covers_grid``)."""
     f = ds.frame
     t = f["time"].to_numpy(float)
     exp = f["experiment"].to_numpy()
@@ -90,8 +93,14 @@ def alarms_and_coverage(ds, est_frame, zero_std: float = 0.0) -> dict:
     error = est_frame["payload_estimate"].to_numpy(float) - f["payload"].to_numpy(float)
     sigma = est_frame["sigma"].to_numpy(float)
     ok = (status == "ok") & judged & np.isfinite(sigma)
-    without = np.sqrt(np.maximum(sigma**2 - zero_std**2, 0.0))
+    if sigma_without is None:
+        without = np.sqrt(np.maximum(sigma**2 - zero_std**2, 0.0))
+        grid = sigma
+    else:
+        without = np.asarray(sigma_without, float)
+        grid = np.sqrt(without**2 + zero_std**2)
     return {"false_alarms": float(alarms.sum() / max(judged.sum(), 1)),
+            "sigma_covers_grid": float(np.mean(np.abs(error[ok]) <= 2 * grid[ok])) if ok.any() else np.nan,
             "sigma_covers": float(np.mean(np.abs(error[ok]) <= 2 * sigma[ok])) if ok.any() else np.nan,
             "sigma_covers_without_zero": float(np.mean(np.abs(error[ok]) <= 2 * without[ok])) if ok.any() else np.nan,
             "zero_std": float(zero_std)}
@@ -105,7 +114,8 @@ def judge(est, ds, efficiency: bool = False) -> dict:
     bound = dataset_machine_bound(ds, est) if efficiency else None
     ev = evaluate_estimates(ds, est_frame, label="m", bound=bound, with_bound=bound is not None,
                             discard=dm.DISCARD)
-    return {**dm.summary_row(ev, RATED), **alarms_and_coverage(ds, est_frame, zero_part(est))}
+    return {**dm.summary_row(ev, RATED), **alarms_and_coverage(ds, est_frame, zero_part(est),
+                                                               sigma_without_zero(est, ds))}
 
 
 def main() -> None:
@@ -148,9 +158,22 @@ def main() -> None:
 
 
 def zero_part(est) -> float:
-    """The zero's part of σ (kg; 0 before a zero or for a model without it)."""
+    """The zero's part of σ as its RMS over the calibrated poses (kg; 0 before a zero or for a
+    model without it)."""
     cal = getattr(est, "calibration", None)
     return float(getattr(cal, "zero_std", 0.0)) if cal is not None else 0.0
+
+
+def sigma_without_zero(est, ds):
+    """σ per sample of ``est`` on ``ds`` with no zero's part (None where σ holds no share per
+    estimate: :func:`alarms_and_coverage` takes the RMS out of σ² instead)."""
+    regression = getattr(getattr(est, "kernel", None), "regression", None)
+    if getattr(regression, "_offset_share", None) is None:
+        return None
+    twin = _copy(est)
+    twin.calibration.zero_std = 0.0  # weighed alike (the share moves σ only), σ = √(1/I + s²)
+    twin.use_calibration()
+    return twin.estimate(ds)["sigma"].to_numpy(float)
 
 
 def _copy(estimator):

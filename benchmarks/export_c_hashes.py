@@ -10,9 +10,16 @@ refactoring of :mod:`excavator_payload.runtime.export_c` leaves the generated C 
 The header embeds the package version, so both runs must use the same version. Both runs must
 also be on one kind of CPU: the fitted constants are printed to the last bit, and another CPU's
 BLAS kernels sum in another order (an AMD EPYC changed 28 of the 60 files in their last digits).
+So does BLAS's thread count (the machine calibrations' constants: 10 machine files differed
+between one thread and two): the script runs BLAS on one thread, whatever the environment says.
 """
 
 from __future__ import annotations
+
+import os
+
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):  # before numpy loads BLAS
+    os.environ[_name] = "1"
 
 import argparse
 import hashlib
@@ -47,8 +54,13 @@ def models():
     for low_speed in ("skip", "downweight", "model"):
         yield f"machine/calibrated-{low_speed}", create_estimator(
             "calibrated", machine=HYD + "-3pct", low_speed=low_speed, wait_for_boom="no").fit(machine)
-    yield "machine/calibrated-momentum", create_estimator(
-        "calibrated", machine=HYD + "-3pct", balance="momentum").fit(machine)
+    momentum = create_estimator("calibrated", machine=HYD + "-3pct", balance="momentum").fit(machine)
+    yield "machine/calibrated-momentum", momentum
+    # zeroed: the zero's share of σ per estimate (runtime/export_c/offset_share.py)
+    from excavator_payload.evaluation import demo_machine as dm
+
+    momentum.zero(dm.zero_data(seed=6))
+    yield "machine/calibrated-momentum-zeroed", momentum
     yield "machine/calibrated-differentiated", create_estimator(
         "calibrated", machine=HYD + "-3pct", balance="differentiated").fit(machine)
     yield "machine/calibrated-new-load", create_estimator(

@@ -63,6 +63,7 @@ def test_machine_demo_tiny_on_a_machine_of_ones_own(tmp_path):
     # six times), and a tiny run says its figures mean nothing
     assert report.count("not fitted") == 0 and report.count("Not fitted: net1, net2") == 1
     assert "**Scale `tiny`**" in report and "1 experiment per set" in report
+    assert "Failed:" not in report, report  # a refusal is listed as not judged, with its reason
     known = pd.read_parquet(out / "trajectories" / "calibration.parquet")["payload"]
     assert sorted(known.unique()) == [0.0, 1750.0]  # two motions: empty, then half rated
     assert dm.calibration_payloads(path) == (0.0, 1750.0, 3500.0)

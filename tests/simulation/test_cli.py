@@ -116,3 +116,17 @@ def test_real_ctrl_c_on_a_local_cluster_keeps_chunks_and_leaves_no_worker(tmp_pa
     assert list(folder.glob("chunk_*.parquet")) and not out.exists()
     gone, alive = psutil.wait_procs(children, timeout=20)
     assert not alive
+
+
+def test_the_motion_help_lists_every_family_of_both_platforms():
+    """``simulate --motion``'s help is made from the platforms' motion families (it once missed
+    ``reach`` and ``calibration``, added after the help was written by hand)."""
+    from excavator_payload.platforms import HYDRAULIC, THESIS
+    from excavator_payload.simulation.commands import _motion_help
+
+    text = _motion_help()
+    for platform in (THESIS, HYDRAULIC):
+        for name, motion in platform.motions.items():
+            assert f"{name} (" in text and motion.description in text
+    assert "nmpc (default:" in text and "swing (default:" in text
+    assert THESIS.default_motion == "nmpc" and HYDRAULIC.default_motion == "swing"

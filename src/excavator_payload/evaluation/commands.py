@@ -100,6 +100,9 @@ def register(app: typer.Typer) -> None:
                                 "(passes, trucks, totals, histogram of pass weights) instead."),
         rated: float = typer.Option(None, "--rated", metavar="KG",
                                     help="With --db: the rated payload to count passes within 1 % of (default: the recorded model's)."),
+        kept: Path = typer.Option(None, "--kept", metavar="FILE",
+                                  help="With --db: a live shift's kept trucks (the file its last line named) to "
+                                  "take into the record first; <db>.unsaved.json beside it is taken in unasked."),
         model: list[Path] = typer.Option([], "--model", help="Saved estimator folder (repeatable).", metavar="DIR"),
         estimates: list[Path] = typer.Option([], "--estimates", help="Estimates file (repeatable).",
                                              metavar="FILE"),
@@ -134,6 +137,7 @@ def register(app: typer.Typer) -> None:
             raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
         if db is not None:
             from excavator_payload.runtime.loadout import write_shift_report
+            from excavator_payload.runtime.shift_record import open_record, unsaved_beside
 
             if data is not None or model or estimates:
                 raise DatasetError("--db writes a shift report from the record alone; it does not go "
@@ -141,9 +145,21 @@ def register(app: typer.Typer) -> None:
             if rated is not None and not (math.isfinite(rated) and rated > 0):
                 raise DatasetError(f"--rated must be a mass above 0 kg, got {rated:g}")
             check_output_path(out, inputs=[db], kind="folder", replaces=("shift.md", "pass_weights.png"))
+            if kept is not None or unsaved_beside(db).is_file():
+                if not db.is_file():
+                    raise DatasetError(f"--db '{db}' does not exist")
+                try:
+                    open_record(db, kept, say=lambda line: console.print(line, markup=False, highlight=False)).close()
+                except DatasetError as exc:
+                    if kept is not None:
+                        raise
+                    # the file beside a record that cannot take it (read-only): report what is in it
+                    typer.echo(f"warning: {exc}; the report shows the record without the kept trucks", err=True)
             md = write_shift_report(db, out, rated)
             console.print(Text.assemble("shift report: ", (str(md), "bold")))
             return
+        if kept is not None:
+            raise DatasetError("--kept goes with --db (a shift record)")
         if data is None:
             raise DatasetError("report needs --data (an evaluation) or --db (a shift report)")
 

@@ -725,10 +725,13 @@ def run_machine_demo(out: Path, machine: str = "cat345c-hydraulic", scale: str =
                   "motion per set these figures say nothing about accuracy; run `--scale quick`.", ""]
     lines += [markdown_table(table) if len(table) else "(no results)", "", *figure]
     not_fitted = {k: v for k, v in fit["failures"].items() if k in learned}
-    failed = {k: v for k, v in fit["failures"].items() if k not in learned}
+    refused = {k: v for k, v in fit["failures"].items() if k not in learned and v.startswith("not judged")}
+    failed = {k: v for k, v in fit["failures"].items() if k not in learned and k not in refused}
     if not_fitted:
         lines += [f"Not fitted: {', '.join(not_fitted)} — they learn from a training set of logged motions "
                   "with known loads, which this demo does not simulate (see the guide to the machine).", ""]
+    if refused:  # a refusal is the calibration's verdict, as `train` gives it, not a failure
+        lines += ["Not judged:", ""] + [f"- {k}: {v.removeprefix('not judged: ')}" for k, v in refused.items()] + [""]
     if failed:
         lines += ["Failed:", ""] + [f"- {k}: {v}" for k, v in failed.items()]
     (out / "report.md").write_text("\n".join(lines) + "\n", encoding="utf-8")

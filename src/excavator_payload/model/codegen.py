@@ -32,6 +32,9 @@ log = logging.getLogger(__name__)
 NATIVE_ENV = "EXCAVATOR_PAYLOAD_NATIVE"
 #: -O1 compiles the 0.8 MB NMPC Jacobian about 2× faster than -O2 at the same run time.
 FLAGS = ("-O1", "-fPIC", "-shared")
+#: For the generated SQP solvers' loops (``qrqp``'s sparse QR): -O2 runs them ~10 % faster than
+#: -O1, the same numbers (no fast-math); their straight-line models keep :data:`FLAGS`.
+LOOP_FLAGS = ("-O2", "-fPIC")
 
 
 def compiler() -> str | None:
@@ -48,7 +51,8 @@ def cache_folder() -> Path:
     return Path(root) / "native"
 
 
-def compiled_library(functions: list[ca.Function], name: str) -> Path:
+def compiled_library(functions: list[ca.Function], name: str, edit=None,
+                     linked: list[ca.Function] = ()) -> Path:
     """C code of ``functions`` compiled to a shared library, cached by content hash.
 
     The library is built in a temporary folder and renamed into place, so concurrent
@@ -61,6 +65,13 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
         The functions to compile into one library.
     name : str
         The library's base name (the C file's and the exported module's).
+    edit : callable, optional
+        ``edit(source) -> source``: changes the generated C before it is hashed and compiled
+        (:mod:`excavator_payload.model.compiled_sqp` adds the solver's return status).
+    linked : list of casadi.Function, optional
+        Functions generated into a second C file of the same library: those that ``functions``
+        call as :func:`casadi.external` (CasADi will not generate a function under the name
+        of an external it calls).
 
     Returns
     -------
@@ -74,18 +85,36 @@ def compiled_library(functions: list[ca.Function], name: str) -> Path:
     for f in functions:
         generator.add(f)
     source = generator.dump()
-    digest = hashlib.sha256((source + " ".join(FLAGS) + ca.__version__).encode()).hexdigest()[:20]
+    if edit is not None:
+        source = edit(source)
+    sources = {f"{name}.c": source}
+    if linked:
+        companion = ca.CodeGenerator(f"{name}_linked.c", {"with_header": False})
+        for f in linked:
+            companion.add(f)
+        sources[f"{name}_linked.c"] = companion.dump()
+    flags = " ".join(FLAGS) + (" " + " ".join(LOOP_FLAGS) if linked else "")
+    digest = hashlib.sha256(("\n".join(sources.values()) + flags + ca.__version__).encode()).hexdigest()[:20]
     folder = cache_folder()
     library = folder / f"{name}_{digest}.so"
     if verified(library):
         return library
     folder.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=folder) as tmp:
-        c_file = Path(tmp) / f"{name}.c"
-        c_file.write_text(source, encoding="utf-8")
+        c_files = []
+        for file_name, text in sources.items():
+            c_files.append(Path(tmp) / file_name)
+            c_files[-1].write_text(text, encoding="utf-8")
         built = Path(tmp) / library.name
-        subprocess.run([cc, *FLAGS, str(c_file), "-o", str(built), "-lm"], check=True,
-                       capture_output=True, text=True, timeout=600)
+        run = dict(check=True, capture_output=True, text=True, timeout=600)
+        if linked:  # the solver at LOOP_FLAGS, the model it calls at FLAGS, one library
+            objects = [c.with_suffix(".o") for c in c_files]
+            subprocess.run([cc, *LOOP_FLAGS, "-c", str(c_files[0]), "-o", str(objects[0])], **run)
+            subprocess.run([cc, *[f for f in FLAGS if f != "-shared"], "-c", str(c_files[1]), "-o",
+                            str(objects[1])], **run)
+            subprocess.run([cc, "-shared", *map(str, objects), "-o", str(built), "-lm"], **run)
+        else:
+            subprocess.run([cc, *FLAGS, *map(str, c_files), "-o", str(built), "-lm"], **run)
         checksum = Path(tmp) / (library.name + ".sha256")
         checksum.write_text(file_sha256(built), encoding="utf-8")
         # The library first, its checksum second: a library without a matching checksum next

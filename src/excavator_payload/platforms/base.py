@@ -122,6 +122,11 @@ class Platform:
     noise_presets: dict[str, Any] = {}
     default_noise: str = ""
 
+    @property
+    def default_motion(self) -> str:
+        """The motion simulated unless told: the first of :attr:`motions`."""
+        return next(iter(self.motions))
+
     # -- sensors -----------------------------------------------------------------------------
     @property
     def sample_rate(self) -> float:

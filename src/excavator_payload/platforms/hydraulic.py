@@ -268,7 +268,7 @@ class HydraulicPlatform(Platform):
         """
         options: dict = {}
         if motion is None:
-            motion = "trajectory" if trajectory is not None else "swing"
+            motion = "trajectory" if trajectory is not None else self.default_motion
         if (motion == "trajectory") != (trajectory is not None):
             raise ExcavatorPayloadError("a trajectory file goes with --motion trajectory (and only with it)")
         if frozen_noise_seed is not None:

@@ -206,7 +206,7 @@ class ThesisPlatform(Platform):
         if session or trajectory is not None or payload is not None or truck_target is not None:
             raise ExcavatorPayloadError("--session, --trajectory, --payload and --truck-target apply to a "
                                         "hydraulic machine only")
-        return ("nmpc" if motion is None else motion), self.noise(noise), {}
+        return (self.default_motion if motion is None else motion), self.noise(noise), {}
 
 
 #: The one instance.

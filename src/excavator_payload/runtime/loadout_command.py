@@ -15,6 +15,11 @@ from excavator_payload.errors import DatasetError
 console = Console()
 
 
+def _say(line: str) -> None:
+    """One line to the console, as written (paths may hold brackets)."""
+    console.print(line, markup=False, highlight=False)
+
+
 def register(app: typer.Typer) -> None:
     """Add ``loadout`` to ``app``.
 
@@ -154,13 +159,14 @@ def show_truck(truck) -> None:
 def _from_dataset(estimator, data, db, target, model):
     from excavator_payload.data.io import read_dataset
     from excavator_payload.platforms import HYDRAULIC
-    from excavator_payload.runtime.loadout import ShiftRecord, file_key, run_loadout
+    from excavator_payload.runtime.loadout import file_key, run_loadout
+    from excavator_payload.runtime.shift_record import open_record
 
     dataset = read_dataset(data)
     if not HYDRAULIC.carries(dataset):
         raise DatasetError(f"loadout weighs the machine sensor set's passes; {data} holds the "
                            f"{dataset.sensor_set.name} set")
-    record = ShiftRecord(db)
+    record = open_record(db, say=_say)
     try:
         return run_loadout(estimator, dataset, record, file_key(data), target, on_truck=show_truck,
                            data_name=str(data), model_name=str(model))
@@ -172,7 +178,8 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
               truth, bitrate, duration):
     from excavator_payload.runtime.can_sensor import PayloadSensor
     from excavator_payload.runtime.codec import SignalCodec
-    from excavator_payload.runtime.loadout import ShiftRecord, file_key
+    from excavator_payload.runtime.loadout import file_key
+    from excavator_payload.runtime.shift_record import open_record
     from excavator_payload.runtime.loadout_bus import BusLoadout, TruckButton, replay_loadout
 
     from excavator_payload.platforms import HYDRAULIC
@@ -202,7 +209,7 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
         # a signal in another unit: one line before anything is recorded
         check_log_units(log, PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance), guard(),
                         f"CAN log '{log}'")
-        record = ShiftRecord(db)
+        record = open_record(db, say=_say)
         try:
             bus = BusLoadout(sensor, record, file_key(log), target, button, truths=truths, on_truck=show_truck,
                              data_name=str(log), model_name=str(model), guard=guard(), refuse_units=True)
@@ -233,10 +240,9 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
     from rich.live import Live
 
     from excavator_payload.runtime.dbc import CanConfigError
-    from excavator_payload.runtime.loadout import ShiftRecord
     from excavator_payload.runtime.loadout_bus import BusLoadout
     from excavator_payload.runtime.loadout_live import COMMAND_HELP, live_view, read_commands, readable_commands, run_live, terminal_keys
-    from excavator_payload.runtime.shift_record import KeptRecord
+    from excavator_payload.runtime.shift_record import KeptRecord, open_record
 
     kwargs = {"bitrate": bitrate} if bitrate else {}
     try:
@@ -245,7 +251,7 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
         raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
     # a write that fails mid-shift (disk full, read-only, locked, folder gone) keeps the trucks
     # in hand in a file and tries again; the shift goes on (it stopped and lost the truck)
-    record = KeptRecord(ShiftRecord(db))
+    record = KeptRecord(open_record(db, say=_say))
     # a live session is its own source: a restart appends, never replaces the earlier trucks
     source = f"live {interface}:{channel} {datetime.datetime.now(datetime.timezone.utc).isoformat()}"
     stop = threading.Event()

@@ -364,7 +364,7 @@ class KeptRecord:
             "columns": {"trucks": list(RECORD_COLUMNS["trucks"]) + ["start"], "passes": list(RECORD_COLUMNS["passes"])},
             "trucks": [{**asdict(t), "total": t.total, "unweighed": t.unweighed}
                        for _, t in sorted(self.unsaved.items())]}), indent=1)
-        places = [self.path.with_name(self.path.name + ".unsaved.json"),
+        places = [unsaved_beside(self.path),
                   Path(tempfile.gettempdir()) / f"{self.path.stem}-{os.getpid()}.unsaved.json"]
         if self.fallback is not None and self.fallback != places[0]:
             places.insert(0, self.fallback)
@@ -392,11 +392,163 @@ class KeptRecord:
         total = sum(t.total for t in trucks)
         what = f"the shift's {len(trucks)} truck(s) not in it ({passes} passes, {total:,.0f} kg)" if trucks else \
             "the run is not marked finished in it"
-        return f"{self.failure}; {what} kept {self.kept_where()}"
+        line = f"{self.failure}; {what} kept {self.kept_where()}"
+        if trucks and self.fallback is not None:
+            line += (f" (the next `loadout --db` or `report --db` on the record takes them in"
+                     if self.fallback == unsaved_beside(self.path) else
+                     f" (`report --db '{self.path}' --kept '{self.fallback}'` takes them in") + ")"
+        return line
 
     def close(self) -> None:
         """Close the record."""
         self.record.close()
+
+
+def unsaved_beside(path: str | Path) -> Path:
+    """``<record>.unsaved.json``: where a live shift keeps the trucks its record did not take.
+
+    Parameters
+    ----------
+    path : str or Path
+        The shift record.
+    """
+    path = Path(path)
+    return path.with_name(path.name + ".unsaved.json")
+
+
+_KEPT_PASS = ("truck", "index", "time_dig", "time_dump", "time_lock", "weight", "sigma", "status")
+
+
+def take_in_unsaved(record: ShiftRecord, kept: str | Path) -> str:
+    """Write the trucks a live shift kept in ``kept`` (:class:`KeptRecord`'s fallback file) into
+    ``record``, then remove the file; returns the one line that says what was taken in.
+
+    A truck that a later run of the same source has written since is left as the record has it
+    (the file's copy is older) and said. The file is checked whole before anything is written:
+    a damaged or foreign file is one line and the record is untouched.
+
+    Parameters
+    ----------
+    record : ShiftRecord
+        The open record to write to.
+    kept : str or Path
+        The fallback file (``<record>.unsaved.json``, or the one in the temporary folder that the
+        shift's last line named).
+
+    Raises
+    ------
+    DatasetError
+        The file is missing, not a kept-trucks file, or holds a run this record does not have.
+    """
+    import json
+    from types import SimpleNamespace
+
+    kept = Path(kept)
+    where = f"kept trucks '{kept}'"
+    try:
+        body = json.loads(kept.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"{where}: no such file") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DatasetError(f"{where}: not a file of a live shift's kept trucks ({exc})") from None
+    if not (isinstance(body, dict) and isinstance(body.get("trucks"), list) and isinstance(body.get("source"), str)
+            and isinstance(body.get("run"), int) and not isinstance(body.get("run"), bool)):
+        raise DatasetError(f"{where}: not a file of a live shift's kept trucks (needs 'source', 'run' and "
+                           "'trucks', as `loadout --interface` writes it)")
+    source, run = body["source"], body["run"]
+    found = record.db.execute("SELECT 1 FROM runs WHERE run = ? AND source = ?", (run, source)).fetchone()
+    if found is None:
+        raise DatasetError(f"{where} holds run {run} of the record '{body.get('record')}', which --db "
+                           f"'{record.path}' does not have: give that record")
+
+    def number(value, what):
+        if value is None:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise DatasetError(f"{where}: {what} is {value!r}, not a number")
+        return value
+
+    trucks = []
+    for t, truck in enumerate(body["trucks"]):
+        if not (isinstance(truck, dict) and isinstance(truck.get("truck"), int) and truck["truck"] >= 1
+                and isinstance(truck.get("passes"), list) and isinstance(truck.get("faults", []), list)):
+            raise DatasetError(f"{where}: truck entry {t + 1} is not a kept truck (a number ≥ 1 and its passes)")
+        passes = []
+        for p in truck["passes"]:
+            missing = [k for k in _KEPT_PASS if not isinstance(p, dict) or k not in p]
+            if missing:
+                raise DatasetError(f"{where}: a pass of truck {truck['truck']} lacks {', '.join(missing)}")
+            if p["status"] not in ("ok", "degraded", "not_weighed"):
+                raise DatasetError(f"{where}: a pass of truck {truck['truck']} has the status {p['status']!r}")
+            values = {k: number(p.get(k), f"truck {truck['truck']}'s pass {p.get('index')} '{k}'")
+                      for k in ("time_dig", "time_dump", "time_lock", "weight", "sigma", "true_weight")}
+            if isinstance(p["index"], bool) or not isinstance(p["index"], int) or p["index"] < 1:
+                raise DatasetError(f"{where}: a pass of truck {truck['truck']} has the number {p['index']!r}")
+            passes.append(SimpleNamespace(truck=truck["truck"], index=p["index"], status=p["status"],
+                                          reason=str(p.get("reason") or ""), **values))
+        faults = []
+        for f in truck.get("faults", []):
+            if not (isinstance(f, dict) and all(k in f for k in ("spn", "fmi", "signal", "kind", "start"))):
+                raise DatasetError(f"{where}: a fault of truck {truck['truck']} lacks spn, fmi, signal, kind or start")
+            if not all(isinstance(f[k], int) and not isinstance(f[k], bool) for k in ("spn", "fmi")):
+                raise DatasetError(f"{where}: a fault of truck {truck['truck']} has spn {f['spn']!r}, fmi {f['fmi']!r}")
+            number(f["start"], f"truck {truck['truck']}'s fault start")
+            end = number(f.get("end"), f"truck {truck['truck']}'s fault end")
+            faults.append({**f, "end": math.nan if end is None else float(end)})
+        weights = [p.weight for p in passes if p.weight is not None]
+        trucks.append(SimpleNamespace(
+            truck=truck["truck"], passes=passes, faults=faults, total=float(sum(weights)),
+            unweighed=sum(p.weight is None for p in passes),
+            **{k: number(truck.get(k), f"truck {truck['truck']}'s '{k}'")
+               for k in ("target", "true_total", "true_passes", "matched", "start")}))
+    newer = []
+    for truck in trucks:
+        later = record.db.execute("SELECT run FROM trucks WHERE source = ? AND truck = ? AND run > ?",
+                                  (source, truck.truck, run)).fetchone()
+        if later is not None:
+            newer.append(truck.truck)
+            continue
+        record.write_truck(source, run, truck)
+    kept.unlink(missing_ok=True)
+    taken = [t for t in trucks if t.truck not in newer]
+    line = (f"{len(taken)} kept truck(s) of run {run} ({sum(len(t.passes) for t in taken)} passes, "
+            f"{sum(t.total for t in taken):,.0f} kg) taken into --db '{record.path}' from '{kept}'")
+    if newer:
+        line += f"; truck(s) {', '.join(map(str, newer))} left as a later run recorded them"
+    return line
+
+
+def open_record(path: str | Path, kept: str | Path | None = None, say=print) -> ShiftRecord:
+    """Open the shift record ``path`` and take in the trucks a live shift kept outside it:
+    ``<record>.unsaved.json`` when it lies beside the record, and ``kept`` when given (each
+    said in one line through ``say``).
+
+    Parameters
+    ----------
+    path : str or Path
+        The shift record (created if missing).
+    kept : str or Path, optional
+        A kept-trucks file elsewhere (the temporary folder's, named by the shift's last line).
+    say : callable, optional
+        Where the line goes (the console).
+
+    Raises
+    ------
+    DatasetError
+        The record cannot be opened, or a kept file cannot be taken in (the record is closed).
+    """
+    record = ShiftRecord(path)
+    try:
+        files = [Path(kept)] if kept is not None else []
+        beside = unsaved_beside(path)
+        if beside.is_file() and not any(f.resolve() == beside.resolve() for f in files if f.exists()):
+            files.insert(0, beside)
+        for file in files:
+            say(take_in_unsaved(record, file))
+    except BaseException:
+        record.close()
+        raise
+    return record
 
 
 def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:

@@ -17,6 +17,17 @@ from excavator_payload.errors import ExcavatorPayloadError
 console = Console(stderr=True)
 
 
+def _motion_help() -> str:
+    """``--motion``'s help from the platforms' motion families (a family added there shows here)."""
+    from excavator_payload.platforms import HYDRAULIC, THESIS
+
+    def listed(platform):
+        return ", ".join(f"{name} ({'default: ' if name == platform.default_motion else ''}{motion.description})"
+                         for name, motion in platform.motions.items())
+
+    return f"Thesis arm: {listed(THESIS)}. A hydraulic machine (--machine): {listed(HYDRAULIC)}."
+
+
 def register(app: typer.Typer) -> None:
     """Add this role's commands to ``app``.
 
@@ -43,11 +54,7 @@ def register(app: typer.Typer) -> None:
         scheduler: str = typer.Option(None, "--scheduler", metavar="tcp://HOST:PORT",
                                       help="Run on this existing Dask cluster (default: $EXCAVATOR_PAYLOAD_SCHEDULER, "
                                            "else local worker processes)."),
-        motion: str = typer.Option(None, "--motion",
-                                   help="nmpc (thesis simulator, default), minimum-jerk, lifts (calibration "
-                                        "lifts) or operator (swings with a pause, an overshoot and "
-                                        "corrections); for a hydraulic machine swing (default), nmpc, work-cycle, "
-                                        "slopes, lifts, operator, shift (trucks of 2-6 work cycles) or trajectory."),
+        motion: str = typer.Option(None, "--motion", help=_motion_help()),
         session: int = typer.Option(0, "--session",
                                     help="Hydraulic machine: working session, draws the sensor offsets "
                                          "(independently of --seed)."),

@@ -59,6 +59,41 @@ def rk4_step(f: ca.Function, x, u, payload, h: float):
     return x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
+def rk4_sensitivity(stage, x, sensitivity, duration: float, substeps: int):
+    """``substeps`` RK4 steps over ``duration`` of a state and its sensitivity by the chain rule
+    through the stages: ``stage(x, S)`` gives ẋ and ∂ẋ/∂x · S (plus the held inputs' part),
+    and S ← S + h/6 (dk1 + 2dk2 + 2dk3 + dk4), the derivative of the RK4 step.
+
+    Parameters
+    ----------
+    stage : callable
+        ``stage(x, S) -> (xdot, dxdot)`` at one RK4 stage (symbolic).
+    x : casadi.SX
+        State at the start.
+    sensitivity : casadi.SX
+        Its sensitivity at the start (identity for the state, zeros for the held inputs).
+    duration : float
+        Length of the interval, s.
+    substeps : int
+        Number of equal RK4 steps.
+
+    Returns
+    -------
+    tuple of casadi.SX
+        The state and its sensitivity at the end.
+    """
+    h = duration / substeps
+    S = sensitivity
+    for _ in range(substeps):
+        k1, d1 = stage(x, S)
+        k2, d2 = stage(x + h / 2 * k1, S + h / 2 * d1)
+        k3, d3 = stage(x + h / 2 * k2, S + h / 2 * d2)
+        k4, d4 = stage(x + h * k3, S + h * d3)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        S = S + h / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    return x, S
+
+
 def rk4_interval(arm: ArmModel, duration: float, substeps: int, name: str = "rk4_interval") -> ca.Function:
     """CasADi function ``(x, u, payload) -> x(t + duration)`` by ``substeps`` RK4 steps, u held.
 
@@ -139,6 +174,22 @@ class Plant:
         # numpy in and out through buffers (no DM conversions: most of a step's cost)
         self._step_call = BufferedCall(self._step)
         self._xdot_call = BufferedCall(self._xdot)
+        self._hold_calls: dict[int, BufferedCall] = {}
+
+    def _hold_call(self, k: int) -> BufferedCall:
+        """One call for :meth:`hold`: the same compiled step and ẋ, ``k`` times, in one graph."""
+        if k not in self._hold_calls:
+            x, u, m = ca.MX.sym("x", 4), ca.MX.sym("u", 2), ca.MX.sym("payload")
+            states, accelerations = [], []
+            for _ in range(k):
+                states.append(x)
+                accelerations.append(self._xdot(x, u, m)[2:])
+                x = self._step(x, u, m)
+            hold = ca.Function("plant_hold", [states[0], u, m],
+                               [ca.horzcat(*states), ca.horzcat(*accelerations), x],
+                               ["x", "u", "payload"], ["states", "accelerations", "after"])
+            self._hold_calls[k] = BufferedCall(hold)
+        return self._hold_calls[k]
 
     def hold(self, state: np.ndarray, torque: np.ndarray, payload: float, k: int):
         """``k`` sample periods with ``torque`` held: the states at the ``k`` sample instants
@@ -164,14 +215,8 @@ class Plant:
         after : numpy.ndarray
             State after the ``k`` periods, shape (4,).
         """
-        states = np.empty((k, 4))
-        accelerations = np.empty((k, 2))
-        x = np.asarray(state, float)
-        for j in range(k):
-            states[j] = x
-            accelerations[j] = self._xdot_call(x=x, u=torque, payload=payload)["xdot"][2:]
-            x = self._step_call(x=x, u=torque, payload=payload)["xf"]
-        return states, accelerations, x
+        out = self._hold_call(int(k))(x=state, u=torque, payload=payload)
+        return out["states"].reshape(k, 4), out["accelerations"].reshape(k, 2), out["after"]
 
     def step(self, state: np.ndarray, torque: np.ndarray, payload: float) -> np.ndarray:
         """State after one sample period with ``torque`` held constant.

@@ -108,26 +108,31 @@ def test_cli_refuses_with_exit_2_and_saves_with_force(setup, tmp_path, capsys):
 
 
 def test_sigma_carries_the_zeros_offsets_and_keeps_them_through_save(setup, tmp_path):
-    """After a zero every estimate's σ² holds the zero's offsets posterior as it weighs
-    (``zero_quality.offset_part``) beside 1/I and the cross-checked s; before a zero it does
-    not; a saved and loaded model weighs with the same σ to the bit."""
+    """After a zero every estimate's σ² holds the zero's offsets posterior as that estimate
+    weighs (its own sensitivity, machine_calibration/offset_share.py; below the RMS over the
+    calibrated poses, ``zero_quality.offset_part``) beside 1/I and the cross-checked s; before a
+    zero it does not; a saved and loaded model weighs with the same σ to the bit."""
     from excavator_payload.estimators import load_estimator
 
     est = copy.deepcopy(setup["calibrated"])
     test = dm.simulate_trajectory(dm.motion_trajectory(1, 7, (2500.0,)), 7, dm.SESSION_WORK)
-    before = est.estimate(test)
     assert est.kernel.model_std == est.calibration.model_std == 0.0  # model_std none: noise only
+    assert est.kernel.regression._offset_share is None
     est.zero(setup["swing"])
     part = est.zero_quality.offset_part
-    assert part > 0 and est.kernel.model_std == pytest.approx(part, rel=1e-12)
+    assert part > 0 and est.kernel.model_std == 0.0  # the zero's part is per estimate, not a constant
     after = est.estimate(test)
     ok = (after["status"] == "ok").to_numpy()
     assert ok.sum() > 100
-    # σ² - s_zero² is the noise-only part: at the same information it is below the σ² of a
-    # model without the zero's term, and never negative
-    sigma = after["sigma"].to_numpy(float)[ok]
-    assert np.all(sigma >= part) and np.all(sigma**2 - part**2 > 0)
-    assert np.nanmin(before["sigma"].to_numpy(float)) < part  # the sensor noise alone went below it
+    # the same estimates without the zero's part: σ² - σ_noise² is the share, positive everywhere
+    noise_only = copy.deepcopy(est)
+    noise_only.calibration.zero_std = 0.0
+    noise_only.use_calibration()
+    plain = noise_only.estimate(test)
+    np.testing.assert_array_equal(plain["payload_estimate"].to_numpy(), after["payload_estimate"].to_numpy())
+    sigma, noise = after["sigma"].to_numpy(float)[ok], plain["sigma"].to_numpy(float)[ok]
+    share = np.sqrt(sigma**2 - noise**2)
+    assert np.all(share > 0) and np.median(share) < part
     est.save(tmp_path / "zeroed")
     again = load_estimator(tmp_path / "zeroed")
     assert again.calibration.zero_std == est.calibration.zero_std

@@ -79,13 +79,19 @@ class PayloadKernel(ABC):
         """Model error carried in the estimate's sigma beside I^-1/2, kg (0: sensor noise only)."""
         return 0.0
 
+    @property
+    def extra_std(self) -> float:
+        """The current estimate's own share of σ beside 1/I and the model error, kg (the
+        calibrated machine's zero share; 0 here)."""
+        return 0.0
+
     def sigma(self) -> float:
-        """One-sigma uncertainty of the current estimate, kg: √(1/I + s_model²); NaN before
-        any information."""
+        """One-sigma uncertainty of the current estimate, kg: √(1/I + s_model² + s_extra²); NaN
+        before any information."""
         if self.info <= 0:
             return math.nan
-        model_std = self.model_std
-        return math.sqrt(1.0 / self.info + model_std * model_std)
+        model_std, extra = self.model_std, self.extra_std
+        return math.sqrt(1.0 / self.info + model_std * model_std + extra * extra)
 
     def bridge_gap(self) -> None:
         """A short gap in the data (sums kept): restart what needs evenly spaced samples."""

@@ -508,6 +508,11 @@ class PressureKernel(PayloadKernel):
         """The calibration's model error, kg (0 for the machine file's own parameters)."""
         return self.regression.model_std
 
+    @property
+    def extra_std(self) -> float:
+        """The regression's share of σ of the current estimate itself, kg (0 unless it has one)."""
+        return float(getattr(self.regression, "extra_std", 0.0))
+
     def step(self, time: float, values: np.ndarray, judge: bool = True,
              joint_check: bool = False) -> StepResult:
         """One sample into the regression; the status of the estimate it leaves.

@@ -198,8 +198,8 @@ class ZeroQuality:
     def report(self) -> str:
         """One line for the user."""
         return (f"zero: predicted weighing error ±{self.predicted_error:.0f} kg (95 %) over the poses the "
-                f"calibration covered (the zero motion's noise {self.offset_part:.0f} kg, carried in every "
-                f"estimate's σ; the "
+                f"calibration covered (the zero motion's noise {self.offset_part:.0f} kg, each estimate's σ "
+                f"carrying its own share of it; the "
                 f"calibration's model as these offsets take it up {self.model_part:.0f} kg, 1 σ)")
 
 

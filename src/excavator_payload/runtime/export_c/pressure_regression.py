@@ -34,6 +34,7 @@ from excavator_payload.runtime.export_c.joint_check import add_joint_check, expo
 from excavator_payload.runtime.export_c.registry import c_builder
 from excavator_payload.runtime.export_c.cmodel import CModel
 from excavator_payload.runtime.export_c.imu_nuisance import imu_nuisance_c, imu_nuisance_functions
+from excavator_payload.runtime.export_c.offset_share import offset_share_c, offset_share_functions, with_offset_share
 
 
 @c_builder("inverse-dynamics", "calibrated", sensor_set="machine")
@@ -102,6 +103,9 @@ def pressure_regression_model(est) -> CModel:
         outputs = hydraulic_symbolic().functions["pressure_regression"](q, qd, qdd, tilt, pressures, ca.DM(p))
     kernel_fn = ca.Function("ep_pressure_regression", [x, qdd], [ca.vertcat(*outputs)], ["x", "qdd"], ["out"])
     extra = imu_nuisance_functions(kernel) if nuisance else {}
+    zero_share = getattr(kernel, "_offset_share", None) is not None  # after a zero: offset_share.py
+    if zero_share:
+        extra.update(offset_share_functions(kernel))
     code = casadi_c_code({"ep_pressure_regression": kernel_fn, **extra})
 
     head, rod = np.asarray(kernel._head, float), np.asarray(kernel._rod, float)
@@ -512,6 +516,13 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         defines += nz["header"]
         step, fields, reset, sigma = nz["step"], nz["fields"], nz["reset"], nz["sigma"]
         description += ", the IMU lag and house IMU sensitivity re-estimated per load (--imu-nuisance on)"
+    if zero_share:
+        os_ = offset_share_c(kernel, casadi_call("ep_offset_jacobian", extra["ep_offset_jacobian"], ["x", "qdd"],
+                                                 ["jac"], code), step, fields, reset, defs, nuisance)
+        defines += os_["header"]
+        step, fields, reset, defs = os_["step"], os_["fields"], os_["reset"], os_["defs"]
+        sigma = with_offset_share(sigma, model_var)
+        description += ", the zero's share of sigma per estimate"
     model = CModel(
         description=description,
         state_fields=fields,
@@ -525,4 +536,6 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         state_finite="    return isfinite(s->info);")
     if momentum and exports_joint_check(est, kernel):  # --joint-check on: runtime/export_c/joint_check.py
         model = add_joint_check(model, est, kernel, sensors.signals, model_var)
+        if zero_share:
+            model.sigma = with_offset_share(model.sigma, model_var)
     return model

@@ -186,6 +186,7 @@ class ImuNuisanceFilter:
         dr0 = (integral[0:3] - momentum[0:3]) / kernel._balance_span
         dphi = (momentum[3:6] - integral[3:6]) / kernel._balance_span
         a = np.concatenate([phi[:, None], dr0, dphi], axis=1)  # (3, 1 + 2n)
+        self.last_a = a  # the window's regressors (the zero's share, OffsetShare, reads them)
         ok = w > 0.0
         a, w, r = a[ok], w[ok], residual[ok]
         dS, dt = (a.T * w) @ a, (a.T * w) @ r
@@ -241,6 +242,7 @@ class ImuNuisanceFilter:
             self.payload, self.variance = math.nan, math.inf
             return
         self.payload, self.variance, self.u = float(theta[0]), variance, theta[1:]
+        self.solved = (T.copy(), theta, Hinv)  # what the zero's share differentiates (OffsetShare)
         if 1.0 / self.variance > KNOWN_INFO:
             self.m_lin = self.payload
 

@@ -65,6 +65,7 @@ class CalibratedKernel(PressureRegression):
     """
 
     _imu_nuisance = None  # ``--imu-nuisance on``: an ImuNuisanceFilter (use_imu_nuisance)
+    _offset_share = None  # after a zero, momentum form: the zero's share of σ (use_offset_share)
     #: Per joint (boom, dipper, bucket): the next sample's cylinder pressures are not to be
     #: weighed (a degraded estimator sets it while the health monitor names one; the
     #: estimator's ``_drop_joints``). A balance window holding such a sample gives that joint no
@@ -109,6 +110,8 @@ class CalibratedKernel(PressureRegression):
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._steady_limit = STEADY_SHARE * float(cal.arm.machine.rated_payload)
         # kg, in σ beside I^-1/2: the calibration's cross-checked model error and the zero's offsets
+        # (their RMS over the calibrated poses; the momentum form carries each estimate's own
+        # share instead, use_offset_share)
         self.model_std = math.hypot(float(cal.model_std), float(getattr(cal, "zero_std", 0.0)))
         # --joint-check: its thresholds were set on the calibration's s alone (a zero's offset error
         # is shared by the joints' weighings it compares)
@@ -178,6 +181,8 @@ class CalibratedKernel(PressureRegression):
             self._joints.reset()
         if self._imu_nuisance is not None:
             self._imu_nuisance.reset()
+        if self._offset_share is not None:
+            self._offset_share.reset()
 
     @property
     def ready(self) -> bool:
@@ -302,6 +307,8 @@ class CalibratedKernel(PressureRegression):
             self._inside(centre) & ~self._ring_drop[pos + 1 + self.half_window]
         if self._imu_nuisance is not None:
             self._imu_nuisance.sample(self, slot)
+        if self._offset_share is not None:
+            self._offset_share.sample(self, slot)
         self._terms_count += 1
         if self._terms_count < b:
             return False
@@ -329,6 +336,9 @@ class CalibratedKernel(PressureRegression):
         self._accumulate(d_num, d_info)
         if self._imu_nuisance is not None:
             self._imu_nuisance.window(self, start, wt, phi, residual)
+        if self._offset_share is not None:
+            a = self._imu_nuisance.last_a if self._imu_nuisance is not None else phi[:, None]
+            self._offset_share.window(self, start, wt, a, residual)
         self._track_steady()
         if self.joint_check:
             self._check_joints(d_num, d_info)
@@ -346,6 +356,28 @@ class CalibratedKernel(PressureRegression):
         from excavator_payload.estimators.classical.machine_calibration.imu_nuisance import ImuNuisanceFilter
 
         self._imu_nuisance = ImuNuisanceFilter(cal, self._balance_len)
+
+    def use_offset_share(self, cal) -> None:
+        """After a zero (momentum form): carry the zero's offsets posterior into each estimate's
+        σ through the estimate's own sensitivity (:class:`~.offset_share.OffsetShare`), in place
+        of its RMS over the calibrated poses. Call after :meth:`use_imu_nuisance`.
+
+        Parameters
+        ----------
+        cal : MachineCalibration
+            The zeroed calibration weighed with (its offsets' posterior).
+        """
+        from excavator_payload.estimators.classical.machine_calibration.offset_share import OffsetShare
+
+        regressors = 1 + 2 * self._imu_nuisance.n if self._imu_nuisance is not None else 1
+        self._offset_share = OffsetShare(cal, self._balance_len, regressors)
+        self.model_std = float(cal.model_std)
+
+    @property
+    def extra_std(self) -> float:
+        """The current estimate's own share of σ beside 1/I and :attr:`model_std`, kg: the zero's
+        offsets through its sensitivity (0 without :meth:`use_offset_share`)."""
+        return self._offset_share.std if self._offset_share is not None else 0.0
 
     @property
     def estimate(self) -> float:

@@ -237,6 +237,8 @@ class MachineWeighing:
         kernel.spike_threshold = spike_threshold(self.difference_scale)
         if imu_nuisance_on(options, kernel.balance):
             kernel.use_imu_nuisance(self.calibration)
+        if kernel.balance == "momentum" and float(getattr(self.calibration, "zero_std", 0.0)) > 0.0:
+            kernel.use_offset_share(self.calibration)  # zeroed: the zero's share per estimate
         return kernel
 
     # -- fit ----------------------------------------------------------------------------------

@@ -1,0 +1,90 @@
+"""C export of the zero's share of σ per estimate (runtime/export_c/offset_share.py): after a
+zero, the momentum form's ``ep_sigma`` equals Python's (double: 1e-6 relative, float: 1e-4),
+with the IMU nuisance filter off and on (the default), on faulty data, across new loads and
+settles, and beside the joint check; an unzeroed model exports no share."""
+
+import copy
+
+import numpy as np
+import pytest
+
+from excavator_payload.data.schema import MACHINE_SENSORS
+from excavator_payload.estimators.base import create_estimator
+from excavator_payload.evaluation import demo_machine as dm
+from excavator_payload.runtime.c_harness import c_compiler
+from excavator_payload.runtime.export_c import export_c
+from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+from .test_export_c import _assert_c_equals_python
+from .test_export_c_machine import machine_faulty, machine_swings  # noqa: F401 (fixtures)
+
+pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
+
+
+@pytest.fixture(scope="module")
+def models(machine_swings):  # noqa: F811
+    """The momentum form fitted on the three swings (no cross-check: s = 0, so σ beyond the
+    sensor noise is the zero's share alone), unzeroed and zeroed, the IMU filter off and on."""
+    fitted = create_estimator("calibrated", machine="cat345c-hydraulic-3pct", model_std="none",
+                              imu_nuisance="off").fit(machine_swings)
+    fitted.health = False  # the monitor's C is compared in test_export_c_health.py
+    off = copy.deepcopy(fitted)
+    off.zero(dm.zero_data(seed=6))
+    on = copy.deepcopy(off)
+    on.options["imu_nuisance"] = "on"
+    on.use_calibration()
+    return {"unzeroed": fitted, "off": off, "on": on}
+
+
+@pytest.fixture(scope="module")
+def truck():
+    """A truck loaded pass after pass: new loads and settles."""
+    return simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
+
+
+@pytest.mark.parametrize("nuisance", ["off", "on"])
+def test_c_sigma_equals_python_with_the_zeros_share(models, machine_faulty, truck, nuisance, tmp_path):  # noqa: F811
+    est = models[nuisance]
+    kernel = est.kernel.regression
+    assert kernel._offset_share is not None and (kernel._imu_nuisance is not None) == (nuisance == "on")
+    header, source = export_c(est, tmp_path / "export")
+    assert "#define EP_OS 11" in header.read_text() and "s->os_std * s->os_std" in source.read_text()
+    for single in (False, True):
+        py = _assert_c_equals_python(est, source, machine_faulty, tmp_path / "build", single)
+    assert {"ok", "gap", "state_reset"} <= set(py["status"])
+    est.reset()
+    f = truck.frame
+    for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
+        est.step_values(t, row)
+    assert kernel.new_loads >= 1 and kernel.settles >= 1
+    for single in (False, True):
+        py = _assert_c_equals_python(est, source, truck, tmp_path / "truck", single)
+    # the share is in the σ compared: without it σ would be the sensor noise's alone (s = 0 here)
+    est.reset()
+    shares, infos = [], []
+    for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
+        result = est.step_values(t, row)
+        if result.status.value == "ok":
+            shares.append(kernel.extra_std)
+            infos.append(est.kernel.info)
+    assert len(shares) > 100 and np.median(shares) > 0.5 * np.median(1.0 / np.sqrt(infos))
+
+
+def test_c_sigma_equals_python_beside_the_joint_check(models, truck, tmp_path):
+    from tests.runtime.test_export_c_health import _assert_equal
+
+    both = copy.deepcopy(models["on"])
+    both.options["joint_check"] = "on"
+    both.health = True
+    both.use_calibration()
+    source = export_c(both, tmp_path / "export")[1]
+    text = source.read_text()
+    assert "ep_jc_update" in text and "s->os_std * s->os_std" in text
+    _assert_equal(both, source, truck, tmp_path / "clean")
+    _assert_equal(both, source, truck, tmp_path / "float", single=True)
+
+
+def test_unzeroed_model_exports_no_share(models, tmp_path):
+    assert models["unzeroed"].kernel.regression._offset_share is None
+    header, source = export_c(models["unzeroed"], tmp_path / "export")
+    assert "EP_OS" not in header.read_text() and "os_" not in source.read_text()
