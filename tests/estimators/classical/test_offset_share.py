@@ -52,7 +52,8 @@ def _streamed(est, ds):
 @pytest.mark.parametrize("nuisance", ["off", "on"])
 def test_share_equals_finite_differences_of_the_weighing(zeroed, test_swing, nuisance):
     """Moving the zero's offsets along each whitened direction of their posterior moves the
-    batch estimate by what the running sums say (the weights held: within 2 %)."""
+    batch estimate by what the running sums say (the weights held: within 2 %, 4 % with the IMU
+    dynamics filter, which re-weights the windows)."""
     est = copy.deepcopy(zeroed[nuisance])
     rows = _streamed(est, test_swing)
     share = np.array([r[2] for r in rows])
@@ -76,7 +77,9 @@ def test_share_equals_finite_differences_of_the_weighing(zeroed, test_swing, nui
     finite = ok & np.all(np.isfinite(G), axis=0)
     assert finite.sum() > 0.9 * ok.sum()
     fd = np.sqrt(np.sum(G[:, finite] ** 2, axis=0))
-    np.testing.assert_allclose(share[finite], fd, rtol=0.02)
+    # the share holds the windows' weights; with the IMU dynamics filter on, moved offsets also
+    # re-weight the windows a little (2.4 % at most here with two BLAS threads, 1.9 % with one)
+    np.testing.assert_allclose(share[finite], fd, rtol=0.02 if nuisance == "off" else 0.04)
 
 
 def test_sigma_adds_the_share_and_streams_as_the_batch(zeroed, test_swing, tmp_path):
