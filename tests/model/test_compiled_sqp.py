@@ -162,3 +162,26 @@ def test_thesis_interval_jacobians_equal_casadis():
             np.testing.assert_allclose(np.asarray(chain(*args)[i]), expected[i], rtol=1e-12,
                                        atol=1e-12 * np.abs(expected[i]).max())
     assert blocks.sparsity_out(2).nnz() == chain.sparsity_out(2).nnz() == 0  # payload: never differentiated
+
+
+@needs_compiler
+def test_two_live_controllers_in_one_process_each_get_their_own_solver_memory():
+    """CasADi's generated code keeps one static memory per live caller, one unless told: a second
+    live NMPC controller in a process crashed it (segmentation fault). Five live ones now run and
+    give the same numbers; past the slots a controller takes CasADi's solver."""
+    from excavator_payload.model import compiled_sqp as module
+    from excavator_payload.simulation.nmpc import NMPCSettings
+
+    live = [_run(NMPCSettings(), duration=0.3) for _ in range(5)]
+    assert all(sim.controller.generated_solver for sim, _ in live)
+    for _, result in live[1:]:
+        np.testing.assert_array_equal(result.q, live[0][1].q)
+    library = next(k for k in module._LIVE if "nmpc_sqp" in k and "hyd" not in k)
+    assert module._LIVE[library] >= 5
+    taken = dict(module._LIVE)
+    try:
+        module._LIVE[library] = module.SOLVER_SLOTS
+        sim, _ = _run(NMPCSettings(), duration=0.3)
+        assert not sim.controller.generated_solver
+    finally:
+        module._LIVE.update(taken)

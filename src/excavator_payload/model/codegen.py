@@ -32,9 +32,13 @@ log = logging.getLogger(__name__)
 NATIVE_ENV = "EXCAVATOR_PAYLOAD_NATIVE"
 #: -O1 compiles the 0.8 MB NMPC Jacobian about 2× faster than -O2 at the same run time.
 FLAGS = ("-O1", "-fPIC", "-shared")
+#: Memory slots per generated solver function: CasADi's generated code keeps one static memory
+#: per live caller and has one slot unless told (a second live controller in a process got slot
+#: -1 and crashed the process); :mod:`.compiled_sqp` falls back to CasADi's solver beyond it.
+SOLVER_SLOTS = 256
 #: For the generated SQP solvers' loops (``qrqp``'s sparse QR): -O2 runs them ~10 % faster than
 #: -O1, the same numbers (no fast-math); their straight-line models keep :data:`FLAGS`.
-LOOP_FLAGS = ("-O2", "-fPIC")
+LOOP_FLAGS = ("-O2", "-fPIC", f"-DCASADI_MAX_NUM_THREADS={SOLVER_SLOTS}")
 
 
 def compiler() -> str | None:

@@ -31,11 +31,12 @@ import ctypes
 import logging
 import re
 import subprocess
+import weakref
 
 import casadi as ca
 import numpy as np
 
-from excavator_payload.model.codegen import BufferedCall, compiled_library, compiler
+from excavator_payload.model.codegen import SOLVER_SLOTS, BufferedCall, compiled_library, compiler
 
 log = logging.getLogger(__name__)
 
@@ -137,6 +138,14 @@ class CompiledSQPCall:
         return self._stats
 
 
+#: Live controllers per generated library (each holds one of its :data:`SOLVER_SLOTS` memories).
+_LIVE: dict[str, int] = {}
+
+
+def _release(library: str) -> None:
+    _LIVE[library] -= 1
+
+
 def compiled_sqp(solvers: list[ca.Function], model: list[ca.Function], name: str) -> dict | None:
     """``solvers`` (``sqpmethod`` of one problem) as generated C compiled with ``model``, or None.
 
@@ -161,9 +170,17 @@ def compiled_sqp(solvers: list[ca.Function], model: list[ca.Function], name: str
         return None
     try:
         library = compiled_library(solvers, name, edit=_status_edit(solvers), linked=model)
+        if _LIVE.get(str(library), 0) >= SOLVER_SLOTS:  # its static memories all taken
+            log.warning("generated solver %s: %d controllers alive in this process, using CasADi's",
+                        name, SOLVER_SLOTS)
+            return None
         handle = ctypes.CDLL(str(library))
         status = ctypes.c_int.in_dll(handle, STATUS_SYMBOL)
-        return {s.name(): CompiledSQPCall(ca.external(s.name(), str(library)), status) for s in solvers}
+        calls = {s.name(): CompiledSQPCall(ca.external(s.name(), str(library)), status) for s in solvers}
+        _LIVE[str(library)] = _LIVE.get(str(library), 0) + 1
+        # a controller's memory slot goes back when its solvers are collected (measured)
+        weakref.finalize(next(iter(calls.values())), _release, str(library))
+        return calls
     except (OSError, RuntimeError, ValueError, subprocess.SubprocessError) as exc:
         log.warning("generating the solver %s as C failed, using CasADi's: %s", name, exc)
         return None
