@@ -81,7 +81,21 @@ def imu_whitening(cal, names: tuple = IMU_NUISANCES) -> np.ndarray:
     names : tuple of str
         The IMU dynamics re-estimated.
     """
-    idx = _indices(names)
+    return posterior_whitening(cal, _indices(names))
+
+
+def posterior_whitening(cal, idx) -> np.ndarray:
+    """L with L Lᵀ = the calibration's posterior covariance of the entries ``idx`` of z (its
+    eigenvectors scaled by the square roots of its eigenvalues, negative ones taken as 0).
+
+    Parameters
+    ----------
+    cal : MachineCalibration
+        The calibration (its ``covariance`` over z = (δ, offsets, IMU dynamics)).
+    idx : sequence of int
+        The entries of z.
+    """
+    idx = np.asarray(idx, int)
     C = np.asarray(cal.covariance, float)[np.ix_(idx, idx)]
     lam, V = np.linalg.eigh(0.5 * (C + C.T))
     return V * np.sqrt(np.maximum(lam, 0.0))

@@ -40,6 +40,7 @@ import numpy as np
 
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     _OFFSET_COLUMNS, CALIBRATED_PARAMETERS, IMU_PARAMETERS, OFFSET_SIGNALS, SIGNALS)
+from excavator_payload.estimators.classical.machine_calibration.imu_nuisance import posterior_whitening
 from excavator_payload.estimators.classical.machine_calibration.symbolic import _momentum_terms
 from excavator_payload.model.codegen import native
 from excavator_payload.model.hydraulic import HYDRAULIC_PARAMETER_NAMES
@@ -71,10 +72,7 @@ def offset_whitening(cal) -> np.ndarray:
         The calibration (its ``covariance`` over z = (δ, offsets, IMU dynamics)).
     """
     start = len(CALIBRATED_PARAMETERS)
-    idx = np.arange(start, start + len(OFFSET_SIGNALS))
-    C = np.asarray(cal.covariance, float)[np.ix_(idx, idx)]
-    lam, V = np.linalg.eigh(0.5 * (C + C.T))
-    return V * np.sqrt(np.maximum(lam, 0.0))
+    return posterior_whitening(cal, np.arange(start, start + len(OFFSET_SIGNALS)))
 
 
 class OffsetShare:
