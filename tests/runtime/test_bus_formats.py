@@ -1,7 +1,7 @@
 """Log formats of a real bus (issue 30): MF4 (as a CANedge writes it), candump -l and candump's
 screen format, through ``can-replay`` end to end; a log with nothing of the sensor says what it holds."""
 
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 
 import can
@@ -75,31 +75,9 @@ def test_mf4_written_by_can_record(tmp_path, swings, model, reference):
 def test_mf4_built_like_a_canedge_log(tmp_path, swings, model, reference):
     """An MDF 4 file made with asammdf's own API the way a CANedge logger writes bus logging:
     a CAN_DataFrame channel group (bus-event flag, CAN bus source), times from the file's start."""
-    from asammdf import MDF, Signal, Source
-    from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT, SOURCE_BUS
+    from .measure_real_canedge import write_canedge_mf4
 
-    frames = _frames(swings)
-    start = frames[0].timestamp
-    dtype = np.dtype([("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"),
-                      ("CAN_DataFrame.IDE", "<u1"), ("CAN_DataFrame.DLC", "<u1"),
-                      ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(8,)u1"),
-                      ("CAN_DataFrame.Dir", "<u1")])
-    records = np.zeros(len(frames), dtype=dtype)
-    records["CAN_DataFrame.BusChannel"] = 1
-    records["CAN_DataFrame.ID"] = [f.arbitration_id for f in frames]
-    records["CAN_DataFrame.IDE"] = 1
-    records["CAN_DataFrame.DLC"] = 8
-    records["CAN_DataFrame.DataLength"] = 8
-    records["CAN_DataFrame.DataBytes"] = np.array([list(f.data) for f in frames], dtype="u1")
-    mdf = MDF(version="4.11")
-    mdf.header.start_time = datetime.fromtimestamp(start, timezone.utc)
-    source = Source(name="CAN1", path="CAN1", comment="", source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)
-    mdf.append(Signal(samples=records, timestamps=np.array([f.timestamp - start for f in frames]),
-                      name="CAN_DataFrame", source=source, flags=Signal.Flags.stream_sync),
-               acq_name="CAN1", acq_source=source)
-    group = mdf.groups[-1].channel_group
-    group.flags |= FLAG_CG_BUS_EVENT
-    log = Path(mdf.save(tmp_path / "00000001.MF4", overwrite=True))  # asammdf may lower the suffix
+    log = write_canedge_mf4(_frames(swings), tmp_path / "00000001.MF4")  # asammdf may lower the suffix
     assert log.is_file()
     code, got = _replay_cli(tmp_path, model, log)
     assert code == 0

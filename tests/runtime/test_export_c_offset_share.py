@@ -9,12 +9,11 @@ import numpy as np
 import pytest
 
 from excavator_payload.data.schema import MACHINE_SENSORS
-from excavator_payload.estimators.base import create_estimator
-from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.runtime.c_harness import c_compiler
 from excavator_payload.runtime.export_c import export_c
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
+from .._machine_data import zeroed_momentum_models
 from .test_export_c import _assert_c_equals_python
 from .test_export_c_machine import machine_faulty, machine_swings  # noqa: F401 (fixtures)
 
@@ -25,15 +24,7 @@ pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on t
 def models(machine_swings):  # noqa: F811
     """The momentum form fitted on the three swings (no cross-check: s = 0, so σ beyond the
     sensor noise is the zero's share alone), unzeroed and zeroed, the IMU filter off and on."""
-    fitted = create_estimator("calibrated", machine="cat345c-hydraulic-3pct", model_std="none",
-                              imu_nuisance="off").fit(machine_swings)
-    fitted.health = False  # the monitor's C is compared in test_export_c_health.py
-    off = copy.deepcopy(fitted)
-    off.zero(dm.zero_data(seed=6))
-    on = copy.deepcopy(off)
-    on.options["imu_nuisance"] = "on"
-    on.use_calibration()
-    return {"unzeroed": fitted, "off": off, "on": on}
+    return zeroed_momentum_models(machine_swings)
 
 
 @pytest.fixture(scope="module")

@@ -9,28 +9,19 @@ import numpy as np
 import pytest
 
 from excavator_payload.data.schema import MACHINE_SENSORS
-from excavator_payload.estimators.base import create_estimator, load_estimator
+from excavator_payload.estimators.base import load_estimator
 from excavator_payload.estimators.classical.machine_calibration.offset_share import offset_whitening
 from excavator_payload.estimators.classical.machine_calibration.settings import CALIBRATED_PARAMETERS, OFFSET_SIGNALS
-from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
-from ..._machine_data import swing_test_set
+from ..._machine_data import swing_test_set, zeroed_momentum_models
 
 
 @pytest.fixture(scope="module")
 def zeroed():
     """The momentum form on three swings (no cross-check: s = 0), zeroed on an empty swing;
     the IMU nuisance filter off and on."""
-    fitted = create_estimator("calibrated", machine="cat345c-hydraulic-3pct", model_std="none",
-                              imu_nuisance="off").fit(simulate_machine_dataset(3, seed=3))
-    fitted.health = False
-    off = copy.deepcopy(fitted)
-    off.zero(dm.zero_data(seed=6))
-    on = copy.deepcopy(off)
-    on.options["imu_nuisance"] = "on"
-    on.use_calibration()
-    return {"unzeroed": fitted, "off": off, "on": on}
+    return zeroed_momentum_models(simulate_machine_dataset(3, seed=3))
 
 
 @pytest.fixture(scope="module")

@@ -101,7 +101,55 @@ def posterior_whitening(cal, idx) -> np.ndarray:
     return V * np.sqrt(np.maximum(lam, 0.0))
 
 
-class ImuNuisanceFilter:
+class KernelJacobianRing:
+    """Per sample, the Jacobian of the kernel's 12 momentum terms with respect to some entries of
+    z (:meth:`_jacobian_function`, :attr:`columns` of them), whitened by :attr:`L`, into a ring of
+    twice the momentum window (each sample at ``slot`` and ``slot + balance_len``). The compiled
+    call reads the kernel's own input buffers; copies and pickles bind them again on first use."""
+
+    columns: int
+    L: np.ndarray
+    _balance_len: int
+
+    def _jacobian_function(self):
+        raise NotImplementedError
+
+    def __getstate__(self):  # the compiled call's buffers are rebuilt on first use
+        state = dict(self.__dict__)
+        for key in ("_jac", "_call", "_trigger", "_out"):
+            state.pop(key, None)
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._jac = self._jacobian_function()
+        self._trigger = None
+
+    def sample(self, kernel, slot: int) -> None:
+        """The whitened Jacobian of the sample the kernel has just evaluated (its call's input
+        buffers) into ring slot ``slot``.
+
+        Parameters
+        ----------
+        kernel : CalibratedKernel
+            The kernel (its ``_x``, ``_qdd``, ``_pvec``, ``_ovec``, ``_ivec`` buffers).
+        slot : int
+            The slot of the kernel's term ring.
+        """
+        if self._trigger is None:
+            self._out = np.zeros(12 * self.columns)
+            self._call, self._trigger = self._jac.buffer()
+            for i, a in enumerate((kernel._x, kernel._qdd, kernel._pvec, kernel._ovec, kernel._ivec)):
+                self._call.set_arg(i, memoryview(a))
+            self._call.set_res(0, memoryview(self._out))
+        self._trigger()
+        # CasADi's dense output is column-major
+        jac = self._out.reshape(self.columns, 12).T @ self.L
+        b = self._balance_len
+        self._terms[slot] = self._terms[slot + b] = jac
+
+
+class ImuNuisanceFilter(KernelJacobianRing):
     """The payload and the IMU dynamics, per load, beside a momentum-form
     :class:`~.kernel.CalibratedKernel` (see the module doc).
 
@@ -121,7 +169,7 @@ class ImuNuisanceFilter:
         self.L = imu_whitening(cal, self.names)
         self.rated = float(cal.arm.machine.rated_payload)
         self._balance_len = balance_len
-        self._jac = imu_jacobian_function(self.names)
+        self._jac = self._jacobian_function()
         self._trigger = None
         # (m, u) from a = [φ, ∂r0, ∂φ]: θ's design is a·T (the payload block of T set per solve)
         self._eye = np.eye(self.n)
@@ -143,39 +191,13 @@ class ImuNuisanceFilter:
         self.u = np.zeros(self.n)
         self._loads = self._settles = 0
 
-    def __getstate__(self):  # the compiled call's buffers are rebuilt on first use
-        state = dict(self.__dict__)
-        for key in ("_jac", "_call", "_trigger", "_out"):
-            state.pop(key, None)
-        return state
+    @property
+    def columns(self) -> int:
+        """The IMU dynamics re-estimated: the Jacobian's columns."""
+        return self.n
 
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._jac = imu_jacobian_function(self.names)
-        self._trigger = None
-
-    def sample(self, kernel, slot: int) -> None:
-        """The Jacobian of the sample the kernel has just evaluated (its call's input buffers)
-        into ring slot ``slot``.
-
-        Parameters
-        ----------
-        kernel : CalibratedKernel
-            The kernel (its ``_x``, ``_qdd``, ``_pvec``, ``_ovec``, ``_ivec`` buffers).
-        slot : int
-            The slot of the kernel's term ring.
-        """
-        if self._trigger is None:
-            self._out = np.zeros(12 * self.n)
-            self._call, self._trigger = self._jac.buffer()
-            for i, a in enumerate((kernel._x, kernel._qdd, kernel._pvec, kernel._ovec, kernel._ivec)):
-                self._call.set_arg(i, memoryview(a))
-            self._call.set_res(0, memoryview(self._out))
-        self._trigger()
-        # CasADi's dense output is column-major
-        jac = self._out.reshape(self.n, 12).T @ self.L
-        b = self._balance_len
-        self._terms[slot] = self._terms[slot + b] = jac
+    def _jacobian_function(self):
+        return imu_jacobian_function(self.names)
 
     def window(self, kernel, start: int, w: np.ndarray, phi: np.ndarray, residual: np.ndarray) -> None:
         """Add one momentum window (after the kernel's own :meth:`~.kernel.CalibratedKernel._accumulate`,

@@ -40,7 +40,8 @@ import numpy as np
 
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     _OFFSET_COLUMNS, CALIBRATED_PARAMETERS, IMU_PARAMETERS, OFFSET_SIGNALS, SIGNALS)
-from excavator_payload.estimators.classical.machine_calibration.imu_nuisance import posterior_whitening
+from excavator_payload.estimators.classical.machine_calibration.imu_nuisance import (
+    KernelJacobianRing, posterior_whitening)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import _momentum_terms
 from excavator_payload.model.codegen import native
 from excavator_payload.model.hydraulic import HYDRAULIC_PARAMETER_NAMES
@@ -75,7 +76,7 @@ def offset_whitening(cal) -> np.ndarray:
     return posterior_whitening(cal, np.arange(start, start + len(OFFSET_SIGNALS)))
 
 
-class OffsetShare:
+class OffsetShare(KernelJacobianRing):
     """The zero's share of the current estimate's σ (kg), beside a momentum-form
     :class:`~.kernel.CalibratedKernel` (see the module doc).
 
@@ -95,7 +96,7 @@ class OffsetShare:
         self.k = self.L.shape[1]
         self.d = int(regressors)
         self._balance_len = balance_len
-        self._jac = offset_jacobian_function()
+        self._jac = self._jacobian_function()
         self._trigger = None
         self.reset()
 
@@ -108,38 +109,10 @@ class OffsetShare:
         self._loads = self._settles = 0
         self.std = 0.0
 
-    def __getstate__(self):  # the compiled call's buffers are rebuilt on first use
-        state = dict(self.__dict__)
-        for key in ("_jac", "_call", "_trigger", "_out"):
-            state.pop(key, None)
-        return state
+    columns = len(OFFSET_SIGNALS)  # the Jacobian's: every offset
 
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        self._jac = offset_jacobian_function()
-        self._trigger = None
-
-    def sample(self, kernel, slot: int) -> None:
-        """The whitened Jacobian of the sample the kernel has just evaluated (its call's input
-        buffers) into ring slot ``slot``.
-
-        Parameters
-        ----------
-        kernel : CalibratedKernel
-            The kernel (its ``_x``, ``_qdd``, ``_pvec``, ``_ovec``, ``_ivec`` buffers).
-        slot : int
-            The slot of the kernel's term ring.
-        """
-        if self._trigger is None:
-            self._out = np.zeros(12 * len(OFFSET_SIGNALS))
-            self._call, self._trigger = self._jac.buffer()
-            for i, a in enumerate((kernel._x, kernel._qdd, kernel._pvec, kernel._ovec, kernel._ivec)):
-                self._call.set_arg(i, memoryview(a))
-            self._call.set_res(0, memoryview(self._out))
-        self._trigger()
-        jac = self._out.reshape(len(OFFSET_SIGNALS), 12).T @ self.L  # CasADi's output: column-major
-        b = self._balance_len
-        self._terms[slot] = self._terms[slot + b] = jac
+    def _jacobian_function(self):
+        return offset_jacobian_function()
 
     def window(self, kernel, start: int, w: np.ndarray, a: np.ndarray, residual: np.ndarray) -> None:
         """Add one momentum window (after the kernel's sums and the IMU nuisance filter, whose
