@@ -18,6 +18,7 @@ from excavator_payload.estimators import health
 from excavator_payload.estimators.base import Status, create_estimator
 from excavator_payload.runtime.c_harness import STRICT_FLAGS, _rows, build, c_compiler
 from excavator_payload.runtime.export_c import export_c
+from excavator_payload.runtime.export_c.c_text import c_number
 from excavator_payload.simulation.machine_sim import simulate_machine_dataset
 
 pytestmark = pytest.mark.skipif(c_compiler() is None, reason="no C compiler on this machine")
@@ -195,6 +196,22 @@ def test_c_names_a_lasting_rate_bias_by_the_tracks_slope_as_python_does(models, 
     assert py["fault"].str.contains("bucket_rate:offset").any()
 
 
+def test_c_names_a_tilt_ramp_by_the_tilts_own_limit_as_python_does(models, clean, tmp_path):
+    """The house roll ramping at 2 °/s for 3 s: named offset (house pitch and roll) by the tilt's
+    own limit (TILT_OFFSET_LIMIT), within 0.9 s; C names the same samples as Python."""
+    frame = clean.frame.copy()
+    rows = frame.index[frame["experiment"] == clean.experiment_ids[0]]
+    t = frame.loc[rows, "time"].to_numpy(float)
+    a = 800
+    frame.loc[rows[a:a + 300], "house_roll"] += 2.0 * DEG * (t[a:a + 300] - t[a])
+    est = models["calibrated-momentum"]
+    source = export_c(est, tmp_path / "export")[1]
+    assert f"#define EP_HM_TILT_OFFSET_LIMIT {c_number(health.TILT_OFFSET_LIMIT)}" in source.read_text()
+    py = _assert_equal(est, source, Dataset(frame, clean.meta), tmp_path / "build")
+    named = np.flatnonzero(py["fault"].str.contains("house_roll:offset").to_numpy())
+    assert named.size and a <= named[0] - rows[0] <= a + 90
+
+
 def test_float_build_names_the_same_faults(models, faulty, tmp_path):
     """Single precision (the C rounds the inputs to float, Python does not): on these data the
     same statuses and faults, the estimates within 0.1 kg."""
@@ -223,10 +240,12 @@ def test_constants_are_read_at_export_time(models, faulty, tmp_path, monkeypatch
     monkeypatch.setattr(health, "OFFSET_LIMIT", 0.02)
     monkeypatch.setattr(health, "HOLD", 0.35)
     monkeypatch.setattr(health, "STUCK_QUANTA", 4.0)
+    monkeypatch.setattr(health, "TILT_OFFSET_LIMIT", 0.03)
     est._health_for = None  # a fresh monitor with the new constants
     source = export_c(est, tmp_path / "export")[1]
     text = source.read_text()
     assert text != before and "#define EP_HM_OFFSET_LIMIT EP_C(0.02)" in text and "#define EP_HM_HOLD 35" in text
+    assert "#define EP_HM_TILT_OFFSET_LIMIT EP_C(0.03)" in text
     _assert_equal(est, source, faulty, tmp_path / "build")
 
 

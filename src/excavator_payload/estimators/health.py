@@ -37,7 +37,8 @@ its joint's motion, the fitting data's noise):
   OFFSET_LIMIT / OFFSET_TAU; while flagged the track follows only with :data:`OFFSET_TAU_FLAGGED`,
   so a lasting offset is named for tens of seconds, not for ever. Both signals named. The
   size of the house's tilt (hypot of pitch and roll: on a slope they turn into each other as
-  the house slews, the size does not) against its own track the same way, both named.
+  the house slews, the size does not) against its own track the same way (beyond
+  :data:`TILT_OFFSET_LIMIT`), both named.
 * ``gain`` (FMI 13): over :data:`GAIN_WINDOW` with the angle spread at least :data:`GAIN_MIN_STD`,
   the least-squares slope of (angle − integrated rate) against the angle exceeds
   :data:`GAIN_LIMIT` (a scale error of either signal; both named).
@@ -67,8 +68,10 @@ import numpy as np
 
 from excavator_payload.platforms import HYDRAULIC
 
-#: Window over which a stuck signal does not move, s.
-STUCK_WINDOW = 0.3
+#: Window over which a stuck signal does not move, s (0.3 until the time-to-name work: 0.2 s
+#: names a frozen value 0.1 s sooner and still spans two updates of a 10 Hz transmitter; no
+#: clean sample named on the tuning data, docs/sensor-health.md "Time to name").
+STUCK_WINDOW = 0.2
 #: A stuck signal's span over the window is at most this many bus resolution steps (a frozen
 #: value that flickers by one bit still counts).
 STUCK_QUANTA = 2.0
@@ -105,7 +108,11 @@ OFFSET_SMOOTH = 0.5
 OFFSET_TAU = 4.0
 OFFSET_TAU_FLAGGED = 30.0
 OFFSET_LIMIT = 0.035
-OFFSET_SAMPLES = 10
+OFFSET_SAMPLES = 5
+#: The house tilt's size against its own track: the deviation that counts, rad. No link's IMU
+#: acceleration leak in it: on the clean tuning data it stays between 0.007 and 0.01 rad (the
+#: links' reach 0.0225), so 0.015, not the links' 0.035 (docs/sensor-health.md "Time to name").
+TILT_OFFSET_LIMIT = 0.015
 #: A track whose slope (rad/s) passes this is a rate's lasting bias (or an angle's drift) the
 #: track would otherwise absorb: 0.5 °/s, five times the largest on clean data (0.105 °/s, the
 #: field preset's gyro bias is 0.1 °/s; docs/sensor-health.md). Counted with the offset's run.
@@ -116,6 +123,10 @@ GAIN_WINDOW = 2.0
 GAIN_MIN_STD = 0.15
 GAIN_LIMIT = 0.08
 GAIN_SAMPLES = 10
+#: Suspect (not named, not ``ok``): a link's or the tilt's offset error, its track's slope or
+#: its gain slope beyond this share of its limit (:data:`OFFSET_LIMIT`, :data:`OFFSET_SLOPE_LIMIT`,
+#: :data:`GAIN_LIMIT`) at the last evaluation: the statistic is rising but not decided.
+SUSPECT_SHARE = 0.5
 
 #: Degraded weighing (:meth:`HealthMonitor.substitute`): while the monitor names nothing but
 #: link rates, each with one of these kinds (its angle healthy), the estimator weighs on with
@@ -271,6 +282,8 @@ class HealthMonitor:
         self.off_run = [0] * L
         self.gain_run = [0] * L
         self.broken_until = [0] * L  # a link's gain is not judged until its windows are clean
+        self.suspect_links = [False] * L  # at the link's last evaluation (see SUSPECT_SHARE)
+        self.suspect_tilt = False
 
     def step(self, time: float, values) -> str:
         """Judge one finite, plausible sample; the active faults as ``"signal:kind,..."``
@@ -299,6 +312,19 @@ class HealthMonitor:
         if not active:
             return ""
         return ",".join(f"{self.signals[i]}:{kind}" for i, kind in sorted(active))
+
+    def suspect(self) -> str:
+        """The signals whose slow statistic (offset error, track slope, gain slope) is past
+        :data:`SUSPECT_SHARE` of its limit at its last evaluation and that are not named now,
+        as ``"signal:suspect,..."`` (empty: none); after :meth:`step`."""
+        out = set()
+        for j, (a, r) in enumerate(zip(self.link_angle, self.link_rate)):
+            if self.suspect_links[j]:
+                out.update((a, r))
+        if self.suspect_tilt:
+            out.update(self.tilts)
+        named = {i for i, _ in self.active}
+        return ",".join(f"{self.signals[i]}:suspect" for i in sorted(out - named))
 
     def _angle_references(self) -> None:
         """Per link: take the angle substitute's reference when its angle is first named (the
@@ -460,6 +486,7 @@ class HealthMonitor:
                 self.track[j] = [smooth, 0.0]
                 self.off_run[j] = self.gain_run[j] = 0
                 self.broken_until[j] = c + n_g
+                self.suspect_links[j] = False
                 continue
             predicted = track[0] + track[1] * self.every * self.period
             error = smooth - predicted
@@ -471,6 +498,9 @@ class HealthMonitor:
             if self.off_run[j] >= self.offset_evaluations:
                 found += [(a, "offset"), (r, "offset")]
             gain = self._gain(j, c)
+            self.suspect_links[j] = (abs(error) > SUSPECT_SHARE * OFFSET_LIMIT
+                                     or abs(track[1]) > SUSPECT_SHARE * OFFSET_SLOPE_LIMIT
+                                     or abs(gain) > SUSPECT_SHARE * GAIN_LIMIT)
             self.gain_run[j] = self.gain_run[j] + 1 if abs(gain) > GAIN_LIMIT else 0
             if self.gain_run[j] >= self.gain_evaluations:
                 found += [(a, "gain"), (r, "gain")]
@@ -489,13 +519,15 @@ class HealthMonitor:
                 or (found and any(f in self.tilts and kind in _RESTART_KINDS for f, kind in found)):
             self.tilt_track[0] = [smooth, 0.0]
             self.tilt_run[0] = 0
+            self.suspect_tilt = False
             return
         predicted = track[0] + track[1] * self.every * self.period
         error = smooth - predicted
         alpha, beta = self.track_gains[1 if self.active and (pitch, "offset") in self.active else 0]
         track[0] = predicted + alpha * error
         track[1] += beta * error
-        self.tilt_run[0] = self.tilt_run[0] + 1 if abs(error) > OFFSET_LIMIT else 0
+        self.tilt_run[0] = self.tilt_run[0] + 1 if abs(error) > TILT_OFFSET_LIMIT else 0
+        self.suspect_tilt = abs(error) > SUSPECT_SHARE * TILT_OFFSET_LIMIT
         if self.tilt_run[0] >= self.offset_evaluations:
             found += [(pitch, "offset"), (roll, "offset")]
 

@@ -247,6 +247,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
 #define EP_HM_DISAGREE_LIMIT {c_number(H.DISAGREE_LIMIT)}
 #define EP_HM_DISAGREE_PER_RATE_CHANGE {c_number(H.DISAGREE_PER_RATE_CHANGE)}
 #define EP_HM_OFFSET_LIMIT {c_number(H.OFFSET_LIMIT)}
+#define EP_HM_TILT_OFFSET_LIMIT {c_number(H.TILT_OFFSET_LIMIT)}
 #define EP_HM_OFFSET_SLOPE_LIMIT {c_number(H.OFFSET_SLOPE_LIMIT)}
 #define EP_HM_GAIN_LIMIT {c_number(H.GAIN_LIMIT)}
 #define EP_HM_GAIN_MIN_VAR {c_number(H.GAIN_MIN_STD ** 2)}
@@ -521,7 +522,7 @@ static void ep_hm_tilt_offset(ep_state *s, unsigned long found[EP_N_FAULT_KINDS]
     slow = s->hm_age[EP_HM_PITCH][EP_FAULT_OFFSET] >= 0;
     s->hm_tilt_track[0] = predicted + EP_HM_ALPHA[slow] * error;
     s->hm_tilt_track[1] += EP_HM_BETA[slow] * error;
-    s->hm_tilt_run = EP_MATH(fabs)(error) > EP_HM_OFFSET_LIMIT
+    s->hm_tilt_run = EP_MATH(fabs)(error) > EP_HM_TILT_OFFSET_LIMIT
                      ? (s->hm_tilt_run < EP_HM_CAP ? s->hm_tilt_run + 1 : EP_HM_CAP) : 0;
     if (s->hm_tilt_run >= EP_HM_OFFSET_EVALUATIONS)
         found[EP_FAULT_OFFSET] |= EP_HM_BIT(EP_HM_PITCH) | EP_HM_BIT(EP_HM_ROLL);
