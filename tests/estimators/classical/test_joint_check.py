@@ -80,56 +80,15 @@ def test_after_a_dump_the_check_starts_from_nothing():
 
 def test_nothing_new_is_named_before_the_weighing_is_ready():
     """A new load's first windows (the fill, a dig: soil on the bucket) part the joints; the kernel
-    is not ready (the boom not yet weighed): nothing is named then, nor are those windows judged
-    later; a disagreement that lasts after it is ready is named."""
+    is not ready (the boom not yet weighed): nothing is named then, and a disagreement that lasts is
+    named at once when it is ready."""
     kernel, check = StandIn(), JointCheck(RATED, 2.5)
     kernel.ready = False
     _windows(check, kernel, (None, 15000.0, 14000.0), 3 * JOINT_SAMPLES)
-    assert check.fault == "" and check.chi2 == 0.0 and check.checked  # ok may come; nothing judged
+    assert check.fault == "" and check.chi2 > 15.0
     kernel.ready = True
-    _windows(check, kernel, (None, 15000.0, 14000.0), JOINT_SAMPLES - 1)
-    assert check.fault == ""
-    _windows(check, kernel, (None, 15000.0, 14000.0), 2)
+    _windows(check, kernel, (None, 15000.0, 14000.0), 1)
     assert check.fault != ""
-
-
-def test_a_curl_before_the_weighing_is_ready_names_nothing_after():
-    """Seed 61000's slopes experiment 11 (a tuning trace): before the boom was weighed the bucket,
-    curling at the start of the cycle, weighed 1 355 kg against the dipper's 1 185 kg; it then
-    stood (no more information) while the boom and the dipper, moving, agreed with the load. The
-    check named the bucket as soon as the weighing was ready, and for 16 s. Its windows before the
-    weighing was ready are not judged: nothing is named, and ok still needs only two joints weighed."""
-    kernel, check = StandIn(), JointCheck(RATED, 2.5)
-    kernel.ready = False
-    _windows(check, kernel, (None, 1185.0, 1355.0), 40, info=(INFO, INFO, 0.5 * INFO))
-    kernel.ready = True
-    _windows(check, kernel, (1150.0, 1180.0, None), 200)
-    assert check.fault == "" and check.checked
-
-
-def test_a_joint_left_standing_after_a_dump_is_not_judged_against_one_that_moves():
-    """Seed 61000's slopes experiment 29 (a tuning trace): a 407 kg load dumped (too little for the
-    new-load test), after the dump only the boom was weighed again, on the empty bucket, while the
-    dipper and the bucket stood with their sums of the load: the boom was named. The joints are
-    judged on what they weighed since the last dump: the boom alone is not compared."""
-    kernel, check = StandIn(), JointCheck(RATED, 2.5)
-    _windows(check, kernel, (400.0, 400.0, 400.0), 100)
-    kernel.dumping = True
-    _windows(check, kernel, (None, None, None), 120)
-    kernel.dumping = False
-    _windows(check, kernel, (0.0, None, None), 300)
-    assert check.fault == "" and check.checked
-
-
-def test_a_cylinder_off_after_a_dump_is_still_named():
-    """The same dump, then every joint weighed again and the dipper 300 kg off (its pressure): named."""
-    kernel, check = StandIn(), JointCheck(RATED, 2.5)
-    _windows(check, kernel, (400.0, 400.0, 400.0), 100)
-    kernel.dumping = True
-    _windows(check, kernel, (None, None, None), 120)
-    kernel.dumping = False
-    _windows(check, kernel, (0.0, 300.0, 0.0), 3 * JOINT_SAMPLES)
-    assert check.fault == "dipper_head_pressure:balance,dipper_rod_pressure:balance"
 
 
 @pytest.fixture(scope="module")

@@ -101,7 +101,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     weighed_info = "EP_NZ_INFO(s)" if nuisance else "((s)->info)"
     # a restart of the weighing (a named joint cleared) reaches the IMU dynamics as a new load's
     nz_restart = "\n        s->nz_restarts += 1;" if nuisance else ""
-    # ... and the zero's share in sigma (offset_share.py), as Python's OffsetShare sees new_loads move
+    # ... and the zero's share in sigma (offset_share.py), as Python's OffsetShare.restart
     if getattr(kernel, "_offset_share", None) is not None:
         nz_restart += "\n        s->os_restarts += 1;"
     masks = []
@@ -114,7 +114,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "ep_real jc_num_joint[3], jc_info_joint[3];  /* each joint's share of num and info */",
         "ep_real jc_num_short[3], jc_info_short[3];  /* ... of the new-load test's short memory */",
         "ep_real jc_num[3], jc_info[3];  /* the joint check's own sums (restart with loads and pauses) */",
-        "ep_real jc_judged_num[3], jc_judged_info[3];  /* ... judged: since the weighing was ready and the last dump */",
         "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
         "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
         f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
@@ -149,17 +148,10 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_DUMP_HOLD {kernel._dump_hold}  /* samples a dump lasts after its last fast opening */
 #define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
 
-static void ep_jc_forget_judged(ep_state *s)
-{{
-    int j;
-    for (j = 0; j < 3; ++j) s->jc_judged_num[j] = s->jc_judged_info[j] = EP_C(0.0);
-}}
-
 static void ep_jc_clear(ep_state *s)
 {{
     int j;
     for (j = 0; j < 3; ++j) s->jc_num[j] = s->jc_info[j] = EP_C(0.0);
-    ep_jc_forget_judged(s);
     s->jc_paused = 0;
 }}
 
@@ -305,17 +297,14 @@ static int ep_jc_single(const ep_real m[3], const ep_real w[3])
 static void ep_jc_judge(ep_state *s)
 {{
     ep_real m[3], w[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0), total = EP_C(0.0);
-    int j, compared = 0, n = 0, failing, held, single = -1, weighed = 0;
-    /* ok needs two joints weighed enough (all the check's sums); the joints are judged on their
-     * sums since the weighing was ready and since the last dump */
+    int j, compared = 0, n = 0, failing, held, single = -1;
     for (j = 0; j < 3; ++j) {{
-        if (s->jc_info[j] >= EP_JC_ENOUGH) weighed += 1;
-        if (s->jc_judged_info[j] >= EP_JC_ENOUGH) {{
+        if (s->jc_info[j] >= EP_JC_ENOUGH) {{
             compared |= 1 << j;
             n += 1;
-            m[j] = s->jc_judged_num[j] / s->jc_judged_info[j];
-            w[j] = EP_C(1.0) / (EP_JC_INFLATION / s->jc_judged_info[j] + EP_JC_EXTRA);
-            total += s->jc_judged_info[j];
+            m[j] = s->jc_num[j] / s->jc_info[j];
+            w[j] = EP_C(1.0) / (EP_JC_INFLATION / s->jc_info[j] + EP_JC_EXTRA);
+            total += s->jc_info[j];
         }}
     }}
     if (n >= 2) {{
@@ -328,14 +317,14 @@ static void ep_jc_judge(ep_state *s)
         for (j = 0; j < 3; ++j)
             if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
     }}
-    s->jc_checked = (unsigned char)(weighed >= 2);
+    s->jc_checked = (unsigned char)(n >= 2);
     failing = chi2 > EP_JC_CHI2;
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
      * unless its joint holds most of the information (JointCheck._leads) */
     held = failing && !s->jc_named
            && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
-               || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_judged_info[single] > total)));
+               || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total)));
     /* a named joint is cleared only by agreeing with another compared joint */
     if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;
@@ -372,7 +361,6 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
     ep_jc_track_moving(s);
     s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
     if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
-        ep_jc_forget_judged(s);  /* nor compared with what they weighed before */
         ep_jc_judge(s);
         return;
     }}
@@ -380,12 +368,6 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
         s->jc_num[j] = EP_FORGETTING * s->jc_num[j] + dn[j];
         s->jc_info[j] = EP_FORGETTING * s->jc_info[j] + di[j];
     }}
-    if (!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY) {{
-        for (j = 0; j < 3; ++j) {{
-            s->jc_judged_num[j] = EP_FORGETTING * s->jc_judged_num[j] + dn[j];
-            s->jc_judged_info[j] = EP_FORGETTING * s->jc_judged_info[j] + di[j];
-        }}
-    }} else ep_jc_forget_judged(s);  /* a new load's first windows (a fill, a dig, a curl): not judged */
     if (ep_jc_load_moves(s)) {{
         if (s->jc_armed && (!s->jc_paused || di[0] + di[1] + di[2] > EP_C(0.0))) {{
             s->jc_paused += 1;  /* windows with information, not of standstill */

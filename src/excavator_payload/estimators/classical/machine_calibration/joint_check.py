@@ -22,11 +22,7 @@ pause, so that it compares what the joints weighed under one load:
 * **dump**: while the bucket opens fast (the kernel's ``dumping``,
   :data:`~.settings.DUMP_OPENING_RATE`, held :data:`~.settings.DUMP_HOLD` s) a load can leave,
   so a window then is not summed and a new fault is held whichever joint leads; so too before
-  the weighing is ready (a new load's first windows: a fill, a dig);
-* **judged sums**: the joints are compared on the windows since the weighing was ready and since
-  the last dump only (a joint weighed before either, then standing, holds another load, or a
-  curl's model error, that the joints weighed after it never saw); ``ok`` still needs two joints
-  weighed enough on all the check's sums.
+  the weighing is ready (a new load's first windows: a fill, a dig).
 
 What was measured with it is in docs/sensor-health.md ("The joint check").
 """
@@ -77,13 +73,8 @@ class JointCheck:
 
     def reset(self) -> None:
         """Start again: no sums, no fault, no pause."""
-        self.num = [0.0, 0.0, 0.0]  # the check's own sums of each joint's share (ok needs two compared)
+        self.num = [0.0, 0.0, 0.0]  # the check's own sums of each joint's share
         self.info = [0.0, 0.0, 0.0]
-        # the sums the joints are judged on: the same windows, but only those since the weighing
-        # was ready and since the last dump (a joint weighed before either holds another load, or
-        # a fill's or a curl's model error, that the joints weighed after it never saw)
-        self.judged_num = [0.0, 0.0, 0.0]
-        self.judged_info = [0.0, 0.0, 0.0]
         self.fault = ""  # "signal:balance,..." while the check fails
         self.named: tuple = ()
         self.degraded = (math.nan, 0.0)  # (estimate, information) without the joint named
@@ -119,20 +110,12 @@ class JointCheck:
         self._track_moving(kernel)
         self.dumping = kernel.dumping
         if self.dumping:  # the load leaves: what the joints weigh now is no one load (not summed)
-            self._forget_judged()  # nor compared with what they weighed before
             self._judge(kernel)
             return
         n, i = self.num, self.info
         for j in range(3):
             n[j] = lam * n[j] + d_num[j]
             i[j] = lam * i[j] + d_info[j]
-        if kernel.ready:
-            n, i = self.judged_num, self.judged_info
-            for j in range(3):
-                n[j] = lam * n[j] + d_num[j]
-                i[j] = lam * i[j] + d_info[j]
-        else:  # a new load's first windows (a fill, a dig, a curl): not judged
-            self._forget_judged()
         if self._load_moves(kernel):
             if self.armed and (not self.paused or d_info[0] + d_info[1] + d_info[2] > 0.0):
                 self.paused += 1  # it lasts so many windows with information, not of standstill
@@ -165,10 +148,6 @@ class JointCheck:
     def _resume(self) -> None:
         self.paused = 0
         self.num, self.info = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
-        self._forget_judged()
-
-    def _forget_judged(self) -> None:
-        self.judged_num, self.judged_info = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
 
     def _load_moves(self, kernel) -> bool:
         """Whether the load changes as the check sees it: the new-load test's short memory has
@@ -187,10 +166,7 @@ class JointCheck:
         return self.paused > 0
 
     def _judge(self, kernel) -> None:
-        # ok needs two joints weighed enough (all the check's sums); the joints are judged on
-        # their sums since the weighing was ready and since the last dump
-        self.checked = sum(1 for j in range(3) if self.info[j] >= self.enough) >= 2
-        nj, ij, extra = self.judged_num, self.judged_info, self.extra
+        nj, ij, extra = self.num, self.info, self.extra
         joints = [j for j in range(3) if ij[j] >= self.enough]
         chi2 = 0.0
         m, w = {}, {}
@@ -200,6 +176,7 @@ class JointCheck:
             mean = sum(w[j] * m[j] for j in joints) / sum(w.values())
             chi2 = sum(w[j] * (m[j] - mean) ** 2 for j in joints)
         self.chi2 = chi2
+        self.checked = len(joints) >= 2
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
@@ -235,7 +212,7 @@ class JointCheck:
         disagrees with: then the whole weighing follows it, and a load change the kernel sees
         is that joint's doing, not one the joints that move see first."""
         named = _named(joints, m, w)
-        return len(named) == 1 and 2.0 * self.judged_info[named[0]] > sum(self.judged_info[j] for j in joints)
+        return len(named) == 1 and 2.0 * self.info[named[0]] > sum(self.info[j] for j in joints)
 
 
 def _named(joints: list, m: dict, w: dict) -> list:
