@@ -88,6 +88,27 @@ def test_the_kernel_restarts_when_the_check_asks(momentum, machine_calibration):
     assert kernel.new_loads == loads + 1 and not kernel._joints.restart and not kernel.changing
 
 
+def test_the_zeros_share_restarts_with_the_weighing(momentum, machine_calibration):
+    """After a zero the check's restart empties the zero's share of σ (OffsetShare) in the same
+    window, as the C export does: it once did so a window late in Python and never in C (σ up to
+    15 kg apart after a restart)."""
+    est = copy.deepcopy(momentum)
+    est.zero(machine_calibration["zero"])
+    kernel = est.kernel.regression
+    share = kernel._offset_share
+    assert share is not None
+    kernel.joint_check = True
+    values = machine_calibration["cal"].frame[list(est.sensor_set.signals)].to_numpy(float)
+    for i, v in enumerate(values[:400]):
+        kernel.update(i / 100.0, v)
+    assert abs(share.c).max() > 0.0
+    kernel._joints.restart = True
+    kernel._joints.update = lambda *args: None
+    kernel._check_joints([0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
+    assert share._loads == kernel.new_loads and share.std == 0.0
+    assert not (share.Gr.any() or share.Gphi.any() or share.c.any() or share.c_short.any())
+
+
 def test_a_suspect_weighing_says_load_changing(momentum, machine_calibration, monkeypatch):
     """PressureKernel.step: with the check on, a suspect check turns ``ok`` into ``load_changing``;
     with it off (``health`` off) nothing changes."""

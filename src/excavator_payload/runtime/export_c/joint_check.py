@@ -101,6 +101,9 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     weighed_info = "EP_NZ_INFO(s)" if nuisance else "((s)->info)"
     # a restart of the weighing (a named joint cleared) reaches the IMU dynamics as a new load's
     nz_restart = "\n        s->nz_restarts += 1;" if nuisance else ""
+    # ... and the zero's share in sigma (offset_share.py), as Python's OffsetShare.restart
+    if getattr(kernel, "_offset_share", None) is not None:
+        nz_restart += "\n        s->os_restarts += 1;"
     masks = []
     for pair in JOINT_PRESSURES:
         bits = 0

@@ -416,6 +416,8 @@ class CalibratedKernel(PressureRegression):
             self.changing = False
             if self._imu_nuisance is not None:
                 self._imu_nuisance.restart(self)
+            if self._offset_share is not None:
+                self._offset_share.restart(self)
 
     # the check's state, read by PressureKernel.step (and the C export's parity tests)
     joint_fault = property(lambda self: self._joints.fault, doc="``signal:balance,...`` while the check fails.")

@@ -109,6 +109,21 @@ class OffsetShare(KernelJacobianRing):
         self._loads = self._settles = 0
         self.std = 0.0
 
+    def restart(self, kernel) -> None:
+        """The kernel restarted after this window was added (its joint check cleared a named
+        joint): the sums start again now, this window's too, and :attr:`std` follows (as the C
+        export does in the same window; the IMU filter's restart comes first).
+
+        Parameters
+        ----------
+        kernel : CalibratedKernel
+            The kernel (its new-load count, its estimate).
+        """
+        self._loads = kernel.new_loads
+        for sums in (self.Gr, self.Gphi, self.c, self.Gr_short, self.Gphi_short, self.c_short):
+            sums[...] = 0.0
+        self.std = self._solve(kernel)
+
     columns = len(OFFSET_SIGNALS)  # the Jacobian's: every offset
 
     def _jacobian_function(self):
