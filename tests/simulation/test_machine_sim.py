@@ -416,3 +416,20 @@ def test_operator_motions_pause_overshoot_and_stay_within_the_pumps():
         assert meta["speed_share"] <= 1.0 and abs(meta["overshoot"]) > 0
         assert np.radians(45) <= abs(meta["slew"]) <= np.radians(80)
     assert ds.frame.groupby("experiment")["payload"].nunique().eq(1).all()
+
+
+def test_lag_delay_is_the_delay_the_imu_filter_gives_a_ramp():
+    # the IMU filter takes the current sample: a ramp comes out 5.8 ms late for tau = 10 ms at
+    # 100 Hz, not 10 ms (what an oracle weighing with the simulator's own IMU dynamics must take)
+    from excavator_payload.simulation.machine_sensors import _lag, lag_delay
+
+    dt, tau, slope = 0.01, 0.01, 0.3
+    t = np.arange(400) * dt
+    lagged = _lag(slope * t, dt, tau)
+    delay = float(np.median((slope * t[200:] - lagged[200:]) / slope))
+    assert delay == pytest.approx(lag_delay(tau, dt), rel=1e-6)
+    assert lag_delay(tau, dt) == pytest.approx(0.00582, abs=1e-5)
+    assert abs(delay - tau) > 0.004  # not the preset's time constant
+    assert lag_delay(0.0, dt) == 0.0
+    with pytest.raises(ValueError, match="lag_delay"):
+        lag_delay(-1.0, dt)

@@ -52,6 +52,28 @@ def _lag(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y
 
 
+def lag_delay(tau: float, dt: float) -> float:
+    """The delay (s) by which :func:`_lag` holds a ramp back: the IMU lag an exact model of these
+    signals must correct, ``dt·a / (1 − a)`` with ``a = exp(−dt / τ)`` (the filter takes the
+    current sample, so its delay is not τ: 5.8 ms for τ = 10 ms at 100 Hz). An oracle that weighs
+    with the simulator's own IMU dynamics takes this lag, not the preset's ``imu_lag``
+    (docs/findings/any-motion.md, "Why `multisine` and `joystick` sit above the bound").
+
+    Parameters
+    ----------
+    tau : float
+        The preset's first-order time constant, s (0: no lag).
+    dt : float
+        Sample period, s.
+    """
+    if not (tau >= 0 and dt > 0):
+        raise ValueError(f"lag_delay needs tau >= 0 and dt > 0, got tau={tau!r}, dt={dt!r}")
+    if tau == 0:
+        return 0.0
+    a = float(np.exp(-dt / tau))
+    return dt * a / (1.0 - a)
+
+
 def measure(truth: dict[str, np.ndarray], time: np.ndarray, accelerations: np.ndarray,
             noise: MachineNoise, offsets: dict[str, float], rng: np.random.Generator) -> dict[str, np.ndarray]:
     """Measured signals of one experiment from the true ones.
