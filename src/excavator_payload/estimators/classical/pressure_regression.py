@@ -543,8 +543,6 @@ class PressureKernel(PayloadKernel):
             # the short memory has left the whole one; or the weighing moves before a fault is
             # named (machine_calibration/joint_check.py)
             status = Status.LOAD_CHANGING
-        if status is Status.OK and regression.joint_check and not regression.joint_checked:
-            status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
         fault = regression.joint_fault if regression.joint_check else ""
         if fault and status in (Status.OK, Status.LOAD_CHANGING):
             # the joints' balances disagree (a cylinder's pressure off, drifting or mis-scaled):

@@ -41,7 +41,7 @@ class CJointCheck:
         The step's first lines (after its declarations).
     status : str
         The step's last status rule (the kernel's status with the check's: ``load_changing``
-        while it pauses, ``warming_up`` before two joints are weighed, ``sensor_fault`` with the
+        while it pauses, ``sensor_fault`` with the
         weighing without the joint named).
     on_gap : str
         In the gap handling (a gap's sample reports no fault).
@@ -380,15 +380,14 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
     ep_jc_judge(s);
 }}
 
-/* PressureKernel.step's last rules with the check: load_changing while it pauses, warming_up
- * before two joints are weighed, sensor_fault (never ok) while a cylinder is named, with the
+/* PressureKernel.step's last rules with the check: load_changing while it pauses,
+ * sensor_fault (never ok) while a cylinder is named, with the
  * weighing without it when one joint stands out (else NaN) */
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
     /* paused, or (JointCheck.suspect) the weighing moves before a fault is named */
     if (status == EP_STATUS_OK && (s->jc_paused || s->jc_moving))
         status = EP_STATUS_LOAD_CHANGING;
-    if (status == EP_STATUS_OK && !s->jc_checked) status = EP_STATUS_WARMING_UP;
     if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{
         *estimate = s->jc_degraded;
         s->jc_out_info = s->jc_degraded_info;
