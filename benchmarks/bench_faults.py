@@ -43,7 +43,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_false_alarms import feasible  # noqa: E402
-from held_out_motions import joystick_trajectory, lever_trajectory  # noqa: E402
+from held_out_motions import joystick_trajectory, lever_trajectory, tremor_trajectory  # noqa: E402
 
 from excavator_payload.data.dataset import Dataset  # noqa: E402
 from excavator_payload.data.io import read_dataset, write_dataset  # noqa: E402
@@ -72,6 +72,10 @@ DRIFT = {"angles": (1 * DEG, 4 * DEG), "rates": (0.5 * DEG, 2 * DEG), "tilt": (1
          "pressures": (10 * BAR, 40 * BAR)}
 
 
+#: Families run only when ``--families`` names them (the default run stays the README's).
+ONLY_ASKED = ("joystick", "lifts", "tremor")
+
+
 def families(n: int, seed: int) -> dict:
     """Makers of the clean test data per family (machine sensor set, working session)."""
     common = dict(machine=MACHINE, session=dm.SESSION_WORK, workers=1, progress=False)
@@ -85,6 +89,11 @@ def families(n: int, seed: int) -> dict:
         # last, and only with --families: the families before it draw their cases as before
         "joystick (held out)": lambda: dm.simulate_trajectory(feasible(joystick_trajectory(n, seed + 4)), seed + 4,
                                                               dm.SESSION_WORK),
+        # the boom lifted alone (the simulator's lifts: empty and rated load by turns), the
+        # industry's weighing motion: one joint weighed
+        "lifts": lambda: simulate_dataset(n, seed=seed + 5, motion="lifts", **common),
+        "tremor (held out)": lambda: dm.simulate_trajectory(tremor_trajectory(n, seed + 6), seed + 6,
+                                                            dm.SESSION_WORK),
     }
 
 
@@ -245,8 +254,8 @@ def main() -> None:
     tests = {}
     chosen = [f for f in a.families.split(",") if f]
     for family, make in families(a.n, a.seed).items():
-        if (chosen and family.split()[0] not in chosen) or (not chosen and family.startswith("joystick")):
-            continue  # joystick only when asked for (the default run stays the README's)
+        if (chosen and family.split()[0] not in chosen) or (not chosen and family.split()[0] in ONLY_ASKED):
+            continue  # only when asked for (the default run stays the README's)
         path = a.out / f"clean-{family.split()[0]}-{a.n}-{a.seed}.parquet"
         if not path.exists():
             write_dataset(make(), path)

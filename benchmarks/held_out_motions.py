@@ -273,3 +273,102 @@ def multisine_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", 
         payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
         rows.append(_table(k, motion, payload))
     return pd.concat(rows, ignore_index=True)
+
+
+# ---------------------------------------------------------------------------------------------
+# Held out since 2026-11-29 (later the same day): an unsteady hand. Judge on it; never tune on it.
+
+
+def tremor_motion(rng: np.random.Generator, arm: HydraulicArmModel, rate: float = 100.0) -> np.ndarray:
+    """(n, 5) time and angles (boom, dipper, bucket, slew) of one loaded pass by an operator whose
+    levers are never still and who works one lever at a time.
+
+    Made unlike the other families: the pass is a sequence of single-lever moves (boom up, then
+    the slew, then dipper and bucket trims, each finished before the next starts, with rests of
+    0.2–1.5 s between), every lever command carries a hand tremor (2–6 Hz, 3–12 % of the
+    lever's travel, random phase) that the spool passes on, even at rest beyond the dead band,
+    and the slew stick is pulled back hard at the end (counter-lever: the house is braked
+    against the pumps, not let coast). Spool speed and flow lag as :func:`joystick_motion`."""
+    r = arm.machine.angle_ranges.copy()
+    r[:, 0] += 6 * DEG
+    r[:, 1] -= 6 * DEG
+    q = np.array([rng.uniform(r[0, 0], r[0, 0] + 15 * DEG), rng.uniform(-110, -80) * DEG,
+                  rng.uniform(-65, -35) * DEG, 0.0])
+    moves: list[tuple[int, float]] = [(0, float(np.clip(rng.uniform(15, 40) * DEG, r[0, 0], r[0, 1])))]
+    slew = rng.uniform(40, 120) * DEG * rng.choice([-1, 1])
+    moves.append((3, slew))
+    for _ in range(rng.integers(2, 5)):
+        j = int(rng.choice([1, 2]))
+        moves.append((j, float(rng.uniform(*r[j]))))
+    moves.append((0, float(np.clip(moves[0][1] - rng.uniform(5, 20) * DEG, r[0, 0], r[0, 1]))))
+    share = rng.uniform(0.5, 0.9, 4)
+    gain = rng.uniform(2.0, 5.0, 4)
+    band = rng.uniform(0.02, 0.06, 4)
+    spool_speed = 1.0 / rng.uniform(0.1, 0.3, 4)
+    tau = rng.uniform(0.04, 0.1, 4)
+    tremor_freq = rng.uniform(2.0, 6.0, 4)
+    tremor_amp = rng.uniform(0.03, 0.12, 4)
+    tremor_phase = rng.uniform(0, 2 * math.pi, 4)
+    dt = 1.0 / rate
+    limits = _rate_limits(arm)
+    spool = np.zeros(4)
+    flow = np.zeros(4)
+    rows = []
+    now = 0.0
+    rest = rng.uniform(0.3, 1.0)
+    for j, target in moves + [(None, None)]:
+        steps = int(round(rest / dt))  # a rest (levers held, tremor only)
+        for _ in range(steps):
+            stick = tremor_amp * np.sin(2 * math.pi * tremor_freq * now + tremor_phase)
+            command = _deadband(stick, band) * share
+            spool += np.clip(command - spool, -spool_speed * dt, spool_speed * dt)
+            flow += dt / tau * (spool - flow)
+            rows.append((now, *q))
+            q = q + dt * flow * limits
+            q[:3] = np.clip(q[:3], r[:3, 0], r[:3, 1])
+            now += dt
+        if j is None:
+            break
+        braked = False
+        for _ in range(int(round(5.0 / dt))):  # the move, at most 5 s
+            stick = tremor_amp * np.sin(2 * math.pi * tremor_freq * now + tremor_phase)
+            error = target - q[j]
+            stick[j] += float(np.clip(gain[j] * error, -1.0, 1.0))
+            if j == 3 and abs(error) < 0.25 * abs(slew) and not braked:
+                stick[3] = -np.sign(flow[3]) * 0.8  # counter-lever for a short while
+                if abs(flow[3]) < 0.1:
+                    braked = True
+            if j < 3:
+                stick[:3] = np.clip(stick[:3], -gain[:3] * (q[:3] - r[:3, 0]), gain[:3] * (r[:3, 1] - q[:3]))
+            command = _deadband(stick, band) * share
+            spool += np.clip(command - spool, -spool_speed * dt, spool_speed * dt)
+            flow += dt / tau * (spool - flow)
+            rows.append((now, *q))
+            q = q + dt * flow * limits
+            q[:3] = np.clip(q[:3], r[:3, 0], r[:3, 1])
+            now += dt
+            if abs(target - q[j]) < 1.5 * DEG and abs(flow[j]) < 0.05:
+                break
+        rest = rng.uniform(0.2, 1.5)
+    return np.array(rows)
+
+
+def tremor_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payloads=None,
+                      slope_deg: float | None = None) -> pd.DataFrame:
+    """A trajectory table of ``n`` single-lever passes with a hand tremor (:func:`tremor_motion`;
+    payloads uniform in 0…rated unless given; on a slope of ``slope_deg`` in a direction drawn
+    per pass)."""
+    m = load_machine(machine)
+    arm = HydraulicArmModel(m)
+    rng = np.random.default_rng([seed, 5151])
+    rows = []
+    for k in range(n):
+        motion = tremor_motion(rng, arm)
+        payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
+        frame = _table(k, motion, payload)
+        if slope_deg is not None:
+            d = rng.uniform(0, 2 * math.pi)
+            frame["ground_pitch"] = math.radians(slope_deg) * math.cos(d)
+            frame["ground_roll"] = math.radians(slope_deg) * math.sin(d)
+        rows.append(frame)
+    return pd.concat(rows, ignore_index=True)

@@ -276,6 +276,9 @@ def test_momentum_balance_weighs_and_streams_as_it_estimates(momentum, setup, tm
     batch = est.estimate(test)["payload_estimate"].to_numpy()
     uncalibrated = copy.deepcopy(est)
     uncalibrated.calibration.z[:len(cm.CALIBRATED_PARAMETERS)] = 0.0
+    # the file's joints disagree with one another: the joint check names their cylinders and
+    # weighs nothing (NaN) once a joint weighed alone is ok; the weighing itself is compared here
+    uncalibrated.options["joint_check"] = "off"
     uncalibrated.use_calibration()
     assert mean_abs_error(est, test) < mean_abs_error(uncalibrated, test)
     f = test.frame

@@ -347,8 +347,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                           BALANCE_CHOICES),
         "joint_check": Option(str, "on", "machine sensor set, momentum form: name a cylinder whose "
                               "joint's balance disagrees with the other joints' (a pressure offset, drift or "
-                              "gain error; status sensor_fault, fault 'PRESSURE:balance', DM1 FMI 13), and "
-                              "call no estimate ok before two joints are weighed; nothing new is named while "
+                              "gain error; status sensor_fault, fault 'PRESSURE:balance', DM1 FMI 13) once two "
+                              "joints are weighed (a joint weighed alone, e.g. a boom lift, is ok until its weighing "
+                              "moves, then waits for a second); "
+                              "nothing new is named while "
                               "the bucket dumps or before the weighing is ready; runs with the sensor "
                               "health monitor (in the C export too; docs/sensor-health.md)",
                               ("on", "off")),

@@ -183,6 +183,7 @@ class PressureRegression:
     joint_degraded = (math.nan, 0.0)
     joint_pausing = False
     joint_suspect = False
+    new_loads = 0
     model_std = 0.0
 
     def __init__(self, arm: HydraulicArmModel, pressure_std: float, ripple_fraction: float = 0.0,
@@ -444,6 +445,7 @@ class PressureKernel(PayloadKernel):
         self.difference_scale = difference_scale
         self.warm_info = 1.0 / float(options["warmup_std"]) ** 2
         self.info = 0.0
+        self._lone_moved = False
 
     @classmethod
     def build(cls, estimator, noise_name: str, pressure_noise: tuple[float, float],
@@ -498,6 +500,7 @@ class PressureKernel(PayloadKernel):
         """Empty the regression's window and sums."""
         self.info = 0.0
         self.regression.reset()
+        self._lone_moved = False
 
     def bridge_gap(self) -> None:
         """The differentiator needs evenly spaced samples: its window starts again."""
@@ -538,13 +541,10 @@ class PressureKernel(PayloadKernel):
         status = Status.OK if self.info >= self.warm_info else Status.WARMING_UP
         if regression.rejected:  # the sample before this one was a one-frame outlier
             status = Status.REJECTED
-        elif status is Status.OK and (regression.changing or (regression.joint_check and (
-                regression.joint_pausing or regression.joint_suspect))):
-            # the short memory has left the whole one; or the weighing moves before a fault is
-            # named (machine_calibration/joint_check.py)
+        elif status is Status.OK and regression.changing:  # the short memory has left the whole one
             status = Status.LOAD_CHANGING
-        if status is Status.OK and regression.joint_check and not regression.joint_checked:
-            status = Status.WARMING_UP  # one joint weighed alone: the joint check cannot judge it
+        if regression.joint_check:
+            status = self._joint_rules(status)
         fault = regression.joint_fault if regression.joint_check else ""
         if fault and status in (Status.OK, Status.LOAD_CHANGING):
             # the joints' balances disagree (a cylinder's pressure off, drifting or mis-scaled):
@@ -552,6 +552,26 @@ class PressureKernel(PayloadKernel):
             estimate, self.info = regression.joint_degraded
             return StepResult(estimate, Status.SENSOR_FAULT, fault=fault)
         return StepResult(regression.estimate, status)
+
+    def _joint_rules(self, status: Status) -> Status:
+        """The joint check's rules on an estimate the kernel would call ``status`` (the C export's
+        ``ep_jc_status``): ``load_changing`` while the check pauses or the weighing moves before a
+        fault is named (machine_calibration/joint_check.py). A joint weighed alone (a boom lift)
+        cannot be compared with another: it is ``ok`` until its weighing moves; once it has moved
+        it waits (``warming_up``) for a second joint to check it — also across a restart of the
+        weighing, which a large fault sets off as a new load (a load cannot change while one
+        joint moves alone). A fault on the lone joint is seen only as that move."""
+        regression = self.regression
+        if status is Status.OK:
+            if regression.joint_checked:
+                self._lone_moved = False
+            elif regression.joint_suspect:
+                self._lone_moved = True
+        if status is Status.OK and (regression.joint_pausing or regression.joint_suspect):
+            status = Status.LOAD_CHANGING
+        if status is Status.OK and not regression.joint_checked and self._lone_moved:
+            status = Status.WARMING_UP
+        return status
 
     # -- persistence -----------------------------------------------------------------------
     def config(self) -> dict:

@@ -41,7 +41,7 @@ class CJointCheck:
         The step's first lines (after its declarations).
     status : str
         The step's last status rule (the kernel's status with the check's: ``load_changing``
-        while it pauses, ``warming_up`` before two joints are weighed, ``sensor_fault`` with the
+        while it pauses, a joint weighed alone held back once it moves, ``sensor_fault`` with the
         weighing without the joint named).
     on_gap : str
         In the gap handling (a gap's sample reports no fault).
@@ -123,6 +123,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "int jc_paused;    /* windows of the current pause (0: not paused) */",
         "int jc_dump_left; /* samples the dump still lasts (CalibratedKernel.dumping) */",
         "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping, jc_moving, jc_restart;",
+        "unsigned char jc_lone_moved;  /* a joint weighed alone has moved: it waits for a second (PressureKernel._joint_rules) */",
     ]
     definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
  * estimate N_j / I_j against the others', chi2 about their 1/v_j-weighted mean with
@@ -169,6 +170,7 @@ static void ep_jc_reset(ep_state *s)
     s->jc_armed = 1;
     s->jc_checked = 0;
     s->jc_new_load = 0;
+    s->jc_lone_moved = 0;
     s->jc_reported = 0;
     s->jc_gap = 0;
     s->jc_dump_left = 0;
@@ -383,15 +385,20 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
     ep_jc_judge(s);
 }}
 
-/* PressureKernel.step's last rules with the check: load_changing while it pauses, warming_up
- * before two joints are weighed, sensor_fault (never ok) while a cylinder is named, with the
- * weighing without it when one joint stands out (else NaN) */
+/* PressureKernel._joint_rules and step's last rule: load_changing while the check pauses, a
+ * joint weighed alone ok until its weighing moves (then warming_up until a second joint is
+ * weighed, across restarts), sensor_fault (never ok) while a cylinder is named,
+ * with the weighing without it when one joint stands out (else NaN) */
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
+    if (status == EP_STATUS_OK) {{
+        if (s->jc_checked) s->jc_lone_moved = 0;
+        else if (s->jc_moving) s->jc_lone_moved = 1;
+    }}
     /* paused, or (JointCheck.suspect) the weighing moves before a fault is named */
     if (status == EP_STATUS_OK && (s->jc_paused || s->jc_moving))
         status = EP_STATUS_LOAD_CHANGING;
-    if (status == EP_STATUS_OK && !s->jc_checked) status = EP_STATUS_WARMING_UP;
+    if (status == EP_STATUS_OK && !s->jc_checked && s->jc_lone_moved) status = EP_STATUS_WARMING_UP;
     if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{
         *estimate = s->jc_degraded;
         s->jc_out_info = s->jc_degraded_info;
