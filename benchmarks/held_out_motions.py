@@ -95,15 +95,16 @@ def _table(k: int, motion: np.ndarray, payload: float) -> pd.DataFrame:
                          "slew_angle": motion[:, 4], "payload": payload})
 
 
-def lever_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payloads=None,
-                     slow: bool = False, slope_deg: float | None = None) -> pd.DataFrame:
-    """A trajectory table of ``n`` operator-driven motions (payloads uniform in 0…rated unless given)."""
+def _passes(make, n: int, seed, machine, payloads, slope_deg) -> pd.DataFrame:
+    """A trajectory table of ``n`` motions ``make(rng, arm)`` drawn from one random stream
+    ``seed``: each motion, then its payload (uniform in 0…rated unless given), then the slope's
+    direction (on a slope of ``slope_deg``, if given)."""
     m = load_machine(machine)
     arm = HydraulicArmModel(m)
-    rng = np.random.default_rng([seed, 4242])
+    rng = np.random.default_rng(seed)
     rows = []
     for k in range(n):
-        motion = lever_motion(rng, arm, slow=slow)
+        motion = make(rng, arm)
         payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
         frame = _table(k, motion, payload)
         if slope_deg is not None:
@@ -112,6 +113,13 @@ def lever_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payl
             frame["ground_roll"] = math.radians(slope_deg) * math.sin(d)
         rows.append(frame)
     return pd.concat(rows, ignore_index=True)
+
+
+def lever_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", payloads=None,
+                     slow: bool = False, slope_deg: float | None = None) -> pd.DataFrame:
+    """A trajectory table of ``n`` operator-driven motions (payloads uniform in 0…rated unless given)."""
+    return _passes(lambda rng, arm: lever_motion(rng, arm, slow=slow), n, [seed, 4242], machine, payloads,
+                   slope_deg)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -207,20 +215,7 @@ def joystick_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", p
                         slope_deg: float | None = None) -> pd.DataFrame:
     """A trajectory table of ``n`` joystick-driven trench-digging passes (payloads uniform in
     0…rated unless given; on a slope of ``slope_deg`` in a direction drawn per pass)."""
-    m = load_machine(machine)
-    arm = HydraulicArmModel(m)
-    rng = np.random.default_rng([seed, 7373])
-    rows = []
-    for k in range(n):
-        motion = joystick_motion(rng, arm)
-        payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
-        frame = _table(k, motion, payload)
-        if slope_deg is not None:
-            d = rng.uniform(0, 2 * math.pi)
-            frame["ground_pitch"] = math.radians(slope_deg) * math.cos(d)
-            frame["ground_roll"] = math.radians(slope_deg) * math.sin(d)
-        rows.append(frame)
-    return pd.concat(rows, ignore_index=True)
+    return _passes(joystick_motion, n, [seed, 7373], machine, payloads, slope_deg)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -358,17 +353,4 @@ def tremor_trajectory(n: int, seed: int, machine: str = "cat345c-hydraulic", pay
     """A trajectory table of ``n`` single-lever passes with a hand tremor (:func:`tremor_motion`;
     payloads uniform in 0…rated unless given; on a slope of ``slope_deg`` in a direction drawn
     per pass)."""
-    m = load_machine(machine)
-    arm = HydraulicArmModel(m)
-    rng = np.random.default_rng([seed, 5151])
-    rows = []
-    for k in range(n):
-        motion = tremor_motion(rng, arm)
-        payload = float(payloads[k % len(payloads)]) if payloads is not None else rng.uniform(0, m.rated_payload)
-        frame = _table(k, motion, payload)
-        if slope_deg is not None:
-            d = rng.uniform(0, 2 * math.pi)
-            frame["ground_pitch"] = math.radians(slope_deg) * math.cos(d)
-            frame["ground_roll"] = math.radians(slope_deg) * math.sin(d)
-        rows.append(frame)
-    return pd.concat(rows, ignore_index=True)
+    return _passes(tremor_motion, n, [seed, 5151], machine, payloads, slope_deg)
