@@ -310,18 +310,22 @@ def tremor_motion(rng: np.random.Generator, arm: HydraulicArmModel, rate: float 
     flow = np.zeros(4)
     rows = []
     now = 0.0
+
+    def advance(stick):  # one sample: the spool follows the stick, the flow the spool
+        nonlocal q, now
+        command = _deadband(stick, band) * share
+        spool[:] += np.clip(command - spool, -spool_speed * dt, spool_speed * dt)
+        flow[:] += dt / tau * (spool - flow)
+        rows.append((now, *q))
+        q = q + dt * flow * limits
+        q[:3] = np.clip(q[:3], r[:3, 0], r[:3, 1])
+        now += dt
+
     rest = rng.uniform(0.3, 1.0)
     for j, target in moves + [(None, None)]:
         steps = int(round(rest / dt))  # a rest (levers held, tremor only)
         for _ in range(steps):
-            stick = tremor_amp * np.sin(2 * math.pi * tremor_freq * now + tremor_phase)
-            command = _deadband(stick, band) * share
-            spool += np.clip(command - spool, -spool_speed * dt, spool_speed * dt)
-            flow += dt / tau * (spool - flow)
-            rows.append((now, *q))
-            q = q + dt * flow * limits
-            q[:3] = np.clip(q[:3], r[:3, 0], r[:3, 1])
-            now += dt
+            advance(tremor_amp * np.sin(2 * math.pi * tremor_freq * now + tremor_phase))
         if j is None:
             break
         braked = False
@@ -335,13 +339,7 @@ def tremor_motion(rng: np.random.Generator, arm: HydraulicArmModel, rate: float 
                     braked = True
             if j < 3:
                 stick[:3] = np.clip(stick[:3], -gain[:3] * (q[:3] - r[:3, 0]), gain[:3] * (r[:3, 1] - q[:3]))
-            command = _deadband(stick, band) * share
-            spool += np.clip(command - spool, -spool_speed * dt, spool_speed * dt)
-            flow += dt / tau * (spool - flow)
-            rows.append((now, *q))
-            q = q + dt * flow * limits
-            q[:3] = np.clip(q[:3], r[:3, 0], r[:3, 1])
-            now += dt
+            advance(stick)
             if abs(target - q[j]) < 1.5 * DEG and abs(flow[j]) < 0.05:
                 break
         rest = rng.uniform(0.2, 1.5)
