@@ -68,10 +68,9 @@ import numpy as np
 
 from excavator_payload.platforms import HYDRAULIC
 
-#: Window over which a stuck signal does not move, s (0.3 until the time-to-name work: 0.2 s
-#: names a frozen value 0.1 s sooner and still spans two updates of a 10 Hz transmitter; no
-#: clean sample named on the tuning data, docs/sensor-health.md "Time to name").
-STUCK_WINDOW = 0.2
+#: Window over which a stuck signal does not move, s (0.2 s, tried in the time-to-name work,
+#: named the clean house tilt of a truck-loading shift stuck: docs/sensor-health.md "Time to name").
+STUCK_WINDOW = 0.3
 #: A stuck signal's span over the window is at most this many bus resolution steps (a frozen
 #: value that flickers by one bit still counts).
 STUCK_QUANTA = 2.0
