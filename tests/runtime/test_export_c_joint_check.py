@@ -107,6 +107,14 @@ def test_c_suspect_and_monitor_faults_equal_python(model, tmp_path):
     assert (after_balance & monitor_only).any()
 
 
+def _unchecked(model):
+    """A copy of ``model`` with the joint check off (its weighing otherwise the same)."""
+    est = copy.deepcopy(model)
+    est.options["joint_check"] = "off"
+    est.use_calibration()
+    return est
+
+
 def test_a_boom_lift_is_weighed_with_the_check_on(model, tmp_path):
     """A boom lifted alone (dipper and bucket held: the industry's weighing motion) is one joint
     weighed, which the check cannot compare with another: it is weighed `ok` all the same, with
@@ -115,10 +123,7 @@ def test_a_boom_lift_is_weighed_with_the_check_on(model, tmp_path):
     lifts = simulate_machine_dataset(2, seed=32, session=2, motion="lifts")
     source = export_c(model, tmp_path / "export")[1]
     py = _assert_equal(model, source, lifts, tmp_path / "build")
-    off = copy.deepcopy(model)
-    off.options["joint_check"] = "off"
-    off.use_calibration()
-    unchecked = off.estimate(lifts)
+    unchecked = _unchecked(model).estimate(lifts)
     late = lifts.frame["time"].to_numpy() >= 5.0
     for e in lifts.experiment_ids:
         rows = late & (lifts.frame["experiment"].to_numpy() == e)
@@ -147,10 +152,7 @@ def test_a_lone_joint_whose_weighing_moves_waits_for_a_second(model, tmp_path):
     assert ok[:onset].mean() > 0.5 and clean_ok[onset:].mean() > 0.8
     assert ok[onset:].any()  # the move is not seen at once
     assert error[onset:][ok[onset:]].max() < clean_error[clean_ok].max() + 30.0
-    unchecked = copy.deepcopy(model)
-    unchecked.options["joint_check"] = "off"
-    unchecked.use_calibration()
-    off = unchecked.estimate(faulty)
+    off = _unchecked(model).estimate(faulty)
     off_ok = off["status"].astype(str).to_numpy() == "ok"
     off_error = abs(off["payload_estimate"].to_numpy() - frame["payload"].to_numpy())
     assert off_error[onset:][off_ok[onset:]].max() > clean_error[clean_ok].max() + 100.0  # what the hold keeps out
