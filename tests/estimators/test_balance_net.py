@@ -3,6 +3,8 @@ zero and the command line (the protocol's checks are in the conformance suite)."
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 import pytest
 
@@ -114,6 +116,24 @@ def test_zero_recovers_the_weighing_sessions_offsets(fitted, machine_data, tmp_p
     a = est.estimate(machine_data["test"])
     b = again.estimate(machine_data["test"])
     np.testing.assert_array_equal(a["payload_estimate"].to_numpy(), b["payload_estimate"].to_numpy())
+
+
+def test_zero_with_a_load_it_was_not_told_of_is_refused(fitted, machine_data):
+    """1500 kg left in the bucket of the zero motion, the data saying 0: the zero took the
+    load for offsets (angle offsets of degrees) and was kept. Now it is refused, asking whether
+    the bucket was empty; the clean zero check is not."""
+    from excavator_payload.data.dataset import Dataset
+    from excavator_payload.evaluation import demo_machine as dm
+
+    clean = copy.deepcopy(fitted)
+    clean.zero(machine_data["zero"])
+    assert clean.zero_refusals == []
+    loaded = dm.simulate_trajectory(dm.motion_trajectory(1, 7, (1500.0,)), 7, dm.SESSION_WORK)
+    frame = loaded.frame.copy()
+    frame["payload"] = 0.0
+    est = copy.deepcopy(fitted)
+    est.zero(Dataset(frame, loaded.meta))
+    assert len(est.zero_refusals) == 1 and "was the bucket empty" in est.zero_refusals[0]
 
 
 def test_training_needs_loads_that_differ(machine_data):

@@ -576,9 +576,27 @@ def test_zero_with_a_stuck_sensor_warns_of_its_offsets(setup):
     with pytest.raises(EstimatorError, match=r"^zero: the sensor health monitor flags boom_head_pressure \(stuck"):
         est.zero(stuck)
     np.testing.assert_array_equal(est.calibration.offsets, before)
-    warnings = est.zero(stuck, force=True)  # forced: the offsets it leaves are named
-    far = [w for w in warnings if "far beyond a working session's" in w]
+    est.zero(stuck, force=True)  # forced: the offsets it leaves are named, a reason to refuse
+    far = [w for w in est.zero_refusals if "far beyond a working session's" in w]
     assert len(far) == 1 and "°" in far[0]
+
+
+def test_zero_with_a_load_in_the_bucket_is_refused(setup):
+    """A zero check made with 1000 kg left in the bucket (the log has no payload column, or
+    says 0): the zero took the load for offsets and every later weight came out light by it,
+    with no word. Now it is refused by its offsets' χ² against a session's drift, asking
+    whether the bucket was empty. The clean zero check of the same session is accepted."""
+    clean = copy.deepcopy(setup["calibrated"])
+    clean.zero(setup["zero"])
+    assert not [r for r in clean.zero_refusals if "bucket empty" in r]
+    table = dm.motion_trajectory(1, 7, (1000.0,))
+    loaded = dm.simulate_trajectory(table, 7, dm.SESSION_WORK)
+    frame = loaded.frame.copy()
+    frame["payload"] = 0.0  # what the user believed
+    est = copy.deepcopy(setup["calibrated"])
+    est.zero(Dataset(frame, loaded.meta))
+    far = [r for r in est.zero_refusals if "was the bucket empty?" in r]
+    assert len(far) == 1 and "bar" in far[0]
 
 
 def test_zero_of_nothing_but_nan_says_so(setup):

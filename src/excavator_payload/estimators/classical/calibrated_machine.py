@@ -21,7 +21,7 @@ from excavator_payload.estimators.classical.machine_calibration.settings import 
     HELD_SAMPLES, IMU_LEAK_CHOICES, IMU_PARAMETERS, IMU_PRIOR_STD, LOW_SPEED_CHOICES, MAX_CALIBRATION_VALUE,
     MIN_CROSS_EXPERIMENTS, MIN_MOVING_SAMPLES, MIN_ZERO_MOVING_SAMPLES, NEW_LOAD_CHOICES, NEW_LOAD_MEMORY,
     NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, OFFSET_PRIOR_STD, OFFSET_SIGNALS, OUTSIDE_CALIBRATION_CHOICES,
-    SIGMA_COVERAGE, SIGNALS, WAIT_FOR_BOOM_CHOICES, ZERO_OFFSET_WARNING)
+    SIGMA_COVERAGE, SIGNALS, WAIT_FOR_BOOM_CHOICES, ZERO_OFFSET_CHI2)
 from excavator_payload.estimators.classical.machine_calibration.solver import (  # noqa: F401
     MachineCalibration, calibrate, cross_validated_model_std, zero_offsets)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import (  # noqa: F401

@@ -598,6 +598,14 @@ class BalanceModel:
                 "payload_point": self.point.tolist()}
 
     # -- zero -----------------------------------------------------------------------------
+    def offset_prior_std(self) -> np.ndarray:
+        """Prior std of each offset :meth:`zero` estimates (:data:`ZERO_PRIOR`, SI units): the
+        angles' (and the house pitch's), then the pressures' or torques'."""
+        L = self.layout
+        angles = L.n + (1 if L.tilt else 0)
+        other = ZERO_PRIOR["pressure" if L.pressure else "torque"]
+        return np.array([ZERO_PRIOR["angle"] if i < angles else other for i in range(self.offset_count())])
+
     def zero(self, experiments: list[Samples]) -> np.ndarray:
         """Re-estimate the sensors' offsets from motions of known payload (``m``; an empty
         bucket when None): the maximum a-posteriori offsets under :data:`ZERO_PRIOR`, from the
@@ -611,14 +619,9 @@ class BalanceModel:
         L = self.layout
         n_off = self.offset_count()
         base = self.offsets.copy()
-        steps, prior = [], []
-        for i in range(n_off):
-            if i < L.n + (1 if L.tilt else 0):
-                steps.append(1e-4)
-                prior.append(ZERO_PRIOR["angle"])
-            else:
-                steps.append(1e3 if L.pressure else 10.0)
-                prior.append(ZERO_PRIOR["pressure" if L.pressure else "torque"])
+        prior = self.offset_prior_std()
+        angles = L.n + (1 if L.tilt else 0)
+        steps = [1e-4 if i < angles else (1e3 if L.pressure else 10.0) for i in range(n_off)]
 
         def residual(off):
             self.offsets = off

@@ -55,6 +55,14 @@ NEW_LOAD_SHARE = 0.1
 #: A zero whose offsets' remaining uncertainty weighs more than this share of the largest
 #: trained payload is refused (``zero --force`` keeps it): it would weigh worse than 1 %.
 ZERO_REFUSE_SHARE = 0.01
+#: A zero whose offsets' χ² against :data:`ZERO_PRIOR` lies beyond this tail of a χ² of as many
+#: degrees of freedom as offsets is refused (a load in the bucket taken for offsets; measured on
+#: two trainings, 72 empty zero motions of sessions 2-11, swings, slow lever moves, joystick
+#: passes, 5° and -8° slopes: χ² 0.5-29.6 against 35.6 at 10⁻⁴ and 46.9 at 10⁻⁶ for 10 offsets).
+ZERO_OFFSET_TAIL = 1e-6
+#: ... or this many times the largest χ² of the zeros the training made on its own held-out
+#: motions, if larger (:meth:`BalanceNet._zero_limit`).
+ZERO_CROSS_MARGIN = 3.0
 #: Every this-many-th training experiment is held out once to measure σ's model floor.
 HELD_OUT_EVERY = 5
 #: The lightest held-out experiments serve, one at a time, as the zero motion for the others:
@@ -178,6 +186,8 @@ class BalanceNet(Estimator):
         self.model_std = 0.0
         self.typical_info = 0.0
         self.payload_scale = 1.0
+        self.cross_zero_chi2: list[float] = []
+        self.zero_chi2_limit = math.inf
         self.spike_threshold: np.ndarray | None = None
         self.training: dict = {}
         self._fn = None
@@ -234,6 +244,7 @@ class BalanceNet(Estimator):
         for i in lightest[:CROSS_ZEROS]:
             try:
                 self.model.zero([held[i]])
+                self.cross_zero_chi2.append(self._offset_chi2())
                 out += self._final_errors([e for k, e in enumerate(held) if k != i])
             except EstimatorError:  # this one never moved inside the trained range
                 pass
@@ -267,6 +278,7 @@ class BalanceNet(Estimator):
         # σ's model floor from experiments the fit did not see: every fifth held out, the rest
         # fitted, then everything fitted again
         self.model_std = 0.0
+        self.cross_zero_chi2 = []
         if len(experiments) >= HELD_OUT_EVERY * 2:
             held = experiments[HELD_OUT_EVERY - 1::HELD_OUT_EVERY]
             rest = [e for i, e in enumerate(experiments) if (i + 1) % HELD_OUT_EVERY]
@@ -283,6 +295,7 @@ class BalanceNet(Estimator):
                     self.model_std = float(np.sqrt(max(np.mean(np.square(errors)) - np.mean(np.square(nominal)), 0.0)))
         self.model = self._new_model(self.sensor_set.signals)
         summary = self.model.fit(experiments, every=every)
+        self.zero_chi2_limit = self._zero_limit(self.cross_zero_chi2)
         self.payload_scale = float(max(np.max(np.abs(payload)), 1.0))
         self._fn = None
         self.kappa = self._kappa(experiments)
@@ -359,11 +372,50 @@ class BalanceNet(Estimator):
             self.zero_refusals.append(f"zero: the offsets it leaves uncertain weigh {self.model.zero_std:.0f} kg, "
                                       f"more than {100 * ZERO_REFUSE_SHARE:.0f} % of the largest trained payload: "
                                       "make the zero motion move every joint, within the trained poses")
+        far = self._far_offsets()
+        if far:
+            self.zero_refusals.append(far)
         used = sum(int(np.sum(self.model.terms(e)[3] > 0)) for e in experiments)
         if used < 100:
             return [f"{self.name}: the zero motion gave {used} usable windows (joints moving inside "
                     "the trained range); its offsets rest mostly on their prior"]
         return []
+
+    def _offset_chi2(self) -> float:
+        """The offsets' χ² against their prior (:data:`ZERO_PRIOR`): Σ (offset / prior std)²."""
+        return float(np.sum((np.asarray(self.model.offsets, float) / self.model.offset_prior_std()) ** 2))
+
+    def _zero_limit(self, cross: list[float]) -> float:
+        """The χ² past which a zero is refused: the :data:`ZERO_OFFSET_TAIL` quantile of a χ² of
+        as many degrees of freedom as offsets, or :data:`ZERO_CROSS_MARGIN` times the largest χ²
+        of the zeros the training made on its own held-out motions (``cross``), if larger: a
+        model trained on little data needs larger offsets on a clean zero."""
+        from scipy.stats import chi2 as chi2_distribution
+
+        tail = float(chi2_distribution.isf(ZERO_OFFSET_TAIL, self.model.offset_count()))
+        return max([tail, *(ZERO_CROSS_MARGIN * c for c in cross if np.isfinite(c))])
+
+    def _far_offsets(self) -> str:
+        """Why the offsets are beyond a session's drift (χ² past :attr:`zero_chi2_limit`), or
+        ``""``: a load the zero motion carried but its data did not say is taken for offsets
+        (300 kg: χ² 40–2956; clean zeros 0.5–29.6)."""
+        offsets = np.asarray(self.model.offsets, float)
+        ratio = offsets / self.model.offset_prior_std()
+        chi2 = self._offset_chi2()
+        limit = self.zero_chi2_limit
+        if not chi2 > limit:
+            return ""
+        names, layout = self.offset_names(), self.model.layout
+        angles = layout.n + (1 if layout.tilt else 0)
+        named = ", ".join(f"{names[k]} {math.degrees(offsets[k]):+.3g}°" if k < angles
+                          else f"{names[k]} {offsets[k] / 1e5:+.3g} bar" if layout.pressure
+                          else f"{names[k]} {offsets[k]:+.3g} N·m"
+                          for k in np.argsort(-np.abs(ratio))[:4] if abs(ratio[k]) >= 3.0)
+        return (f"zero: its sensor offsets are far beyond a working session's drift (χ² {chi2:.0f} over "
+                f"{len(ratio)} offsets, limit {limit:.1f}{'; ' + named if named else ''}): was the bucket "
+                "empty (or its load as the data say)? A load the data do not carry is taken for offsets "
+                "and every later weight comes out light by about that load. Repeat the zero check with "
+                "an empty bucket; if it was empty, check those signals")
 
     def offset_table(self) -> list[tuple[str, float]]:
         """``(signal, offset)`` of every offset ``zero`` estimates (SI units)."""
@@ -503,6 +555,7 @@ class BalanceNet(Estimator):
     # -- persistence ------------------------------------------------------------------------
     def _config(self) -> dict:
         return {"kappa": self.kappa, "model_std": self.model_std, "typical_info": self.typical_info, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
+                "zero_chi2_limit": self.zero_chi2_limit,
                 "period": self.model.period if self.model is not None else None}
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -525,6 +578,8 @@ class BalanceNet(Estimator):
             self.typical_info = float(config["typical_info"])
             self.model.zero_std = float(config.get("zero_std", 0.0))
             self.payload_scale = float(config["payload_scale"])
+            # absent in models saved before it: the χ² quantile alone
+            self.zero_chi2_limit = float(config.get("zero_chi2_limit", self._zero_limit([])))
             self.training = dict(config.get("training") or {})
             self._limits = (np.asarray(arrays["plausible_low"], float), np.asarray(arrays["plausible_high"], float))
             self.spike_threshold = (np.asarray(arrays["spike_threshold"], float)

@@ -76,10 +76,13 @@ IMU_NUISANCE_CHOICES = ("auto", "on", "off")
 MIN_MOVING_SAMPLES = 200
 #: The same for one cylinder in the zero check (1 s at 100 Hz).
 MIN_ZERO_MOVING_SAMPLES = 100
-#: ``zero`` warns of an offset beyond this many prior standard deviations (:data:`OFFSET_PRIOR_STD`):
-#: 2.5° of angle, 37.5 bar; clean zero checks stay well below, a stuck or mis-scaled signal
-#: goes far beyond (findings: "Zero offset warning").
-ZERO_OFFSET_WARNING = 25.0
+#: ``zero`` refuses offsets whose sum of squares in prior standard deviations
+#: (:data:`OFFSET_PRIOR_STD`, a working session's drift) exceeds this: χ² of the 11 offsets at
+#: 10⁻⁶ (37.4 at 10⁻⁴). Clean zero checks on 62 empty motions (swings, slow one-lever moves, joystick passes, 5°
+#: and 8° slopes; 5 calibration draws, 10 sessions) gave 1.3–16.3; a load left in the bucket
+#: is taken for offsets (300 kg: 73–333, 1000 kg: 650–3500), a stuck or mis-scaled signal goes
+#: far beyond (findings: "Zero offset check").
+ZERO_OFFSET_CHI2 = 48.9
 #: Choices of ``--low-speed``.
 LOW_SPEED_CHOICES = ("model", "downweight", "skip")
 #: Choices of ``--outside-calibration``: what becomes of a joint's window where the joint's angle

@@ -25,7 +25,7 @@ from excavator_payload.estimators.classical.machine_calibration.kernel import Ca
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, CALIBRATED_PARAMETERS, COVERAGE_JOINTS, DEG, IMU_PARAMETERS, MAX_CALIBRATION_VALUE,
     MIN_CROSS_EXPERIMENTS, MIN_MOVING_SAMPLES, MIN_ZERO_MOVING_SAMPLES, OFFSET_PRIOR_STD, OFFSET_SIGNALS,
-    SIGNALS, ZERO_OFFSET_WARNING)
+    SIGNALS)
 from excavator_payload.estimators.classical.machine_calibration.solver import (
     MachineCalibration, calibrate, cross_validated_model_std, zero_offsets)
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, difference_scale, spike_threshold
@@ -362,8 +362,8 @@ class MachineWeighing:
         Returns
         -------
         list of str
-            Warnings: samples it could not use, cylinders that hardly moved, offsets far beyond
-            a working session's.
+            Warnings: samples it could not use, cylinders that hardly moved (offsets beyond a
+            working session's are a refusal: :func:`~excavator_payload.estimators.classical.zero_quality.zero_quality`).
         """
         from excavator_payload.estimators.classical.zero_quality import zero_quality
 
@@ -388,15 +388,6 @@ class MachineWeighing:
                             f"{MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or more wanted. Their pressure offsets "
                             "were not checked and keep the calibration's values: repeat the zero check "
                             "moving the boom, dipper and bucket")
-        offsets = self.calibration.offsets
-        far = [f"{name} {value / 1e5:+.3g} bar" if name.endswith("_pressure") else f"{name} {value / DEG:+.3g}°"
-               for name, value, std in zip(OFFSET_SIGNALS, offsets, OFFSET_PRIOR_STD)
-               if not abs(value) <= ZERO_OFFSET_WARNING * std]
-        if far:
-            warnings.append(f"zero: sensor offsets far beyond a working session's (more than "
-                            f"{ZERO_OFFSET_WARNING:g}× their usual spread): {', '.join(far)}. A stuck, "
-                            "mis-scaled or disconnected sensor in the zero check? Check those signals and "
-                            "repeat it before weighing with this model")
         return warnings
 
     # -- save and restore ---------------------------------------------------------------------
