@@ -151,3 +151,20 @@ def test_can_replay_judges_units_after_the_signal_map(tmp_path, machine_data, ca
                  "--dbc", str(dbc), "--signal-map", str(in_bar)])
     _one_line_error(capsys, code, "decoded through the signal map", "bar")
     assert not (tmp_path / "e.parquet").exists()
+def test_known_loads_in_tonnes_or_pounds_are_refused_at_fit():
+    """A calibration file whose payload column is in tonnes (0.4–3.1 for a 5 t machine) was
+    refused for its model error ("add calibration motions"), not its unit; one in grams would
+    have calibrated 1000 times off. Now fit names the unit; kg pass."""
+    from excavator_payload.data.units import check_payload_unit
+    from excavator_payload.errors import DatasetError
+    from excavator_payload.model.machine import load_machine
+
+    machine = load_machine("cat345c-hydraulic")
+    kg = np.array([0.0, 400.6, 3056.4])
+    check_payload_unit(kg, machine, "data")
+    check_payload_unit(np.zeros(3), machine, "data")  # empty buckets: nothing to judge
+    check_payload_unit(kg / 1000, None, "data")  # no machine: nothing to judge
+    with pytest.raises(DatasetError, match=r"reach only 3\.056 kg.*in tonnes\?"):
+        check_payload_unit(kg / 1000, machine, "data")
+    with pytest.raises(DatasetError, match="in pounds or grams"):
+        check_payload_unit(kg * 1000, machine, "data")

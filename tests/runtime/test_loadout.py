@@ -161,3 +161,14 @@ def test_bad_input_is_one_line(tmp_path, capsys):
     assert main(["report", "--db", str(tmp_path / "none.sqlite"), "--out", str(tmp_path / "r")]) == 2
     assert main(["simulate", "--machine", "cat345c-hydraulic", "--truck-target", "9000", "-n", "1",
                  "--out", str(tmp_path / "x.parquet")]) == 2
+
+
+def test_a_truck_target_in_tonnes_is_refused(shift, capsys):
+    """``--target 20`` meant 20 t: every truck was full after its first pass (20,023 kg of a
+    20 kg target). Now refused in one line before anything is written."""
+    folder, _ = shift
+    db = folder / "tonnes.sqlite"
+    assert main(["loadout", "--model", str(folder / "model"), "--data", str(folder / "shift.parquet"),
+                 "--db", str(db), "--target", "20"]) == 2
+    assert "in tonnes? give kg (e.g. --target 20000)" in capsys.readouterr().err
+    assert not db.exists()

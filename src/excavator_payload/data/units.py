@@ -425,3 +425,40 @@ def _check_shrunk(frame: pd.DataFrame, sensors: SensorSet, signal: str, rate: st
             peak = float(np.nanmax(np.abs(x[a:b])))
             raise DatasetError(f"{source}: experiment {ids[codes[a]]}: column "
                                + shrunk_message(signal, rate, factor, peak))
+
+
+#: Known loads whose largest is below this share of the machine's rated payload are taken for
+#: tonnes (a 5 t rated machine's calibration read 0.4–3.1 as kg: refused for its model error,
+#: "add calibration motions", not for its unit).
+MIN_PAYLOAD_SHARE = 0.005
+#: Known loads above this many times the machine's largest payload cannot have been lifted.
+MAX_PAYLOAD_FACTOR = 2.0
+
+
+def check_payload_unit(payload: np.ndarray, machine, source: str) -> None:
+    """Refuse known loads that cannot be in kg for ``machine``: all of them below
+    :data:`MIN_PAYLOAD_SHARE` of its rated payload (tonnes?) or any above
+    :data:`MAX_PAYLOAD_FACTOR` times its largest (pounds, grams?). Without a machine (or without a
+    nonzero load) nothing is judged.
+
+    Parameters
+    ----------
+    payload : ndarray
+        The known loads, kg (the ``payload`` column).
+    machine : Machine or None
+        The machine the data are of or fitted to (``rated_payload``, ``max_payload``).
+    source : str
+        What the data are, for the message.
+    """
+    rated = float(getattr(machine, "rated_payload", 0.0) or 0.0)
+    largest = float(getattr(machine, "max_payload", 0.0) or 0.0) or rated
+    payload = np.asarray(payload, float)
+    if not (rated > 0 and payload.size and np.all(np.isfinite(payload))):
+        return
+    top = float(np.max(payload))
+    if 0.0 < top < MIN_PAYLOAD_SHARE * rated:
+        raise DatasetError(f"{source}: the known loads reach only {top:.4g} kg, {100 * top / rated:.2g} % of the "
+                           f"machine's rated payload ({rated:g} kg): is column 'payload' in tonnes? (kg expected)")
+    if top > MAX_PAYLOAD_FACTOR * largest:
+        raise DatasetError(f"{source}: the known loads reach {top:.4g} kg, {top / largest:.3g} times the most the "
+                           f"machine lifts ({largest:g} kg): is column 'payload' in pounds or grams? (kg expected)")

@@ -359,6 +359,12 @@ class Estimator(ABC):
             from excavator_payload.estimators.health import noise_reference
 
             self.health_reference = noise_reference(dataset.frame, self.sensor_set.signals)
+        if dataset.has_payload:  # loads in tonnes calibrate a model 1000 times off, refused for its error
+            from excavator_payload.data.units import check_payload_unit
+
+            check_payload_unit(dataset.frame["payload"].to_numpy(float),
+                               self.machine if self.machine is not None else _dataset_machine(dataset),
+                               f"{self.name}: training data")
         # a work cycle's payload column is the load carried: after its dump the bucket is empty
         self._fit(dataset.until_dump())
         self._sentinel_source = None

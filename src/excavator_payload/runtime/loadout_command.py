@@ -13,6 +13,9 @@ from rich.console import Console
 from excavator_payload.errors import DatasetError
 
 console = Console()
+#: A truck target below this share of the machine's rated payload (less than a tenth of one
+#: bucket) is refused: a target in tonnes.
+TARGET_SHARE = 0.1
 
 
 def _say(line: str) -> None:
@@ -113,6 +116,11 @@ def register(app: typer.Typer) -> None:
         if not HYDRAULIC.carries(estimator):
             raise DatasetError(f"loadout weighs the machine sensor set's passes; the model is for the "
                                f"{estimator.sensor_set.name} set")
+        rated = getattr(estimator, "rated_payload", None)
+        if target is not None and rated and target < TARGET_SHARE * rated:
+            # --target 20 meant 20 t: every truck was "full" after its first pass
+            raise DatasetError(f"--target {target:g} kg is less than a tenth of one bucket (rated {rated:g} kg): "
+                               f"in tonnes? give kg (e.g. --target {target * 1000:g})")
         if data is not None:
             trucks = _from_dataset(estimator, data, db, target, model)
         else:
