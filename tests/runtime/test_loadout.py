@@ -172,3 +172,25 @@ def test_a_truck_target_in_tonnes_is_refused(shift, capsys):
                  "--db", str(db), "--target", "20"]) == 2
     assert "in tonnes? give kg (e.g. --target 20000)" in capsys.readouterr().err
     assert not db.exists()
+
+
+def test_zero_from_a_logged_empty_swing(shift, tmp_path):
+    """A technician's zero check from the logger's MF4 (no dataset on a machine): decoded by
+    ``can-replay --samples-out``, zeroed as the dataset it came from (offsets within the DBC's
+    resolution)."""
+    from excavator_payload.estimators.base import load_estimator
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    folder, _ = shift
+    empty = simulate_machine_dataset(1, seed=43, session=2, payload=0.0)
+    write_dataset(empty, tmp_path / "empty.parquet")
+    assert main(["can-record", "--data", str(tmp_path / "empty.parquet"), "--out", str(tmp_path / "zero.mf4")]) == 0
+    assert main(["can-replay", "--log", str(tmp_path / "zero.mf4"), "--model", str(folder / "model"),
+                 "--out", str(tmp_path / "est.parquet"), "--samples-out", str(tmp_path / "zero.parquet")]) == 0
+    for name, data in (("from-log", "zero.parquet"), ("from-data", "empty.parquet")):
+        assert main(["zero", "--model", str(folder / "model"), "--data", str(tmp_path / data),
+                     "--out", str(tmp_path / name), "--force"]) == 0
+    a = load_estimator(tmp_path / "from-log").calibration.offsets
+    b = load_estimator(tmp_path / "from-data").calibration.offsets
+    np.testing.assert_allclose(a[:6], b[:6], atol=500.0)  # Pa (the DBC carries 50 Pa steps)
+    np.testing.assert_allclose(a[6:], b[6:], atol=1e-4)  # rad

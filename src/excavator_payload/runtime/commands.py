@@ -107,6 +107,9 @@ def register(app: typer.Typer) -> None:
                                           "starts a new experiment."),
         stale_tolerance: float = typer.Option(3.5, "--stale-tolerance", help="A signal older than its "
                                               "message's period times this makes the sample 'stale'."),
+        samples_out: Path = typer.Option(None, "--samples-out", help="Also write the samples decoded "
+                                         "from the log as a dataset (Parquet, SI units; NaN where "
+                                         "stale): e.g. an empty-bucket motion for `zero --data`."),
     ) -> None:
         """Replay a CAN log through the payload sensor; write the estimates as Parquet."""
         import pandas as pd
@@ -124,14 +127,25 @@ def register(app: typer.Typer) -> None:
         # --out inside the model folder replaced its arrays.npz (the model was lost); the log,
         # the DBC and the map are inputs too
         check_output_path(out, inputs=[log, model, dbc_file, signal_map])
+        if samples_out is not None:
+            check_output_path(samples_out, inputs=[log, model, dbc_file, signal_map, out])
         if not segment_gap > 0:
             raise DatasetError("--segment-gap must be positive")
         est = load_estimator(model)
         if not stale_tolerance >= 1:
             raise DatasetError("--stale-tolerance must be at least 1 (periods)")
         sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map), stale_tolerance=stale_tolerance)
-        frame = replay_log(log, sensor, segment_gap, progress=True)
+        samples = [] if samples_out is not None else None
+        frame = replay_log(log, sensor, segment_gap, progress=True, samples=samples)
         write_estimates(frame, out, meta={"estimator": est.name, "model": str(model), "log": str(log)})
+        if samples_out is not None:
+            from excavator_payload.data.io import write_dataset
+            from excavator_payload.runtime.replay import samples_dataset
+
+            decoded = samples_dataset(samples, est.sensor_set, log)
+            write_dataset(decoded, samples_out)
+            console.print(f"{len(decoded.frame)} decoded samples in {decoded.n_experiments} segment(s) "
+                          f"written to {samples_out}", markup=False, highlight=False)
         c = sensor.counters
         dropped = [f"{n} {what}" for n, what in (
             (frame.attrs.get("skipped_records", 0), "unreadable log records skipped"),

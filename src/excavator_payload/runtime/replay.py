@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.log_watch import SampleWatch
 from excavator_payload.errors import DatasetError
 from excavator_payload.runtime import dbc
@@ -49,7 +50,7 @@ def read_log(path: str | Path, skipped: list[int] | None = None):
 
 
 def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEGMENT_GAP,
-               progress: bool = False) -> pd.DataFrame:
+               progress: bool = False, samples: list | None = None) -> pd.DataFrame:
     """Estimates of every sample in the log ``path`` (see the module docstring).
 
     Parameters
@@ -62,6 +63,10 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         s of silence of the sensor's own frames that starts a new experiment.
     progress : bool, optional
         Show a progress bar.
+    samples : list, optional
+        If given, every sample the sensor assembled is appended to it as ``(experiment, time
+        from the segment's start, values in the sensor set's signal order)`` (SI units; NaN
+        where a signal was stale): what :func:`samples_dataset` turns into a dataset.
 
     Returns
     -------
@@ -101,7 +106,13 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     # units and wiring judged on the decoded samples, as a dataset's (data/units.py)
     watch = SampleWatch(sensor.sensor_set, getattr(sensor.estimator, "machine", None))
     step_values = sensor.estimator.step_values
-    sensor.estimator.step_values = lambda t, v: (watch.add(experiment, t, v), step_values(t, v))[1]
+    def watched(t, v):
+        watch.add(experiment, t, v)
+        if samples is not None:
+            samples.append((experiment, t - segment_start, np.array(v, dtype=float)))
+        return step_values(t, v)
+
+    sensor.estimator.step_values = watched
     bar = None
     if progress:
         from rich.progress import Progress
@@ -250,3 +261,25 @@ def check_message_rates(intervals: dict[str, list[float]], sensor: PayloadSensor
 
 def _hz(period: float) -> str:
     return f"{1 / period:.4g} Hz" if period > 0 else "no time between them"
+
+
+def samples_dataset(samples: list, sensor_set, log: str | Path) -> Dataset:
+    """The samples :func:`replay_log` assembled from a CAN log (its ``samples``) as a dataset
+    without payload (a field log): what ``zero``, ``estimate`` and ``plot`` read.
+
+    Parameters
+    ----------
+    samples : list
+        ``(experiment, time, values)`` tuples from :func:`replay_log`.
+    sensor_set : SensorSet
+        The sensor set the values belong to.
+    log : str or Path
+        The CAN log they came from (kept in the metadata).
+    """
+    if not samples:
+        raise DatasetError(f"CAN log '{log}': no sample was assembled from it")
+    values = np.stack([v for _, _, v in samples])
+    frame = pd.DataFrame(values, columns=list(sensor_set.signals))
+    frame.insert(0, "time", [t for _, t, _ in samples])
+    frame.insert(0, "experiment", np.array([e for e, _, _ in samples], dtype="int64"))
+    return Dataset(frame, {"sensor_set": sensor_set.name, "source": "CAN log", "log": str(log)})
