@@ -158,9 +158,13 @@ def machine_measurements(dataset: Dataset, experiment: int) -> Figure:
     ax.set_ylabel("inclination (°)")
     ax.set_xlabel("time (s)")
     ax.legend(loc="best", fontsize=8)
-    machine = (dataset.meta.get("machine") or {}).get("name", "?")
-    payload = f", payload {rows['payload'].iloc[0]:.0f} kg" if "payload" in rows else ""
-    fig.suptitle(f"{machine}: experiment {experiment} ({dataset.meta.get('motion', '?')}{payload})")
+    # a logger's file (field table, decoded CAN log) has no machine or motion: say where it came from
+    machine = (dataset.meta.get("machine") or {}).get("name")
+    origin = dataset.meta.get("log") or (dataset.source.name if hasattr(dataset.source, "name") else None)
+    head = machine or (Path(str(origin)).name if origin else "dataset")
+    what = [w for w in (dataset.meta.get("motion") or dataset.meta.get("source"),
+                        f"payload {rows['payload'].iloc[0]:.0f} kg" if "payload" in rows else None) if w]
+    fig.suptitle(f"{head}: experiment {experiment}" + (f" ({', '.join(what)})" if what else ""))
     return fig
 
 
