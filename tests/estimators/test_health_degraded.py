@@ -5,6 +5,7 @@ and sigma widened; streaming equals batch, a saved model does the same; where no
 exists (the house tilt, the slew rate, a disagreeing link) it stops as before (a cylinder
 pressure: tests/estimators/test_health_degraded_pressure.py)."""
 
+import copy
 import math
 
 import numpy as np
@@ -93,9 +94,8 @@ def test_rate_fault_weighs_degraded_never_ok(models, swing, signal, kind, how):
     assert abs(diff[-1]) <= abs(diff[0]) + 25.0
 
 
-@pytest.mark.parametrize("signal,joint,how", [
-    ("house_pitch", "boom_rate", lambda v, a, b: v[a - 1]),  # (a pressure now drops its joint:
-    ("slew_rate", "dipper_rate", lambda v, a, b: 0.0 * v[a:b]),  # test_health_degraded_pressure.py)
+@pytest.mark.parametrize("signal,joint,how", [  # (a pressure now drops its joint, a tilt its value
+    ("slew_rate", "dipper_rate", lambda v, a, b: 0.0 * v[a:b]),  # from before: test_health_degraded_{pressure,tilt}.py)
     ("dipper_angle", "dipper_rate", lambda v, a, b: v[a:b] + np.radians(5)),  # disagree: the rate too
 ])
 def test_no_substitute_stops_as_before(models, swing, signal, joint, how):
@@ -153,3 +153,49 @@ def assert_stream_equals_batch(est, bad, batch) -> None:
     assert [r.fault for r in stream] == list(batch["fault"])
     np.testing.assert_array_equal(np.array([r.estimate for r in stream]), batch["payload_estimate"].to_numpy())
     np.testing.assert_array_equal(np.array([r.sigma for r in stream]), batch["sigma"].to_numpy())
+
+
+def test_the_samples_before_a_name_are_forgotten(models, swing, monkeypatch):  # noqa: F811
+    """A stuck boom head pressure is named after the stuck window; the samples before the name
+    carry the fault too: at the first degraded sample the estimator has the kernel forget the
+    boom's windows over what its rings hold (``HealthMonitor.newly_named_joints``,
+    ``CalibratedKernel.forget``), once."""
+    est = models["calibrated"]
+    a = _moving(swing, "boom_rate", est.estimate(swing))
+    calls = []
+    monkeypatch.setattr(type(est), "_forget_joints", lambda self, joints: calls.append(tuple(joints)))
+    out = est.estimate(_with(swing, "boom_head_pressure", a, a + 250, lambda v, a, b: v[a - 1]))
+    assert (out["status"] == Status.DEGRADED.value).sum() > 50
+    assert calls and calls[0] == (True, False, False)
+
+
+def test_a_forgotten_joint_weighs_no_window_over_the_rings(models, swing):  # noqa: F811
+    """CalibratedKernel.forget: after it, no window weighs until every sample the rings held has
+    left them (the estimate holds), then the weighing goes on."""
+    est = copy.deepcopy(models["calibrated"])
+    clean = est.estimate(swing)
+    a = _moving(swing, "boom_rate", clean)
+    rows = swing.frame.to_dict("records")
+    est.reset()
+    for row in rows[:a]:
+        est.step(row)
+    regression = est.kernel.regression
+    regression.forget((True, True, True))
+    after = [est.step(row).estimate for row in rows[a:a + 200]]
+    held = regression._balance_len  # a window's samples: all of them fresh before it weighs
+    assert np.allclose(after[:held], after[0], rtol=0.0, atol=1e-9)
+    assert after[-1] != after[0]  # weighed again after
+
+
+def test_newly_named_joints():
+    """A pressure just named: its joint; a rate (or anything not a dropped pressure): every joint;
+    a signal named at the sample before: none."""
+    signals = ("boom_angle", "boom_rate", "dipper_head_pressure", "dipper_rate", "dipper_angle")
+    m = health.HealthMonitor(signals, 0.01, {s: 1e-6 for s in signals})
+    m.previous, m.active = set(), {(2, "stuck"): 0}
+    assert m.newly_named_joints(("dipper_head_pressure",)) == (False, True, False)
+    assert m.newly_named_joints(()) == (True, True, True)  # not a pressure it drops
+    m.active[(1, "stuck")] = 0
+    assert m.newly_named_joints(("dipper_head_pressure",)) == (True, True, True)
+    m.previous = {1, 2}
+    assert m.newly_named_joints(("dipper_head_pressure",)) == (False, False, False)

@@ -365,3 +365,44 @@ def test_c_integrates_a_lost_angle_as_python_does(single, models, angle_faults, 
     assert all("_angle:" in f for f in py["fault"][degraded])
     text = export_c(models["inverse-dynamics"], tmp_path / "id")[1].read_text()
     assert "ep_hm_angle_refs" not in text and "EP_HM_INT_LINK" not in text
+
+
+@pytest.fixture(scope="module")
+def tilt_faults(clean):
+    """The clean work with a house pitch 5° off for 3 s, a house roll stuck for 8 s (past the
+    substitute's bound) and a noisy pitch: ``calibrated`` (momentum) weighs on with the tilt from
+    before the fault."""
+    frame, _ = _with_faults(clean, 13, [
+        (0, "house_pitch", "offset", 500, 800, 5 * DEG),
+        (1, "house_roll", "stuck", 600, 1400, None),
+        (1, "house_pitch", "noise", 1800, 2000, 0.3 * DEG),
+    ])
+    return Dataset(frame, clean.meta)
+
+
+@pytest.mark.parametrize("single", [False, True])
+def test_c_weighs_on_a_named_tilt_as_python_does(single, models, tilt_faults, tmp_path):
+    """A named house tilt in C: the same degraded statuses while its value from before the fault
+    stands in (health.TILT_SUBSTITUTE_LIMIT, the slew bound), the estimates and sigma equal to
+    Python's; the models without degraded weighing export none of it."""
+    est = models["calibrated-momentum"]
+    header, source = export_c(est, tmp_path / "export", precision="float32" if single else "float64")
+    assert "ep_hm_tilt_ref" in source.read_text()
+    py = _assert_equal(est, source, tilt_faults, tmp_path / "build", single=single)
+    degraded = (py["status"] == Status.DEGRADED.value).to_numpy()
+    assert degraded.sum() > 100
+    assert all("house_" in f for f in py["fault"][degraded])
+    text = export_c(models["inverse-dynamics"], tmp_path / "id")[1].read_text()
+    assert "ep_hm_tilt_ref" not in text and "hm_house" not in text
+
+
+def test_c_drops_a_named_pressures_joint_without_the_joint_check_too(models, pressure_faults, tmp_path):
+    """``joint_check off``: C still drops a named pressure's joint as Python does (before, the
+    export without the check passed no drop to the kernel: its named pressures weighed on)."""
+    est = copy.deepcopy(models["calibrated-momentum"])
+    est.options["joint_check"] = "off"
+    est.use_calibration()
+    source = export_c(est, tmp_path / "export")[1]
+    assert "ep_jc_status" not in source.read_text() and "&s->hm_drop" in source.read_text()
+    py = _assert_equal(est, source, pressure_faults, tmp_path / "build")
+    assert (py["status"] == Status.DEGRADED.value).sum() > 100

@@ -177,6 +177,9 @@ class Estimator(ABC):
     #: The link angles it weighs on with the rate integrated from the last healthy angle while
     #: the monitor names them (stuck, dropout), for a bounded time (:meth:`degraded_angles`).
     DEGRADED_ANGLES: ClassVar[tuple[str, ...]] = ()
+    #: The house tilts it weighs on with their value from before the fault while the monitor
+    #: names them, for a bounded time (:meth:`degraded_tilts`).
+    DEGRADED_TILTS: ClassVar[tuple[str, ...]] = ()
     #: Whether it borrows its statistical gate (it has no noise model of its own), see
     #: :meth:`_borrows_gate`.
     BORROWS_GATE: ClassVar[bool] = False
@@ -495,6 +498,11 @@ class Estimator(ABC):
         """
         return self.DEGRADED_ANGLES
 
+    def degraded_tilts(self) -> tuple[str, ...]:
+        """The house tilts it weighs on with their value from before the fault
+        (:attr:`DEGRADED_TILTS`; empty: a named tilt stops the weighing)."""
+        return self.DEGRADED_TILTS
+
     def _drop_joints(self, joints: tuple[bool, ...]) -> None:
         """Weigh the next sample without these link joints (boom, dipper, bucket; all False:
         every joint), for an estimator with :meth:`degraded_pressures`.
@@ -504,6 +512,10 @@ class Estimator(ABC):
         joints : tuple of bool
             Per joint, whether it is dropped.
         """
+
+    def _forget_joints(self, joints: tuple[bool, ...]) -> None:
+        """Weigh none of these link joints' windows over the samples held now (a signal just
+        named: its samples before the name; an estimator with :meth:`degraded_pressures`)."""
 
     def _kept(self, status: Status) -> StepResult:
         """The last estimate again, with ``status`` (the sample was not used)."""
@@ -549,13 +561,16 @@ class Estimator(ABC):
             if fault:
                 pressures = self.degraded_pressures()
                 substituted = self._health.substitute(values, self.degraded_rates(), pressures,
-                                                      self.degraded_angles())
+                                                      self.degraded_angles(), self.degraded_tilts())
                 if substituted is None:
                     # not used: the next healthy sample sees a hole in time and bridges it as a gap
                     return StepResult(self._last_estimate, Status.SENSOR_FAULT, self._last_sigma, fault)
                 # degraded weighing: the named rates replaced by their angles' slopes, the named
                 # pressures' joints dropped from the weighing
                 dropped = self._health.named_joints(pressures) if pressures else ()
+                forgotten = self._health.newly_named_joints(pressures) if pressures else ()
+                if any(forgotten):  # the samples before the name carry the fault too
+                    self._forget_joints(forgotten)
                 if any(dropped):
                     self._drop_joints(dropped)
                     try:

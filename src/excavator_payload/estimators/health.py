@@ -144,6 +144,15 @@ SUBSTITUTE_WINDOW = 0.2
 #: (s; the gyro's bias drifts the integral: docs/sensor-health.md), then no substitute.
 ANGLE_SUBSTITUTE_KINDS = ("stuck", "dropout")
 ANGLE_SUBSTITUTE_LIMIT = 5.0
+#: A named house tilt (pitch or roll, any kind: it has no partner that says which lies) is
+#: replaced by its mean over :data:`SUBSTITUTE_WINDOW` ending :data:`TILT_SUBSTITUTE_BACK` s
+#: before it was first named (before a drifting tilt is named: 0.6–0.8 s, docs/sensor-health.md),
+#: for at most :data:`TILT_SUBSTITUTE_LIMIT` s, and while the house has not slewed so far since
+#: that the frozen tilt could be off by more than :data:`TILT_OFFSET_LIMIT` (on a slope, pitch
+#: and roll turn into each other as the house slews: the size of the reference times the slew
+#: angle bounds the error); then no substitute (the weighing stops, and after the gap restarts).
+TILT_SUBSTITUTE_BACK = 1.0
+TILT_SUBSTITUTE_LIMIT = 5.0
 #: While degraded, sigma is the estimator's own times this: on degraded samples of the tuning
 #: data (benchmarks/bench_faults.py, seed 9300, rates) |error| <= 2 sigma held on 88 % of them
 #: with the own sigma, 95 % with 1.5 times it, 97 % with 2 (docs/sensor-health.md). A factor, not
@@ -198,12 +207,16 @@ class HealthMonitor:
         self.n_gain = samples(GAIN_WINDOW)
         self.n_sub = samples(SUBSTITUTE_WINDOW)
         self.n_angle_limit = int(round(ANGLE_SUBSTITUTE_LIMIT / self.period))
+        self.n_tilt_back = int(round(TILT_SUBSTITUTE_BACK / self.period))
+        self.n_tilt_limit = int(round(TILT_SUBSTITUTE_LIMIT / self.period))
         centred = np.arange(self.n_sub) - (self.n_sub - 1) / 2
         #: weights of the least-squares slope over the last n_sub samples, oldest first, 1/s
         self.sub_weights = centred / float(centred @ centred) / self.period
         self.every = EVERY
         self.n_blocks = max(1, int(round(NOISE_WINDOW / self.period / self.every)))
         self.size = max(self.n_stuck, self.n_dis, self.n_smooth, self.n_gain, self.n_sub, self.every + 2) + 1
+        if self.n_tilt_back + self.n_sub >= self.size:
+            raise ValueError("health: TILT_SUBSTITUTE_BACK reaches past the monitor's windows")
         self.hold = int(round(HOLD / self.period))
         self.duration = (self.n_stuck - 1) * self.period
         links = [k for k in LINKS if f"{k}_angle" in idx and f"{k}_rate" in idx]
@@ -223,6 +236,7 @@ class HealthMonitor:
         # the size of the tilt does not
         self.tilts = [idx[s] for s in ("house_pitch", "house_roll")] \
             if "house_pitch" in idx and "house_roll" in idx else []
+        self.slew = idx.get("slew_rate")
         ref = reference or {}
         self.noise_limit = np.array([NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
                                      else np.inf for s in self.signals])
@@ -244,12 +258,19 @@ class HealthMonitor:
     def reset(self) -> None:
         """Forget the history (a new experiment, or a hole in time)."""
         self.active: dict[tuple[int, str], int] = {}  # (signal, kind) -> samples since last seen
+        self.previous: set = set()  # the signals named after the sample before the last
         self.last_time: float | None = None
         # per link while its angle is named: the substitute's reference (angle − integrated
         # rate; NaN: none to be had) and the samples since it was taken; None while not named
         self.angle_ref: list = [None] * len(self.link_angle)
         self.angle_age = [0] * len(self.link_angle)
         self.angle_clean = [0] * len(self.link_angle)  # samples since the angle was last named
+        # while a tilt is named: its substitute's reference (pitch, roll; NaN: none to be had),
+        # the slew rates summed since the reference's centre, the samples since it was taken
+        self.tilt_ref: tuple | None = None
+        self.tilt_turn = 0.0
+        self.tilt_age = 0
+        self.tilt_clean = 0  # samples since a tilt was last named
         self._restart()
 
     def _restart(self) -> None:
@@ -259,6 +280,9 @@ class HealthMonitor:
         # the integral starts again: a reference taken is lost (no substitute until not named)
         self.angle_ref = [None if ref is None else math.nan for ref in getattr(self, "angle_ref", [None] * L)]
         self.angle_clean = [0] * L
+        if getattr(self, "tilt_ref", None) is not None:
+            self.tilt_ref = (math.nan, math.nan)  # its samples are gone with the hole in time
+        self.tilt_clean = 0
         # the last `size` samples, written twice (at k and k + size) so that any window is one
         # ordered slice; and per sample each link's (angle − integrated rate, cumulative sums)
         self.buffer = np.zeros((2 * self.size, n))
@@ -295,6 +319,7 @@ class HealthMonitor:
         values : array-like
             The signals in :attr:`signals` order, SI units.
         """
+        self.previous = {i for i, _ in self.active}  # named after the last sample
         if self.last_time is not None and not 0 < time - self.last_time <= 1.5 * self.period:
             self._restart()
         self.last_time = time
@@ -308,6 +333,8 @@ class HealthMonitor:
         for key in found:
             active[key] = 0
         self._angle_references()
+        if self.tilts and self.slew is not None:
+            self._tilt_reference()
         if not active:
             return ""
         return ",".join(f"{self.signals[i]}:{kind}" for i, kind in sorted(active))
@@ -348,6 +375,45 @@ class HealthMonitor:
                 self.angle_age[j] = 0
             self.angle_age[j] += 1
             self.angle_clean[j] = 0
+
+    def _tilt_reference(self) -> None:
+        """Take the tilt substitute's reference when a tilt is first named (pitch and roll
+        averaged over :attr:`n_sub` samples ending :attr:`n_tilt_back` samples back, none of them
+        named; and the slew rates from that window's centre on, summed), then add each sample's
+        slew rate and count its age; forget it once no tilt is named."""
+        if not any(i in self.tilts for i, _ in self.active):
+            self.tilt_ref = None
+            self.tilt_clean += 1
+            return
+        end = (self.count - 1) % self.size + self.size + 1  # one past the newest sample
+        if self.tilt_ref is None:
+            back = self.n_tilt_back + self.n_sub
+            if self.count > back and self.tilt_clean >= back:
+                pitch = roll = turn = 0.0
+                for row in self.buffer[end - back:end - self.n_tilt_back].tolist():  # oldest first, as C
+                    pitch += row[self.tilts[0]]
+                    roll += row[self.tilts[1]]
+                for row in self.buffer[end - back + self.n_sub // 2:end].tolist():
+                    turn += row[self.slew]
+                self.tilt_ref = (pitch / self.n_sub, roll / self.n_sub)
+                self.tilt_turn = turn
+            else:
+                self.tilt_ref = (math.nan, math.nan)
+            self.tilt_age = 0
+        else:
+            self.tilt_turn += float(self.buffer[end - 1, self.slew])
+        self.tilt_age += 1
+        self.tilt_clean = 0
+
+    def _tilt_value(self) -> tuple | None:
+        """The named tilts' substitute (pitch, roll), or None: no reference, too old, or the
+        house has slewed too far since (see :data:`TILT_SUBSTITUTE_LIMIT`)."""
+        ref = self.tilt_ref
+        if ref is None or math.isnan(ref[0]) or self.tilt_age > self.n_tilt_limit:
+            return None
+        if math.hypot(ref[0], ref[1]) * abs(self.tilt_turn * self.period) > TILT_OFFSET_LIMIT:
+            return None
+        return ref
 
     def _is_active(self, signal: int, kinds) -> bool:
         return any((signal, k) in self.active for k in kinds)
@@ -540,7 +606,7 @@ class HealthMonitor:
         var = sxx / m - (sx / m) ** 2
         return (sxy / m - sx * sy / m / m) / var if var >= GAIN_MIN_STD ** 2 else 0.0
 
-    def substitute(self, values, rates=None, pressures=(), angles=()):
+    def substitute(self, values, rates=None, pressures=(), angles=(), tilts=()):
         """The sample with each named link rate replaced by its angle's slope (and each named
         cylinder pressure of ``pressures`` by 0: its joint is dropped from the weighing, see
         :meth:`named_joints`), when the active faults (after the last :meth:`step`) allow
@@ -566,6 +632,10 @@ class HealthMonitor:
             while named with a kind of :data:`ANGLE_SUBSTITUTE_KINDS` (and maybe ``disagree``,
             its rate then too, with nothing else: the rate is weighed as measured), for at most
             :data:`ANGLE_SUBSTITUTE_LIMIT` after the angle was named; empty: none.
+        tilts : collection of str
+            The house tilts it weighs on with their value from before the fault (its
+            ``degraded_tilts()``), named with any kind, within :data:`TILT_SUBSTITUTE_LIMIT`;
+            empty: none.
 
         Returns
         -------
@@ -579,7 +649,10 @@ class HealthMonitor:
         integrated = self.integrable(angles)
         lost = self._lost_angles(integrated)
         explained = [self.link_rate[self.link_angle.index(a)] for a in lost]
+        frozen = [i for i in self.tilts if self.signals[i] in tilts]
         for i, kind in self.active:
+            if i in frozen:
+                continue  # any kind: its value from before the fault (below)
             if i in lost:
                 if kind not in ANGLE_SUBSTITUTE_KINDS and kind != "disagree":
                     return None
@@ -592,6 +665,12 @@ class HealthMonitor:
         window = self.buffer[end - self.n_sub:end]
         out = np.array(values, dtype=float)
         for i in {i for i, _ in self.active}:
+            if i in frozen:
+                tilt = self._tilt_value()
+                if tilt is None:
+                    return None
+                out[i] = tilt[self.tilts.index(i)]
+                continue
             if i in dropped:
                 out[i] = 0.0  # its joint is not weighed (named_joints); 0 never stands out as a spike
                 continue
@@ -659,6 +738,24 @@ class HealthMonitor:
         """
         named = {self.pressure_joint[i] for i, _ in self.active if i in self.droppable(pressures)}
         return tuple(j in named for j in range(len(LINKS)))
+
+    def newly_named_joints(self, pressures=()) -> tuple[bool, ...]:
+        """Per link joint (boom, dipper, bucket): whether a signal named now and not after the
+        sample before concerns it (after the last :meth:`step`): a pressure of ``pressures``
+        its own joint, any other signal (an angle, a rate, a tilt) every joint. The estimator
+        forgets those joints' recent samples (they carry the fault from before its name).
+
+        Parameters
+        ----------
+        pressures : collection of str
+            Pressure names the estimator weighs on without.
+        """
+        droppable = self.droppable(pressures)
+        new = {i for i, _ in self.active} - self.previous
+        if any(i not in droppable for i in new):
+            return (True,) * len(LINKS)
+        joints = {self.pressure_joint[i] for i in new}
+        return tuple(j in joints for j in range(len(LINKS)))
 
     def link_state(self) -> list[tuple[float, float]]:
         """Per link: (offset error of its track, gain-window slope), for measuring the margins

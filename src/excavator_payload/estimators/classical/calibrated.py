@@ -314,6 +314,9 @@ class CalibratedEstimator(InverseDynamicsEstimator):
     #: a stuck or dropped-out link angle: the last healthy one plus the integrated rate, for
     #: health.ANGLE_SUBSTITUTE_LIMIT (docs/sensor-health.md)
     DEGRADED_ANGLES = ("boom_angle", "dipper_angle", "bucket_angle")
+    #: a named house tilt: its value from before the fault, for health.TILT_SUBSTITUTE_LIMIT
+    #: while the house does not slew far (docs/sensor-health.md)
+    DEGRADED_TILTS = ("house_pitch", "house_roll")
     OPTIONS = {
         **InverseDynamicsEstimator.OPTIONS,
         "experiments": Option(int, 0, "use only the first N calibration experiments (0: all)"),
@@ -465,6 +468,16 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         """
         return self.DEGRADED_ANGLES if self.options.get("balance") == "momentum" else ()
 
+    def degraded_tilts(self) -> tuple[str, ...]:
+        """Both house tilts with the momentum balance; none otherwise.
+
+        Returns
+        -------
+        tuple of str
+            Signal names (empty: a named tilt stops the weighing).
+        """
+        return self.DEGRADED_TILTS if self.options.get("balance") == "momentum" else ()
+
     def _drop_joints(self, joints: tuple[bool, ...]) -> None:
         """The kernel weighs the next sample's windows without these joints
         (:attr:`CalibratedKernel.drop`).
@@ -476,6 +489,18 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         """
         if isinstance(self.kernel, WeighingKernel):
             self.kernel.regression.drop = tuple(bool(j) for j in joints)
+
+    def _forget_joints(self, joints: tuple[bool, ...]) -> None:
+        """The kernel weighs none of these joints' windows over the samples it holds now
+        (:meth:`CalibratedKernel.forget`).
+
+        Parameters
+        ----------
+        joints : tuple of bool
+            Per joint (boom, dipper, bucket), whether its recent samples are forgotten.
+        """
+        if isinstance(self.kernel, WeighingKernel):
+            self.kernel.regression.forget(joints)
 
     def zero(self, dataset: Dataset, force: bool = False) -> list[str]:
         """The zero check: re-estimate the machine-set sensor offsets from an empty-bucket motion,

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from excavator_payload.estimators import health as H
 from excavator_payload.runtime import dbc
 from excavator_payload.runtime.export_c.c_text import c_array, c_number
+from excavator_payload.runtime.export_c.health_degraded import (
+    C_FORGET, TILT_FIELDS, tilt_defines, tilt_functions, tilt_substitute)
 from excavator_payload.runtime.export_c.joint_check import exports_joint_check
 
 
@@ -208,6 +210,11 @@ unsigned long ep_faults(const ep_state *s, int kind);
         if a in m.integrable(est.degraded_angles()):
             int_link[a] = int_link[m.link_rate[j]] = j
     angles = any(j >= 0 for j in int_link)
+    # the house tilts weighed on with their value from before the fault (degraded_tilts)
+    tilts = angles and bool(m.tilts) and m.slew is not None and \
+        any(m.signals[i] in est.degraded_tilts() for i in m.tilts)
+    if tilts and not all(m.signals[i] in est.degraded_tilts() for i in m.tilts):
+        raise ValueError("health: the C export substitutes both house tilts or neither")
     more = drops or angles  # the extended substitute (pressures' joints, lost angles)
     if angles:
         fields = fields.replace("    int hm_reported;",
@@ -215,6 +222,8 @@ unsigned long ep_faults(const ep_state *s, int kind);
                                 "    int hm_angle_state[EP_HM_N_LINKS];    /* 0 not named, 1 reference taken, 2 none to be had */\n"
                                 "    int hm_angle_age[EP_HM_N_LINKS], hm_angle_clean[EP_HM_N_LINKS];\n"
                                 "    int hm_reported;")
+    if tilts:
+        fields = fields.replace("    int hm_reported;", TILT_FIELDS + "    int hm_reported;")
     if drops:
         header += """
 #if EP_HEALTH  /* the joints (bit j: boom, dipper, bucket) a named pressure drops from this sample */
@@ -223,6 +232,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
 #define EP_HM_DROPPED(s) 0u
 #endif"""
         fields = fields.replace("    int hm_reported;", "    unsigned int hm_drop;      /* joints dropped from this sample's weighing (bit j) */\n"
+                                "    unsigned long hm_prev_named;  /* the signals named after the sample before */\n"
                                 "    int hm_reported;")
     definitions = f"""#if EP_HEALTH
 /* estimators/health.py at export time: windows in samples, thresholds in SI units */
@@ -261,7 +271,10 @@ unsigned long ep_faults(const ep_state *s, int kind);
 {_ints("EP_HM_LONE", lone)}{c_array("EP_HM_QUANTUM", m.quantum)}{c_array("EP_HM_NOISE_LIMIT", m.noise_limit)}\
 {c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}
 {_more_defines(m, drop_joint, int_link, kind_of) if more else ""}\
-{_angle_functions(_C_FUNCTIONS) if angles else _C_FUNCTIONS}{_C_SUBSTITUTE_MORE if more else _C_SUBSTITUTE}
+{tilt_defines(m) if tilts else ""}\
+{tilt_functions(_angle_functions(_C_FUNCTIONS)) if tilts else _angle_functions(_C_FUNCTIONS) if angles else _C_FUNCTIONS}\
+{tilt_substitute(_C_SUBSTITUTE_MORE) if tilts else _C_SUBSTITUTE_MORE if more else _C_SUBSTITUTE}
+{C_FORGET if drops else ""}\
 #endif
 """
     fmis = ", ".join(str(H.FMI[k]) for k in kinds)
@@ -296,8 +309,27 @@ unsigned long ep_faults(const ep_state *s, int kind)
         parts.clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n    s->hm_drop = 0;\n#endif\n"
     if balance:  # a sample the monitor keeps from the kernel reports no balance fault (as in Python)
         parts.clear = parts.clear.replace("#endif\n", "    s->jc_reported = 0;\n#endif\n")
-    elif angles:
+    if angles and not drops:  # no pressure's joint to drop (before: also a model that drops one
+        # but has no joint check, whose named pressures' joints C then weighed on, unlike Python)
         parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, 0)")
+    if drops:  # the samples before a signal's name carry its fault too (HealthMonitor.newly_named_joints)
+        parts.check = parts.check.replace(
+            "        degraded = 1;\n",
+            "        degraded = 1;\n"
+            "        {\n"
+            "            unsigned int hm_new = ep_hm_newly_named_joints(s);  /* their samples before the name */\n"
+            "            if (hm_new) ep_hm_forget(s, hm_new);\n"
+            "        }\n")
+        parts.definitions = parts.definitions.replace(
+            "    unsigned long found[EP_N_FAULT_KINDS] = {0};\n    int i, j, k, c, row, any = 0;\n",
+            "    unsigned long found[EP_N_FAULT_KINDS] = {0};\n    int i, j, k, c, row, any = 0;\n"
+            "    s->hm_prev_named = 0;  /* HealthMonitor.previous: named after the last sample */\n"
+            "    if (s->hm_any_active)\n"
+            "        for (i = 0; i < EP_N_SIGNALS; ++i)\n"
+            "            for (k = 0; k < EP_N_FAULT_KINDS; ++k)\n"
+            "                if (s->hm_age[i][k] >= 0) s->hm_prev_named |= EP_HM_BIT(i);\n", 1)
+        if "s->hm_prev_named = 0;" not in parts.definitions:
+            raise AssertionError("health C: ep_hm_step's opening has changed")
     return parts
 
 
@@ -776,3 +808,4 @@ static int ep_hm_substitute(const ep_state *s, const ep_real v[EP_N_SIGNALS], ep
     return 1;
 }
 """
+

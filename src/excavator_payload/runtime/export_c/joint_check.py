@@ -101,6 +101,10 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     weighed_info = "EP_NZ_INFO(s)" if nuisance else "((s)->info)"
     # a restart of the weighing (a named joint cleared) reaches the IMU dynamics as a new load's
     nz_restart = "\n        s->nz_restarts += 1;" if nuisance else ""
+    # the moving rule follows the weighing reported: with --imu-nuisance the filter's payload as
+    # the last window left it (JointCheck._track_moving, CalibratedKernel.payload_before)
+    moving_now = "s->nz_payload" if nuisance else "s->num / s->info"
+    moving_what = "the IMU filter's payload after the last window" if nuisance else "N / I"
     # ... and the zero's share in sigma (offset_share.py), as Python's OffsetShare.restart
     if getattr(kernel, "_offset_share", None) is not None:
         nz_restart += "\n        s->os_restarts += 1;"
@@ -220,10 +224,11 @@ static void ep_jc_restart(ep_state *s)
     s->changing = 0;{nz_restart}
 }}
 
-/* JointCheck._track_moving: N / I against its value EP_JC_MOVING windows back (NaN: not moving) */
+/* JointCheck._track_moving: the weighing reported ({moving_what}) against its value EP_JC_MOVING
+ * windows back (NaN: not moving) */
 static void ep_jc_track_moving(ep_state *s)
 {{
-    ep_real now = s->info > EP_C(0.0) ? s->num / s->info : EP_NAN;
+    ep_real now = s->info > EP_C(0.0) ? {moving_now} : EP_NAN;
     ep_real then = s->jc_history[(s->jc_slot + 1) % (EP_JC_MOVING + 1)];
     s->jc_history[s->jc_slot] = now;
     s->jc_slot = (s->jc_slot + 1) % (EP_JC_MOVING + 1);
@@ -392,13 +397,13 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
     if (status == EP_STATUS_OK) {{
-        if (s->jc_checked) s->jc_lone_moved = 0;
-        else if (s->jc_moving) s->jc_lone_moved = 1;
+        if (s->jc_moving) s->jc_lone_moved = 1;  /* compared or not: after the pause, fresh sums */
+        else if (s->jc_checked && !s->jc_paused) s->jc_lone_moved = 0;
     }}
     /* paused, or (JointCheck.suspect) the weighing moves before a fault is named */
     if (status == EP_STATUS_OK && (s->jc_paused || s->jc_moving))
         status = EP_STATUS_LOAD_CHANGING;
-    if (status == EP_STATUS_OK && !s->jc_checked && s->jc_lone_moved) status = EP_STATUS_WARMING_UP;
+    if (status == EP_STATUS_OK && !s->jc_checked && s->jc_lone_moved && !s->jc_named) status = EP_STATUS_WARMING_UP;
     if (s->jc_named && (status == EP_STATUS_OK || status == EP_STATUS_LOAD_CHANGING)) {{
         *estimate = s->jc_degraded;
         s->jc_out_info = s->jc_degraded_info;

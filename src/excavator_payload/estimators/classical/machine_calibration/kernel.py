@@ -160,6 +160,9 @@ class CalibratedKernel(PressureRegression):
         self._ring_drop = np.zeros((2 * length, 3), bool)  # each sample's joints dropped (drop)
         self._count = 0
         self._dump_left = 0  # samples the dump still lasts (dumping)
+        # with --imu-nuisance: the filter's payload as the last window left it (the joint check's
+        # moving rule reads it, as the C export's check runs before the filter's window)
+        self.payload_before = math.nan
         b = getattr(self, "_balance_len", 1)  # reset() runs in the base __init__ before it is set
         self._terms = np.zeros((2 * b, getattr(self, "_n_out", 24)))  # per-sample balance terms, doubled as the ring
         self._terms_used = np.zeros(2 * b, bool)
@@ -215,6 +218,20 @@ class CalibratedKernel(PressureRegression):
     def restart_window(self) -> None:
         self._count = 0
         self._terms_count = 0
+
+    def forget(self, joints: tuple[bool, ...]) -> None:
+        """Give these joints (boom, dipper, bucket) no weight in any window that holds a sample
+        now in the rings: the samples before the health monitor named a signal carry its fault
+        too (a rate at 0 for the 0.3 s it takes to name it). Windows already weighed are kept.
+
+        Parameters
+        ----------
+        joints : tuple of bool
+            Per joint, whether its windows over the samples held now are dropped.
+        """
+        mask = np.asarray(joints, bool)
+        self._ring_drop[:, mask] = True
+        self._terms_inside[:, mask] = False
 
     def _call(self, sample: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         if self._trigger is None:
@@ -342,6 +359,8 @@ class CalibratedKernel(PressureRegression):
         self._track_steady()
         if self.joint_check:
             self._check_joints(d_num, d_info)
+        if self._imu_nuisance is not None:
+            self.payload_before = self._imu_nuisance.payload
         return True
 
     def use_imu_nuisance(self, cal) -> None:
