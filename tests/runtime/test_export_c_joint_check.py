@@ -156,3 +156,24 @@ def test_a_lone_joint_whose_weighing_moves_waits_for_a_second(model, tmp_path):
     off_ok = off["status"].astype(str).to_numpy() == "ok"
     off_error = abs(off["payload_estimate"].to_numpy() - frame["payload"].to_numpy())
     assert off_error[onset:][off_ok[onset:]].max() > clean_error[clean_ok].max() + 100.0  # what the hold keeps out
+
+
+def test_c_holds_a_slight_joint_as_python_does(model, work, tmp_path):
+    """The rule that holds a fault of one joint moving the weighing by little (JointCheck._slight,
+    ``EP_JC_SLIGHT_LIMIT``), with its limit raised past any weighing (the kernel's check, which the
+    export reads): on a dipper head pressure 5 bar high, which the default limit names as one joint
+    (the bucket), no one joint is named, in Python and in C alike, sample by sample."""
+    clean = work[0]
+    frame = clean.frame.copy()
+    for e in clean.experiment_ids:
+        rows = frame.index[frame["experiment"] == e]
+        frame.loc[rows[400:], "dipper_head_pressure"] += 5 * BAR
+    offset = Dataset(frame, clean.meta)
+    single = {f"{j}_head_pressure:balance,{j}_rod_pressure:balance" for j in ("boom", "dipper", "bucket")}
+    assert model.estimate(offset)["fault"].astype(str).isin(single).sum() > 100  # the default names one
+    est = copy.deepcopy(model)
+    est.kernel.regression._joints.slight_limit = 1e9
+    source = export_c(est, tmp_path / "export")[1]
+    assert "EP_JC_SLIGHT_LIMIT" in source.read_text()
+    py = _assert_equal(est, source, offset, tmp_path / "build")
+    assert not py["fault"].astype(str).isin(single).any()

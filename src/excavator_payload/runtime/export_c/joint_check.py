@@ -146,6 +146,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_SAMPLES {JOINT_SAMPLES}
 #define EP_JC_MOVING {JOINT_MOVING_WINDOWS}  /* windows over which N / I must hold still */
 #define EP_JC_MOVING_LIMIT {c_number(check.moving_limit)}  /* kg */
+#define EP_JC_SLIGHT_LIMIT {c_number(check.slight_limit)}  /* kg: a joint moving the weighing less is not named */
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
@@ -300,6 +301,25 @@ static int ep_jc_single(const ep_real m[3], const ep_real w[3])
     return -1;
 }}
 
+/* JointCheck._slight: the weighing on the check's sums of the compared joints, with and without
+ * joint `single`, within EP_JC_SLIGHT_LIMIT (kg) */
+static int ep_jc_slight(const ep_state *s, int compared, int single)
+{{
+    ep_real n_all = EP_C(0.0), i_all = EP_C(0.0), n_rest = EP_C(0.0), i_rest = EP_C(0.0);
+    int j;
+    for (j = 0; j < 3; ++j)
+        if (compared >> j & 1) {{
+            n_all += s->jc_num[j];
+            i_all += s->jc_info[j];
+        }}
+    for (j = 0; j < 3; ++j)
+        if ((compared >> j & 1) && j != single) {{
+            n_rest += s->jc_num[j];
+            i_rest += s->jc_info[j];
+        }}
+    return EP_MATH(fabs)(n_all / i_all - n_rest / i_rest) <= EP_JC_SLIGHT_LIMIT;
+}}
+
 /* JointCheck._judge */
 static void ep_jc_judge(ep_state *s)
 {{
@@ -328,10 +348,12 @@ static void ep_jc_judge(ep_state *s)
     failing = chi2 > EP_JC_CHI2;
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
-     * unless its joint holds most of the information (JointCheck._leads) */
+     * unless its joint holds most of the information (JointCheck._leads); and while the one joint
+     * it would name moves the weighing by at most EP_JC_SLIGHT_LIMIT (JointCheck._slight) */
     held = failing && !s->jc_named
            && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
-               || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total)));
+               || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total))
+               || (single >= 0 && ep_jc_slight(s, compared, single)));
     /* a named joint is cleared only by agreeing with another compared joint */
     if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;

@@ -22,7 +22,10 @@ pause, so that it compares what the joints weighed under one load:
 * **dump**: while the bucket opens fast (the kernel's ``dumping``,
   :data:`~.settings.DUMP_OPENING_RATE`, held :data:`~.settings.DUMP_HOLD` s) a load can leave,
   so a window then is not summed and a new fault is held whichever joint leads; so too before
-  the weighing is ready (a new load's first windows: a fill, a dig).
+  the weighing is ready (a new load's first windows: a fill, a dig);
+* **slight**: a new fault of one joint is held while the weighing on the check's sums moves by at
+  most :data:`~.settings.JOINT_SLIGHT_SHARE` of the rated payload without that joint: so little
+  information is as likely the joint's own model error as a sensor.
 
 What was measured with it is in docs/sensor-health.md ("The joint check").
 """
@@ -33,7 +36,8 @@ import math
 
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
-    JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
+    JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES,
+    JOINT_SLIGHT_SHARE)
 
 
 class JointCheck:
@@ -51,7 +55,7 @@ class JointCheck:
     named joint stays named until it agrees again with another compared joint (a new load, which
     the fault itself may trigger, restarts the sums, not the fault). A new fault is held while the
     kernel says the load is changing or the check pauses, unless its joint leads the weighing
-    (:meth:`_leads`).
+    (:meth:`_leads`), and while its one joint moves the weighing by little (:meth:`_slight`).
 
     Parameters
     ----------
@@ -69,6 +73,7 @@ class JointCheck:
 
         self.change_min = JOINT_CHANGE_SHARE * float(rated)
         self.moving_limit = JOINT_MOVING_SHARE * float(rated)
+        self.slight_limit = JOINT_SLIGHT_SHARE * float(rated)
         self.reset()
 
     def reset(self) -> None:
@@ -189,8 +194,10 @@ class JointCheck:
         # goes on: named at once if the joints still disagree when the pause ends)
         # nor while the bucket dumps or before the weighing is ready (a new load's first windows:
         # the fill, a dig), whichever joint leads
+        # nor while the one joint it would name moves the weighing by less than a load that holds
+        # still (_slight: its own model error as likely as a sensor)
         held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
-                                               and not self._leads(joints, m, w))
+                                               and not self._leads(joints, m, w) or self._slight(joints, m, w))
         if self.fault and not failing and not set(self.named) < set(joints):
             failing = True  # a named joint is cleared only by agreeing with another compared joint
         if failing != bool(self.fault):
@@ -220,6 +227,19 @@ class JointCheck:
         is that joint's doing, not one the joints that move see first."""
         named = _named(joints, m, w)
         return len(named) == 1 and 2.0 * self.info[named[0]] > sum(self.info[j] for j in joints)
+
+
+    def _slight(self, joints: list, m: dict, w: dict) -> bool:
+        """Whether the one joint the check would name moves the weighing on the check's sums (N / I
+        of the compared joints against the same without it) by at most
+        :data:`~.settings.JOINT_SLIGHT_SHARE` of the rated payload."""
+        named = _named(joints, m, w)
+        if len(named) != 1:
+            return False
+        rest = [j for j in joints if j != named[0]]
+        whole = sum(self.num[j] for j in joints) / sum(self.info[j] for j in joints)
+        without = sum(self.num[j] for j in rest) / sum(self.info[j] for j in rest)
+        return abs(whole - without) <= self.slight_limit
 
 
 def _named(joints: list, m: dict, w: dict) -> list:

@@ -164,6 +164,13 @@ JOINT_SAMPLES = 10
 #: tried and dropped: clean lever motions on a slope reach χ² 15.7 with the estimate 4 kg off.
 JOINT_MOVING_SHARE = 0.003
 JOINT_MOVING_WINDOWS = 20
+#: A new fault of one joint is held while the weighing without that joint (on the check's sums)
+#: lies within this share of the rated payload of the weighing with it: a joint that holds so
+#: little of the information that it moves the weighing by less than a load that holds still
+#: (:data:`JOINT_MOVING_SHARE`) is as likely its own model error at poses the calibration did not
+#: cover as a sensor (clean `multisine` motions of fresh calibrations: the dipper 177 kg off the
+#: others on 2-5 % of the information, the weighing 4-9 kg off; docs/findings/false-alarms.md).
+JOINT_SLIGHT_SHARE = JOINT_MOVING_SHARE
 #: The check pauses while the new-load test's short memory has left the whole weighing by this
 #: share of the rated payload (and CHANGING_SIGMAS): a dump, which the joints that move see
 #: first while a standing boom keeps the whole weighing where it was (the load_changing test's
