@@ -206,12 +206,14 @@ def with_offsets(est, which: np.ndarray):
 REFIT = {"areas": ("boom areas", "dipper areas", "bucket areas"),
          "friction": ("boom friction", "dipper friction", "bucket friction"),
          "inertia": ("boom inertia", "dipper inertia", "bucket inertia"),
-         "geometry": ("arm geometry", "bucket linkage"), "all δ": tuple(GROUPS), "lag": ()}
+         "geometry": ("arm geometry", "bucket linkage"), "all δ": tuple(GROUPS), "lag": (),
+         "untouched": ()}
 
 
 def refit(motions: int, reach: int, seed: int, zero, known: str, truth: np.ndarray):
     """The draw's calibration again with the block ``known`` of :data:`REFIT` held at the truth
-    (its prior mean the truth, its prior std 1e-6), zeroed on ``zero``.
+    (its prior mean the truth, its prior std 1e-6), zeroed on ``zero``. ``untouched``: the
+    parameters the calibration does not fit set to the true file's in the machine it starts from.
 
     Parameters
     ----------
@@ -224,12 +226,17 @@ def refit(motions: int, reach: int, seed: int, zero, known: str, truth: np.ndarr
     truth : numpy.ndarray
         True relative deviations of the calibrated parameters.
     """
-    idx = np.array(sorted({int(i) for g in REFIT[known] for i in group_index(g)} | ({LAG} if known == "lag" else set())))
+    idx = np.array(sorted({int(i) for g in REFIT[known] for i in group_index(g)} | ({LAG} if known == "lag" else set())),
+                   dtype=int)
     target = np.r_[truth, np.zeros(N_OFFSETS), lag_delay(FIELD.imu_lag, 0.01), np.zeros(4)]
     original = solver.MachineCalibration.solve
 
     def solve(self, values, qdd, payload, free, prior_mean, prior_std, *args, **kw):
-        if len(free) > N_OFFSETS:  # the calibration's solves, not the zero's: the caller's arrays
+        if len(free) > N_OFFSETS and known == "untouched":
+            p = np.asarray(HydraulicArmModel(load_machine("cat345c-hydraulic"), compiled=False).p, float)
+            p[_PARAM_INDEX] = self.p_file[_PARAM_INDEX]
+            self.p_file = p
+        elif len(free) > N_OFFSETS:  # the calibration's solves, not the zero's: the caller's arrays
             prior_mean[idx], prior_std[idx] = target[idx], 1e-6  # (the second pass restarts from them)
             z = self.z.copy()
             z[idx] = target[idx]
