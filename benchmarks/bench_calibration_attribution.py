@@ -28,6 +28,8 @@ largest |error| / posterior σ.
 Usage (docs/findings/any-motion.md, "What the calibration gets wrong")::
 
     PYTHONPATH=src python benchmarks/bench_calibration_attribution.py --cache /tmp/gap --out attribution
+    PYTHONPATH=src python benchmarks/bench_calibration_attribution.py --cache /tmp/gap --draws 2 \
+        --families nmpc joystick multisine --refit none areas friction inertia geometry lag untouched "all δ"
 """
 
 from __future__ import annotations
@@ -297,13 +299,20 @@ def main() -> None:
                                  ("all δ→true + true angle offsets", np.arange(6, N_OFFSETS))):
                 ways[label] = (all_delta, None, False, which)
             if a.refit:
-                ways = {f"refit, {k} known": k for k in a.refit}
+                ways = {f"refit, {k} known": (k, None) for k in a.refit}
+                if "all δ" in a.refit:  # what the working session's offsets leave with every parameter exact
+                    for label, which in (("offsets", np.arange(N_OFFSETS)), ("pressure offsets", np.arange(6)),
+                                         ("angle offsets", np.arange(6, N_OFFSETS))):
+                        ways[f"refit, all δ known + true {label}"] = ("all δ", which)
             if a.variants:
                 ways = {k: v for k, v in ways.items() if k in a.variants}
             for label, way in ways.items():
-                if isinstance(way, str):
-                    out = cached(a.cache, f"refit_{way}_{motions}_{reach}_{s}_{zero_kind}",
-                                 lambda: est if way == "none" else refit(motions, reach, s, zero, way, truth))
+                if isinstance(way[0], str):
+                    known, which = way
+                    out = cached(a.cache, f"refit_{known}_{motions}_{reach}_{s}_{zero_kind}",
+                                 lambda: est if known == "none" else refit(motions, reach, s, zero, known, truth))
+                    if which is not None:
+                        out = with_offsets(out, which)
                 else:
                     out = variant(est, before_zero, zero, way[0], truth, way[1], way[2])
                     if len(way) > 3:
