@@ -85,6 +85,7 @@ import numpy as np
 import pandas as pd
 
 from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.units import check_payload_unit
 from excavator_payload.data.schema import THESIS_SENSORS, SensorSet
 from excavator_payload.errors import EstimatorError, ExcavatorPayloadError
 from excavator_payload.estimators.traits import EstimatorTraits, traits_of
@@ -363,10 +364,7 @@ class Estimator(ABC):
 
             self.health_reference = noise_reference(dataset.frame, self.sensor_set.signals)
         if dataset.has_payload:  # loads in tonnes calibrate a model 1000 times off, refused for its error
-            from excavator_payload.data.units import check_payload_unit
-
-            check_payload_unit(dataset.frame["payload"].to_numpy(float),
-                               self.machine if self.machine is not None else _dataset_machine(dataset),
+            check_payload_unit(dataset.frame["payload"].to_numpy(float), self.machine or _dataset_machine(dataset),
                                f"{self.name}: training data")
         # a work cycle's payload column is the load carried: after its dump the bucket is empty
         self._fit(dataset.until_dump())
