@@ -46,8 +46,7 @@ from excavator_payload.data.schema import SIGNALS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Option, register
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    AREA_PRIOR_CHOICES, BALANCE_CHOICES, IMU_LEAK_CHOICES, IMU_NUISANCE_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
-from excavator_payload.estimators.classical.machine_calibration.unloaded_chamber import UNLOADED_CHAMBER_CHOICES
+    BALANCE_CHOICES, IMU_LEAK_CHOICES, IMU_NUISANCE_CHOICES, NEW_LOAD_CHOICES, OUTSIDE_CALIBRATION_CHOICES, WAIT_FOR_BOOM_CHOICES)
 from excavator_payload.estimators.classical.inverse_dynamics import (
     BASE_PARAMETER_NAMES,
     PAYLOAD_PARAMETER_NAMES,
@@ -345,14 +344,6 @@ class CalibratedEstimator(InverseDynamicsEstimator):
                            "and held (signals), identified in the calibration fit (fit) or not "
                            "modelled (none); auto: signals in the momentum form, fit in the "
                            "per-sample form", IMU_LEAK_CHOICES),
-        "area_prior": Option(str, "share", "machine sensor set: the cylinders' piston and annulus "
-                             "areas' prior std in calibration: the relative prior std each (share), or "
-                             "that std on the bore and rod diameters they are made of, propagated "
-                             "(diameters: about 2x on a piston area, 4x on an annulus)", AREA_PRIOR_CHOICES),
-        "unloaded_chamber": Option(str, "ignore", "machine sensor set: the pressure offsets in "
-                                   "calibration and zero also from the chambers that hold the return line's "
-                                   "back pressure (the side that does not carry the load; back-pressure) or "
-                                   "from the balance alone (ignore)", UNLOADED_CHAMBER_CHOICES),
         "balance": Option(str, "momentum", "machine sensor set: without measured "
                           "accelerations, differentiate the rates (per sample) or balance the "
                           "momentum over 0.5 s windows (no accelerations)",

@@ -43,12 +43,6 @@ FRICTION_PARAMETERS = tuple(p for p in CALIBRATED_PARAMETERS
 #: at the file (a drawing dimension), the cylinder base, whose position relative to the foot
 #: sets the boom's moment arm, stays free (findings: "Held in the momentum form").
 HELD_IN_MOMENTUM = ("boom_foot_x", "boom_foot_z")
-#: Choices of ``--area-prior``: the prior std of the cylinders' piston and annulus areas.
-#: ``share``: the same relative std as every other parameter; ``diameters``: that share on the
-#: bore and rod diameters the areas are made of, propagated (:func:`area_prior_factors`): a
-#: piston area's is twice it, an annulus area's 2·√(D⁴ + d⁴)/(D² − d²) times (about 4 on the
-#: machine file's boom cylinder), since a small annulus is the difference of two large circles.
-AREA_PRIOR_CHOICES = ("share", "diameters")
 #: Signals with an estimated offset (zero), in this order.
 OFFSET_SIGNALS: tuple[str, ...] = (
     *(s for s in SIGNALS if s.endswith("_pressure")), "boom_angle", "dipper_angle", "bucket_angle",
@@ -219,34 +213,6 @@ COVERAGE_JOINTS = (False, False, True)
 NO_LIMIT = 1.0e30
 #: Default pressure noise before it is estimated (the field preset's), Pa.
 DEFAULT_PRESSURE_STD = 3.0e4
-
-
-def area_prior_factors(cylinders) -> dict[str, float]:
-    """Each cylinder area's prior std over the diameters' relative std (``--area-prior
-    diameters``): the first-order propagation of independent relative errors s of the bore D
-    and rod d through A_head = πD²/4 (2s) and A_rod = π(D² − d²)/4 (2s·√(D⁴ + d⁴)/(D² − d²)).
-
-    Parameters
-    ----------
-    cylinders : sequence
-        The machine's boom, dipper and bucket cylinders (``bore`` and ``rod`` diameters, m), in
-        the order of :data:`~excavator_payload.model.hydraulic.CYLINDERS`.
-
-    Returns
-    -------
-    dict
-        Factor per calibrated area parameter name (``boom_cylinder_head_area`` …).
-    """
-    out = {}
-    for name, c in zip(CYLINDERS, cylinders):
-        bore, rod = float(c.bore), float(c.rod)
-        if not 0 < rod < bore:
-            raise ValueError(f"{name}: the rod diameter must lie between 0 and the bore, got {rod} and {bore}")
-        out[f"{name}_head_area"] = 2.0
-        out[f"{name}_rod_area"] = 2.0 * math.sqrt(bore**4 + rod**4) / (bore**2 - rod**2)
-    return out
-
-
 _PARAM_INDEX = np.array([HYDRAULIC_PARAMETER_NAMES.index(n) for n in CALIBRATED_PARAMETERS])
 _OFFSET_COLUMNS = np.array([SIGNALS.index(s) for s in OFFSET_SIGNALS])
 

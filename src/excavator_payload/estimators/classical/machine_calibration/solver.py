@@ -50,16 +50,14 @@ from excavator_payload.estimators.classical.machine_calibration.data import (
     momentum_windows, pressure_noise_from_data, rate_variance, window_residuals)
 from excavator_payload.estimators.classical.machine_calibration.kernel import CalibratedKernel
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    _OFFSET_COLUMNS, _PARAM_INDEX, AREA_PRIOR_CHOICES, BALANCE_HALF_WINDOW, BALANCE_RAMP, CALIBRATED_PARAMETERS,
+    _OFFSET_COLUMNS, _PARAM_INDEX, BALANCE_HALF_WINDOW, BALANCE_RAMP, CALIBRATED_PARAMETERS,
     CALIBRATION_HALF_WINDOW, DEFAULT_PRESSURE_STD, HELD_IN_MOMENTUM, IMU_LEAK_CHOICES, IMU_PARAMETERS,
     IMU_PRIOR_STD, LOW_SPEED_CHOICES, MIN_CROSS_EXPERIMENTS, NO_LIMIT, OFFSET_PRIOR_STD, OFFSET_SIGNALS,
-    SIGMA_COVERAGE, SIGNALS, area_prior_factors)
+    SIGMA_COVERAGE, SIGNALS)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import compiled, kernel_function
-from excavator_payload.estimators.classical.machine_calibration.unloaded_chamber import (
-    UNLOADED_CHAMBER_CHOICES, fuse_offset_prior, unloaded_offsets)
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, RATES
 from excavator_payload.model.codegen import column_map
-from excavator_payload.model.hydraulic import HYDRAULIC_PARAMETER_NAMES, HydraulicArmModel, compiled_function
+from excavator_payload.model.hydraulic import HydraulicArmModel, compiled_function
 
 
 class MachineCalibration:
@@ -476,14 +474,12 @@ class MachineCalibration:
 def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
               low_speed: str = "downweight",
               pressure_std: float | None = None, balance: str = "differentiated",
-              imu_leak: str = "auto", area_prior: str = "share",
-              unloaded_chamber: str = "ignore") -> MachineCalibration:
+              imu_leak: str = "auto") -> MachineCalibration:
     """Identify parameters, offsets and pressure noise from known-payload data (module doc).
 
     ``pressure_std`` None: estimated from the data; else fixed (Pa). ``balance``: per-sample
     residuals with differentiated accelerations, or the momentum balance over windows.
-    ``imu_leak``: :data:`IMU_LEAK_CHOICES`. ``area_prior``: :data:`AREA_PRIOR_CHOICES`.
-    ``unloaded_chamber``: :data:`~.unloaded_chamber.UNLOADED_CHAMBER_CHOICES`.
+    ``imu_leak``: :data:`IMU_LEAK_CHOICES`.
 
     Parameters
     ----------
@@ -501,17 +497,7 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         One of :data:`BALANCE_CHOICES`.
     imu_leak : str
         One of :data:`IMU_LEAK_CHOICES`.
-    area_prior : str
-        One of :data:`AREA_PRIOR_CHOICES`: the cylinder areas' prior std ``prior_std`` each, or
-        ``prior_std`` on the bore and rod diameters, propagated (:func:`area_prior_factors`).
-    unloaded_chamber : str
-        ``back-pressure``: the pressure offsets' prior also from the chambers that hold the back
-        pressure (:mod:`.unloaded_chamber`); ``ignore``: not.
     """
-    if area_prior not in AREA_PRIOR_CHOICES:
-        raise EstimatorError(f"--area-prior must be one of {', '.join(AREA_PRIOR_CHOICES)}")
-    if unloaded_chamber not in UNLOADED_CHAMBER_CHOICES:
-        raise EstimatorError(f"--unloaded-chamber must be one of {', '.join(UNLOADED_CHAMBER_CHOICES)}")
     if low_speed not in LOW_SPEED_CHOICES:
         raise EstimatorError(f"--low-speed must be one of {', '.join(LOW_SPEED_CHOICES)}")
     if imu_leak not in IMU_LEAK_CHOICES:
@@ -527,18 +513,9 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
     if pressure_std is not None:
         cal.pressure_std = float(pressure_std)
     std = cal.prior_std(prior_std)
-    if area_prior == "diameters":
-        for name, factor in area_prior_factors(arm.machine.cylinders).items():
-            std[CALIBRATED_PARAMETERS.index(name)] = factor * prior_std
+    cal.covariance = np.diag(std**2)
     free = np.arange(len(cal.z))
     prior_mean = np.zeros(len(cal.z))
-    if unloaded_chamber == "back-pressure":
-        pressures = len(CALIBRATED_PARAMETERS) + np.arange(6)
-        prior_mean[pressures], std[pressures] = fuse_offset_prior(
-            prior_mean[pressures], std[pressures], *unloaded_offsets(values, cal._head, cal._rod,
-                                                                     _back_pressure(cal), prior_std)[:2])
-        cal.z = prior_mean.copy()
-    cal.covariance = np.diag(std**2)
     # the link IMUs' leak read off their own signals and held (--imu-leak signals): the fit
     # cannot tell it from the geometry and the lag (the momentum form left it out: free, the
     # sensitivities wandered), the IMU's angle minus its integrated rate shows it alone
@@ -585,14 +562,8 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
     return cal
 
 
-def _back_pressure(cal: MachineCalibration) -> float:
-    """The machine file's return-line back pressure, Pa."""
-    return float(cal.p_file[HYDRAULIC_PARAMETER_NAMES.index("back_pressure")])
-
-
 def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "downweight",
-                 drift_std: np.ndarray = OFFSET_PRIOR_STD,
-                 unloaded_chamber: str = "ignore") -> tuple[int, np.ndarray]:
+                 drift_std: np.ndarray = OFFSET_PRIOR_STD) -> tuple[int, np.ndarray]:
     """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc).
     Returns how many samples it used (the valid ones: finite, angles within range) and, per
     arm cylinder, how many of them it moved on (a still cylinder's offsets are not checked).
@@ -607,9 +578,6 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
         One of :data:`LOW_SPEED_CHOICES`.
     drift_std : numpy.ndarray
         Prior std of each offset's change, Pa or rad.
-    unloaded_chamber : str
-        ``back-pressure``: the pressure offsets' prior also from the chambers that hold the
-        back pressure (:mod:`.unloaded_chamber`, the file's back pressure known to 5 %).
 
     Returns
     -------
@@ -622,20 +590,11 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
         raise EstimatorError(f"the zero check needs at least 50 valid samples, the data have {len(values)}")
     if np.any(payload != 0):
         raise EstimatorError("the zero check needs an empty bucket (the data's payload column is not 0)")
-    if unloaded_chamber not in UNLOADED_CHAMBER_CHOICES:
-        raise EstimatorError(f"--unloaded-chamber must be one of {', '.join(UNLOADED_CHAMBER_CHOICES)}")
     n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
     free = np.arange(n_delta, n_delta + n_off)
     momentum = cal.balance == "momentum"
-    mean = cal.z.copy()
-    std = np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))]
-    if unloaded_chamber == "back-pressure":
-        pressures = n_delta + np.arange(6)
-        mean[pressures], std[pressures] = fuse_offset_prior(
-            mean[pressures], std[pressures], *unloaded_offsets(values, cal._head, cal._rod, _back_pressure(cal),
-                                                               0.05)[:2])
-        cal.z = mean.copy()
-    cal.solve(values, qdd, payload, free, mean, std,
+    cal.solve(values, qdd, payload, free, cal.z.copy(),
+              np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))],
               "skip", iterations=4, estimate_noise=False,
               runs=runs if momentum else None)
     return len(values), cal.moving_samples(values, qdd)

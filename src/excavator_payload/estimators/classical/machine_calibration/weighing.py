@@ -284,8 +284,7 @@ class MachineWeighing:
             """The calibration of ``subset`` with the estimator's options, and the angles it covers
             (all the motions, and each half of them for the cross-check)."""
             fitted = calibrate(arm, subset, prior, options["low_speed"], pressure_std, options["balance"],
-                               options["imu_leak"], options.get("area_prior", "share"),
-                               options.get("unloaded_chamber", "ignore"))
+                               options["imu_leak"])
             fitted.angle_coverage = angle_coverage(subset, fitted.offset_vector())
             return fitted
 
@@ -368,8 +367,7 @@ class MachineWeighing:
         """
         from excavator_payload.estimators.classical.zero_quality import zero_quality
 
-        used, moving = zero_offsets(self.calibration, dataset, options["low_speed"],
-                                    unloaded_chamber=options.get("unloaded_chamber", "ignore"))
+        used, moving = zero_offsets(self.calibration, dataset, options["low_speed"])
         #: the zero's predicted weighing error and its reasons not to weigh with it
         self.zero_quality = zero_quality(self.calibration, dataset, moving)
         # the zero motion's noise stays in its offsets for the whole session: a shared error the
