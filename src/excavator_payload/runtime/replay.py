@@ -106,6 +106,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     # units and wiring judged on the decoded samples, as a dataset's (data/units.py)
     watch = SampleWatch(sensor.sensor_set, getattr(sensor.estimator, "machine", None))
     step_values = sensor.estimator.step_values
+
     def watched(t, v):
         watch.add(experiment, t, v)
         if samples is not None:

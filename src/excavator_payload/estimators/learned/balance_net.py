@@ -57,7 +57,7 @@ NEW_LOAD_SHARE = 0.1
 ZERO_REFUSE_SHARE = 0.01
 #: A zero whose offsets' χ² against :data:`ZERO_PRIOR` lies beyond this tail of a χ² of as many
 #: degrees of freedom as offsets is refused (a load in the bucket taken for offsets; measured on
-#: two trainings, 72 empty zero motions of sessions 2-11, swings, slow lever moves, joystick
+#: two trainings, 50 empty zero motions of sessions 2-11, swings, slow lever moves, joystick
 #: passes, 5° and -8° slopes: χ² 0.5-29.6 against 35.6 at 10⁻⁴ and 46.9 at 10⁻⁶ for 10 offsets).
 ZERO_OFFSET_TAIL = 1e-6
 #: ... or this many times the largest χ² of the zeros the training made on its own held-out
