@@ -716,6 +716,9 @@ def output_cases() -> list[Case]:
              setup=lambda work, inputs: _write(work / "file", "precious")))
     add(Case("zero-out-under-a-file", "output path", zero + ["{work}/file/m"], message="not a folder",
              setup=lambda work, inputs: _write(work / "file", "precious")))
+    add(Case("estimate-out-is-csv", "output path",
+             ["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet", "--out", "{work}/e.csv"],
+             message="must end in .parquet"))
     add(Case("estimate-out-is-folder", "output path",
              ["estimate", "--model", "{in}/model", "--data", "{in}/data.parquet", "--out", "{work}"],
              message="folder"))
@@ -1356,7 +1359,7 @@ def test_ctrl_c_shows_the_resume_message(good_inputs, tmp_path):
 
 
 def test_crash_in_a_real_process_is_one_line(tmp_path):
-    proc = _cli("estimate", "--model", str(tmp_path / "[bucket]"), "--data", "x", "--out", "y")
+    proc = _cli("estimate", "--model", str(tmp_path / "[bucket]"), "--data", "x", "--out", "y.parquet")
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 2
     assert err.strip().count("\n") == 0 and "[bucket]" in err

@@ -36,7 +36,7 @@ from excavator_payload.data.validation import _sensor_set_of, validate_frame  # 
 
 
 def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), kind: str = "file",
-                      option: str = "--out", replaces: Sequence[str] = ()) -> Path:
+                      option: str = "--out", replaces: Sequence[str] = (), suffixes: Sequence[str] = ()) -> Path:
     """Refuse, before any work is done, an output path that cannot be written or would destroy data.
 
     Parameters
@@ -48,6 +48,8 @@ def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), ki
     option : the option's name, for the message.
     replaces : for a folder, the names inside it the command overwrites or deletes (an input
         there is refused too).
+    suffixes : for a file, the suffixes its format may have (``.parquet``: ``--out e.csv`` wrote
+        a Parquet file named .csv without a word); empty: any.
 
     Raises
     ------
@@ -72,6 +74,9 @@ def check_output_path(path: str | Path, *, inputs: Sequence[str | Path] = (), ki
         raise DatasetError(f"{option} '{path}' is a folder; give a file name")
     if kind == "folder" and path.exists() and not path.is_dir():
         raise DatasetError(f"{option} '{path}' is a file; give a folder")
+    if suffixes and path.suffix.lower() not in suffixes:
+        raise DatasetError(f"{option} must end in {' or '.join(suffixes)} (the file is written in that format), "
+                           f"got '{path.name}'")
     # The nearest existing ancestor must be a writable folder (checked now, not after training).
     parent = target if kind == "folder" else target.parent
     while not parent.exists():
@@ -178,6 +183,10 @@ def _read_schema(path: Path) -> pa.Schema:
         return pq.read_schema(path)
     except (pa.ArrowInvalid, OSError) as exc:
         raise DatasetError(f"'{path}' is not a readable Parquet file (truncated or another format?): {exc}") from None
+
+
+#: Suffixes of the Parquet files the commands write.
+PARQUET_SUFFIXES = (".parquet", ".pq")
 
 
 def read_dataset(path: str | Path, *, validate: bool = True, machine=None) -> Dataset:

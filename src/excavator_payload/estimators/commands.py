@@ -174,14 +174,14 @@ def register(app: typer.Typer) -> None:
         """Estimate the payload at every sample: writes experiment, time, payload_estimate, status
         and sigma (one-sigma uncertainty, kg). A big dataset (more than ~10 s of work) is split by
         experiment over worker processes (or --scheduler's cluster); a small one is estimated here."""
-        from excavator_payload.data.io import check_output_path, read_dataset, write_estimates
+        from excavator_payload.data.io import PARQUET_SUFFIXES, check_output_path, read_dataset, write_estimates
         from excavator_payload.estimators.base import load_estimator
         from excavator_payload.estimators.running import estimate_in_chunks, progress_bar
         from excavator_payload.execution import Execution
 
         if workers < 0:
             raise EstimatorError(f"--workers must be ≥ 0, got {workers}")
-        check_output_path(out, inputs=[data, model])
+        check_output_path(out, inputs=[data, model], suffixes=PARQUET_SUFFIXES)
         est = load_estimator(model)
         dataset = read_dataset(data, machine=est.machine)
         with Execution(scheduler, workers or None) as execution, progress_bar(console) as progress:

@@ -122,13 +122,14 @@ def register(app: typer.Typer) -> None:
         from excavator_payload.runtime.can_sensor import PayloadSensor
         from excavator_payload.runtime.replay import replay_log
 
-        from excavator_payload.data.io import check_output_path
+        from excavator_payload.data.io import PARQUET_SUFFIXES, check_output_path
 
         # --out inside the model folder replaced its arrays.npz (the model was lost); the log,
         # the DBC and the map are inputs too
-        check_output_path(out, inputs=[log, model, dbc_file, signal_map])
+        check_output_path(out, inputs=[log, model, dbc_file, signal_map], suffixes=PARQUET_SUFFIXES)
         if samples_out is not None:
-            check_output_path(samples_out, inputs=[log, model, dbc_file, signal_map, out])
+            check_output_path(samples_out, inputs=[log, model, dbc_file, signal_map, out], option="--samples-out",
+                              suffixes=PARQUET_SUFFIXES)
         if not segment_gap > 0:
             raise DatasetError("--segment-gap must be positive")
         est = load_estimator(model)
