@@ -21,9 +21,10 @@ import numpy as np
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import calibration_arrays
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    CALIBRATED_PARAMETERS, CALIBRATION_HALF_WINDOW, DEG, HELD_IN_MOMENTUM, MIN_ZERO_MOVING_SAMPLES,
+    CALIBRATED_PARAMETERS, CALIBRATION_HALF_WINDOW, HELD_IN_MOMENTUM, MIN_ZERO_MOVING_SAMPLES,
     OFFSET_PRIOR_STD, OFFSET_SIGNALS, ZERO_OFFSET_CHI2)
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, PRESSURES
+from excavator_payload.estimators.offset_drift import offsets_beyond_drift
 
 if TYPE_CHECKING:  # annotations only: the solver (and its kernel) is not needed at run time
     from excavator_payload.estimators.classical.machine_calibration.solver import MachineCalibration
@@ -305,14 +306,9 @@ def zero_quality(cal: "MachineCalibration", dataset, moving: np.ndarray,
 
 
 def far_offsets(offsets: np.ndarray, drift_std: np.ndarray = OFFSET_PRIOR_STD) -> str:
-    r"""Why offsets are beyond a working session's drift, or ``""`` when they are not.
-
-    Each session's offsets scatter by ``drift_std`` about zero, so
-    :math:`\chi^2 = \sum_k (o_k/\sigma_k)^2` of a clean zero follows roughly a χ² of 11
-    degrees of freedom (measured 1.3–16.3); past :data:`ZERO_OFFSET_CHI2` the zero took
-    something else for offsets. A load left in the bucket is the commonest: the zero assumes an
-    empty bucket, puts the load's pressures into the offsets and every later weight comes out
-    light by about that load (300 kg: χ² 73–333).
+    """Why the zero's offsets are beyond a working session's drift (their χ² past
+    :data:`ZERO_OFFSET_CHI2`; :func:`~excavator_payload.estimators.offset_drift.offsets_beyond_drift`),
+    or ``""``. Clean zeros: χ² 1.3–16.3; 300 kg left in the bucket: 73–333.
 
     Parameters
     ----------
@@ -321,16 +317,4 @@ def far_offsets(offsets: np.ndarray, drift_std: np.ndarray = OFFSET_PRIOR_STD) -
     drift_std : ndarray
         Their prior std (SI units).
     """
-    ratio = np.asarray(offsets, float) / np.asarray(drift_std, float)
-    chi2 = float(np.sum(ratio**2))
-    if chi2 <= ZERO_OFFSET_CHI2:  # NaN offsets were refused before (no valid samples)
-        return ""
-    order = np.argsort(-np.abs(ratio))[:4]
-    named = ", ".join(
-        f"{OFFSET_SIGNALS[k]} {offsets[k] / 1e5:+.3g} bar" if OFFSET_SIGNALS[k].endswith("_pressure")
-        else f"{OFFSET_SIGNALS[k]} {offsets[k] / DEG:+.3g}°" for k in order if abs(ratio[k]) >= 3.0)
-    return (f"its sensor offsets are far beyond a working session's drift (χ² {chi2:.0f} over "
-            f"{len(ratio)} offsets, limit {ZERO_OFFSET_CHI2:g}{'; ' + named if named else ''}): "
-            "was the bucket empty? A load in it is taken for offsets and every later weight comes "
-            "out light by about that load. Empty the bucket and repeat the zero check; if it was "
-            "empty, a sensor is stuck, mis-scaled or changed since the calibration: check those signals")
+    return offsets_beyond_drift(OFFSET_SIGNALS, offsets, drift_std, ZERO_OFFSET_CHI2)

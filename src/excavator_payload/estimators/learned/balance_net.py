@@ -43,6 +43,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
 from excavator_payload.estimators.learned.balance_model import BalanceModel, Layout, Samples, experiment_samples
+from excavator_payload.estimators.offset_drift import offsets_beyond_drift, offsets_chi2
 
 #: Angles' plausibility: the training range widened by this share of its span plus ANGLE_MARGIN.
 ANGLE_WIDEN, ANGLE_MARGIN = 0.25, math.radians(5.0)
@@ -382,8 +383,8 @@ class BalanceNet(Estimator):
         return []
 
     def _offset_chi2(self) -> float:
-        """The offsets' χ² against their prior (:data:`ZERO_PRIOR`): Σ (offset / prior std)²."""
-        return float(np.sum((np.asarray(self.model.offsets, float) / self.model.offset_prior_std()) ** 2))
+        """The offsets' χ² against their prior (:data:`ZERO_PRIOR`)."""
+        return offsets_chi2(self.model.offsets, self.model.offset_prior_std())
 
     def _zero_limit(self, cross: list[float]) -> float:
         """The χ² past which a zero is refused: the :data:`ZERO_OFFSET_TAIL` quantile of a χ² of
@@ -397,25 +398,10 @@ class BalanceNet(Estimator):
 
     def _far_offsets(self) -> str:
         """Why the offsets are beyond a session's drift (χ² past :attr:`zero_chi2_limit`), or
-        ``""``: a load the zero motion carried but its data did not say is taken for offsets
-        (300 kg: χ² 40–2956; clean zeros 0.5–29.6)."""
-        offsets = np.asarray(self.model.offsets, float)
-        ratio = offsets / self.model.offset_prior_std()
-        chi2 = self._offset_chi2()
-        limit = self.zero_chi2_limit
-        if not chi2 > limit:
-            return ""
-        names, layout = self.offset_names(), self.model.layout
-        angles = layout.n + (1 if layout.tilt else 0)
-        named = ", ".join(f"{names[k]} {math.degrees(offsets[k]):+.3g}°" if k < angles
-                          else f"{names[k]} {offsets[k] / 1e5:+.3g} bar" if layout.pressure
-                          else f"{names[k]} {offsets[k]:+.3g} N·m"
-                          for k in np.argsort(-np.abs(ratio))[:4] if abs(ratio[k]) >= 3.0)
-        return (f"zero: its sensor offsets are far beyond a working session's drift (χ² {chi2:.0f} over "
-                f"{len(ratio)} offsets, limit {limit:.1f}{'; ' + named if named else ''}): was the bucket "
-                "empty (or its load as the data say)? A load the data do not carry is taken for offsets "
-                "and every later weight comes out light by about that load. Repeat the zero check with "
-                "an empty bucket; if it was empty, check those signals")
+        ``""`` (clean zeros 0.5–29.6; 300 kg the data did not say: 40–2956)."""
+        far = offsets_beyond_drift(self.offset_names(), self.model.offsets, self.model.offset_prior_std(),
+                                   self.zero_chi2_limit)
+        return f"zero: {far}" if far else ""
 
     def offset_table(self) -> list[tuple[str, float]]:
         """``(signal, offset)`` of every offset ``zero`` estimates (SI units)."""
