@@ -46,6 +46,15 @@ def test_user_errors_are_one_line(tmp_path, capsys):
     assert "Traceback" not in err and "unknown noise preset" in err and "nope.toml" in err
 
 
+def test_output_must_be_named_parquet(tmp_path, capsys):
+    """`--out x.csv` wrote a Parquet file under a .csv name: refused before simulating."""
+    out = tmp_path / "x.csv"
+    assert main(["simulate", "-n", "1", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and ".parquet" in err and "x.csv" in err
+    assert not out.exists() and not (tmp_path / "x.csv.partial").exists()
+
+
 def test_ctrl_c_keeps_finished_chunks_and_says_so(tmp_path, capsys, monkeypatch):
     from excavator_payload.simulation import generate
 

@@ -83,9 +83,12 @@ def register(app: typer.Typer) -> None:
 
         An interrupted run keeps its finished experiments in OUT.partial/; run the same command again to resume.
         """
+        from excavator_payload.data.io import PARQUET_SUFFIXES, check_output_path
         from excavator_payload.execution import Execution, interrupted_message
         from excavator_payload.simulation.generate import make_spec, simulate_spec_to_file, summary
 
+        # Before any simulation: `--out x.csv` wrote Parquet under a .csv name without a word.
+        check_output_path(out, inputs=[trajectory], suffixes=PARQUET_SUFFIXES)
         if workers < 0:
             raise ExcavatorPayloadError(f"--workers must be ≥ 0, got {workers}")
         # Names (machine, noise preset, motion, trajectory file) are resolved once, here, into
