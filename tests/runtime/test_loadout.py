@@ -163,6 +163,17 @@ def test_bad_input_is_one_line(tmp_path, capsys):
                  "--out", str(tmp_path / "x.parquet")]) == 2
 
 
+def test_a_truck_target_below_two_passes_is_refused(tmp_path, capsys):
+    """``simulate --motion shift --truck-target 1200``: every pass was clipped to 20 % of rated
+    and each truck carried 2 t, without a word. Refused in one line, before simulating."""
+    out = tmp_path / "small.parquet"
+    assert main(["simulate", "--machine", "cat345c-hydraulic", "--motion", "shift", "--truck-target", "1200",
+                 "-n", "1", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--truck-target must be between 2000 kg (2 passes of 20 % of rated)" in err and "1200" in err
+    assert "Traceback" not in err and not out.exists()
+
+
 def test_a_truck_target_in_tonnes_is_refused(shift, capsys):
     """``--target 20`` meant 20 t: every truck was full after its first pass (20,023 kg of a
     20 kg target). Now refused in one line before anything is written."""

@@ -296,11 +296,19 @@ class HydraulicPlatform(Platform):
                 raise ExcavatorPayloadError("--payload does not go with --motion shift: each pass draws "
                                             "its fill towards --truck-target")
             if truck_target is not None:
-                most = machine.max_payload * 6
+                from excavator_payload.simulation.machine_motions import SHIFT_LEAST_FILL, SHIFT_PASSES
+
+                fewest, most_passes = SHIFT_PASSES
+                most = machine.max_payload * most_passes
+                # Below two of the smallest passes every fill is clipped: a 1.2 t target made
+                # trucks of 2 t without a word.
+                least = fewest * SHIFT_LEAST_FILL * float(machine.rated_payload)
                 if (isinstance(truck_target, bool) or not isinstance(truck_target, Real)
-                        or not 0.0 < float(truck_target) <= most):
-                    raise ExcavatorPayloadError(f"--truck-target must be above 0 and at most 6 passes of the "
-                                                f"machine's maximum payload, {most:g} kg; got {truck_target!r}")
+                        or not least <= float(truck_target) <= most):
+                    raise ExcavatorPayloadError(
+                        f"--truck-target must be between {least:g} kg ({fewest} passes of "
+                        f"{100 * SHIFT_LEAST_FILL:g} % of rated) and {most:g} kg ({most_passes} passes of "
+                        f"the machine's maximum payload); got {truck_target!r}")
                 options["truck_target"] = float(truck_target)
         return motion, preset, options
 

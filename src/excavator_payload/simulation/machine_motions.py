@@ -503,6 +503,8 @@ SOIL_RESISTANCE = (20e3, 60e3)
 SOIL_SPEED = 0.05
 #: Passes per truck in a shift (the issue: 2-6).
 SHIFT_PASSES = (2, 6)
+#: A pass's fill is at least this share of rated (a bucket the operator bothers to carry).
+SHIFT_LEAST_FILL = 0.2
 
 
 def shift_passes(rng, truck_target: float, machine) -> list[float]:
@@ -529,7 +531,7 @@ def shift_passes(rng, truck_target: float, machine) -> list[float]:
     rated = float(machine.rated_payload)
     n = int(np.clip(np.ceil(truck_target / (0.9 * rated)), *SHIFT_PASSES))
     share = truck_target / n
-    return [float(np.clip(share * _uniform(rng, 0.85, 1.10), 0.2 * rated, machine.max_payload))
+    return [float(np.clip(share * _uniform(rng, 0.85, 1.10), SHIFT_LEAST_FILL * rated, machine.max_payload))
             for _ in range(n)]
 
 
