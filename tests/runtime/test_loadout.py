@@ -205,3 +205,27 @@ def test_zero_from_a_logged_empty_swing(shift, tmp_path):
     b = load_estimator(tmp_path / "from-data").calibration.offsets
     np.testing.assert_allclose(a[:6], b[:6], atol=500.0)  # Pa (the DBC carries 50 Pa steps)
     np.testing.assert_allclose(a[6:], b[6:], atol=1e-4)  # rad
+
+
+def test_a_model_never_zeroed_is_said_before_the_first_pass(shift, tmp_path, capsys):
+    """An unzeroed calibration weighed another session's trucks' first passes 350-510 kg off as
+    `ok`, without a word: `loadout` warns before weighing, `estimate` notes it; a zeroed model not."""
+    from excavator_payload.estimators.base import load_estimator
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    folder, truck = shift
+    model = load_estimator(folder / "model")
+    assert model.never_zeroed
+    assert any("never zeroed" in n for n in model.estimate_notes(truck))
+    db = tmp_path / "r.sqlite"
+    assert main(["loadout", "--model", str(folder / "model"), "--data", str(folder / "shift.parquet"),
+                 "--db", str(db)]) == 0
+    err = capsys.readouterr().err
+    assert "warning: calibrated: this model was never zeroed" in err and "excavator-payload zero" in err
+    model.zero(simulate_machine_dataset(1, seed=43, session=1, payload=0.0), force=True)
+    assert not model.never_zeroed
+    assert not any("never zeroed" in n for n in model.estimate_notes(truck))
+    model.save(tmp_path / "zeroed")
+    assert main(["loadout", "--model", str(tmp_path / "zeroed"), "--data", str(folder / "shift.parquet"),
+                 "--db", str(tmp_path / "z.sqlite")]) == 0
+    assert "never zeroed" not in capsys.readouterr().err

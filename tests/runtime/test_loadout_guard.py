@@ -227,7 +227,8 @@ def test_a_log_cut_short_is_weighed_to_the_cut_with_one_warning(shift, tmp_path,
     code = main(["loadout", "--model", str(folder / "model"), "--log", str(cut), "--dbc", str(dbc_path),
                  "--signal-map", str(map_path), "--db", str(tmp_path / "cut.sqlite"), "--target", "8000"])
     out = capsys.readouterr()
-    lines = [line for line in out.err.splitlines() if line.strip()]
+    # the fixture's model is not zeroed, which is said too
+    lines = [line for line in out.err.splitlines() if line.strip() and "never zeroed" not in line]
     assert code == 0 and len(lines) == 1, out.err
     assert lines[0].startswith("warning: CAN log") and "ends early" in lines[0] and "last truck may be partial" in lines[0]
     with sqlite3.connect(tmp_path / "cut.sqlite") as con:

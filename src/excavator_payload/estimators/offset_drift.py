@@ -62,3 +62,20 @@ def offsets_beyond_drift(names: Sequence[str], offsets, prior_std, limit: float)
             "empty? A load the data do not carry is taken for offsets and every later weight comes "
             "out light by about that load. Repeat the zero check with an empty bucket; if it was "
             "empty, a sensor is stuck, mis-scaled or changed since the calibration: check those signals")
+
+
+def never_zeroed_note(name: str) -> str:
+    """The note for a zeroing estimator that weighs with its calibration session's offsets.
+
+    Parameters
+    ----------
+    name : str
+        The estimator's name, to start the line with.
+    """
+    # Measured: a simulated shift of another working session, weighed with an unzeroed
+    # calibration, put every truck's first pass 350-510 kg off, as `ok`.
+    return (f"{name}: this model was never zeroed: it weighs with the sensor offsets of the working "
+            "session(s) it was fitted in. Offsets drift between sessions (a day, a service); on another "
+            "session's data an unzeroed calibration weighed passes 350-510 kg off as 'ok'. Zero it on "
+            "an empty-bucket motion of this session: excavator-payload zero --model MODEL --data EMPTY "
+            "--out ZEROED")

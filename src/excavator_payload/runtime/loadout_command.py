@@ -164,6 +164,15 @@ def show_truck(truck) -> None:
         console.print(f"truck {truck.truck}: " + fault_line(fault), markup=False, highlight=False)
 
 
+def _warn_never_zeroed(estimator) -> None:
+    # Said once the inputs are checked and before the first pass, not after the shift: each
+    # truck's first pass is where an unzeroed model's offsets show as an `ok` weight.
+    if getattr(estimator, "never_zeroed", False):
+        from excavator_payload.estimators.offset_drift import never_zeroed_note
+
+        typer.echo(f"warning: {never_zeroed_note(estimator.name)}", err=True)
+
+
 def _from_dataset(estimator, data, db, target, model):
     from excavator_payload.data.io import read_dataset
     from excavator_payload.platforms import HYDRAULIC
@@ -174,6 +183,7 @@ def _from_dataset(estimator, data, db, target, model):
     if not HYDRAULIC.carries(dataset):
         raise DatasetError(f"loadout weighs the machine sensor set's passes; {data} holds the "
                            f"{dataset.sensor_set.name} set")
+    _warn_never_zeroed(estimator)
     record = open_record(db, say=_say)
     try:
         return run_loadout(estimator, dataset, record, file_key(data), target, on_truck=show_truck,
@@ -217,6 +227,7 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
         # a signal in another unit: one line before anything is recorded
         check_log_units(log, PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance), guard(),
                         f"CAN log '{log}'")
+        _warn_never_zeroed(estimator)
         record = open_record(db, say=_say)
         try:
             bus = BusLoadout(sensor, record, file_key(log), target, button, truths=truths, on_truck=show_truck,
@@ -257,6 +268,7 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
         bus = can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
         raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
+    _warn_never_zeroed(sensor.estimator)
     # a write that fails mid-shift (disk full, read-only, locked, folder gone) keeps the trucks
     # in hand in a file and tries again; the shift goes on (it stopped and lost the truck)
     record = KeptRecord(open_record(db, say=_say))

@@ -541,12 +541,19 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         self.zero_refusals = [f"zero: {reason}" for reason in quality.refusals]
         return warnings
 
+    @property
+    def never_zeroed(self) -> bool:
+        """A machine-set calibration that still weighs with its calibration session's offsets."""
+        return self.calibration is not None and float(getattr(self.calibration, "zero_std", 0.0)) == 0.0
+
     def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
         if self.calibration is not None and HYDRAULIC.carries(dataset):
             from excavator_payload.estimators.classical.machine_calibration.weighing import (
                 coverage_notes, waiting_notes)
+            from excavator_payload.estimators.offset_drift import never_zeroed_note
 
-            return [*coverage_notes(self.name, self.kernel.regression, self.calibration, dataset),
+            return [*([never_zeroed_note(self.name)] if self.never_zeroed else []),
+                    *coverage_notes(self.name, self.kernel.regression, self.calibration, dataset),
                     *waiting_notes(self.name, self.kernel.regression, estimates)]
         return []
 
