@@ -349,7 +349,8 @@ class MachineCalibration:
 
     def solve(self, values, qdd, payload, free: np.ndarray, prior_mean: np.ndarray,
               prior_std: np.ndarray, low_speed: str, iterations: int = 8,
-              estimate_noise: bool = True, runs: np.ndarray | None = None) -> None:
+              estimate_noise: bool = True, runs: np.ndarray | None = None,
+              prior_covariance: np.ndarray | None = None) -> None:
         """Bayesian Levenberg–Marquardt on the entries ``free`` of z (the others stay), in place.
 
         A plain Gauss–Newton step overshoots where the slow lifts leave directions weakly
@@ -376,9 +377,22 @@ class MachineCalibration:
             Also estimate :attr:`pressure_std` from the residuals.
         runs : numpy.ndarray or None
             Run ids: fit the momentum-balance windows (None: per-sample residuals).
+        prior_covariance : numpy.ndarray or None
+            A full prior covariance of the entries ``free`` (len(free) × len(free)), in place of
+            ``prior_std``'s diagonal one (None).
         """
         z = self.z.copy()
         scale = prior_std[free]  # solve in prior-normalised units u = (z - μ)/σ: well conditioned
+        root = None  # a full prior: u = L⁻¹(z - μ), L its Cholesky factor
+        if prior_covariance is not None:
+            root = np.linalg.cholesky(np.asarray(prior_covariance, float))
+            scale = np.ones(len(free))
+
+        def whiten(dz):
+            return dz / scale if root is None else np.linalg.solve(root, dz)
+
+        def colour(du):
+            return scale * du if root is None else root @ du
 
         fixed = {}  # weights held during the iterations: they depend on z (friction, levers), and
                     # letting them move would reward inflating the stiction variance
@@ -396,9 +410,10 @@ class MachineCalibration:
             ok = np.isfinite(r) & np.isfinite(w) & np.all(np.isfinite(J), axis=2)
             w = np.where(ok, w, 0.0)
             r = np.where(ok, r, 0.0)
-            u = (z[free] - prior_mean[free]) / scale
+            u = whiten(z[free] - prior_mean[free])
             cost = float(np.sum(w * r**2) + u @ u)
-            return cost, r, np.where(ok[..., None], J[:, :, free] * scale, 0.0), w, (lever, speed)
+            Jf = J[:, :, free] * scale if root is None else J[:, :, free] @ root
+            return cost, r, np.where(ok[..., None], Jf, 0.0), w, (lever, speed)
 
         cost, r, Js, w, kin = linearise(z)
         if estimate_noise:
@@ -408,12 +423,12 @@ class MachineCalibration:
         damping = 1e-4
         self.cost_trace = [cost]
         for _ in range(iterations):
-            u = (z[free] - prior_mean[free]) / scale
+            u = whiten(z[free] - prior_mean[free])
             H = np.einsum("nja,nj,njb->ab", Js, w, Js) + np.eye(len(free))
             g = np.einsum("nja,nj,nj->a", Js, w, r) + u
             for _ in range(6):
                 trial = z.copy()
-                trial[free] -= scale * np.linalg.solve(H + damping * np.diag(np.diag(H)), g)
+                trial[free] -= colour(np.linalg.solve(H + damping * np.diag(np.diag(H)), g))
                 new = linearise(trial)
                 if new[0] < cost:
                     improvement = cost - new[0]
@@ -433,7 +448,8 @@ class MachineCalibration:
         cov = self.covariance.copy()
         cov[free, :] = 0.0
         cov[:, free] = 0.0
-        cov[np.ix_(free, free)] = np.linalg.inv(H) * np.outer(scale, scale)
+        cov[np.ix_(free, free)] = (np.linalg.inv(H) * np.outer(scale, scale) if root is None
+                                   else root @ np.linalg.inv(H) @ root.T)
         self.covariance = cov
 
     def _noise_from_residuals(self, r, lever, speed) -> float:
@@ -563,8 +579,10 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
 
 
 def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "downweight",
-                 drift_std: np.ndarray = OFFSET_PRIOR_STD) -> tuple[int, np.ndarray]:
-    """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc).
+                 drift_std: np.ndarray = OFFSET_PRIOR_STD, parameters: np.ndarray | None = None,
+                 inflation: float = 1.0, correlated: bool = True) -> tuple[int, np.ndarray]:
+    """Re-estimate only the sensor offsets from empty-bucket data, in place (module doc; with
+    ``parameters``, those too: measured in docs/findings/any-motion.md, not used by ``zero``).
     Returns how many samples it used (the valid ones: finite, angles within range) and, per
     arm cylinder, how many of them it moved on (a still cylinder's offsets are not checked).
 
@@ -578,6 +596,16 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
         One of :data:`LOW_SPEED_CHOICES`.
     drift_std : numpy.ndarray
         Prior std of each offset's change, Pa or rad.
+    parameters : numpy.ndarray or None
+        Indices of z besides the offsets to re-estimate with them (None: the offsets alone),
+        under the calibration's posterior: prior N(z, Σ) over these entries and the offsets,
+        Σ = the held covariance with the calibrated parameters' block × ``inflation`` (not the
+        IMU entries'), conditioned on the entries not freed (held at their values), plus the
+        drift's variance on the offsets.
+    inflation : float
+        Factor on the parameters' prior covariance (≥ 1: the calibration is over-confident).
+    correlated : bool
+        Keep the calibration's parameter–offset correlations in the prior (False: independent).
 
     Returns
     -------
@@ -593,10 +621,32 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
     n_delta, n_off = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
     free = np.arange(n_delta, n_delta + n_off)
     momentum = cal.balance == "momentum"
-    cal.solve(values, qdd, payload, free, cal.z.copy(),
-              np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))],
-              "skip", iterations=4, estimate_noise=False,
-              runs=runs if momentum else None)
+    prior_std = np.r_[np.ones(n_delta), drift_std, np.ones(len(IMU_PARAMETERS))]
+    if parameters is None:
+        cal.solve(values, qdd, payload, free, cal.z.copy(), prior_std,
+                  "skip", iterations=4, estimate_noise=False,
+                  runs=runs if momentum else None)
+    else:
+        params = np.setdiff1d(np.asarray(parameters, int), free)
+        free = np.r_[params, free]
+        k = len(params)
+        # the calibration's posterior, its parameters' rows × √inflation, conditioned on the
+        # entries held at their values (a block freed alone keeps its compensation with the rest)
+        root = np.sqrt(np.where(np.arange(len(cal.z)) < n_delta, inflation, 1.0))
+        full = cal.covariance * np.outer(root, root)
+        held = np.setdiff1d(np.flatnonzero(np.diag(full) > 0), free)
+        sd = np.sqrt(np.diag(full))
+        sd[sd == 0] = 1.0
+        corr = full / np.outer(sd, sd)  # conditioned as correlations: z mixes Pa, rad and shares
+        prior = corr[np.ix_(free, free)] - corr[np.ix_(free, held)] @ np.linalg.solve(
+            corr[np.ix_(held, held)], corr[np.ix_(held, free)])
+        prior = 0.5 * (prior + prior.T) * np.outer(sd[free], sd[free])
+        if not correlated:
+            prior[:k, k:] = prior[k:, :k] = 0.0
+        prior[k:, k:] += np.diag(np.asarray(drift_std, float) ** 2)
+        cal.solve(values, qdd, payload, free, cal.z.copy(), prior_std,
+                  "skip", iterations=8, estimate_noise=False,
+                  runs=runs if momentum else None, prior_covariance=prior)
     return len(values), cal.moving_samples(values, qdd)
 
 
