@@ -149,7 +149,15 @@ def test_lock_weight_prefers_ok_then_degraded():
     sig = np.ones(6)
     fault = np.array(["", "", "x:stuck", "x:stuck", "", ""], dtype=object)
     status = np.array(["ok", "ok", "degraded", "degraded", "warming_up", "warming_up"], dtype=object)
-    assert lock_weight(t, est, sig, status, 0, 6, fault)[1::3] == (2.0, "ok")
+    # a sensor named after the last ok: the degraded weighing after it, not the ok before it
+    got = lock_weight(t, est, sig, status, 0, 6, fault)
+    assert got[1] == 4.0 and got[4] == "degraded" and "x:stuck" in got[3]
+    ok_then_named = np.array(["ok", "ok", "sensor_fault", "sensor_fault", "warming_up", "warming_up"], dtype=object)
+    got = lock_weight(t, est, sig, ok_then_named, 0, 6, fault)
+    assert got[1] is None and got[4] == "not_weighed" and "x:stuck was named at 2.00 s" in got[3]
+    # a fault before the last ok: the ok
+    named_then_ok = np.array(["degraded", "sensor_fault", "ok", "ok", "warming_up", "warming_up"], dtype=object)
+    assert lock_weight(t, est, sig, named_then_ok, 0, 6, fault)[1::3] == (4.0, "ok")
     got = lock_weight(t, est, sig, status, 2, 6, fault)
     assert got[1] == 4.0 and got[4] == "degraded" and "x:stuck" in got[3]
     got = lock_weight(t, est, sig, status, 4, 6, fault)

@@ -56,6 +56,7 @@ from excavator_payload.runtime.shift_record import (  # noqa: F401  (the record'
 
 #: A pass weighed without a sensor the health monitor named (:func:`lock_weight`).
 DEGRADED = Status.DEGRADED.value
+SENSOR_FAULT = Status.SENSOR_FAULT.value
 
 #: A curl of the bucket by more than this (rad) ends a dig: the cut fills the bucket. Work
 #: cycles curl 65-125° (halved near the end of the bucket's range); the bucket's "ready" curl
@@ -267,10 +268,14 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
                 ) -> tuple[float | None, float | None, float | None, str, str]:
     """The pass's weight from samples ``start … stop-1``: (time, weight, σ, reason, status).
 
-    The last ``ok`` estimate, status ``ok``; without one, the last ``degraded`` estimate (weighed
-    without a sensor the health monitor named, its σ widened), status ``degraded`` and the reason
-    naming the sensors; without either, nothing, status ``not_weighed`` and the statuses seen.
-    A pass weighed on an ``ok`` sample is never reported degraded because a fault came earlier.
+    The last ``ok`` estimate, status ``ok``, unless a sensor is named after it (a
+    ``sensor_fault`` or ``degraded`` sample later in the pass): the health monitor names a
+    fault some samples after it starts, so that ``ok`` may already hold it (an unzeroed model's
+    offsets weighed a pass 400 kg off as ``ok`` 0.3 s before the pressures were named). Then,
+    and without an ``ok`` one, the last ``degraded`` estimate after it (weighed without the
+    named sensor, its σ widened), status ``degraded`` and the reason naming the sensors;
+    without either, nothing, status ``not_weighed`` and why. A pass weighed on an ``ok`` sample
+    is never reported degraded because a fault came earlier.
 
     Parameters
     ----------
@@ -288,17 +293,31 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
         The estimates' ``fault`` column (the named sensors, ``signal:kind;…``), for a degraded
         pass's reason.
     """
+    status = np.asarray(status[start:stop])
     finite = np.isfinite(estimate[start:stop])
-    for wanted in ("ok", DEGRADED):
-        found = np.flatnonzero((np.asarray(status[start:stop]) == wanted) & finite)
-        if len(found):
-            i = start + int(found[-1])
-            reason = ""
-            if wanted == DEGRADED:
-                named = str(fault[i]) if fault is not None and fault[i] not in (None, "") else "a sensor"
-                reason = f"weighed without {named} (σ widened)"
-            return float(time[i]), float(estimate[i]), float(sigma[i]), reason, wanted
-    seen = pd.Series(status[start:stop]).value_counts()
+
+    def named(i: int) -> str:
+        return str(fault[i]) if fault is not None and fault[i] not in (None, "") else "a sensor"
+
+    ok = np.flatnonzero((status == "ok") & finite)
+    first = 0
+    distrust = ""
+    if len(ok):
+        after = np.flatnonzero(np.isin(status[ok[-1] + 1:], (SENSOR_FAULT, DEGRADED)))
+        if not len(after):
+            i = start + int(ok[-1])
+            return float(time[i]), float(estimate[i]), float(sigma[i]), "", "ok"
+        first = int(ok[-1]) + 1
+        k = start + first + int(after[0])
+        distrust = (f"its last ok estimate ({estimate[start + ok[-1]]:,.0f} kg) came before {named(k)} "
+                    f"was named at {time[k]:.2f} s")
+    found = first + np.flatnonzero((status[first:] == DEGRADED) & finite[first:])
+    if len(found):
+        i = start + int(found[-1])
+        return float(time[i]), float(estimate[i]), float(sigma[i]), f"weighed without {named(i)} (σ widened)", DEGRADED
+    if distrust:
+        return None, None, None, f"no trusted estimate between the dig and the dump: {distrust}", "not_weighed"
+    seen = pd.Series(status).value_counts()
     what = ", ".join(f"{k} {100 * v / max(stop - start, 1):.0f} %" for k, v in seen.items()) or "no samples"
     return None, None, None, f"no ok estimate between the dig and the dump ({what})", "not_weighed"
 
