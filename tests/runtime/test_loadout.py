@@ -149,8 +149,11 @@ def test_lock_weight_prefers_ok_then_degraded():
     sig = np.ones(6)
     fault = np.array(["", "", "x:stuck", "x:stuck", "", ""], dtype=object)
     status = np.array(["ok", "ok", "degraded", "degraded", "warming_up", "warming_up"], dtype=object)
-    # a sensor named after the last ok: the degraded weighing after it, not the ok before it
-    got = lock_weight(t, est, sig, status, 0, 6, fault)
+    # degraded after the last ok: the ok
+    assert lock_weight(t, est, sig, status, 0, 6, fault)[1::3] == (2.0, "ok")
+    # the weighing withheld after the last ok: not that ok; the degraded weighing after it, else none
+    ok_fault_degraded = np.array(["ok", "ok", "sensor_fault", "degraded", "warming_up", "warming_up"], dtype=object)
+    got = lock_weight(t, est, sig, ok_fault_degraded, 0, 6, fault)
     assert got[1] == 4.0 and got[4] == "degraded" and "x:stuck" in got[3]
     ok_then_named = np.array(["ok", "ok", "sensor_fault", "sensor_fault", "warming_up", "warming_up"], dtype=object)
     got = lock_weight(t, est, sig, ok_then_named, 0, 6, fault)

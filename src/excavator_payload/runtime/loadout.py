@@ -268,14 +268,15 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
                 ) -> tuple[float | None, float | None, float | None, str, str]:
     """The pass's weight from samples ``start … stop-1``: (time, weight, σ, reason, status).
 
-    The last ``ok`` estimate, status ``ok``, unless a sensor is named after it (a
-    ``sensor_fault`` or ``degraded`` sample later in the pass): the health monitor names a
-    fault some samples after it starts, so that ``ok`` may already hold it (an unzeroed model's
-    offsets weighed a pass 400 kg off as ``ok`` 0.3 s before the pressures were named). Then,
-    and without an ``ok`` one, the last ``degraded`` estimate after it (weighed without the
-    named sensor, its σ widened), status ``degraded`` and the reason naming the sensors;
-    without either, nothing, status ``not_weighed`` and why. A pass weighed on an ``ok`` sample
-    is never reported degraded because a fault came earlier.
+    The last ``ok`` estimate, status ``ok``, unless a ``sensor_fault`` follows it in the pass
+    (the weighing withheld): the health monitor names a fault some samples after it starts, so
+    that ``ok`` may already hold it (an unzeroed model's offsets weighed a pass 400 kg off as
+    ``ok`` 0.3 s before the pressures were named). Then, and without an ``ok`` one, the last
+    ``degraded`` estimate after it (weighed without the named sensor, its σ widened), status
+    ``degraded`` and the reason naming the sensors; without either, nothing, status
+    ``not_weighed`` and why. An ``ok`` followed only by ``degraded`` samples stays the weight
+    (measured in docs/loadout.md). A pass weighed on an ``ok`` sample is never reported degraded because a
+    fault came earlier.
 
     Parameters
     ----------
@@ -303,7 +304,7 @@ def lock_weight(time: np.ndarray, estimate: np.ndarray, sigma: np.ndarray, statu
     first = 0
     distrust = ""
     if len(ok):
-        after = np.flatnonzero(np.isin(status[ok[-1] + 1:], (SENSOR_FAULT, DEGRADED)))
+        after = np.flatnonzero(status[ok[-1] + 1:] == SENSOR_FAULT)
         if not len(after):
             i = start + int(ok[-1])
             return float(time[i]), float(estimate[i]), float(sigma[i]), "", "ok"
