@@ -29,6 +29,11 @@ ANGLES = ("boom_angle", "dipper_angle", "bucket_angle")
 RATES = ("boom_rate", "dipper_rate", "bucket_rate", "slew_rate")
 INCLINATIONS = ("house_pitch", "house_roll")
 
+#: Passes per truck in a shift (``motion="shift"``): 2-6.
+SHIFT_PASSES = (2, 6)
+#: A pass's fill is at least this share of rated (a bucket the operator bothers to carry).
+SHIFT_LEAST_FILL = 0.2
+
 
 @dataclass(frozen=True)
 class MachineNoise:
@@ -296,8 +301,6 @@ class HydraulicPlatform(Platform):
                 raise ExcavatorPayloadError("--payload does not go with --motion shift: each pass draws "
                                             "its fill towards --truck-target")
             if truck_target is not None:
-                from excavator_payload.simulation.machine_motions import SHIFT_LEAST_FILL, SHIFT_PASSES
-
                 fewest, most_passes = SHIFT_PASSES
                 most = machine.max_payload * most_passes
                 # Below two of the smallest passes every fill is clipped: a 1.2 t target made

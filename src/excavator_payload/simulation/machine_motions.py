@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from excavator_payload.model.hydraulic import HydraulicArmModel
+# the shift's pass counts and least fill: the platform checks --truck-target against them
+from excavator_payload.platforms.hydraulic import SHIFT_LEAST_FILL, SHIFT_PASSES
 
 DEG = np.pi / 180.0
 SAMPLE_RATE = 100.0
@@ -501,10 +503,6 @@ def work_cycle_motion(rng, arm: HydraulicArmModel, tilt=np.zeros(2)) -> Motion:
 SOIL_RESISTANCE = (20e3, 60e3)
 #: Below this teeth speed (m/s) the soil's resistance fades with it (no force without motion).
 SOIL_SPEED = 0.05
-#: Passes per truck in a shift (the issue: 2-6).
-SHIFT_PASSES = (2, 6)
-#: A pass's fill is at least this share of rated (a bucket the operator bothers to carry).
-SHIFT_LEAST_FILL = 0.2
 
 
 def shift_passes(rng, truck_target: float, machine) -> list[float]:
