@@ -177,3 +177,22 @@ def test_c_holds_a_slight_joint_as_python_does(model, work, tmp_path):
     assert "EP_JC_SLIGHT_LIMIT" in source.read_text()
     py = _assert_equal(est, source, offset, tmp_path / "build")
     assert not py["fault"].astype(str).isin(single).any()
+
+
+def test_c_restarts_after_a_dumped_load_as_python_does(model, tmp_path):
+    """A `slopes` work cycle that dumps 239 kg, too little for the new-load test, and then lowers
+    the boom alone (the stale joint, docs/findings/false-alarms.md): the check restarts the
+    weighing once the boom weighs less after the dump than before it (JointCheck._dumped_load,
+    ``ep_jc_dumped_load``), in C as in Python, sample by sample."""
+    from excavator_payload.evaluation import demo_machine as dm
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    cycles = simulate_dataset(4, seed=70000, motion="slopes", machine="cat345c-hydraulic", session=dm.SESSION_WORK,
+                              with_truth=True, workers=1, progress=False)
+    frame = cycles.frame
+    small = Dataset(frame[frame["experiment"] == cycles.experiment_ids[3]].reset_index(drop=True), cycles.meta)
+    assert small.frame["payload"].iloc[0] < 300.0
+    source = export_c(model, tmp_path / "export")[1]
+    assert "ep_jc_dumped_load" in source.read_text()
+    _assert_equal(model, source, small, tmp_path / "build")
+    assert model.kernel.regression._joints.dumped_loads == 1

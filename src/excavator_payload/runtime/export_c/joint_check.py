@@ -118,6 +118,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "ep_real jc_num_joint[3], jc_info_joint[3];  /* each joint's share of num and info */",
         "ep_real jc_num_short[3], jc_info_short[3];  /* ... of the new-load test's short memory */",
         "ep_real jc_num[3], jc_info[3];  /* the joint check's own sums (restart with loads and pauses) */",
+        "ep_real jc_after_num[3], jc_after_info[3];  /* ... their share since the last dump ended */",
         "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
         "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
         f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
@@ -127,6 +128,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "int jc_paused;    /* windows of the current pause (0: not paused) */",
         "int jc_dump_left; /* samples the dump still lasts (CalibratedKernel.dumping) */",
         "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping, jc_moving, jc_restart;",
+        "unsigned char jc_dumped;  /* a dump since the check's sums started */",
         "unsigned char jc_lone_moved;  /* a joint weighed alone has moved: it waits for a second (PressureKernel._joint_rules) */",
     ]
     definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
@@ -137,7 +139,8 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
  * and sums nothing; before the weighing is ready it names nothing new. No estimate is ok while
  * N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows (load_changing); a named
- * joint that clears restarts the weighing. */
+ * joint that clears restarts the weighing, and so does a joint that weighs less after a dump than
+ * before it (ep_jc_dumped_load: a load too small for the new-load test left). */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
@@ -157,8 +160,9 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 static void ep_jc_clear(ep_state *s)
 {{
     int j;
-    for (j = 0; j < 3; ++j) s->jc_num[j] = s->jc_info[j] = EP_C(0.0);
+    for (j = 0; j < 3; ++j) s->jc_num[j] = s->jc_info[j] = s->jc_after_num[j] = s->jc_after_info[j] = EP_C(0.0);
     s->jc_paused = 0;
+    s->jc_dumped = 0;
 }}
 
 static void ep_jc_reset(ep_state *s)
@@ -271,6 +275,23 @@ static int ep_jc_load_moves(const ep_state *s)
     limit = EP_JC_CHANGE_SIGMAS * EP_MATH(sqrt)(spread);
     if (limit < EP_JC_CHANGE_MIN) limit = EP_JC_CHANGE_MIN;
     return change > limit;
+}}
+
+/* JointCheck._dumped_load: a joint weighed before the last dump and after it (each part with
+ * I >= EP_JC_ENOUGH) weighs less after it by more than EP_JC_CHANGE_MIN and beyond EP_JC_CHI2 with
+ * both parts' variances: a load left in the dump */
+static int ep_jc_dumped_load(const ep_state *s)
+{{
+    int j;
+    for (j = 0; j < 3; ++j) {{
+        ep_real after = s->jc_after_info[j], before = s->jc_info[j] - after, drop;
+        if (after < EP_JC_ENOUGH || before < EP_JC_ENOUGH) continue;
+        drop = (s->jc_num[j] - s->jc_after_num[j]) / before - s->jc_after_num[j] / after;
+        if (drop > EP_JC_CHANGE_MIN
+            && drop * drop > EP_JC_CHI2 * (EP_JC_INFLATION / after + EP_JC_INFLATION / before + EP_JC_EXTRA))
+            return 1;
+    }}
+    return 0;
 }}
 
 /* joint_check._named: of three compared joints, the one that stands out most from the mean of
@@ -390,12 +411,21 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
     ep_jc_track_moving(s);
     s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
     if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
+        s->jc_dumped = 1;
+        for (j = 0; j < 3; ++j) s->jc_after_num[j] = s->jc_after_info[j] = EP_C(0.0);
         ep_jc_judge(s);
         return;
     }}
     for (j = 0; j < 3; ++j) {{
         s->jc_num[j] = EP_FORGETTING * s->jc_num[j] + dn[j];
         s->jc_info[j] = EP_FORGETTING * s->jc_info[j] + di[j];
+        s->jc_after_num[j] = EP_FORGETTING * s->jc_after_num[j] + dn[j];
+        s->jc_after_info[j] = EP_FORGETTING * s->jc_after_info[j] + di[j];
+    }}
+    if (s->jc_dumped && ep_jc_dumped_load(s)) {{  /* a load left in the dump: the weighing starts again */
+        s->jc_restart = 1;
+        ep_jc_clear(s);
+        return;
     }}
     if (ep_jc_load_moves(s)) {{
         if (s->jc_armed && (!s->jc_paused || di[0] + di[1] + di[2] > EP_C(0.0))) {{

@@ -427,7 +427,9 @@ class CalibratedKernel(PressureRegression):
 
     def _check_joints(self, d_num: list, d_info: list) -> None:
         """The joint consistency check of this window (:class:`~.joint_check.JointCheck`); when a
-        joint it named has cleared, the weighing starts again (its sums hold the fault's windows)."""
+        joint it named has cleared, the weighing starts again (its sums hold the fault's windows),
+        and so it does when a joint weighs less after a dump than before it (a load too small for
+        the new-load test left, ``JointCheck._dumped_load``)."""
         self._joints.update(self, d_num, d_info)
         if self._joints.restart:
             self._joints.restart = False
