@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, calibrated, family, per_motion, split  # noqa: E402
+from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, draws, calibrated, family, per_motion, split  # noqa: E402
 from held_out_motions import lever_trajectory  # noqa: E402
 
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
@@ -274,61 +274,57 @@ def main() -> None:
     all_delta = np.arange(N_DELTA)
     t0 = time.time()
     rows, checks = [], []
-    for run in a.runs:
-        motions, reach, seed = (int(x) for x in run.split(":"))
-        for draw in range(a.draws):
-            s = seed + 1000 * draw
-            zero_kind = ("empty-swing", "slow-lever")[draw % 2]
-            est, before_zero = calibrated(a.cache, motions, reach, s, zero_kind)
-            zero = zero_motion(a.cache, s, zero_kind)
-            check = posterior_check(before_zero, est.calibration.covariance, truth)
-            checks.append(check.assign(seed=seed, draw=draw))
-            print(check.round(3).to_string(index=False), flush=True)
-            ways = {"calibrated (re-zeroed)": (np.array([], int), None, False),
-                    "all δ→true": (all_delta, None, False),
-                    "all δ + lag→true": (all_delta, true_lag, False),
-                    "lag→true": (np.array([], int), true_lag, False)}
-            for g in GROUPS:
-                ways[f"{g}→true"] = (group_index(g), None, False)
-                ways[f"only {g}"] = (np.setdiff1d(all_delta, group_index(g)), true_lag, True)
-            ways["only lag"] = (all_delta, None, True)
-            ways["all true"] = (all_delta, true_lag, True)
-            ways["untouched→true"] = (np.array([], int), None, True)
-            for label, which in (("all δ→true + true offsets", np.arange(N_OFFSETS)),
-                                 ("all δ→true + true pressure offsets", np.arange(6)),
-                                 ("all δ→true + true angle offsets", np.arange(6, N_OFFSETS))):
-                ways[label] = (all_delta, None, False, which)
-            if a.refit:
-                ways = {f"refit, {k} known": (k, None) for k in a.refit}
-                if "all δ" in a.refit:  # what the working session's offsets leave with every parameter exact
-                    for label, which in (("offsets", np.arange(N_OFFSETS)), ("pressure offsets", np.arange(6)),
-                                         ("angle offsets", np.arange(6, N_OFFSETS))):
-                        ways[f"refit, all δ known + true {label}"] = ("all δ", which)
-            if a.variants:
-                ways = {k: v for k, v in ways.items() if k in a.variants}
-            for label, way in ways.items():
-                if isinstance(way[0], str):
-                    known, which = way
-                    out = cached(a.cache, f"refit_{known}_{motions}_{reach}_{s}_{zero_kind}",
-                                 lambda: est if known == "none" else refit(motions, reach, s, zero, known, truth))
-                    if which is not None:
-                        out = with_offsets(out, which)
-                else:
-                    out = variant(est, before_zero, zero, way[0], truth, way[1], way[2])
-                    if len(way) > 3:
-                        out = with_offsets(out, way[3])
-                for name in a.families:
-                    ds = family(a.cache, name, a.n_test, seed)
-                    bound = cached(a.cache, f"bound_{name}_{seed}_{draw}",
-                                   lambda: machine_bound(ds, est.calibration, pressure_std=FIELD.pressure_noise))
-                    row = {"seed": seed, "draw": draw, "family": name, "label": label,
-                           **split(per_motion(out, ds, bound))}
-                    rows.append(row)
-                print(f"{seed} draw {draw} {label:28s} " + "  ".join(
-                    f"{r['family']} {r['efficiency']:.2f}" for r in rows[-len(a.families):])
-                      + f"  ({time.time() - t0:.0f} s)", flush=True)
-            pd.DataFrame(rows).to_csv(a.out / "attribution.csv", index=False)
-            pd.concat(checks).to_csv(a.out / "posterior.csv", index=False)
+    for motions, reach, seed, draw, s, zero_kind in draws(a.runs, a.draws):
+        est, before_zero = calibrated(a.cache, motions, reach, s, zero_kind)
+        zero = zero_motion(a.cache, s, zero_kind)
+        check = posterior_check(before_zero, est.calibration.covariance, truth)
+        checks.append(check.assign(seed=seed, draw=draw))
+        print(check.round(3).to_string(index=False), flush=True)
+        ways = {"calibrated (re-zeroed)": (np.array([], int), None, False),
+                "all δ→true": (all_delta, None, False),
+                "all δ + lag→true": (all_delta, true_lag, False),
+                "lag→true": (np.array([], int), true_lag, False)}
+        for g in GROUPS:
+            ways[f"{g}→true"] = (group_index(g), None, False)
+            ways[f"only {g}"] = (np.setdiff1d(all_delta, group_index(g)), true_lag, True)
+        ways["only lag"] = (all_delta, None, True)
+        ways["all true"] = (all_delta, true_lag, True)
+        ways["untouched→true"] = (np.array([], int), None, True)
+        for label, which in (("all δ→true + true offsets", np.arange(N_OFFSETS)),
+                             ("all δ→true + true pressure offsets", np.arange(6)),
+                             ("all δ→true + true angle offsets", np.arange(6, N_OFFSETS))):
+            ways[label] = (all_delta, None, False, which)
+        if a.refit:
+            ways = {f"refit, {k} known": (k, None) for k in a.refit}
+            if "all δ" in a.refit:  # what the working session's offsets leave with every parameter exact
+                for label, which in (("offsets", np.arange(N_OFFSETS)), ("pressure offsets", np.arange(6)),
+                                     ("angle offsets", np.arange(6, N_OFFSETS))):
+                    ways[f"refit, all δ known + true {label}"] = ("all δ", which)
+        if a.variants:
+            ways = {k: v for k, v in ways.items() if k in a.variants}
+        for label, way in ways.items():
+            if isinstance(way[0], str):
+                known, which = way
+                out = cached(a.cache, f"refit_{known}_{motions}_{reach}_{s}_{zero_kind}",
+                             lambda: est if known == "none" else refit(motions, reach, s, zero, known, truth))
+                if which is not None:
+                    out = with_offsets(out, which)
+            else:
+                out = variant(est, before_zero, zero, way[0], truth, way[1], way[2])
+                if len(way) > 3:
+                    out = with_offsets(out, way[3])
+            for name in a.families:
+                ds = family(a.cache, name, a.n_test, seed)
+                bound = cached(a.cache, f"bound_{name}_{seed}_{draw}",
+                               lambda: machine_bound(ds, est.calibration, pressure_std=FIELD.pressure_noise))
+                row = {"seed": seed, "draw": draw, "family": name, "label": label,
+                       **split(per_motion(out, ds, bound))}
+                rows.append(row)
+            print(f"{seed} draw {draw} {label:28s} " + "  ".join(
+                f"{r['family']} {r['efficiency']:.2f}" for r in rows[-len(a.families):])
+                  + f"  ({time.time() - t0:.0f} s)", flush=True)
+        pd.DataFrame(rows).to_csv(a.out / "attribution.csv", index=False)
+        pd.concat(checks).to_csv(a.out / "posterior.csv", index=False)
     table = pd.DataFrame(rows)
     print("\nmedian efficiency over draws:")
     print(table.pivot_table(index="label", columns="family", values="efficiency", aggfunc="median",

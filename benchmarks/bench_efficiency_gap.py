@@ -180,6 +180,16 @@ def split(pe: pd.DataFrame) -> dict:
             "rms": float(np.sqrt(np.mean(pe["rms_err"] ** 2))), "bound": pe["bound_med"].median()}
 
 
+def draws(runs: list[str], n: int):
+    """Each calibration draw of ``runs`` (``MOTIONS:REACH:SEED``), ``n`` per run: (motions, reach,
+    the run's seed, the draw, the draw's seed, its zero motion — empty swing and slow lever in
+    turn)."""
+    for run in runs:
+        motions, reach, seed = (int(x) for x in run.split(":"))
+        for draw in range(n):
+            yield motions, reach, seed, draw, seed + 1000 * draw, ("empty-swing", "slow-lever")[draw % 2]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--cache", type=Path, required=True)
@@ -198,28 +208,24 @@ def main() -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     rows = []
-    for run in a.runs:
-        motions, reach, seed = (int(x) for x in run.split(":"))
-        for draw in range(a.draws):
-            s = seed + 1000 * draw
-            zero_kind = ("empty-swing", "slow-lever")[draw % 2]
-            est, before_zero = calibrated(a.cache, motions, reach, s, zero_kind)
-            for noise in a.noise:
-                for name in a.families:
-                    ds = family(a.cache, name, a.n_test, seed, noise)
-                    bound = cached(a.cache, f"bound_{name}_{seed}_{draw}_{noise}",
-                                   lambda: machine_bound(ds, est.calibration, pressure_std=FIELD.pressure_noise))
-                    ways = {"calibrated": lambda: est, "oracle-zero": lambda: oracle_zero(est, before_zero),
-                            "oracle": lambda: oracle(est, noise)}
-                    for label in a.labels:
-                        row = {"motions": motions, "seed": seed, "draw": draw, "zero": zero_kind, "noise": noise,
-                               "family": name, "label": label, **split(per_motion(ways[label](), ds, bound))}
-                        rows.append(row)
-                        print(f"{seed} draw {draw} ({zero_kind:11s}) {noise:13s} {name:10s} {label:11s} "
-                              f"eff {row['efficiency']:.2f}  bias {row['cell_bias']:+5.1f}  motions ±"
-                              f"{row['motion_spread']:4.1f}  within {row['within']:4.1f}  bound {row['bound']:.1f} kg"
-                              f"  ({time.time() - t0:.0f} s)", flush=True)
-            pd.DataFrame(rows).to_csv(a.out / "gap.csv", index=False)
+    for motions, reach, seed, draw, s, zero_kind in draws(a.runs, a.draws):
+        est, before_zero = calibrated(a.cache, motions, reach, s, zero_kind)
+        for noise in a.noise:
+            for name in a.families:
+                ds = family(a.cache, name, a.n_test, seed, noise)
+                bound = cached(a.cache, f"bound_{name}_{seed}_{draw}_{noise}",
+                               lambda: machine_bound(ds, est.calibration, pressure_std=FIELD.pressure_noise))
+                ways = {"calibrated": lambda: est, "oracle-zero": lambda: oracle_zero(est, before_zero),
+                        "oracle": lambda: oracle(est, noise)}
+                for label in a.labels:
+                    row = {"motions": motions, "seed": seed, "draw": draw, "zero": zero_kind, "noise": noise,
+                           "family": name, "label": label, **split(per_motion(ways[label](), ds, bound))}
+                    rows.append(row)
+                    print(f"{seed} draw {draw} ({zero_kind:11s}) {noise:13s} {name:10s} {label:11s} "
+                          f"eff {row['efficiency']:.2f}  bias {row['cell_bias']:+5.1f}  motions ±"
+                          f"{row['motion_spread']:4.1f}  within {row['within']:4.1f}  bound {row['bound']:.1f} kg"
+                          f"  ({time.time() - t0:.0f} s)", flush=True)
+        pd.DataFrame(rows).to_csv(a.out / "gap.csv", index=False)
     table = pd.DataFrame(rows)
     print("\nmedian over draws (efficiency; kg):")
     print(table.groupby(["noise", "family", "label"], sort=False)[

@@ -36,7 +36,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_calibration_attribution import GROUPS, group_index, zero_motion  # noqa: E402
-from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, family, per_motion, split  # noqa: E402
+from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, draws, family, per_motion, split  # noqa: E402
 
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
 from excavator_payload.estimators.classical.machine_calibration import solver, weighing
@@ -112,30 +112,26 @@ def main() -> None:
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     rows = []
-    for run in a.runs:
-        motions, reach, seed = (int(x) for x in run.split(":"))
-        for draw in range(a.draws):
-            s = seed + 1000 * draw
-            zero_kind = ("empty-swing", "slow-lever")[draw % 2]
-            fitted = cached(a.cache, f"fitted_{motions}_{reach}_{s}", lambda: CalibratedEstimator(
-                "cat345c-hydraulic-3pct", balance="momentum").fit(dm.calibration_mix(motions, s, reach=reach)))
-            zero = zero_motion(a.cache, s, zero_kind)
-            for label in a.variants:
-                est = zeroed(fitted, zero, parse(label))
-                chi2 = est.zero_quality
-                dz = est.calibration.z - fitted.calibration.z
-                for name in a.families:
-                    ds = family(a.cache, name, a.n_test, seed)
-                    bound = cached(a.cache, f"bound_{name}_{seed}_{draw}",
-                                   lambda: machine_bound(ds, est.calibration, pressure_std=FIELD.pressure_noise))
-                    rows.append({"motions": motions, "seed": seed, "draw": draw, "zero": zero_kind, "family": name,
-                                 "label": label, "refused": len(est.zero_refusals),
-                                 **split(per_motion(est, ds, bound))})
-                print(f"{s} {zero_kind:11s} {label:22s} " + "  ".join(
-                    f"{r['family']} {r['efficiency']:.2f}" for r in rows[-len(a.families):])
-                      + f"  |Δδ| {np.sqrt(np.mean(dz[:N_DELTA] ** 2)):.4f}  refusals {est.zero_refusals}"
-                      f"  {getattr(chi2, 'report', lambda: '')()[:90]}  ({time.time() - t0:.0f} s)", flush=True)
-                pd.DataFrame(rows).to_csv(a.out / "zero_parameters.csv", index=False)
+    for motions, reach, seed, draw, s, zero_kind in draws(a.runs, a.draws):
+        fitted = cached(a.cache, f"fitted_{motions}_{reach}_{s}", lambda: CalibratedEstimator(
+            "cat345c-hydraulic-3pct", balance="momentum").fit(dm.calibration_mix(motions, s, reach=reach)))
+        zero = zero_motion(a.cache, s, zero_kind)
+        for label in a.variants:
+            est = zeroed(fitted, zero, parse(label))
+            chi2 = est.zero_quality
+            dz = est.calibration.z - fitted.calibration.z
+            for name in a.families:
+                ds = family(a.cache, name, a.n_test, seed)
+                bound = cached(a.cache, f"bound_{name}_{seed}_{draw}",
+                               lambda: machine_bound(ds, est.calibration, pressure_std=FIELD.pressure_noise))
+                rows.append({"motions": motions, "seed": seed, "draw": draw, "zero": zero_kind, "family": name,
+                             "label": label, "refused": len(est.zero_refusals),
+                             **split(per_motion(est, ds, bound))})
+            print(f"{s} {zero_kind:11s} {label:22s} " + "  ".join(
+                f"{r['family']} {r['efficiency']:.2f}" for r in rows[-len(a.families):])
+                  + f"  |Δδ| {np.sqrt(np.mean(dz[:N_DELTA] ** 2)):.4f}  refusals {est.zero_refusals}"
+                  f"  {getattr(chi2, 'report', lambda: '')()[:90]}  ({time.time() - t0:.0f} s)", flush=True)
+            pd.DataFrame(rows).to_csv(a.out / "zero_parameters.csv", index=False)
     table = pd.DataFrame(rows)
     print("\nmedian efficiency over draws:")
     print(table.pivot_table(index="label", columns="family", values="efficiency", aggfunc="median",
