@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, draws, calibrated, family, per_motion, split  # noqa: E402
+from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, draw_arguments, draws, calibrated, family, per_motion, split  # noqa: E402
 from held_out_motions import lever_trajectory  # noqa: E402
 
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
@@ -256,13 +256,7 @@ def refit(motions: int, reach: int, seed: int, zero, known: str, truth: np.ndarr
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=Path("attribution"))
-    ap.add_argument("--runs", nargs="+", default=["10:3:1401", "5:2:1501"])
-    ap.add_argument("--draws", type=int, default=4)
-    ap.add_argument("--n-test", type=int, default=8)
-    ap.add_argument("--families", nargs="+", default=["nmpc", "joystick", "multisine", "lever"])
+    ap = draw_arguments(argparse.ArgumentParser(), "attribution", 4)
     ap.add_argument("--variants", nargs="+", default=None, help="labels to run (default: all)")
     ap.add_argument("--refit", nargs="+", default=None, choices=["none", *REFIT],
                     help="instead of the swaps: calibrate again with these blocks known")

@@ -180,6 +180,19 @@ def split(pe: pd.DataFrame) -> dict:
             "rms": float(np.sqrt(np.mean(pe["rms_err"] ** 2))), "bound": pe["bound_med"].median()}
 
 
+def draw_arguments(ap, out: str, draws: int):
+    """``ap`` with the options every calibration-draw benchmark takes: --cache, --out (default
+    ``out``), --runs, --draws (default ``draws``), --n-test, --families."""
+    ap.add_argument("--cache", type=Path, required=True)
+    ap.add_argument("--out", type=Path, default=Path(out))
+    ap.add_argument("--runs", nargs="+", default=["10:3:1401", "5:2:1501"],
+                    help="MOTIONS:REACH:SEED, as bench_machine_draws.py --motions --reach --seed (draws 1000 seeds apart)")
+    ap.add_argument("--draws", type=int, default=draws, help="zeros alternate: empty swing, slow lever motion")
+    ap.add_argument("--n-test", type=int, default=8)
+    ap.add_argument("--families", nargs="+", default=["nmpc", "joystick", "multisine", "lever"])
+    return ap
+
+
 def draws(runs: list[str], n: int):
     """Each calibration draw of ``runs`` (``MOTIONS:REACH:SEED``), ``n`` per run: (motions, reach,
     the run's seed, the draw, the draw's seed, its zero motion — empty swing and slow lever in
@@ -191,14 +204,7 @@ def draws(runs: list[str], n: int):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=Path("efficiency-gap"))
-    ap.add_argument("--runs", nargs="+", default=["10:3:1401", "5:2:1501"],
-                    help="MOTIONS:REACH:SEED, as bench_machine_draws.py --motions --reach --seed")
-    ap.add_argument("--draws", type=int, default=4, help="zeros alternate: empty swing, slow lever motion")
-    ap.add_argument("--n-test", type=int, default=8)
-    ap.add_argument("--families", nargs="+", default=["nmpc", "joystick", "multisine", "lever"])
+    ap = draw_arguments(argparse.ArgumentParser(), "efficiency-gap", 4)
     ap.add_argument("--labels", nargs="+", default=["calibrated", "oracle-zero", "oracle"],
                     choices=["calibrated", "oracle-zero", "oracle"])
     ap.add_argument("--noise", nargs="+", default=["field"], choices=list(NOISES),

@@ -36,7 +36,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_calibration_attribution import GROUPS, group_index, zero_motion  # noqa: E402
-from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, draws, family, per_motion, split  # noqa: E402
+from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS, cached, draw_arguments, draws, family, per_motion, split  # noqa: E402
 
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
 from excavator_payload.estimators.classical.machine_calibration import solver, weighing
@@ -99,13 +99,7 @@ def zeroed(fitted, zero, keywords: dict | None):
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--cache", type=Path, required=True)
-    ap.add_argument("--out", type=Path, default=Path("zero-parameters"))
-    ap.add_argument("--runs", nargs="+", default=["10:3:1401", "5:2:1501"])
-    ap.add_argument("--draws", type=int, default=2)
-    ap.add_argument("--n-test", type=int, default=8)
-    ap.add_argument("--families", nargs="+", default=["nmpc", "joystick", "multisine", "lever"])
+    ap = draw_arguments(argparse.ArgumentParser(), "zero-parameters", 2)
     ap.add_argument("--variants", nargs="+", default=["offsets", "all×1", "all×4", "areas+geometry×1"])
     a = ap.parse_args()
     a.cache.mkdir(parents=True, exist_ok=True)
