@@ -99,7 +99,9 @@ def _assert_equal(est, c_file, dataset, folder, single=False, extra_flags=()):
     ok, ok_sigma = ~np.isnan(want), ~np.isnan(want_sigma)
     if single:
         assert np.abs(got[ok] - want[ok]).max(initial=0.0) <= 0.1
-        np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-4)
+        # a degraded sigma adds the estimate's move since the degraded samples began, and with it
+        # the float estimate's rounding (a few 1e-4 kg)
+        np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-4, atol=2e-3)
     else:
         np.testing.assert_allclose(got[ok], want[ok], rtol=1e-6, atol=1e-6)
         np.testing.assert_allclose(sigma[ok_sigma], want_sigma[ok_sigma], rtol=1e-6)

@@ -244,6 +244,7 @@ class Estimator(ABC):
         self._last_estimate = math.nan
         self._last_sigma = math.nan
         self._n_seen = 0
+        self._degraded_from = math.nan  # the estimate when the degraded weighing began (_use)
         self._n_rejected = 0
         self._gate_scale = 1.0
         #: Whether the per-signal health monitor runs (machine sensor set; see :mod:`.health`).
@@ -430,6 +431,7 @@ class Estimator(ABC):
         self._last_estimate = math.nan
         self._last_sigma = math.nan
         self._n_seen = 0
+        self._degraded_from = math.nan  # the estimate when the degraded weighing began (_use)
         self._n_rejected = 0
         self._gate_scale = 1.0
         self._last_used = None
@@ -515,6 +517,17 @@ class Estimator(ABC):
         """Weigh none of these link joints' windows over the samples held now (a signal just
         named: its samples before the name; an estimator with :meth:`degraded_pressures`)."""
 
+    def jump_limit(self) -> float | None:
+        """The largest move of an ``ok`` estimate from the one before while the monitor runs, kg
+        (beyond it ``load_changing``: :data:`.health.JUMP_SHARE`); None (default): no such rule.
+
+        Returns
+        -------
+        float or None
+            The limit, kg, or None.
+        """
+        return None
+
     def _kept(self, status: Status) -> StepResult:
         """The last estimate again, with ``status`` (the sample was not used)."""
         return StepResult(self._last_estimate, status, self._last_sigma)
@@ -556,8 +569,12 @@ class Estimator(ABC):
                 self._health = for_sensor_set(self.sensor_set, self.health_reference)
                 self._health_for = self.sensor_set
             fault = self._health.step(time, values) if self._health is not None else ""
+            pressures = self.degraded_pressures()
+            if pressures and self._health is not None:
+                cleared = self._health.cleared_joints(pressures)
+                if any(cleared):  # a substitute ends: the windows that mix it with the signal
+                    self._forget_joints(cleared)
             if fault:
-                pressures = self.degraded_pressures()
                 substituted = self._health.substitute(values, self.degraded_rates(), pressures,
                                                       self.degraded_angles(), self.degraded_tilts())
                 if substituted is None:
@@ -584,7 +601,8 @@ class Estimator(ABC):
 
     def _use(self, time: float, values: np.ndarray, degraded: bool = False) -> StepResult:
         """The rest of :meth:`step_values` for a sample the monitor let through (``degraded``:
-        with substitutes; sigma widened by :data:`.health.DEGRADED_SIGMA_FACTOR`)."""
+        with substitutes; sigma widened by :data:`.health.DEGRADED_SIGMA_FACTOR`, plus the
+        estimate's move since the degraded samples began)."""
         gap = False
         if self._last_time is not None:
             dt = time - self._last_time
@@ -639,6 +657,18 @@ class Estimator(ABC):
             from excavator_payload.estimators.health import DEGRADED_SIGMA_FACTOR
 
             sigma *= DEGRADED_SIGMA_FACTOR
+            # plus the move since the degraded samples began (the load taken to hold still)
+            if not math.isfinite(self._degraded_from):
+                self._degraded_from = result.estimate
+            elif math.isfinite(result.estimate):
+                sigma += abs(result.estimate - self._degraded_from)
+        else:
+            self._degraded_from = math.nan
+        if self.health and self._health is not None and result.status is Status.OK:
+            limit = self.jump_limit()  # a jump no load makes in one sample: a sensor not yet named
+            if limit is not None and math.isfinite(self._last_estimate) and math.isfinite(result.estimate) \
+                    and abs(result.estimate - self._last_estimate) > limit:
+                result = StepResult(result.estimate, Status.LOAD_CHANGING, result.sigma, result.fault)
         if not self._state_finite() or (result.status is Status.OK and not math.isfinite(result.estimate)):
             self._reset()
             self._last_time = None

@@ -158,6 +158,11 @@ TILT_SUBSTITUTE_LIMIT = 5.0
 #: with the own sigma, 95 % with 1.5 times it, 97 % with 2 (docs/sensor-health.md). A factor, not
 #: the substitute's noise fed to the model: one rule for every estimator of the set, in C alike.
 DEGRADED_SIGMA_FACTOR = 2.0
+#: ... plus the estimate's move since the degraded samples began (a stuck rate's slope moved a
+#: young weighing 50 kg under a sigma of 16 kg). :meth:`.Estimator.jump_limit`: no ``ok`` estimate
+#: moves more than this share of rated from the one before (clean work: 1.1 kg at most; a bucket
+#: pressure's drift 16 kg a sample, ``ok`` 52 kg off; docs/sensor-health.md).
+JUMP_SHARE = 0.001
 
 #: Stuck, noise, offset and gain are judged every this many samples (staggered; their windows
 #: are 0.3 s and more, and :data:`HOLD` bridges the samples in between).
@@ -756,6 +761,20 @@ class HealthMonitor:
             return (True,) * len(LINKS)
         joints = {self.pressure_joint[i] for i in new}
         return tuple(j in joints for j in range(len(LINKS)))
+
+    def cleared_joints(self, pressures=()) -> tuple[bool, ...]:
+        """Per link joint: whether a signal named after the sample before and not now ends a
+        substitute (after :meth:`step`): any signal but a pressure of ``pressures`` every joint;
+        such a pressure none (its joint's samples were dropped, not substituted).
+
+        Parameters
+        ----------
+        pressures : collection of str
+            Pressure names the estimator weighs on without.
+        """
+        droppable = self.droppable(pressures)
+        gone = self.previous - {i for i, _ in self.active}
+        return (any(i not in droppable for i in gone),) * len(LINKS)
 
     def link_state(self) -> list[tuple[float, float]]:
         """Per link: (offset error of its track, gain-window slope), for measuring the margins

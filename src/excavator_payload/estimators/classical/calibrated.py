@@ -468,6 +468,21 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         """
         return self.DEGRADED_ANGLES if self.options.get("balance") == "momentum" else ()
 
+    def jump_limit(self) -> float | None:
+        """With the momentum balance (measured): :data:`.health.JUMP_SHARE` of the rated payload;
+        None otherwise.
+
+        Returns
+        -------
+        float or None
+            The largest move of an ``ok`` estimate from the one before, kg, or None.
+        """
+        if self.options.get("balance") != "momentum" or not self.rated_payload:
+            return None
+        from excavator_payload.estimators.health import JUMP_SHARE
+
+        return JUMP_SHARE * float(self.rated_payload)
+
     def degraded_tilts(self) -> tuple[str, ...]:
         """Both house tilts with the momentum balance; none otherwise.
 

@@ -80,7 +80,15 @@ class CHealth:
              "    }\n"
              "#endif\n")
     #: ep_step: after the model's sigma (Estimator._use: widened while degraded)
-    inflate = "#if EP_HEALTH\n    if (degraded) sigma *= EP_DEGRADED_SIGMA_FACTOR;\n#endif\n"
+    inflate = ("#if EP_HEALTH\n"
+               "    if (degraded) {  /* and the move since the degraded samples began (Estimator._use) */\n"
+               "        sigma *= EP_DEGRADED_SIGMA_FACTOR;\n"
+               "        if (!isfinite(s->hm_degraded_from)) s->hm_degraded_from = result;\n"
+               "        else if (isfinite(result)) sigma += EP_MATH(fabs)(result - s->hm_degraded_from);\n"
+               "    } else {\n"
+               "        s->hm_degraded_from = EP_NAN;\n"
+               "    }\n"
+               "#endif\n")
     #: ep_step: the last rule (Estimator.step_values: an ok of a degraded sample is degraded)
     final = "#if EP_HEALTH\n    if (degraded && status == EP_STATUS_OK) return EP_STATUS_DEGRADED;\n#endif\n"
     #: ep_reset
@@ -177,6 +185,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
     int hm_any_active;         /* any hm_age >= 0 */
     ep_real hm_last_time;
     int hm_has_last_time;
+    ep_real hm_degraded_from;  /* the estimate when the degraded samples began (NaN: not degraded) */
     int hm_count;              /* samples since the windows started (saturates) */
     int hm_phase;              /* count modulo EP_HM_EVERY: the stagger */
     int hm_raw_next, hm_sum_next;
@@ -216,6 +225,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
     if tilts and not all(m.signals[i] in est.degraded_tilts() for i in m.tilts):
         raise ValueError("health: the C export substitutes both house tilts or neither")
     more = drops or angles  # the extended substitute (pressures' joints, lost angles)
+    jump = est.jump_limit()  # Estimator._use: an ok estimate that jumps says load_changing
     if angles:
         fields = fields.replace("    int hm_reported;",
                                 "    ep_real hm_angle_ref[EP_HM_N_LINKS];  /* a lost angle's reference (angle - integral) */\n"
@@ -312,7 +322,19 @@ unsigned long ep_faults(const ep_state *s, int kind)
     if angles and not drops:  # no pressure's joint to drop (before: also a model that drops one
         # but has no joint check, whose named pressures' joints C then weighed on, unlike Python)
         parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, 0)")
+    if jump is not None:
+        parts.inflate = parts.inflate.replace(
+            "#if EP_HEALTH\n",
+            "#if EP_HEALTH\n"
+            f"    if (status == EP_STATUS_OK && isfinite(s->last_estimate) && isfinite(result)\n"
+            f"        && EP_MATH(fabs)(result - s->last_estimate) > {c_number(jump)})  /* Estimator.jump_limit */\n"
+            "        status = EP_STATUS_LOAD_CHANGING;\n", 1)
     if drops:  # the samples before a signal's name carry its fault too (HealthMonitor.newly_named_joints)
+        # and a substitute's end mixes it with the signal (HealthMonitor.cleared_joints)
+        parts.check = parts.check.replace("    if (ep_hm_step(s, time, v)) {\n",
+                                          "    if (ep_hm_step_forget(s, time, v)) {\n", 1)
+        if "ep_hm_step_forget" not in parts.check:
+            raise AssertionError("health C: the check's call of ep_hm_step has changed")
         parts.check = parts.check.replace(
             "        degraded = 1;\n",
             "        degraded = 1;\n"
@@ -378,6 +400,7 @@ static void ep_hm_reset(ep_state *s)
     s->hm_any_active = 0;
     s->hm_has_last_time = 0;
     s->hm_last_time = EP_C(0.0);
+    s->hm_degraded_from = EP_NAN;
     ep_hm_restart(s);
 }
 

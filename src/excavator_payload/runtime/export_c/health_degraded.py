@@ -134,6 +134,19 @@ static unsigned int ep_hm_newly_named_joints(const ep_state *s)
     return joints;
 }
 
+/* HealthMonitor.cleared_joints: every joint when a signal named after the sample before is not
+ * now and is not a pressure of EP_HM_DROP_JOINT (its substitute ends), else none */
+static unsigned int ep_hm_cleared_joints(const ep_state *s)
+{
+    int i, k;
+    for (i = 0; i < EP_N_SIGNALS; ++i) {
+        int named = 0;
+        for (k = 0; k < EP_N_FAULT_KINDS; ++k) named |= s->hm_age[i][k] >= 0;
+        if (!named && (s->hm_prev_named & EP_HM_BIT(i)) && EP_HM_DROP_JOINT[i] < 0) return 7u;
+    }
+    return 0u;
+}
+
 /* CalibratedKernel.forget: these joints weigh no window over the samples the rings hold now */
 static void ep_hm_forget(ep_state *s, unsigned int joints)
 {
@@ -142,5 +155,14 @@ static void ep_hm_forget(ep_state *s, unsigned int joints)
     for (i = 0; i < EP_BALANCE; ++i)
         for (j = 0; j < 3; ++j)
             if (joints >> j & 1) s->terms_inside[i * 3 + j] = 0;
+}
+
+/* HealthMonitor.step, then Estimator.step_values' forget of the windows over a substitute's end */
+static int ep_hm_step_forget(ep_state *s, ep_real time, const ep_real v[EP_N_SIGNALS])
+{
+    int any = ep_hm_step(s, time, v);
+    unsigned int gone = ep_hm_cleared_joints(s);
+    if (gone) ep_hm_forget(s, gone);
+    return any;
 }
 """
