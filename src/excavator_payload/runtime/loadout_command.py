@@ -167,10 +167,11 @@ def show_truck(truck) -> None:
 def _warn_never_zeroed(estimator) -> None:
     # Said once the inputs are checked and before the first pass, not after the shift: each
     # truck's first pass is where an unzeroed model's offsets show as an `ok` weight.
-    if getattr(estimator, "never_zeroed", False):
-        from excavator_payload.estimators.offset_drift import never_zeroed_note
+    from excavator_payload.estimators.offset_drift import never_zeroed_warning
 
-        typer.echo(f"warning: {never_zeroed_note(estimator.name)}", err=True)
+    line = never_zeroed_warning(estimator)
+    if line:
+        typer.echo(line, err=True)
 
 
 def _from_dataset(estimator, data, db, target, model):
