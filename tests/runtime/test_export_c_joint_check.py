@@ -196,3 +196,17 @@ def test_c_restarts_after_a_dumped_load_as_python_does(model, tmp_path):
     assert "ep_jc_dumped_load" in source.read_text()
     _assert_equal(model, source, small, tmp_path / "build")
     assert model.kernel.regression._joints.dumped_loads == 1
+
+
+def test_c_clears_a_pair_on_a_new_loads_sums_as_python_does(model, tmp_path):
+    """A truck of the `shift` motion on which this small test model names the boom and dipper
+    together (two joints compared: nothing weighed): the pair is judged again on a later load's
+    sums and cleared when its own two joints agree there (``named_before_load``; before, a pair
+    cleared only once all three joints were compared, docs/findings/false-alarms.md), in C as in
+    Python, sample by sample."""
+    shift = simulate_machine_dataset(1, seed=103, session=2, motion="shift", truck_target=20000.0)
+    source = export_c(model, tmp_path / "export")[1]
+    assert "jc_named_before_load" in source.read_text()
+    py = _assert_equal(model, source, shift, tmp_path / "build")
+    assert py["fault"].astype(str).str.count(":balance").max() == 4  # a pair named
+    assert model.kernel.regression._joints.cleared_pairs >= 1

@@ -34,7 +34,8 @@ def test_the_moving_rule_follows_the_imu_filters_payload():
 
 
 def _rules(**flags):
-    regression = SimpleNamespace(joint_checked=True, joint_suspect=False, joint_pausing=False, joint_fault="")
+    regression = SimpleNamespace(joint_checked=True, joint_suspect=False, joint_moved_settled=False, joint_pausing=False,
+                                 joint_fault="")
     kernel = SimpleNamespace(regression=regression, _lone_moved=False)
     vars(regression).update(flags)
     return kernel, regression
@@ -44,10 +45,11 @@ def test_a_move_while_compared_waits_for_a_comparison_after_the_pause():
     """The weighing moves while two joints are compared (suspect: load_changing); the check pauses
     and starts its sums again (not checked): ``warming_up``, not ``ok``, until two joints are
     compared on the new sums; a named joint is said, not waited on."""
-    kernel, regression = _rules(joint_suspect=True)
+    kernel, regression = _rules(joint_suspect=True, joint_moved_settled=True)
     rules = PressureKernel._joint_rules
     assert rules(kernel, Status.OK) is Status.LOAD_CHANGING and kernel._lone_moved
-    regression.joint_suspect, regression.joint_pausing = False, True  # held still, the pause on
+    regression.joint_suspect = regression.joint_moved_settled = False
+    regression.joint_pausing = True  # held still, the pause on
     assert rules(kernel, Status.OK) is Status.LOAD_CHANGING and kernel._lone_moved
     regression.joint_pausing, regression.joint_checked = False, False  # fresh sums: one joint
     assert rules(kernel, Status.OK) is Status.WARMING_UP

@@ -183,6 +183,7 @@ class PressureRegression:
     joint_degraded = (math.nan, 0.0)
     joint_pausing = False
     joint_suspect = False
+    joint_moved_settled = False
     new_loads = 0
     model_std = 0.0
 
@@ -560,15 +561,19 @@ class PressureKernel(PayloadKernel):
         cannot be compared with another: it is ``ok`` until its weighing moves; once it has moved
         it waits (``warming_up``) for a second joint to check it — also across a restart of the
         weighing, which a large fault sets off as a new load (a load cannot change while one
-        joint moves alone). A fault on the lone joint is seen only as that move. A weighing that
+        joint moves alone). A fault on the lone joint is seen only as that move, and a move counts
+        here only once the weighing is settled (its last windows hold at most ``LONE_YOUNG_SHARE``
+        of its information: a new load's first second converges by more than the moving limit,
+        docs/loadout.md). A weighing that
         moved while its joints were compared waits the same way until they are compared again
         after the check's pause (on sums gathered after the move)."""
         regression = self.regression
         if status is Status.OK:
             # a move counts whether or not the joints were compared then: after it the check
             # pauses and starts its sums again, and the joints it then compares must be those
-            # sums' (a boom rate's bias that moved the whole weighing: 74 kg ok, seed 9300)
-            if regression.joint_suspect:
+            # sums' (a boom rate's bias that moved the whole weighing: 74 kg ok, seed 9300); a
+            # young weighing's move (LONE_YOUNG_SHARE) is a new load converging
+            if regression.joint_moved_settled:
                 self._lone_moved = True
             elif regression.joint_checked and not regression.joint_pausing:
                 self._lone_moved = False

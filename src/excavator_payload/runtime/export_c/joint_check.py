@@ -92,7 +92,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
         CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
-        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES)
+        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE)
 
     check = kernel._joints
     # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
@@ -122,6 +122,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
         "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
         f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
+        f"ep_real jc_history_info[{JOINT_MOVING_WINDOWS + 1}];  /* ... and its information I */",
         "int jc_slot;      /* the ring's slot the next window writes */",
         "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
         "int jc_run;       /* windows in a row beyond (or, while failing, within) the limit */",
@@ -130,6 +131,8 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping, jc_moving, jc_restart;",
         "unsigned char jc_dumped;  /* a dump since the check's sums started */",
         "unsigned char jc_lone_moved;  /* a joint weighed alone has moved: it waits for a second (PressureKernel._joint_rules) */",
+        "unsigned char jc_moved_settled;  /* it moved while its last windows held at most EP_JC_LONE_YOUNG of I */",
+        "unsigned char jc_named_before_load;  /* a pair named before this load: its sums may clear it */",
     ]
     definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
  * estimate N_j / I_j against the others', chi2 about their 1/v_j-weighted mean with
@@ -149,6 +152,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_SAMPLES {JOINT_SAMPLES}
 #define EP_JC_MOVING {JOINT_MOVING_WINDOWS}  /* windows over which N / I must hold still */
 #define EP_JC_MOVING_LIMIT {c_number(check.moving_limit)}  /* kg */
+#define EP_JC_LONE_YOUNG {c_number(LONE_YOUNG_SHARE)}  /* a joint alone waits on a move only once the ring's windows hold at most this share of I */
 #define EP_JC_SLIGHT_LIMIT {c_number(check.slight_limit)}  /* kg: a joint moving the weighing less is not named */
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
@@ -180,11 +184,16 @@ static void ep_jc_reset(ep_state *s)
     s->jc_checked = 0;
     s->jc_new_load = 0;
     s->jc_lone_moved = 0;
+    s->jc_moved_settled = 0;
+    s->jc_named_before_load = 0;
     s->jc_reported = 0;
     s->jc_gap = 0;
     s->jc_dump_left = 0;
     s->jc_dumping = 0;
-    for (j = 0; j <= EP_JC_MOVING; ++j) s->jc_history[j] = EP_NAN;
+    for (j = 0; j <= EP_JC_MOVING; ++j) {{
+        s->jc_history[j] = EP_NAN;
+        s->jc_history_info[j] = EP_C(0.0);
+    }}
     s->jc_slot = 0;
     s->jc_moving = 0;
     s->jc_restart = 0;
@@ -234,10 +243,15 @@ static void ep_jc_restart(ep_state *s)
 static void ep_jc_track_moving(ep_state *s)
 {{
     ep_real now = s->info > EP_C(0.0) ? {moving_now} : EP_NAN;
-    ep_real then = s->jc_history[(s->jc_slot + 1) % (EP_JC_MOVING + 1)];
+    int oldest = (s->jc_slot + 1) % (EP_JC_MOVING + 1);
+    ep_real then = s->jc_history[oldest], info_then = s->jc_history_info[oldest];
     s->jc_history[s->jc_slot] = now;
+    s->jc_history_info[s->jc_slot] = s->info;
     s->jc_slot = (s->jc_slot + 1) % (EP_JC_MOVING + 1);
     s->jc_moving = (unsigned char)(EP_MATH(fabs)(now - then) > EP_JC_MOVING_LIMIT);
+    /* a joint alone waits only on a move of a settled weighing (not a new load converging) */
+    s->jc_moved_settled = (unsigned char)(s->jc_moving && s->info > EP_C(0.0)
+        && info_then >= (EP_C(1.0) - EP_JC_LONE_YOUNG) * s->info);
 }}
 
 /* CalibratedKernel._settle: the joints' whole memory takes the short one's sums */
@@ -375,8 +389,10 @@ static void ep_jc_judge(ep_state *s)
            && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
                || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total))
                || (single >= 0 && ep_jc_slight(s, compared, single)));
-    /* a named joint is cleared only by agreeing with another compared joint */
-    if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)) failing = 1;
+    /* a named joint is cleared only by agreeing with another compared joint; a pair named before
+     * this load also by its own joints agreeing on this load's sums */
+    if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)
+        && !(s->jc_named_before_load && (s->jc_named & ~compared) == 0)) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;
     else s->jc_run = 0;
     if (s->jc_run < EP_JC_SAMPLES || held) {{
@@ -388,11 +404,13 @@ static void ep_jc_judge(ep_state *s)
     if (!failing) {{
         s->jc_restart = (unsigned char)(s->jc_named != 0);  /* its biased windows: start again */
         s->jc_named = 0;
+        s->jc_named_before_load = 0;
         s->jc_degraded = EP_NAN;
         s->jc_degraded_info = EP_C(0.0);
         return;
     }}
     s->jc_named = single >= 0 ? 1 << single : compared;
+    s->jc_named_before_load = 0;
     if (single >= 0) ep_jc_without(s, single);
     else {{
         s->jc_degraded = EP_NAN;
@@ -407,6 +425,8 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
     if (s->jc_new_load) {{  /* the weighing restarted: so do the check's sums (not a fault named) */
         s->jc_new_load = 0;
         ep_jc_clear(s);
+        /* a pair named (nothing weighed) is judged again on the new load's sums */
+        s->jc_named_before_load = (unsigned char)((s->jc_named & (s->jc_named - 1)) != 0);
     }}
     ep_jc_track_moving(s);
     s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
@@ -449,7 +469,7 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
 static int ep_jc_status(ep_state *s, int status, ep_real *estimate, int gap)
 {{
     if (status == EP_STATUS_OK) {{
-        if (s->jc_moving) s->jc_lone_moved = 1;  /* compared or not: after the pause, fresh sums */
+        if (s->jc_moved_settled) s->jc_lone_moved = 1;  /* compared or not: after the pause, fresh sums */
         else if (s->jc_checked && !s->jc_paused) s->jc_lone_moved = 0;
     }}
     /* paused, or (JointCheck.suspect) the weighing moves before a fault is named */

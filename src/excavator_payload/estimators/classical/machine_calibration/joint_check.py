@@ -41,7 +41,7 @@ import math
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
     JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES,
-    JOINT_SLIGHT_SHARE)
+    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE)
 
 
 class JointCheck:
@@ -57,7 +57,8 @@ class JointCheck:
     (χ² of 1 dof within the limit), and :attr:`degraded` is then the weighing without it. With
     two joints compared, or when the rest disagree too, all are named and nothing is weighed. A
     named joint stays named until it agrees again with another compared joint (a new load, which
-    the fault itself may trigger, restarts the sums, not the fault). A new fault is held while the
+    the fault itself may trigger, restarts the sums, not the fault; a pair named before a new load
+    clears also when its own two agree on that load's sums: :attr:`named_before_load`). A new fault is held while the
     kernel says the load is changing or the check pauses, unless its joint leads the weighing
     (:meth:`_leads`), and while its one joint moves the weighing by little (:meth:`_slight`). After
     a dump, a joint that weighs less than before it restarts the weighing (:meth:`_dumped_load`:
@@ -104,8 +105,13 @@ class JointCheck:
         self.dumped_loads = 0  # restarts of the weighing by _dumped_load since the last reset
         # the whole weighing N / I of the last JOINT_MOVING_WINDOWS + 1 windows (NaN: none), a ring
         self.history = [math.nan] * (JOINT_MOVING_WINDOWS + 1)
+        self.history_info = [0.0] * (JOINT_MOVING_WINDOWS + 1)  # ... and its information I, a ring
         self.slot = 0  # the ring's slot the next window writes
         self.moving = False  # N / I moved by more than moving_limit over JOINT_MOVING_WINDOWS windows
+        self.moved_settled = False  # ... while its last windows held at most LONE_YOUNG_SHARE of I
+        # a pair (or all three) named before the current load: the new load's sums may clear it
+        self.named_before_load = False
+        self.cleared_pairs = 0  # pairs cleared so on a new load's sums since the last reset
         # a named fault has cleared (the kernel's sums hold the fault), or a load left in a dump
         # (_dumped_load): the kernel restarts the weighing
         self.restart = False
@@ -126,6 +132,8 @@ class JointCheck:
         if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
             self.loads = kernel.new_loads
             self._resume()
+            # a pair named (nothing weighed) is judged again on the new load's sums (:meth:`_judge`)
+            self.named_before_load = len(self.named) > 1
         self._track_moving(kernel)
         self.dumping = kernel.dumping
         if self.dumping:  # the load leaves: what the joints weigh now is no one load (not summed)
@@ -164,17 +172,21 @@ class JointCheck:
         :data:`JOINT_MOVING_WINDOWS` windows back (a NaN on either side: not moving): N / I, or
         with ``--imu-nuisance on`` the filter's payload as the last window left it (it moves up
         to 4× faster than N / I: a dipper head pressure 29 % low, 65 kg ``ok`` while N / I had
-        moved 14 kg, docs/sensor-health.md)."""
+        moved 14 kg, docs/sensor-health.md). :attr:`moved_settled`: it moved while the windows of
+        the ring held at most :data:`~.settings.LONE_YOUNG_SHARE` of the weighing's information I
+        (a new load's first second converges: no lone joint's fault, docs/loadout.md)."""
         n = JOINT_MOVING_WINDOWS + 1
         if kernel.info > 0.0:  # the weighing reported (with --imu-nuisance the filter's, one window late)
             nuisance = getattr(kernel, "_imu_nuisance", None) is not None
             now = getattr(kernel, "payload_before", math.nan) if nuisance else kernel.num / kernel.info
         else:
             now = math.nan
-        then = self.history[(self.slot + 1) % n]  # the oldest of the ring (NaN until it is full)
-        self.history[self.slot] = now
+        oldest = (self.slot + 1) % n
+        then, info_then = self.history[oldest], self.history_info[oldest]  # NaN until the ring is full
+        self.history[self.slot], self.history_info[self.slot] = now, kernel.info
         self.slot = (self.slot + 1) % n
         self.moving = abs(now - then) > self.moving_limit
+        self.moved_settled = self.moving and 0.0 < kernel.info and info_then >= (1.0 - LONE_YOUNG_SHARE) * kernel.info
 
     @property
     def suspect(self) -> bool:
@@ -247,8 +259,12 @@ class JointCheck:
         # still (_slight: its own model error as likely as a sensor)
         held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
                                                and not self._leads(joints, m, w) or self._slight(joints, m, w))
-        if self.fault and not failing and not set(self.named) < set(joints):
-            failing = True  # a named joint is cleared only by agreeing with another compared joint
+        if self.fault and not failing and not set(self.named) < set(joints) \
+                and not (self.named_before_load and set(self.named) <= set(joints)):
+            # a named joint is cleared only by agreeing with another compared joint; a pair named
+            # before the current load also by its own two agreeing on that load's sums (a dig: the
+            # boom holds its empty-bucket weighing while dipper and bucket dig, docs/findings/false-alarms.md)
+            failing = True
         if failing != bool(self.fault):
             self.run += 1
         else:
@@ -261,13 +277,16 @@ class JointCheck:
         if not failing:
             # the whole weighing still holds the windows the fault biased: it starts again
             self.restart = bool(self.fault)
+            self.cleared_pairs += self.named_before_load
             self.fault, self.degraded, self.named = "", (math.nan, 0.0), ()
+            self.named_before_load = False
             return
         self._name(_named(joints, m, w))
         self.degraded = kernel._without(self.named[0]) if len(self.named) == 1 else (math.nan, 0.0)
 
     def _name(self, named) -> None:
         self.named = tuple(named)
+        self.named_before_load = False
         self.fault = ",".join(f"{s}:balance" for j in named for s in JOINT_PRESSURES[j])
 
     def _leads(self, joints: list, m: dict, w: dict) -> bool:

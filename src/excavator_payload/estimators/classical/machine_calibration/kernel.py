@@ -451,6 +451,8 @@ class CalibratedKernel(PressureRegression):
                              doc="The check pauses: a joint sees the load change (``load_changing``).")
     joint_suspect = property(lambda self: self._joints.suspect,
                              doc="The weighing moves before a fault is named (``load_changing``).")
+    joint_moved_settled = property(lambda self: self._joints.moved_settled,
+                               doc="... while it was settled (LONE_YOUNG_SHARE): a joint alone waits.")
 
     def _without(self, j: int) -> tuple[float, float]:
         """(estimate, information) of the weighing without joint ``j``'s share."""

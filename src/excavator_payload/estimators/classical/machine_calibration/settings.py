@@ -164,6 +164,13 @@ JOINT_SAMPLES = 10
 #: tried and dropped: clean lever motions on a slope reach χ² 15.7 with the estimate 4 kg off.
 JOINT_MOVING_SHARE = 0.003
 JOINT_MOVING_WINDOWS = 20
+#: A move (:data:`JOINT_MOVING_SHARE`) makes a joint weighed alone wait for a second one only once
+#: the weighing is settled: its last :data:`JOINT_MOVING_WINDOWS` windows hold at most this share
+#: of its information. A new load's first second converges by more than the moving limit with the
+#: boom alone (fresh shifts 5151/6161/7171: 15-120 kg in 0.2 s while those windows held 13-25 % of
+#: the information; 0.9-12.8 of the weighing's σ, so no σ test parts them), and the pass then
+#: waited to the dump (``warming_up``); a fault moves a weighing that holds much already.
+LONE_YOUNG_SHARE = 0.1
 #: A new fault of one joint is held while the weighing without that joint (on the check's sums)
 #: lies within this share of the rated payload of the weighing with it: a joint that holds so
 #: little of the information that it moves the weighing by less than a load that holds still
