@@ -80,16 +80,3 @@ def never_zeroed_note(name: str) -> str:
             "an empty-bucket motion of this session: excavator-payload zero --model MODEL --data EMPTY "
             "--out ZEROED")
 
-
-def never_zeroed_warning(estimator) -> str | None:
-    """``warning: …`` for a command to print when ``estimator`` weighs with its calibration
-    session's offsets (its ``never_zeroed``), else None.
-
-    Parameters
-    ----------
-    estimator : Estimator
-        A loaded estimator (any: only one that says it was never zeroed gets a line).
-    """
-    if getattr(estimator, "never_zeroed", False):
-        return f"warning: {never_zeroed_note(estimator.name)}"
-    return None

@@ -119,7 +119,6 @@ def register(app: typer.Typer) -> None:
 
         from excavator_payload.estimators.base import load_estimator
         from excavator_payload.estimators.commands import STATUS_MEANING, status_breakdown
-        from excavator_payload.estimators.offset_drift import never_zeroed_warning
         from excavator_payload.runtime.can_sensor import PayloadSensor
         from excavator_payload.runtime.replay import replay_log
 
@@ -172,9 +171,7 @@ def register(app: typer.Typer) -> None:
             console.print(line, markup=False, highlight=False)
         if frame.attrs.get("log_end"):  # a cut log's estimates looked complete
             typer.echo(f"warning: {frame.attrs['log_end']}", err=True)
-        unzeroed = never_zeroed_warning(est)
-        if unzeroed:
-            typer.echo(unzeroed, err=True)
+        loadout_command.warn_never_zeroed(est)
 
     @app.command("can-run")
     def can_run(
@@ -197,7 +194,6 @@ def register(app: typer.Typer) -> None:
         import can
 
         from excavator_payload.estimators.base import load_estimator
-        from excavator_payload.estimators.offset_drift import never_zeroed_warning
         from excavator_payload.runtime.can_sensor import PayloadSensor, run_bus
         from excavator_payload.runtime.dbc import CanConfigError
 
@@ -218,9 +214,7 @@ def register(app: typer.Typer) -> None:
         except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
             raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: "
                                  f"{exc}") from None
-        unzeroed = never_zeroed_warning(est)
-        if unzeroed:  # before the first estimate goes on the bus
-            typer.echo(unzeroed, err=True)
+        loadout_command.warn_never_zeroed(est)  # before the first estimate goes on the bus
         stop = threading.Event()
         handlers = {}
         if threading.current_thread() is threading.main_thread():

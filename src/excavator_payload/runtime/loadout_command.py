@@ -164,14 +164,21 @@ def show_truck(truck) -> None:
         console.print(f"truck {truck.truck}: " + fault_line(fault), markup=False, highlight=False)
 
 
-def _warn_never_zeroed(estimator) -> None:
-    # Said once the inputs are checked and before the first pass, not after the shift: each
-    # truck's first pass is where an unzeroed model's offsets show as an `ok` weight.
-    from excavator_payload.estimators.offset_drift import never_zeroed_warning
+def warn_never_zeroed(estimator) -> None:
+    """Say on stderr, once, that ``estimator`` weighs with its calibration session's offsets
+    (its ``never_zeroed``; nothing for any other), for a command about to weigh.
 
-    line = never_zeroed_warning(estimator)
-    if line:
-        typer.echo(line, err=True)
+    Parameters
+    ----------
+    estimator : Estimator
+        The loaded estimator.
+    """
+    # Said once the inputs are checked and before the first weight: each truck's first pass is
+    # where an unzeroed model's offsets show as an `ok` weight.
+    if getattr(estimator, "never_zeroed", False):
+        from excavator_payload.estimators.offset_drift import never_zeroed_note
+
+        typer.echo(f"warning: {never_zeroed_note(estimator.name)}", err=True)
 
 
 def _from_dataset(estimator, data, db, target, model):
@@ -184,7 +191,7 @@ def _from_dataset(estimator, data, db, target, model):
     if not HYDRAULIC.carries(dataset):
         raise DatasetError(f"loadout weighs the machine sensor set's passes; {data} holds the "
                            f"{dataset.sensor_set.name} set")
-    _warn_never_zeroed(estimator)
+    warn_never_zeroed(estimator)
     record = open_record(db, say=_say)
     try:
         return run_loadout(estimator, dataset, record, file_key(data), target, on_truck=show_truck,
@@ -228,7 +235,7 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
         # a signal in another unit: one line before anything is recorded
         check_log_units(log, PayloadSensor(estimator, codec, stale_tolerance=stale_tolerance), guard(),
                         f"CAN log '{log}'")
-        _warn_never_zeroed(estimator)
+        warn_never_zeroed(estimator)
         record = open_record(db, say=_say)
         try:
             bus = BusLoadout(sensor, record, file_key(log), target, button, truths=truths, on_truck=show_truck,
@@ -269,7 +276,7 @@ def _live(sensor, button, db, target, model, interface, channel, bitrate, durati
         bus = can.Bus(interface=interface, channel=channel, **kwargs)
     except (can.CanError, ValueError, ImportError, OSError, NotImplementedError) as exc:
         raise CanConfigError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
-    _warn_never_zeroed(sensor.estimator)
+    warn_never_zeroed(sensor.estimator)
     # a write that fails mid-shift (disk full, read-only, locked, folder gone) keeps the trucks
     # in hand in a file and tries again; the shift goes on (it stopped and lost the truck)
     record = KeptRecord(open_record(db, say=_say))
