@@ -191,3 +191,67 @@ def test_samples_decoded_from_a_log_are_the_datasets(tmp_path, swings, model):
     assert np.isfinite(got.frame[signals].to_numpy()).mean() > 0.99
     assert main(["can-replay", "--log", str(log), "--model", str(model), "--out", str(tmp_path / "o.parquet"),
                  "--samples-out", str(log)]) == 2  # never over the log
+
+
+def test_replay_writes_in_chunks_the_same_files(tmp_path, swings, model, reference, monkeypatch):
+    """``can-replay`` writes its estimates and decoded samples chunk by chunk (bounded memory on
+    a day's log): with chunks of 37 rows the files hold what one in-memory replay gives, the
+    rate check keeps a bounded sample of the frame intervals, and a replay that fails leaves
+    neither file."""
+    from excavator_payload.data.io import read_dataset
+    from excavator_payload.runtime import replay
+
+    monkeypatch.setattr(replay, "CHUNK_ROWS", 37)
+    monkeypatch.setattr(replay, "RATE_SAMPLE", 50)
+    log = tmp_path / "swings.blf"
+    record_dataset(swings, log)
+    samples = tmp_path / "samples.parquet"
+    code, got = _replay_cli(tmp_path, model, log, "--samples-out", str(samples))
+    assert code == 0 and len(got) == len(reference) > 37 * 3
+    for column in ("experiment", "status", "stale_signals", "fault"):
+        assert got[column].tolist() == reference[column].tolist()
+    np.testing.assert_array_equal(got["payload_estimate"], reference["payload_estimate"])
+    decoded = read_dataset(samples)
+    assert len(decoded.frame) == len(swings.frame) and decoded.n_experiments == swings.n_experiments
+    np.testing.assert_allclose(decoded.frame["time"], swings.frame["time"], atol=1e-6)
+    # a log with no sensor frame: neither file is written, no temporary file is left
+    other = tmp_path / "other"
+    other.mkdir()
+    empty = other / "empty.asc"
+    empty.write_text("date Mon Jan 1 00:00:00.000 am 2024\nbase hex timestamps absolute\n"
+                     "   0.000000 1  123             Rx   d 1 00\n   0.010000 1  123             Rx   d 1 00\n")
+    code = main(["can-replay", "--log", str(empty), "--model", str(model), "--out", str(other / "e.parquet"),
+                 "--samples-out", str(other / "s.parquet")])
+    assert code == 2 and sorted(p.name for p in other.iterdir()) == ["empty.asc"]
+
+
+def test_rate_check_keeps_a_uniform_sample_of_intervals():
+    """The rate check's intervals are a bounded, uniform sample of them all (reservoir)."""
+    import random
+    from collections import Counter
+
+    from excavator_payload.runtime.replay import RATE_SAMPLE, _keep_interval
+
+    kept, seen, pick = [], Counter(), random.Random(0)
+    for i in range(20 * RATE_SAMPLE):
+        _keep_interval(kept, seen, "m", float(i), pick)
+    assert len(kept) == RATE_SAMPLE and seen["m"] == 20 * RATE_SAMPLE
+    # uniform over the whole log: its median near the middle, not the first RATE_SAMPLE's
+    assert abs(np.median(kept) / (10 * RATE_SAMPLE) - 1) < 0.05
+
+
+def test_decoded_samples_whose_time_goes_back_leave_no_file(tmp_path, swings):
+    """A segment whose decoded time goes back stops the ``--samples-out`` file with one line
+    (the estimates are not its concern); none is left half-written."""
+    from excavator_payload.data.io import ParquetStreamWriter
+    from excavator_payload.runtime.replay import ReplaySamples, samples_file_meta
+
+    target = tmp_path / "s.parquet"
+    n = len(swings.sensor_set.signals)
+    kept = ReplaySamples(swings.sensor_set, "x.blf", ParquetStreamWriter(target, samples_file_meta(
+        swings.sensor_set, "x.blf")))
+    for t in (0.0, 0.01, 0.02, 0.015):
+        kept.append((0, t, np.zeros(n)))
+    with pytest.raises(DatasetError, match="does not increase within segment 0"):
+        kept.close()
+    assert list(tmp_path.iterdir()) == []

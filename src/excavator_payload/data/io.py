@@ -130,6 +130,76 @@ def atomic_write_table(table: pa.Table, path: str | Path) -> None:
         raise
 
 
+class ParquetStreamWriter:
+    """Write a Parquet table chunk by chunk (one row group per chunk) in bounded memory, and
+    atomically: the rows go to a temporary file in the destination's folder that :meth:`close`
+    renames over it; :meth:`abort` (or leaving a ``with`` block without :meth:`close`) removes
+    it, so the destination is never half-written.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        Destination Parquet file; its folder is created if missing.
+    meta : dict, optional
+        Metadata stored as JSON in the file's schema metadata (as :func:`write_estimates`).
+    """
+
+    def __init__(self, path: str | Path, meta: dict | None = None) -> None:
+        self.path = Path(path)
+        self.meta = meta
+        self.rows = 0
+        self._writer: pq.ParquetWriter | None = None
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        os.close(fd)
+
+    def write(self, frame: pd.DataFrame) -> None:
+        """Append ``frame``'s rows (the first chunk sets the columns and their types).
+
+        Parameters
+        ----------
+        frame : pandas.DataFrame
+            The next rows; the same columns as the first chunk's.
+        """
+        table = pa.Table.from_pandas(frame.reset_index(drop=True), preserve_index=False)
+        if self._writer is None:
+            schema = table.schema
+            if self.meta:
+                schema = schema.with_metadata({**(schema.metadata or {}),
+                                               METADATA_KEY: json.dumps(self.meta).encode()})
+            self._writer = pq.ParquetWriter(self._tmp, schema, compression="zstd")
+        self._writer.write_table(table.cast(self._writer.schema))
+        self.rows += len(frame)
+
+    def close(self) -> int:
+        """Finish the file and put it in place; returns the rows written."""
+        if self._writer is None:
+            self.abort()
+            raise DatasetError(f"no rows to write to '{self.path}'")
+        self._writer.close()
+        self._writer = None
+        os.chmod(self._tmp, new_file_mode())  # mkstemp makes 0600
+        os.replace(self._tmp, self.path)
+        return self.rows
+
+    def abort(self) -> None:
+        """Drop what was written (the destination is left as it was)."""
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception:  # noqa: BLE001 - the file goes anyway
+                pass
+            self._writer = None
+        if os.path.exists(self._tmp):
+            os.unlink(self._tmp)
+
+    def __enter__(self) -> "ParquetStreamWriter":
+        return self
+
+    def __exit__(self, kind, value, traceback) -> None:
+        self.abort()  # not closed (an exception, or close never called): nothing is put in place
+
+
 def write_dataset(dataset: Dataset, path: str | Path) -> None:
     """Validate and write ``dataset`` to ``path`` (Parquet, atomic).
 
@@ -147,13 +217,30 @@ def write_dataset(dataset: Dataset, path: str | Path) -> None:
     frame = dataset.frame[cols].copy()
     frame["experiment"] = frame["experiment"].astype("int64")
     table = pa.Table.from_pandas(frame, preserve_index=False)
-    meta = dict(dataset.meta)
-    meta.setdefault("format_version", FORMAT_VERSION)
-    meta["sensor_set"] = sensors.name
-    meta["units"] = {c: sensors.unit(c) for c in cols}
+    meta = dataset_file_meta(dataset.meta, sensors, cols)
     table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                            METADATA_KEY: json.dumps(meta).encode()})
     atomic_write_table(table, path)
+
+
+def dataset_file_meta(meta: dict, sensors, columns: Sequence[str]) -> dict:
+    """The metadata a dataset file carries: ``meta`` with the format version, the sensor set's
+    name and each column's unit.
+
+    Parameters
+    ----------
+    meta : dict
+        The dataset's own metadata (source, machine, ...).
+    sensors : SensorSet
+        The sensor set of its signals.
+    columns : sequence of str
+        The file's columns.
+    """
+    meta = dict(meta)
+    meta.setdefault("format_version", FORMAT_VERSION)
+    meta["sensor_set"] = sensors.name
+    meta["units"] = {c: sensors.unit(c) for c in columns}
+    return meta
 
 
 def read_metadata(path: str | Path) -> dict:

@@ -111,18 +111,18 @@ def register(app: typer.Typer) -> None:
                                          "from the log as a dataset (Parquet, SI units; NaN where "
                                          "stale): e.g. an empty-bucket motion for `zero --data`."),
     ) -> None:
-        """Replay a CAN log through the payload sensor; write the estimates as Parquet."""
-        import pandas as pd
+        """Replay a CAN log through the payload sensor; write the estimates as Parquet (both files
+        written as the log is read: a day's log replays in bounded memory)."""
+        from contextlib import ExitStack
+
         from rich.markup import escape
 
-        from excavator_payload.data.io import write_estimates
-
+        from excavator_payload.data.io import PARQUET_SUFFIXES, ParquetStreamWriter, check_output_path
         from excavator_payload.estimators.base import load_estimator
-        from excavator_payload.estimators.commands import STATUS_MEANING, status_breakdown
+        from excavator_payload.estimators.commands import STATUS_MEANING
         from excavator_payload.runtime.can_sensor import PayloadSensor
-        from excavator_payload.runtime.replay import replay_log
-
-        from excavator_payload.data.io import PARQUET_SUFFIXES, check_output_path
+        from excavator_payload.runtime.replay import (ReplayEstimates, ReplaySamples, replay_log,
+                                                      samples_file_meta)
 
         # --out inside the model folder replaced its arrays.npz (the model was lost); the log,
         # the DBC and the map are inputs too
@@ -136,42 +136,51 @@ def register(app: typer.Typer) -> None:
         if not stale_tolerance >= 1:
             raise DatasetError("--stale-tolerance must be at least 1 (periods)")
         sensor = PayloadSensor(est, _codec(est, dbc_file, signal_map), stale_tolerance=stale_tolerance)
-        samples = [] if samples_out is not None else None
-        frame = replay_log(log, sensor, segment_gap, progress=True, samples=samples)
-        write_estimates(frame, out, meta={"estimator": est.name, "model": str(model), "log": str(log)})
-        if samples_out is not None:
-            from excavator_payload.data.io import write_dataset
-            from excavator_payload.runtime.replay import samples_dataset
-
-            decoded = samples_dataset(samples, est.sensor_set, log)
-            write_dataset(decoded, samples_out)
-            console.print(f"{len(decoded.frame)} decoded samples in {decoded.n_experiments} segment(s) "
-                          f"written to {samples_out}", markup=False, highlight=False)
+        samples_error = ""
+        with ExitStack() as files:  # a replay that fails leaves neither file (nor half of one)
+            writer = files.enter_context(ParquetStreamWriter(
+                out, {"estimator": est.name, "model": str(model), "log": str(log)}))
+            samples = None
+            if samples_out is not None:
+                samples = ReplaySamples(est.sensor_set, log, files.enter_context(
+                    ParquetStreamWriter(samples_out, samples_file_meta(est.sensor_set, log))))
+            estimates = replay_log(log, sensor, segment_gap, progress=True, samples=samples,
+                                   estimates=ReplayEstimates(writer))
+            writer.close()
+            if samples is not None:
+                try:  # the estimates stay written whatever becomes of the samples
+                    n = samples.close()
+                    console.print(f"{n} decoded samples in {samples.segments} segment(s) written to "
+                                  f"{samples_out}", markup=False, highlight=False)
+                except DatasetError as exc:
+                    samples_error = str(exc)
         c = sensor.counters
+        attrs = estimates.attrs
         dropped = [f"{n} {what}" for n, what in (
-            (frame.attrs.get("skipped_records", 0), "unreadable log records skipped"),
+            (attrs.get("skipped_records", 0), "unreadable log records skipped"),
             (c["duplicates"], "duplicate frames dropped"),
             (c["other_senders"], "frames of the sensor PGNs from another source address ignored"))
             if n]
         # every status, as `estimate` counts them (it said '(9244 ok)', no word of the warming_up)
-        console.print(f"{est.name}: {len(frame)} estimates ({status_breakdown(frame['status'])}) in "
-                      f"{frame['experiment'].nunique()} segment(s) from {c['frames']} frames ({c['ignored']} "
+        console.print(f"{est.name}: {estimates.count} estimates ({estimates.breakdown()}) in "
+                      f"{estimates.segments} segment(s) from {c['frames']} frames ({c['ignored']} "
                       f"ignored, {c['bad_frames']} bad{''.join('; ' + d for d in dropped)}) written to "
                       f"[bold]{escape(str(out))}[/bold]", highlight=False)
-        seen = [status for status in STATUS_MEANING if (frame["status"] == status).any()]
+        seen = [status for status in STATUS_MEANING if estimates.statuses[status]]
         if seen:
             console.print("; ".join(f"{status}: {STATUS_MEANING[status]}" for status in seen),
                           markup=False, highlight=False)
-        stale = frame["stale_signals"][frame["stale_signals"] != ""]
-        if len(stale):
-            names = pd.Series([n for s in stale for n in s.split(",")]).value_counts()
-            console.print("stale signals: " + ", ".join(f"{n} ({k} samples)" for n, k in names.items()),
+        if estimates.stale:
+            console.print("stale signals: " + ", ".join(f"{n} ({k} samples)" for n, k in
+                                                        estimates.stale.most_common()),
                           markup=False, highlight=False)
         for line in sensor.dm1.summary():  # what the bus would have carried (J1939 DM1)
             console.print(line, markup=False, highlight=False)
-        if frame.attrs.get("log_end"):  # a cut log's estimates looked complete
-            typer.echo(f"warning: {frame.attrs['log_end']}", err=True)
+        if attrs.get("log_end"):  # a cut log's estimates looked complete
+            typer.echo(f"warning: {attrs['log_end']}", err=True)
         loadout_command.warn_never_zeroed(est)
+        if samples_error:
+            raise DatasetError(samples_error)
 
     @app.command("can-run")
     def can_run(

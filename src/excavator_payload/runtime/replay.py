@@ -20,6 +20,8 @@ line that says what it does hold (frames, ids, PGNs and source addresses, rates)
 from __future__ import annotations
 
 import math
+import random
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +36,172 @@ from excavator_payload.runtime.logs import UNREADABLE_LOG, LogSummary, read_fram
 
 #: Default silence (s) of the sensor's own frames that separates two recordings in one log.
 SEGMENT_GAP = 2.0
+#: Estimates (and decoded samples) held before they go to their file: a day's log replays in
+#: bounded memory (it held ~0.8 kB per sample, ~2 GB for 8 h at 100 Hz).
+CHUNK_ROWS = 50_000
+#: Frame intervals kept per sensor message for the rate check: a uniform sample of them all.
+RATE_SAMPLE = 4096
+#: The columns of a replay's estimates.
+ESTIMATE_FRAME_COLUMNS = ("experiment", "time", "payload_estimate", "status", "payload_sigma", "log_time",
+                          "stale_signals", "fault")
+
+
+class ReplayEstimates:
+    """The estimates of a replay as they come, in chunks of :data:`CHUNK_ROWS`: written to a
+    Parquet file as they fill (``writer``: bounded memory) or kept for :meth:`frame`, with the
+    counts a summary needs (statuses, stale signals, segments).
+
+    Parameters
+    ----------
+    writer : ParquetStreamWriter, optional
+        Where the chunks go; None keeps them in memory.
+    """
+
+    def __init__(self, writer=None) -> None:
+        self.writer = writer
+        self.count = 0
+        self.statuses: Counter = Counter()
+        self.stale: Counter = Counter()  # signal name -> samples it was stale in
+        self.segments = 0
+        self.usable = 0  # estimates neither invalid_input nor stale
+        self.last_log_time: float | None = None
+        self.attrs: dict = {}
+        self._experiment = None
+        self._rows: list[tuple] = []
+        self._parts: list[pd.DataFrame] = []
+
+    def add(self, row: tuple) -> None:
+        """One estimate, in :data:`ESTIMATE_FRAME_COLUMNS` order.
+
+        Parameters
+        ----------
+        row : tuple
+            experiment, time, payload_estimate, status, payload_sigma, log_time, stale_signals, fault.
+        """
+        self._rows.append(row)
+        self.count += 1
+        self.statuses[row[3]] += 1
+        if row[3] not in ("invalid_input", dbc.STALE):
+            self.usable += 1
+        if row[6]:
+            self.stale.update(row[6].split(","))
+        if row[0] != self._experiment:
+            self._experiment = row[0]
+            self.segments += 1
+        self.last_log_time = row[5]
+        if len(self._rows) >= CHUNK_ROWS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Move the held rows to the file (or the kept chunks)."""
+        if not self._rows:
+            return
+        part = pd.DataFrame(self._rows, columns=list(ESTIMATE_FRAME_COLUMNS))
+        part["experiment"] = part["experiment"].astype("int64")
+        self._rows = []
+        if self.writer is not None:
+            self.writer.write(part)
+        else:
+            self._parts.append(part)
+
+    def frame(self) -> pd.DataFrame:
+        """Every estimate kept (without a writer), with :attr:`attrs`."""
+        self.flush()
+        frame = (pd.concat(self._parts, ignore_index=True) if self._parts
+                 else pd.DataFrame(columns=list(ESTIMATE_FRAME_COLUMNS)))
+        frame["experiment"] = frame["experiment"].astype("int64")
+        frame.attrs.update(self.attrs)
+        return frame
+
+    def breakdown(self) -> str:
+        """``"960 ok, 50 warming_up"``: the estimates per status, most common first."""
+        return ", ".join(f"{n} {name}" for name, n in self.statuses.most_common())
+
+
+class ReplaySamples:
+    """The samples a replay assembled (SI units, NaN where stale) written as a dataset file
+    chunk by chunk (bounded memory): what ``can-replay --samples-out`` writes for ``zero --data``.
+    A time that does not increase within a segment stops the file (:attr:`error` says why).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The sensor set the values belong to.
+    log : str or Path
+        The CAN log they come from (kept in the file's metadata).
+    writer : ParquetStreamWriter
+        Where the chunks go (its metadata: :func:`samples_file_meta`).
+    """
+
+    def __init__(self, sensor_set, log: str | Path, writer) -> None:
+        self.sensor_set = sensor_set
+        self.log = log
+        self.writer = writer
+        self.error = ""
+        self.segments = 0
+        self._rows: list[tuple] = []
+        self._last: tuple[int, float] | None = None  # (experiment, time) of the last sample written
+
+    def append(self, sample: tuple) -> None:
+        """One sample ``(experiment, time from the segment's start, values)``.
+
+        Parameters
+        ----------
+        sample : tuple
+            As :func:`replay_log` appends to its ``samples``.
+        """
+        if self.error:
+            return
+        if self._last is None or sample[0] != self._last[0]:
+            self.segments += 1
+        elif not sample[1] > self._last[1]:
+            self.error = (f"CAN log '{self.log}': its decoded samples' time does not increase within "
+                          f"segment {sample[0]} (at {sample[1]:.4f} s): no --samples-out file written")
+            self.writer.abort()
+            self._rows = []
+            return
+        self._last = (sample[0], sample[1])
+        self._rows.append(sample)
+        if len(self._rows) >= CHUNK_ROWS:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write the held samples."""
+        if self._rows and not self.error:
+            self.writer.write(samples_dataset(self._rows, self.sensor_set, self.log).frame)
+        self._rows = []
+
+    def close(self) -> int:
+        """Finish the file; returns the samples written.
+
+        Raises
+        ------
+        DatasetError
+            A time that went back (:attr:`error`), or no sample assembled.
+        """
+        self.flush()
+        if self.error:
+            raise DatasetError(self.error)
+        if self.writer.rows == 0:
+            self.writer.abort()
+            raise DatasetError(f"CAN log '{self.log}': no sample was assembled from it")
+        return self.writer.close()
+
+
+def samples_file_meta(sensor_set, log: str | Path) -> dict:
+    """The metadata of a ``--samples-out`` file (as :func:`samples_dataset`'s, written).
+
+    Parameters
+    ----------
+    sensor_set : SensorSet
+        The sensor set of the samples.
+    log : str or Path
+        The CAN log they come from.
+    """
+    from excavator_payload.data.io import dataset_file_meta
+
+    return dataset_file_meta({"sensor_set": sensor_set.name, "source": "CAN log", "log": str(log)},
+                             sensor_set, ["experiment", "time", *sensor_set.signals])
 
 
 def read_log(path: str | Path, skipped: list[int] | None = None):
@@ -50,7 +218,8 @@ def read_log(path: str | Path, skipped: list[int] | None = None):
 
 
 def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEGMENT_GAP,
-               progress: bool = False, samples: list | None = None) -> pd.DataFrame:
+               progress: bool = False, samples: list | None = None,
+               estimates: ReplayEstimates | None = None) -> pd.DataFrame | ReplayEstimates:
     """Estimates of every sample in the log ``path`` (see the module docstring).
 
     Parameters
@@ -66,7 +235,11 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     samples : list, optional
         If given, every sample the sensor assembled is appended to it as ``(experiment, time
         from the segment's start, values in the sensor set's signal order)`` (SI units; NaN
-        where a signal was stale): what :func:`samples_dataset` turns into a dataset.
+        where a signal was stale): what :func:`samples_dataset` turns into a dataset; or a
+        :class:`ReplaySamples` that writes them to a file as they come.
+    estimates : ReplayEstimates, optional
+        Where the estimates go (e.g. to a file as they come, in bounded memory); it is
+        returned instead of a frame, its ``attrs`` as the frame's below.
 
     Returns
     -------
@@ -75,13 +248,14 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         ``payload_estimate`` and ``payload_sigma`` (kg), ``status``, ``log_time`` (s),
         ``stale_signals``, ``fault``; ``attrs["log_end"]``: the line that says the log ends
         early (truncated; :func:`~excavator_payload.runtime.logs.log_end`), empty when it is whole.
+        With ``estimates`` given: that object.
 
     Raises
     ------
     DatasetError
         No sensor frame, frames out of order, wrong rates, or no readable sample.
     """
-    rows: list[tuple] = []
+    rows = estimates if estimates is not None else ReplayEstimates()
     skipped = [0]
     ending: list[str] = []  # the line that says the log ends early (truncated)
     fed = 0
@@ -91,7 +265,9 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     last_frame_time: float | None = None
     backwards = 0  # sensor frames earlier than the sensor frame before them
     summary = LogSummary()
-    intervals: dict[str, list[float]] = {}
+    intervals: dict[str, list[float]] = {}  # a uniform sample of each message's (RATE_SAMPLE)
+    seen_intervals: Counter = Counter()
+    pick = random.Random(0)
     last_of: dict[str, float] = {}
     sensor.reset()
     sensor.dm1.reset()
@@ -99,8 +275,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     def keep(outputs):
         for o in outputs:
             if o is not None:
-                rows.append((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
-                             ",".join(o.stale), o.fault))
+                rows.add((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
+                          ",".join(o.stale), o.fault))
                 sensor.dm1.update(o.time, o.fault)
 
     # units and wiring judged on the decoded samples, as a dataset's (data/units.py)
@@ -139,8 +315,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
             if last_frame_time is None or t - last_frame_time > segment_gap:
                 if sensor.pending:
                     keep([sensor.flush()])
-                if rows:
-                    sensor.dm1.update(rows[-1][5], "")  # a new recording: its faults end here
+                if rows.count:
+                    sensor.dm1.update(rows.last_log_time, "")  # a new recording: its faults end here
                 sensor.reset()
                 experiment += 1
                 segment_start = t
@@ -150,7 +326,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
             keep(sensor.feed(message, spec=spec))
             if sensor.counters["duplicates"] == duplicates:  # a frame twice is not a rate
                 if spec.name in last_of:
-                    intervals.setdefault(spec.name, []).append(t - last_of[spec.name])
+                    _keep_interval(intervals.setdefault(spec.name, []), seen_intervals, spec.name,
+                                   t - last_of[spec.name], pick)
                 last_of[spec.name] = t
             if bar is not None and i % 1000 == 0:
                 bar.update(task, completed=i)
@@ -160,7 +337,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         del sensor.estimator.step_values
         if bar is not None:
             bar.stop()
-    if not rows:
+    if not rows.count:
         raise DatasetError(f"CAN log '{path}': no frame is the sensor messages ({_expected(sensor)}) of "
                            f"the {sensor.sensor_set.name} sensor set{_foreign(sensor)}; the log holds "
                            f"{summary.describe()}. Another DBC (--dbc, --signal-map)?")
@@ -169,7 +346,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         raise DatasetError(f"CAN log '{path}': its time goes back between {backwards} of {fed} "
                            f"sensor frames (frames out of order?); sort the log by timestamp")
     check_message_rates(intervals, sensor, path)
-    if all(row[3] in ("invalid_input", dbc.STALE) for row in rows):
+    if not rows.usable:
         # The sensor sets' generated DBCs share their PGNs (0xFF00, ...): a log of the machine
         # set replayed with a thesis model (or the reverse) decoded garbage or NaN in every
         # sample and wrote estimates that were all NaN, with exit status 0.
@@ -182,13 +359,22 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                            f"with another DBC or sensor set (--dbc, --signal-map)? The log holds "
                            f"{summary.describe()}")
     watch.check(f"CAN log '{path}'")
-    frame = pd.DataFrame(rows, columns=["experiment", "time", "payload_estimate", "status",
-                                        "payload_sigma", "log_time", "stale_signals", "fault"])
-    frame["experiment"] = frame["experiment"].astype("int64")
-    frame.attrs["skipped_records"] = skipped[0]
-    frame.attrs["log_end"] = ending[0] if ending else ""
-    frame.attrs["summary"] = summary.describe()
-    return frame
+    rows.flush()
+    rows.attrs.update(skipped_records=skipped[0], log_end=ending[0] if ending else "",
+                      summary=summary.describe())
+    return rows if estimates is not None else rows.frame()
+
+
+def _keep_interval(kept: list[float], seen: Counter, name: str, interval: float, pick: random.Random) -> None:
+    """Keep a uniform sample of :data:`RATE_SAMPLE` of a message's intervals (reservoir sampling):
+    the rate check's median in bounded memory on a log of any length."""
+    seen[name] += 1
+    if len(kept) < RATE_SAMPLE:
+        kept.append(interval)
+    else:
+        j = pick.randrange(seen[name])
+        if j < RATE_SAMPLE:
+            kept[j] = interval
 
 
 def _expected(sensor: PayloadSensor) -> str:
