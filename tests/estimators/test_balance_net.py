@@ -165,3 +165,11 @@ def test_command_line_train_and_zero(machine_data, tmp_path, capsys):
     assert main(["zero", "--model", str(tmp_path / "m"), "--data", str(tmp_path / "zero.parquet"),
                  "--out", str(tmp_path / "z")]) == 0
     assert "boom_head_pressure" in capsys.readouterr().out and (tmp_path / "z").is_dir()
+    # an unzeroed model weighs with the training logs' offsets: `estimate` says so, the zeroed
+    # one does not
+    write_dataset(machine_data["test"], tmp_path / "test.parquet")
+    for folder, said in (("m", True), ("z", False)):
+        assert main(["estimate", "--model", str(tmp_path / folder), "--data", str(tmp_path / "test.parquet"),
+                     "--out", str(tmp_path / f"e{folder}.parquet")]) == 0
+        out = " ".join(capsys.readouterr().out.split())
+        assert ("was never zeroed" in out and "200-270 kg off" in out) == said

@@ -64,19 +64,23 @@ def offsets_beyond_drift(names: Sequence[str], offsets, prior_std, limit: float)
             "empty, a sensor is stuck, mis-scaled or changed since the calibration: check those signals")
 
 
-def never_zeroed_note(name: str) -> str:
+def never_zeroed_note(name: str, measured: str | None = None) -> str:
     """The note for a zeroing estimator that weighs with its calibration session's offsets.
 
     Parameters
     ----------
     name : str
         The estimator's name, to start the line with.
+    measured : str, optional
+        What such a model was measured to do on another session's data (default: the
+        calibrated model's, below).
     """
     # Measured: a simulated shift of another working session, weighed with an unzeroed
     # calibration, put every truck's first pass 350-510 kg off, as `ok`.
+    measured = measured or "an unzeroed calibration weighed passes 350-510 kg off as 'ok'"
     return (f"{name}: this model was never zeroed: it weighs with the sensor offsets of the working "
-            "session(s) it was fitted in. Offsets drift between sessions (a day, a service); on another "
-            "session's data an unzeroed calibration weighed passes 350-510 kg off as 'ok'. Zero it on "
+            f"session(s) it was fitted in. Offsets drift between sessions (a day, a service); on another "
+            f"session's data {measured}. Zero it on "
             "an empty-bucket motion of this session: excavator-payload zero --model MODEL --data EMPTY "
             "--out ZEROED")
 

@@ -178,7 +178,8 @@ def warn_never_zeroed(estimator) -> None:
     if getattr(estimator, "never_zeroed", False):
         from excavator_payload.estimators.offset_drift import never_zeroed_note
 
-        typer.echo(f"warning: {never_zeroed_note(estimator.name)}", err=True)
+        measured = getattr(estimator, "never_zeroed_measured", None)  # the estimator's own figure
+        typer.echo(f"warning: {never_zeroed_note(estimator.name, measured)}", err=True)
 
 
 def _from_dataset(estimator, data, db, target, model):

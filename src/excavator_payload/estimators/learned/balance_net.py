@@ -35,7 +35,7 @@ each window from a ring: batch and stream are one computation.
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
@@ -44,6 +44,9 @@ from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import Estimator, Option, Status, StepResult, register
 from excavator_payload.estimators.learned.balance_model import BalanceModel, Layout, Samples, experiment_samples
 from excavator_payload.estimators.offset_drift import offsets_beyond_drift, offsets_chi2
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: Angles' plausibility: the training range widened by this share of its span plus ANGLE_MARGIN.
 ANGLE_WIDEN, ANGLE_MARGIN = 0.25, math.radians(5.0)
@@ -381,6 +384,20 @@ class BalanceNet(Estimator):
             return [f"{self.name}: the zero motion gave {used} usable windows (joints moving inside "
                     "the trained range); its offsets rest mostly on their prior"]
         return []
+
+    @property
+    def never_zeroed(self) -> bool:
+        """A trained model that still weighs with its training logs' sensor offsets (no zero yet)."""
+        return bool(self.fitted and self.model is not None and self.model.zero_std == 0.0)
+
+    #: What an unzeroed model did on another session (docs/balance-net.md: before the day's zero
+    #: every family 0 % within 1 % of the largest trained payload, 200-270 kg mean MAX).
+    never_zeroed_measured = "an unzeroed balance-net weighed every motion family 200-270 kg off (mean MAX)"
+
+    def estimate_notes(self, dataset: Dataset, estimates: pd.DataFrame | None = None) -> list[str]:
+        from excavator_payload.estimators.offset_drift import never_zeroed_note
+
+        return [never_zeroed_note(self.name, self.never_zeroed_measured)] if self.never_zeroed else []
 
     def _offset_chi2(self) -> float:
         """The offsets' χ² against their prior (:data:`ZERO_PRIOR`)."""
