@@ -226,3 +226,28 @@ def test_sigma_grows_with_the_distance_from_the_training_data(fitted, machine_da
     np.testing.assert_array_equal(a["payload_estimate"].to_numpy(), b["payload_estimate"].to_numpy())
     ok = (b["status"] == "ok").to_numpy()
     assert ok.sum() > 50 and np.all(b["sigma"].to_numpy()[ok] > a["sigma"].to_numpy()[ok])
+
+
+def test_a_model_saved_before_the_novelty_floor_loads_with_its_constant_floor(fitted, machine_data, tmp_path):
+    """A folder without the floor's coefficients and the novelty statistics (saved before them)
+    loads with the constant floor s_model² = model_std² and weighs with the same σ as the
+    constant floor of the current code."""
+    import json
+
+    est = copy.deepcopy(fitted)
+    est.model_std, est.floor_a, est.floor_b, est.floor_c = 5.0, 1.0, 3.0, 2.0
+    folder = est.save(tmp_path / "m")
+    config = json.loads((folder / "estimator.json").read_text())
+    for key in ("floor_a", "floor_b", "floor_c"):
+        config["state"].pop(key)
+    (folder / "estimator.json").write_text(json.dumps(config))
+    arrays = dict(np.load(folder / "arrays.npz"))
+    arrays.pop("novelty_mean"), arrays.pop("novelty_precision")
+    np.savez(folder / "arrays.npz", **arrays)
+    old = load_estimator(folder)
+    assert (old.floor_a, old.floor_b, old.floor_c) == (25.0, 0.0, 0.0)
+    assert old.novelty_mean.shape == (0,)
+    constant = copy.deepcopy(est)
+    constant.floor_a, constant.floor_b, constant.floor_c = 25.0, 0.0, 0.0
+    a, b = old.estimate(machine_data["test"]), constant.estimate(machine_data["test"])
+    np.testing.assert_array_equal(a["sigma"].to_numpy(), b["sigma"].to_numpy())
