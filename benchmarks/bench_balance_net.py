@@ -117,6 +117,9 @@ def main() -> None:
                     help="also the efficiency: RMS error over the Cramér–Rao bound of the machine's "
                          "model (calibrated from the true machine file on 10 of the training swings "
                          "and zeroed alike: the information a model-based sensor has)")
+    ap.add_argument("--constant-floor-too", action="store_true",
+                    help="also σ's coverage with the constant model floor of before 2026-11-29 (the same "
+                         "estimates; σ = √(κ²/I + s_model² + s_zero²))")
     a = ap.parse_args()
     a.out.mkdir(parents=True, exist_ok=True)
     mixtures = dict(parse_mixture(m) for m in a.mixture) or {"2:2:1": default_counts(a.n_train)}
@@ -155,17 +158,32 @@ def main() -> None:
         for zeroed in ((True,) if a.after_zero_only else (False, True)):
             if zeroed:
                 est.zero(zero)
-            parts = {"kappa": est.kappa, "model_std_kg": est.model_std, "zero_std_kg": est.model.zero_std}
-            print(f"{name} σ parts: κ {parts['kappa']:.2f}, model floor {parts['model_std_kg']:.1f} kg, "
+            parts = {"kappa": est.kappa, "model_std_kg": est.model_std, "zero_std_kg": est.model.zero_std,
+                     "floor_a": est.floor_a, "floor_b": est.floor_b, "floor_c": est.floor_c}
+            print(f"{name} σ parts: κ {parts['kappa']:.2f}, model floor {parts['model_std_kg']:.1f} kg RMS, "
+                  f"floor² = max({est.floor_a:.1f} + {est.floor_b:.1f}·novelty + {est.floor_c:.2f}·misfit, 0) kg², "
                   f"zero {parts['zero_std_kg']:.1f} kg", flush=True)
+            constant = None
+            if a.constant_floor_too:
+                import copy
+
+                constant = copy.deepcopy(est)
+                constant.floor_a, constant.floor_b, constant.floor_c = est.model_std**2, 0.0, 0.0
             for fam, ds in tests.items():
                 row = {"mixture": name, "zero": zeroed, "family": fam, **judge(est, ds), **parts}
+                if constant is not None:
+                    before = judge(constant, ds)
+                    row["sigma_covers_constant"] = before["sigma_covers"]
+                    row["same_estimates"] = (before["mean_max_kg"] == row["mean_max_kg"]
+                                             and before["within_1pct"] == row["within_1pct"])
                 if bounds is not None and zeroed:
                     row["efficiency"] = dm.summary_row(dm.judge(est, ds, "m", bounds[fam]), RATED)["efficiency"]
                 rows.append(row)
                 print(f"{name} zero {str(zeroed):5s} {fam:13s} ≤1 % {row['within_1pct']:4.0%}  "
                       f"≤0.25 % {row['within_0.25pct']:4.0%}  MAX {row['mean_max_kg']:7.1f} kg  "
-                      f"alarms {row['false_alarms']:.2%}  σ covers {row['sigma_covers']:.0%}  "
+                      f"alarms {row['false_alarms']:.2%}  σ covers {row['sigma_covers']:.1%}"
+                      + (f" (constant floor {row['sigma_covers_constant']:.1%}, same estimates "
+                         f"{row['same_estimates']})" if constant is not None else "") + "  "
                       f"efficiency {row.get('efficiency', float('nan')):.2f}  ({time.time() - t0:.0f} s)",
                       flush=True)
         pd.DataFrame(rows).to_csv(a.out / "balance_net.csv", index=False)

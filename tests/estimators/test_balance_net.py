@@ -173,3 +173,89 @@ def test_command_line_train_and_zero(machine_data, tmp_path, capsys):
                      "--out", str(tmp_path / f"e{folder}.parquet")]) == 0
         out = " ".join(capsys.readouterr().out.split())
         assert ("was never zeroed" in out and "200-270 kg off" in out) == said
+
+
+def test_floor_fit_grows_with_novelty_and_falls_back_to_the_constant():
+    """fit_floor recovers a variance that grows with novelty, and with errors that do not grow
+    (or too few weighings) gives the constant RMS floor."""
+    from excavator_payload.estimators.learned.balance_net import fit_floor
+
+    rng = np.random.default_rng(0)
+    d = rng.uniform(1.0, 5.0, 4000)
+    errors = rng.normal(0.0, np.sqrt(4.0 + 9.0 * d))
+    a, b = fit_floor(errors, np.zeros_like(d), d)
+    assert a == pytest.approx(4.0, abs=3.0) and b == pytest.approx(9.0, rel=0.1)
+    shrinking = rng.normal(0.0, np.sqrt(60.0 - 10.0 * d))
+    a, b = fit_floor(shrinking, np.ones_like(d), d)
+    assert b == 0.0 and a == pytest.approx(np.mean(shrinking**2) - 1.0)
+    assert fit_floor(np.array([3.0, 4.0]), np.zeros(2), np.array([1.0, 2.0])) == (12.5, 0.0)
+
+
+def test_floors_of_two_measures_are_each_fitted_alone_and_summed():
+    """fit_floors: novelty and misfit each fitted alone, the intercepts and slopes summed; when
+    neither grows, the constant floor once."""
+    from excavator_payload.estimators.learned.balance_net import fit_floor, fit_floors
+
+    rng = np.random.default_rng(1)
+    d, m = rng.uniform(1.0, 5.0, 500), rng.uniform(0.0, 20.0, 500)
+    errors, nominal = rng.normal(0.0, np.sqrt(10.0 * d + 2.0 * m)), np.full(500, 1.0)
+    a1, b = fit_floor(errors, nominal, d)
+    a2, c = fit_floor(errors, nominal, m)
+    assert b > 0 and c > 0 and fit_floors(errors, nominal, d, m) == (a1 + a2, b, c)
+    flat = rng.normal(0.0, 3.0, 500)
+    assert fit_floors(flat, nominal, np.zeros(500), np.zeros(500)) == (fit_floor(flat, nominal, np.zeros(500))[0], 0.0, 0.0)
+
+
+def test_sigma_grows_with_the_distance_from_the_training_data(fitted, machine_data, tmp_path):
+    """The novelty statistics are saved and loaded; a motion on a 5° slope (training was level)
+    is further from the training data than the level one, and a floor that grows with that
+    distance widens its σ while the weight stays the same."""
+    from excavator_payload.data.dataset import Dataset
+    from excavator_payload.estimators.learned.balance_net import novelty_distance, novelty_features
+
+    est = copy.deepcopy(fitted)
+    est.floor_a, est.floor_b, est.floor_c = 0.0, 25.0, 1.5
+    again = load_estimator(est.save(tmp_path / "m"))
+    np.testing.assert_array_equal(again.novelty_precision, est.novelty_precision)
+    assert (again.floor_a, again.floor_b, again.floor_c) == (0.0, 25.0, 1.5)
+    level = machine_data["test"]
+    frame = level.frame.copy()
+    frame["house_pitch"] += np.radians(5.0)
+    sloped = Dataset(frame, level.meta)
+
+    def distance(ds):
+        f = np.vstack([novelty_features(e) for e in est.experiments(ds)])
+        return float(np.median(novelty_distance(f, est.novelty_mean, est.novelty_precision)))
+
+    assert distance(sloped) > distance(level) + 0.5
+    constant = copy.deepcopy(again)
+    constant.floor_b = 0.0
+    a, b = constant.estimate(sloped), again.estimate(sloped)
+    np.testing.assert_array_equal(a["payload_estimate"].to_numpy(), b["payload_estimate"].to_numpy())
+    ok = (b["status"] == "ok").to_numpy()
+    assert ok.sum() > 50 and np.all(b["sigma"].to_numpy()[ok] > a["sigma"].to_numpy()[ok])
+
+
+def test_a_model_saved_before_the_novelty_floor_loads_with_its_constant_floor(fitted, machine_data, tmp_path):
+    """A folder without the floor's coefficients and the novelty statistics (saved before them)
+    loads with the constant floor s_model² = model_std² and weighs with the same σ as the
+    constant floor of the current code."""
+    import json
+
+    est = copy.deepcopy(fitted)
+    est.model_std, est.floor_a, est.floor_b, est.floor_c = 5.0, 1.0, 3.0, 2.0
+    folder = est.save(tmp_path / "m")
+    config = json.loads((folder / "estimator.json").read_text())
+    for key in ("floor_a", "floor_b", "floor_c"):
+        config["state"].pop(key)
+    (folder / "estimator.json").write_text(json.dumps(config))
+    arrays = dict(np.load(folder / "arrays.npz"))
+    arrays.pop("novelty_mean"), arrays.pop("novelty_precision")
+    np.savez(folder / "arrays.npz", **arrays)
+    old = load_estimator(folder)
+    assert (old.floor_a, old.floor_b, old.floor_c) == (25.0, 0.0, 0.0)
+    assert old.novelty_mean.shape == (0,)
+    constant = copy.deepcopy(est)
+    constant.floor_a, constant.floor_b, constant.floor_c = 25.0, 0.0, 0.0
+    a, b = old.estimate(machine_data["test"]), constant.estimate(machine_data["test"])
+    np.testing.assert_array_equal(a["sigma"].to_numpy(), b["sigma"].to_numpy())

@@ -132,3 +132,28 @@ def test_export_command(fmt, cases, tmp_path):
         pytest.importorskip("onnxruntime")
         _assert_equal(_onnx_run(out / "balance-net.onnx", data, est.sensor_set.signals),
                       _python(load_estimator(model), data))
+
+
+@pytest.mark.parametrize("sensor_set", ["thesis", "machine"])
+def test_novelty_floor_exported(sensor_set, cases, tmp_path):
+    """σ's floor growing with the motion's novelty and misfit (floor² = max(a + b·d̄ + c·χ̄², 0))
+    is the same in C and ONNX as in Python; with b, c > 0 σ differs from the constant floor's, so
+    both are exercised."""
+    import copy
+
+    est, data = cases[sensor_set]
+    est = copy.deepcopy(est)
+    assert len(est.novelty_mean) and est.novelty_precision.shape == (len(est.novelty_mean),) * 2
+    constant = _python(est, data)
+    est.floor_a, est.floor_b, est.floor_c = -0.5, 2.0, 0.0  # kg², kg² per unit: both signs of the sum
+    novelty = _python(est, data)
+    est.floor_c = 3.0
+    want = _python(est, data)
+    ok = np.isfinite(want[2])
+    assert np.max(np.abs(want[2][ok] - constant[2][ok])) > 1e-3
+    assert np.max(np.abs(want[2][ok] - novelty[2][ok])) > 1e-3  # the misfit adds its part
+    np.testing.assert_array_equal(want[0], constant[0])  # the weighing itself is unchanged
+    if c_compiler() is not None:
+        _assert_equal(build(export_c(est, tmp_path / "c")[1], tmp_path / "build").run(data), want)
+    pytest.importorskip("onnxruntime")
+    _assert_equal(_onnx_run(export_onnx(est, tmp_path / "onnx")[0], data, est.sensor_set.signals), want)

@@ -9,7 +9,8 @@ balance_net.BalanceNet._step>` with selects instead of branches: the machine set
 of the frame before the newest, the ring of the window's terms (oldest first, shifted by one
 per sample), the window sums, the per-channel gate, the new-load restart, the recursive sums.
 
-Inputs ``signals`` ``[n_signals]`` and the state ``num``, ``info``, ``disagree``, ``num_new``, ``info_new`` ``[1]``,
+Inputs ``signals`` ``[n_signals]`` and the state ``num``, ``info``, ``disagree``, ``num_new``, ``info_new``,
+``novelty``, ``novelty_new``, ``misfit``, ``misfit_new`` ``[1]``,
 ``terms`` ``[width, 4·channels]``, ``used`` ``[width, channels]``, ``filled``, ``frames``
 ``[2, n_signals]``, ``n_frames`` ``[1]`` (all zeros after a reset); outputs ``estimate``,
 ``status`` (0 ok, 1 warming up, as ``Status``), ``sigma`` and the state after the step (same
@@ -33,7 +34,8 @@ import torch
 from excavator_payload.errors import EstimatorError
 from excavator_payload.runtime.onnx_registry import OPSET, onnx_exporter_for, onnx_graph_for
 
-STATE = ("num", "info", "disagree", "num_new", "info_new", "terms", "used", "filled", "frames", "n_frames")
+STATE = ("num", "info", "disagree", "num_new", "info_new", "novelty", "novelty_new", "misfit", "misfit_new",
+         "terms", "used", "filled", "frames", "n_frames")
 
 
 def _casadi_torch(fn, inputs: list[torch.Tensor]) -> torch.Tensor:
@@ -79,7 +81,7 @@ class BalanceStepGraph(torch.nn.Module):
 
     def __init__(self, est) -> None:
         super().__init__()
-        from excavator_payload.estimators.learned.balance_net import NEW_LOAD_SHARE, sample_function
+        from excavator_payload.estimators.learned.balance_net import NEW_LOAD_SHARE, novelty_columns, sample_function
 
         m = est.model
         L = m.layout
@@ -103,7 +105,12 @@ class BalanceStepGraph(torch.nn.Module):
         self.still = float(m.still_rate if L.pressure else 0.0)
         self.kappa, self.kappa_sq = float(est.kappa), float(est.kappa ** 2)
         self.ready_info = float(est.options["ready"]) * est.typical_info
-        self.floor_sq = float(est.model_std ** 2 + m.zero_std ** 2)
+        self.zero_sq = float(m.zero_std ** 2)
+        self.floor_a, self.floor_b, self.floor_c = float(est.floor_a), float(est.floor_b), float(est.floor_c)
+        k = len(est.novelty_mean)
+        self.register_buffer("novelty_idx", torch.tensor(novelty_columns(L) if k else [0], dtype=torch.int64))
+        self.register_buffer("novelty_mean", f64(est.novelty_mean if k else [0.0]))
+        self.register_buffer("novelty_precision", f64(est.novelty_precision if k else [[0.0]]))
         self.new_load_kg = NEW_LOAD_SHARE * est.payload_scale
         self.gate_sigma = 0.05 * est.payload_scale
         self.channel_gate = float(est.options["gate"]) * est.kappa
@@ -114,7 +121,8 @@ class BalanceStepGraph(torch.nn.Module):
         """The state after a reset."""
         n, W, N = self.n, self.width, self.n_signals
         return {"num": np.zeros(1), "info": np.zeros(1), "disagree": np.zeros(1),
-                "num_new": np.zeros(1), "info_new": np.zeros(1),
+                "num_new": np.zeros(1), "info_new": np.zeros(1), "novelty": np.zeros(1), "novelty_new": np.zeros(1),
+                "misfit": np.zeros(1), "misfit_new": np.zeros(1),
                 "terms": np.zeros((W, 4 * n)), "used": np.zeros((W, n)), "filled": np.zeros(1),
                 "frames": np.zeros((2, N)), "n_frames": np.zeros(1)}
 
@@ -123,14 +131,15 @@ class BalanceStepGraph(torch.nn.Module):
         inside = torch.all((q >= self.q_low) & (q <= self.q_high))
         return (torch.abs(x[self.v_idx]) >= self.still) & inside
 
-    def forward(self, signals, num, info, disagree, num_new, info_new, terms, used, filled, frames, n_frames):
+    def forward(self, signals, num, info, disagree, num_new, info_new, novelty, novelty_new, misfit, misfit_new,
+                terms, used, filled, frames, n_frames):
         """One sample through the step (module doc).
 
         Parameters
         ----------
         signals : torch.Tensor
             ``[n_signals]`` the sample, SI units.
-        num, info, disagree, num_new, info_new, terms, used, filled, frames, n_frames : torch.Tensor
+        num, info, disagree, num_new, info_new, novelty, novelty_new, misfit, misfit_new, terms, used, filled, frames, n_frames : torch.Tensor
             The state (:meth:`initial_state` after a reset).
         """
         n, one, zero = self.n, torch.ones(1, dtype=torch.float64), torch.zeros(1, dtype=torch.float64)
@@ -172,7 +181,13 @@ class BalanceStepGraph(torch.nn.Module):
         # windows no channel of the weighed load explains are weighed on their own; after
         # --new-load seconds they are the new load if they weigh NEW_LOAD_SHARE away
         own_num = num_new + torch.sum(wch * phi * r)
+        f = x[self.novelty_idx] - self.novelty_mean  # the sample's distance from the training data
+        dist = torch.sqrt(torch.clamp(torch.sum(f * (self.novelty_precision @ f)), min=0.0))[None]
         own_info = info_new + torch.sum(wch * phi * phi)
+        own_novelty = novelty_new + torch.sum(wch * phi * phi) * dist
+        own_est = own_num / torch.where(own_info > 0, own_info, one)  # the windows' chi^2 at their own estimate
+        own_misfit = misfit_new + torch.where(
+            own_info > 0, torch.sum(wch * phi * phi) * torch.sum(wch * (r - own_est * phi) ** 2), zero)
         decide = all_disagree & (counted * self.period >= self.new_load)
         replace = decide & (own_info > 0) & (torch.abs(own_num / own_info - est) > self.new_load_kg)
         settled = full & cond & ~all_disagree
@@ -182,14 +197,26 @@ class BalanceStepGraph(torch.nn.Module):
                                   torch.where(settled, zero, num_new))
         info_new_out = torch.where(all_disagree, torch.where(decide, zero, own_info),
                                    torch.where(settled, zero, info_new))
+        novelty_new_out = torch.where(all_disagree, torch.where(decide, zero, own_novelty),
+                                      torch.where(settled, zero, novelty_new))
+        misfit_new_out = torch.where(all_disagree, torch.where(decide, zero, own_misfit),
+                                     torch.where(settled, zero, misfit_new))
         w = torch.where(cond, torch.where(agree, wch, torch.zeros_like(wch)), wch)
         add = full & ~all_disagree
         num_out = torch.where(replace, own_num, torch.where(add, num + torch.sum(w * phi * r), num))
-        info_out = torch.where(replace, own_info, torch.where(add, info + torch.sum(w * phi * phi), info))
+        added = torch.sum(w * phi * phi)
+        info_out = torch.where(replace, own_info, torch.where(add, info + added, info))
+        novelty_out = torch.where(replace, own_novelty, torch.where(add, novelty + added * dist, novelty))
+        after = torch.where(info_out > 0, info_out, one)  # the window's chi^2 at the estimate after it
+        chi2 = torch.sum(w * (r - (num_out / after) * phi) ** 2)
+        misfit_out = torch.where(replace, own_misfit,
+                                 torch.where(add & (info_out > 0), misfit + added * chi2, misfit))
         ready = (info_out > 0) & (info_out >= self.ready_info)  # no weight before it is ready
         estimate = torch.where(ready, num_out / info_out, nan)
         status = torch.where(ready, zero, one)
-        sigma = torch.where(ready, torch.sqrt(self.kappa_sq / info_out + self.floor_sq), nan)
+        floor_sq = torch.clamp(self.floor_a + self.floor_b * (novelty_out / info_out)
+                               + self.floor_c * (misfit_out / info_out), min=0.0)
+        sigma = torch.where(ready, torch.sqrt(self.kappa_sq / info_out + floor_sq + self.zero_sq), nan)
         # the base class's gate (thesis set): the innovation of the signals at the input state
         # (the machine set has none: its frames are judged between their neighbours)
         if self.machine:
@@ -202,7 +229,7 @@ class BalanceStepGraph(torch.nn.Module):
             nis = torch.where(info > 0, nis, nan)
             dof = torch.clamp(torch.sum(u0.to(torch.float64)), min=1.0)[None]
         return (estimate, status, sigma, num_out, info_out, disagree_out, num_new_out, info_new_out,
-                terms_out, used_out, filled_out,
+                novelty_out, novelty_new_out, misfit_out, misfit_new_out, terms_out, used_out, filled_out,
                 frames_out, n_frames_out, nis, dof)
 
 

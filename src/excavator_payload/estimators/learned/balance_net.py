@@ -76,6 +76,107 @@ HELD_OUT_EVERY = 5
 CROSS_ZEROS = 4
 #: s: a gap in the samples up to this long keeps the weighing's sums.
 MAX_BRIDGED_GAP = 1.0
+#: rad: the house's inclination is novel on this scale besides its trained spread (training is
+#: usually level: its spread is the sensor's noise, and gravity's direction enters the balance
+#: exactly, so a slope is less new than that spread says; chosen on the tuning draws 1300/1400).
+TILT_NOVELTY_SCALE = math.radians(2.0)
+
+
+def novelty_columns(layout: Layout) -> list[int]:
+    """The signals whose distance from the training data is σ's novelty: the joints' angles and
+    rates, the slew rate and the house's inclination (in that order).
+
+    Parameters
+    ----------
+    layout : Layout
+        Where each quantity is among the signals.
+    """
+    return list(layout.q) + list(layout.v) + ([layout.slew] if layout.slew is not None else []) + list(layout.tilt)
+
+
+def novelty_features(s: Samples) -> np.ndarray:
+    """``(N, k)`` the :func:`novelty_columns` of one experiment's samples.
+
+    Parameters
+    ----------
+    s : Samples
+        One experiment's samples.
+    """
+    parts = [s.q, s.qd] + ([s.slew[:, None]] if s.slew is not None else []) + ([s.tilt] if s.tilt is not None else [])
+    return np.column_stack(parts)
+
+
+def novelty_statistics(features: np.ndarray, tilt: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and precision (inverse covariance) of the training samples' novelty features, the
+    last ``tilt`` of them (the inclination) widened by :data:`TILT_NOVELTY_SCALE`.
+
+    Parameters
+    ----------
+    features : numpy.ndarray
+        ``(N, k)`` the training samples' :func:`novelty_features`.
+    tilt : int
+        How many of the last columns are the house's inclination.
+    """
+    mean = features.mean(0)
+    cov = np.atleast_2d(np.cov(features.T))
+    k = len(mean)
+    if tilt:
+        cov[k - tilt:, k - tilt:] += np.eye(tilt) * TILT_NOVELTY_SCALE**2
+    # a signal that never varied in training (a fixed base's slew rate) must not divide by zero
+    cov += np.eye(k) * 1e-9 * max(float(np.trace(cov)) / k, 1e-12)
+    return mean, np.linalg.inv(cov)
+
+
+def novelty_distance(features: np.ndarray, mean: np.ndarray, precision: np.ndarray) -> np.ndarray:
+    """Mahalanobis distance of each row of ``features`` from the training samples.
+
+    Parameters
+    ----------
+    features : numpy.ndarray
+        ``(N, k)`` or ``(k,)`` novelty features.
+    mean, precision : numpy.ndarray
+        :func:`novelty_statistics` of the training samples.
+    """
+    f = np.atleast_2d(features) - mean
+    return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", f, precision, f), 0.0))
+
+
+def fit_floor(errors: np.ndarray, nominal: np.ndarray, measure: np.ndarray) -> tuple[float, float]:
+    """σ's model floor as a variance that grows with a measure of how new a motion is,
+    ``s² = max(a + b·d, 0)``: least squares of the held-out weighings' squared errors beyond their
+    nominal variance on their mean measure ``d`` (``b ≥ 0``; with ``b = 0`` the constant RMS
+    floor).
+
+    Parameters
+    ----------
+    errors, nominal, measure : numpy.ndarray
+        Per held-out weighing: its error (kg), its nominal σ (kg) and its measure's mean.
+    """
+    excess = np.square(errors) - np.square(nominal)
+    if len(excess) >= 3 and np.ptp(measure) > 0:
+        a, b = np.linalg.lstsq(np.c_[np.ones_like(measure), measure], excess, rcond=None)[0]
+        if b > 0:
+            return float(a), float(b)
+    return float(max(np.mean(excess), 0.0)), 0.0
+
+
+def fit_floors(errors: np.ndarray, nominal: np.ndarray, novelty: np.ndarray,
+               misfit: np.ndarray) -> tuple[float, float, float]:
+    """``(a, b, c)`` of σ's model floor ``s² = max(a + b·novelty + c·misfit, 0)``: each measure's
+    :func:`fit_floor` alone, the two summed. (Fitted together, the misfit took all of it on the
+    tuning draws and the novelty none, and slopes, which the misfit does not see, were covered
+    60–73 %; each alone attributes all the excess to itself, so the sum is the wider.)
+
+    Parameters
+    ----------
+    errors, nominal, novelty, misfit : numpy.ndarray
+        Per held-out weighing: its error (kg), its nominal σ (kg), its mean novelty and misfit.
+    """
+    a1, b = fit_floor(errors, nominal, novelty)
+    a2, c = fit_floor(errors, nominal, misfit)
+    if b == 0.0 and c == 0.0:
+        return a1, 0.0, 0.0  # neither grows: the constant floor, once
+    return a1 + a2, b, c
 
 
 class _Columns:
@@ -188,6 +289,10 @@ class BalanceNet(Estimator):
         self.model: BalanceModel | None = None
         self.kappa = 1.0
         self.model_std = 0.0
+        # σ's model floor² = max(a + b·novelty + c·misfit, 0), kg² (:func:`fit_floor`)
+        self.floor_a, self.floor_b, self.floor_c = 0.0, 0.0, 0.0
+        self.novelty_mean = np.zeros(0)
+        self.novelty_precision = np.zeros((0, 0))
         self.typical_info = 0.0
         self.payload_scale = 1.0
         self.cross_zero_chi2: list[float] = []
@@ -224,19 +329,28 @@ class BalanceNet(Estimator):
             out.append(experiment_samples(layout, values[a:b], None if pay is None else pay[a:b]))
         return out
 
-    def _final_errors(self, experiments: list[Samples]) -> list[tuple[float, float]]:
-        """(error, nominal σ with κ = :attr:`kappa`) of each experiment's whole-history weighing
-        (one payload each), kg."""
+    def _final_errors(self, experiments: list[Samples]) -> list[tuple[float, float, float, float]]:
+        """(error, nominal σ with κ = :attr:`kappa`, mean novelty, mean misfit) of each
+        experiment's whole-history weighing (one payload each), kg; the novelty of each window is
+        that of its newest sample (as streamed), its misfit its channels' χ² at the weighing,
+        both averaged with the windows' information as weights."""
         out = []
         for e in experiments:
             _, r, phi, w = self.model.terms(e)
-            info = float(np.sum(w * phi * phi))
+            window_info = np.sum(w * phi * phi, axis=1)
+            info = float(np.sum(window_info))
             if info > 0 and e.m is not None and np.ptp(e.m) == 0:
-                out.append((float(np.sum(w * phi * r) / info - e.m[0]), self.kappa / math.sqrt(info)))
+                d = 0.0
+                if len(self.novelty_mean):
+                    dist = novelty_distance(novelty_features(e), self.novelty_mean, self.novelty_precision)
+                    d = float(np.sum(window_info * dist[self.model.width - 1:][:len(window_info)]) / info)
+                estimate = float(np.sum(w * phi * r) / info)
+                misfit = float(np.sum(window_info * np.sum(w * (r - estimate * phi) ** 2, axis=1)) / info)
+                out.append((estimate - e.m[0], self.kappa / math.sqrt(info), d, misfit))
         return out
 
-    def _cross_zero_errors(self, held: list[Samples]) -> list[tuple[float, float]]:
-        """(error, nominal σ) of the held-out experiments' weighings, each after a zero on another
+    def _cross_zero_errors(self, held: list[Samples]) -> list[tuple[float, float, float, float]]:
+        """(error, nominal σ, mean novelty, mean misfit) of the held-out experiments' weighings, each after a zero on another
         held-out experiment (with its known payload; the :data:`CROSS_ZEROS` lightest); without
         enough held-out experiments, the weighings without a zero."""
         plain = self._final_errors(held)
@@ -260,7 +374,7 @@ class BalanceNet(Estimator):
         """σ's scale: the experiments' final errors in units of their nominal σ (the windows
         overlap: their noise is not independent), at least 1."""
         self.kappa = 1.0
-        z = [err / sigma for err, sigma in self._final_errors(experiments)]
+        z = [err / sigma for err, sigma, *_ in self._final_errors(experiments)]
         return float(max(np.sqrt(np.mean(np.square(z))), 1.0)) if z else 1.0
 
     def _fit(self, dataset: Dataset) -> None:
@@ -282,7 +396,9 @@ class BalanceNet(Estimator):
         # σ's model floor from experiments the fit did not see: every fifth held out, the rest
         # fitted, then everything fitted again
         self.model_std = 0.0
+        self.floor_a, self.floor_b, self.floor_c = 0.0, 0.0, 0.0
         self.cross_zero_chi2 = []
+        tilt = len(Layout(self.sensor_set.signals).tilt)
         if len(experiments) >= HELD_OUT_EVERY * 2:
             held = experiments[HELD_OUT_EVERY - 1::HELD_OUT_EVERY]
             rest = [e for i, e in enumerate(experiments) if (i + 1) % HELD_OUT_EVERY]
@@ -293,16 +409,22 @@ class BalanceNet(Estimator):
                 self.fit_warnings.append(f"{self.name}: no model floor in sigma ({exc})")
             else:
                 self.kappa = self._kappa(rest)
+                # novelty from the fitted experiments' samples: the held-out ones are new to it
+                self.novelty_mean, self.novelty_precision = novelty_statistics(
+                    np.vstack([novelty_features(e) for e in rest]), tilt)
                 pairs = self._cross_zero_errors(held)
                 if pairs:
-                    errors, nominal = np.array(pairs).T
+                    errors, nominal, novelty, misfit = np.array(pairs).T
                     self.model_std = float(np.sqrt(max(np.mean(np.square(errors)) - np.mean(np.square(nominal)), 0.0)))
+                    self.floor_a, self.floor_b, self.floor_c = fit_floors(errors, nominal, novelty, misfit)
         self.model = self._new_model(self.sensor_set.signals)
         summary = self.model.fit(experiments, every=every)
         self.zero_chi2_limit = self._zero_limit(self.cross_zero_chi2)
         self.payload_scale = float(max(np.max(np.abs(payload)), 1.0))
         self._fn = None
         self.kappa = self._kappa(experiments)
+        self.novelty_mean, self.novelty_precision = novelty_statistics(
+            np.vstack([novelty_features(e) for e in experiments]), tilt)
         infos = [float(np.sum(w * phi * phi)) for _, _, phi, w in (self.model.terms(e) for e in experiments)]
         self.typical_info = float(np.median(infos)) if infos else 0.0
         if self.model.layout.differentiate:
@@ -324,12 +446,13 @@ class BalanceNet(Estimator):
         limit[tilt] = [float(self.sensor_set.plausible_abs[self.sensor_set.signals[i]]) for i in tilt]
         self._limits = (np.maximum(lo - widen, -limit), np.minimum(hi + widen, limit))
         self.training = {**summary, "experiments": len(experiments), "kappa": self.kappa,
-                         "model_std": self.model_std,
+                         "model_std": self.model_std, "floor_a": self.floor_a, "floor_b": self.floor_b, "floor_c": self.floor_c,
                          "seconds": round(_time.perf_counter() - started, 2)}
         self.fit_report = [f"{self.name}: learned from {len(experiments)} experiments in "
                            f"{self.training['seconds']:.1f} s; payload point {np.round(self.model.point, 3).tolist()}; "
-                           f"sigma scale {self.kappa:.2f}, model floor {self.model_std:.1f} kg "
-                           "(experiments held out)"]
+                           f"sigma scale {self.kappa:.2f}, model floor {self.model_std:.1f} kg RMS, "
+                           f"floor^2 = max({self.floor_a:.1f} + {self.floor_b:.1f} d + {self.floor_c:.1f} c, 0) kg^2 with d the "
+                           "motion's distance from the training data and c its misfit (experiments held out)"]
 
     def fit(self, dataset: Dataset) -> "BalanceNet":
         """Learn from ``dataset`` (experiments with known payloads; no machine file is read).
@@ -440,11 +563,15 @@ class BalanceNet(Estimator):
     def _reset(self) -> None:
         self.num = 0.0
         self.info = 0.0
+        self.novelty = 0.0  # sum of each window's information times its novelty
+        self.misfit = 0.0  # ... times its channels' χ² at the estimate after it
         self._ring: list = []  # (terms, used) of the window's samples
         self._frames: list = []  # machine set: the newest frames, not yet judged
         self._disagree = 0
         self._num_new = 0.0  # the windows no channel of the weighed load explains
         self._info_new = 0.0
+        self._novelty_new = 0.0
+        self._misfit_new = 0.0
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """A gap of up to :data:`MAX_BRIDGED_GAP` keeps the sums (the load is the same; each
@@ -460,14 +587,26 @@ class BalanceNet(Estimator):
         self._ring, self._frames = [], []
 
     def _state_finite(self) -> bool:
-        return math.isfinite(self.num) and math.isfinite(self.info)
+        return (math.isfinite(self.num) and math.isfinite(self.info) and math.isfinite(self.novelty)
+                and math.isfinite(self.misfit))
 
     def _estimate_sigma(self) -> float:
-        """κ/√I, the model's floor (measured on held-out training experiments) and the zero's
-        (its offsets' uncertainty, :meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`)."""
+        """κ/√I, the model's floor at the weighed windows' mean novelty (measured on held-out
+        training experiments, :func:`fit_floor`) and the zero's (its offsets' uncertainty,
+        :meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`)."""
         if self.info <= 0:
             return math.nan
-        return math.sqrt(self.kappa**2 / self.info + self.model_std**2 + self.model.zero_std**2)
+        floor = max(self.floor_a + self.floor_b * (self.novelty / self.info) + self.floor_c * (self.misfit / self.info),
+                    0.0)
+        return math.sqrt(self.kappa**2 / self.info + floor + self.model.zero_std**2)
+
+    def _novelty_of(self, values: np.ndarray) -> float:
+        """The sample's distance from the training data (:func:`novelty_distance`; 0 without
+        statistics)."""
+        if not len(self.novelty_mean):
+            return 0.0
+        f = values[novelty_columns(self.model.layout)] - self.novelty_mean
+        return math.sqrt(max(float(f @ self.novelty_precision @ f), 0.0))
 
     def _result(self) -> StepResult:
         """The weight once :attr:`ready`; before, none (``warming_up``): an early estimate rests
@@ -531,6 +670,7 @@ class BalanceNet(Estimator):
         r = (m._w @ terms[:, :n] + m._u @ terms[:, n:2 * n] / m.period) / m._span
         phi = (m._w @ terms[:, 2 * n:3 * n] + m._u @ terms[:, 3 * n:] / m.period) / m._span
         w = used / m.channel_var
+        novelty = self._novelty_of(values)
         if self.gating and self.info > 0 and self.kappa / math.sqrt(self.info) <= 0.05 * self.payload_scale:
             est = self.num / self.info
             spread = np.sqrt(1.0 / np.maximum(w, 1e-300) + phi * phi * self.kappa**2 / self.info)
@@ -540,24 +680,34 @@ class BalanceNet(Estimator):
                 # model never saw; the windows are weighed on their own meanwhile
                 self._num_new += float(np.sum(w * phi * r))
                 self._info_new += float(np.sum(w * phi * phi))
+                own = float(np.sum(w * phi * phi))
+                self._novelty_new += own * novelty
+                if self._info_new > 0:
+                    self._misfit_new += own * float(np.sum(w * (r - self._num_new / self._info_new * phi) ** 2))
                 self._disagree += 1
                 if self._disagree * m.period >= float(self.options["new_load"]):
                     if (self._info_new > 0 and abs(self._num_new / self._info_new - est)
                             > NEW_LOAD_SHARE * self.payload_scale):
                         self.num, self.info = self._num_new, self._info_new  # a new load
-                    self._num_new = self._info_new = 0.0
+                        self.novelty, self.misfit = self._novelty_new, self._misfit_new
+                    self._num_new = self._info_new = self._novelty_new = self._misfit_new = 0.0
                     self._disagree = 0
                 return self._result()
             self._disagree = 0
-            self._num_new = self._info_new = 0.0
+            self._num_new = self._info_new = self._novelty_new = self._misfit_new = 0.0
             w = np.where(agree, w, 0.0)
         self.num += float(np.sum(w * phi * r))
-        self.info += float(np.sum(w * phi * phi))
+        added = float(np.sum(w * phi * phi))
+        self.info += added
+        self.novelty += added * novelty
+        if self.info > 0:
+            self.misfit += added * float(np.sum(w * (r - self.num / self.info * phi) ** 2))
         return self._result()
 
     # -- persistence ------------------------------------------------------------------------
     def _config(self) -> dict:
-        return {"kappa": self.kappa, "model_std": self.model_std, "typical_info": self.typical_info, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
+        return {"kappa": self.kappa, "model_std": self.model_std, "floor_a": self.floor_a,
+                "floor_b": self.floor_b, "floor_c": self.floor_c, "typical_info": self.typical_info, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
                 "zero_chi2_limit": self.zero_chi2_limit,
                 "period": self.model.period if self.model is not None else None}
 
@@ -565,7 +715,8 @@ class BalanceNet(Estimator):
         m = self.model
         out = {"coef": m.coef, "lo": m.lo, "hi": m.hi, "channel_var": m.channel_var,
                "offsets": np.asarray(m.offsets, float), "point": m.point,
-               "plausible_low": self.plausible_low, "plausible_high": self.plausible_high}
+               "plausible_low": self.plausible_low, "plausible_high": self.plausible_high,
+               "novelty_mean": self.novelty_mean, "novelty_precision": self.novelty_precision}
         if self.spike_threshold is not None:
             out["spike_threshold"] = self.spike_threshold
         return out
@@ -578,6 +729,13 @@ class BalanceNet(Estimator):
                 setattr(self.model, key, np.asarray(arrays[key], float))
             self.kappa = float(config["kappa"])
             self.model_std = float(config.get("model_std", 0.0))
+            # absent in models saved before it: the constant floor, no novelty
+            self.floor_a = float(config.get("floor_a", self.model_std**2))
+            self.floor_b = float(config.get("floor_b", 0.0))
+            self.floor_c = float(config.get("floor_c", 0.0))
+            self.novelty_mean = np.asarray(arrays["novelty_mean"], float) if "novelty_mean" in arrays else np.zeros(0)
+            self.novelty_precision = (np.asarray(arrays["novelty_precision"], float).reshape(len(self.novelty_mean), -1)
+                                      if "novelty_precision" in arrays else np.zeros((0, 0)))
             self.typical_info = float(config["typical_info"])
             self.model.zero_std = float(config.get("zero_std", 0.0))
             self.payload_scale = float(config["payload_scale"])
@@ -593,7 +751,9 @@ class BalanceNet(Estimator):
         m = self.model
         if (m.coef.shape != (n_cols,) or m.lo.shape != (m.layout.n,) or m.channel_var.shape != (m.layout.n,)
                 or m.offsets.shape != (m.offset_count(),) or not np.all(m.channel_var > 0)
-                or not np.all(np.isfinite(m.coef)) or not self.kappa > 0):
+                or not np.all(np.isfinite(m.coef)) or not self.kappa > 0
+                or (len(self.novelty_mean) and self.novelty_precision.shape
+                    != (len(novelty_columns(m.layout)),) * 2)):
             raise EstimatorError(f"{self.name}: saved arrays do not match the options (corrupt model folder)")
         self.plausible_low, self.plausible_high = self._limits
         self.rated_payload = None

@@ -37,7 +37,8 @@ def balance_net_model(est) -> CModel:
     est : Estimator
         The fitted :class:`~excavator_payload.estimators.learned.balance_net.BalanceNet`.
     """
-    from excavator_payload.estimators.learned.balance_net import MAX_BRIDGED_GAP, NEW_LOAD_SHARE, sample_function
+    from excavator_payload.estimators.learned.balance_net import (
+        MAX_BRIDGED_GAP, NEW_LOAD_SHARE, novelty_columns, sample_function)
 
     m = est.model
     if m is None:
@@ -72,13 +73,48 @@ def balance_net_model(est) -> CModel:
         f"#define EP_KAPPA {c_number(est.kappa)}",
         f"#define EP_KAPPA_SQ {c_number(est.kappa ** 2)}",
         f"#define EP_READY_INFO {c_number(float(opts['ready']) * est.typical_info)}  /* ok from this information */",
-        f"#define EP_SIGMA_FLOOR_SQ {c_number(est.model_std ** 2 + m.zero_std ** 2)}  /* model and zero, kg^2 */",
+        f"#define EP_ZERO_SQ {c_number(m.zero_std ** 2)}  /* the zero's part of sigma^2, kg^2 */",
+        "/* the model's floor^2 = max(A + B * mean novelty + C * mean misfit, 0), kg^2 */",
+        f"#define EP_FLOOR_A {c_number(est.floor_a)}",
+        f"#define EP_FLOOR_B {c_number(est.floor_b)}",
+        f"#define EP_FLOOR_C {c_number(est.floor_c)}",
         f"#define EP_NEW_LOAD_KG {c_number(NEW_LOAD_SHARE * est.payload_scale)}  /* a new load differs more */",
         f"#define EP_GATE_SIGMA {c_number(0.05 * est.payload_scale)}  /* the channel gate from here, kg */",
         f"#define EP_CHANNEL_GATE {c_number(float(opts['gate']) * est.kappa)}  /* gate sigmas x kappa */",
         f"#define EP_NEW_LOAD {c_number(float(opts['new_load']))}  /* s of disagreement: a new load */",
         f"#define EP_MAX_BRIDGED_GAP {c_number(MAX_BRIDGED_GAP)}  /* s: a longer gap restarts */",
     ]
+    k_nov = len(est.novelty_mean)
+    if k_nov:
+        defs += ["/* novelty: Mahalanobis distance of these signals from the training samples */",
+                 f"#define EP_N_NOVELTY {k_nov}",
+                 _ints("EP_NOVELTY_COLUMNS", novelty_columns(L)),
+                 c_array("EP_NOVELTY_MEAN", est.novelty_mean).rstrip(),
+                 c_array("EP_NOVELTY_PRECISION", np.asarray(est.novelty_precision, float).ravel()).rstrip()]
+    defs += ["", "/* BalanceNet._novelty_of: the sample's distance from the training data */",
+             "static ep_real ep_bn_novelty(const ep_real *x)", "{"]
+    if k_nov:
+        defs += ["    ep_real f[EP_N_NOVELTY], total = EP_C(0.0);",
+                 "    int i, j;",
+                 "    for (i = 0; i < EP_N_NOVELTY; ++i) f[i] = x[EP_NOVELTY_COLUMNS[i]] - EP_NOVELTY_MEAN[i];",
+                 "    for (i = 0; i < EP_N_NOVELTY; ++i) {",
+                 "        ep_real row = EP_C(0.0);",
+                 "        for (j = 0; j < EP_N_NOVELTY; ++j) row += EP_NOVELTY_PRECISION[i * EP_N_NOVELTY + j] * f[j];",
+                 "        total += f[i] * row;",
+                 "    }",
+                 "    return EP_MATH(sqrt)(total > EP_C(0.0) ? total : EP_C(0.0));"]
+    else:
+        defs += ["    (void)x;", "    return EP_C(0.0);"]
+    defs += ["}", "",
+             "/* BalanceNet._estimate_sigma */",
+             "static ep_real ep_bn_sigma(const ep_state *s)",
+             "{",
+             "    ep_real floor_sq;",
+             "    if (!(s->info > EP_C(0.0))) return EP_NAN;",
+             "    floor_sq = EP_FLOOR_A + EP_FLOOR_B * (s->novelty / s->info) + EP_FLOOR_C * (s->misfit / s->info);",
+             "    if (!(floor_sq > EP_C(0.0))) floor_sq = EP_C(0.0);",
+             "    return EP_MATH(sqrt)(EP_KAPPA_SQ / s->info + floor_sq + EP_ZERO_SQ);",
+             "}"]
     if machine:
         defs += one_frame_glitch_c(est.gating, est.spike_threshold)
     else:
@@ -145,7 +181,7 @@ def balance_net_model(est) -> CModel:
     step = f"""    /* BalanceNet._step: the sample's terms into the ring; once the ring holds a window,
      * its balance per channel, the channel gate and the recursive sums */
     ep_real x[EP_N_SIGNALS], t[4 * EP_N_CHANNELS], r[EP_N_CHANNELS], phi[EP_N_CHANNELS], w[EP_N_CHANNELS];
-    ep_real d_num = EP_C(0.0), d_info = EP_C(0.0);
+    ep_real d_num = EP_C(0.0), d_info = EP_C(0.0), novelty;
     int i, j, k, slot;
     (void)time;
 {frames}{call}
@@ -171,6 +207,7 @@ def balance_net_model(est) -> CModel:
         phi[j] = (fp + fm / EP_PERIOD) / EP_SPAN;
         w[j] = used ? EP_C(1.0) / EP_CHANNEL_VAR[j] : EP_C(0.0);
     }}
+    novelty = ep_bn_novelty(x);
 #if {gate_on}
     if (s->info > EP_C(0.0) && EP_KAPPA / EP_MATH(sqrt)(s->info) <= EP_GATE_SIGMA) {{
         /* a channel's window beyond --gate sigma of the estimate is not used; every channel
@@ -190,23 +227,33 @@ def balance_net_model(est) -> CModel:
         if (any_w && !any_agree) {{
             /* the load weighed explains no channel: these windows are weighed on their own, and
              * after --new-load seconds they are the new load if they weigh EP_NEW_LOAD_KG away */
+            ep_real own_info = EP_C(0.0);
             for (j = 0; j < EP_N_CHANNELS; ++j) {{
                 s->num_new += w[j] * phi[j] * r[j];
-                s->info_new += w[j] * phi[j] * phi[j];
+                own_info += w[j] * phi[j] * phi[j];
+            }}
+            s->info_new += own_info;
+            s->novelty_new += own_info * novelty;
+            if (s->info_new > EP_C(0.0)) {{  /* the windows' chi^2 at their own estimate */
+                ep_real own = s->num_new / s->info_new, chi2 = EP_C(0.0);
+                for (j = 0; j < EP_N_CHANNELS; ++j) chi2 += w[j] * (r[j] - own * phi[j]) * (r[j] - own * phi[j]);
+                s->misfit_new += own_info * chi2;
             }}
             s->disagree += 1;
             if ((ep_real)s->disagree * EP_PERIOD >= EP_NEW_LOAD) {{
                 if (s->info_new > EP_C(0.0) && EP_MATH(fabs)(s->num_new / s->info_new - est) > EP_NEW_LOAD_KG) {{
                     s->num = s->num_new;
                     s->info = s->info_new;
+                    s->novelty = s->novelty_new;
+                    s->misfit = s->misfit_new;
                 }}
-                s->num_new = s->info_new = EP_C(0.0);
+                s->num_new = s->info_new = s->novelty_new = s->misfit_new = EP_C(0.0);
                 s->disagree = 0;
             }}
             return ep_bn_result(s, estimate);
         }}
         s->disagree = 0;
-        s->num_new = s->info_new = EP_C(0.0);
+        s->num_new = s->info_new = s->novelty_new = s->misfit_new = EP_C(0.0);
         for (j = 0; j < EP_N_CHANNELS; ++j) if (!agree[j]) w[j] = EP_C(0.0);
     }}
 #endif
@@ -216,18 +263,29 @@ def balance_net_model(est) -> CModel:
     }}
     s->num += d_num;
     s->info += d_info;
+    s->novelty += d_info * novelty;
+    if (s->info > EP_C(0.0)) {{  /* the window's chi^2 at the estimate after it */
+        ep_real est_after = s->num / s->info, chi2 = EP_C(0.0);
+        for (j = 0; j < EP_N_CHANNELS; ++j) chi2 += w[j] * (r[j] - est_after * phi[j]) * (r[j] - est_after * phi[j]);
+        s->misfit += d_info * chi2;
+    }}
     return ep_bn_result(s, estimate);"""
     fields = ["ep_real num;   /* sum of w phi r */",
               "ep_real info;  /* sum of w phi^2 */",
+              "ep_real novelty;  /* sum of each window's w phi^2 times its novelty */",
+              "ep_real misfit;   /* ... times its channels' chi^2 at the estimate after it */",
               "ep_real terms[EP_WIDTH * 4 * EP_N_CHANNELS];  /* the window's samples' balance parts */",
               "unsigned char used[EP_WIDTH * EP_N_CHANNELS];  /* ... whether each serves each channel */",
               "int ring_next;    /* slot of the next terms (the oldest once full) */",
               "int ring_filled;  /* terms in the ring (saturates at EP_WIDTH) */",
               "long disagree;    /* windows in a row on which every channel disagreed */",
               "ep_real num_new;  /* ... and their own sums */",
-              "ep_real info_new;"]
-    reset = ("    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->ring_next = 0;\n"
-             "    s->ring_filled = 0;\n    s->disagree = 0;\n    s->num_new = EP_C(0.0);\n    s->info_new = EP_C(0.0);")
+              "ep_real info_new;",
+              "ep_real novelty_new;",
+              "ep_real misfit_new;"]
+    reset = ("    s->num = EP_C(0.0);\n    s->info = EP_C(0.0);\n    s->novelty = EP_C(0.0);\n    s->ring_next = 0;\n"
+             "    s->ring_filled = 0;\n    s->disagree = 0;\n    s->num_new = EP_C(0.0);\n    s->info_new = EP_C(0.0);\n"
+             "    s->novelty_new = EP_C(0.0);\n    s->misfit = EP_C(0.0);\n    s->misfit_new = EP_C(0.0);")
     clear = "s->ring_next = 0; s->ring_filled = 0;"
     if machine:
         fields += ["ep_real frames[2 * EP_N_SIGNALS];  /* the two newest frames, the older not yet judged */",
@@ -273,6 +331,6 @@ def balance_net_model(est) -> CModel:
         on_gap=on_gap, on_skip=on_skip,
         header_defines=[f"#define EP_N_CHANNELS {n}  /* measured channels (joints) */",
                         f"#define EP_WIDTH {width}  /* samples of one balance window */"],
-        sigma="    return s->info > EP_C(0.0) ? EP_MATH(sqrt)(EP_KAPPA_SQ / s->info + EP_SIGMA_FLOOR_SQ) : EP_NAN;",
-        state_finite="    return isfinite(s->num) && isfinite(s->info);",
+        sigma="    return ep_bn_sigma(s);",
+        state_finite="    return isfinite(s->num) && isfinite(s->info) && isfinite(s->novelty) && isfinite(s->misfit);",
         innovation=innovation, gate_dof=2 if innovation else 0)
