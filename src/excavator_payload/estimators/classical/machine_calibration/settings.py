@@ -164,23 +164,6 @@ JOINT_SAMPLES = 10
 #: tried and dropped: clean lever motions on a slope reach χ² 15.7 with the estimate 4 kg off.
 JOINT_MOVING_SHARE = 0.003
 JOINT_MOVING_WINDOWS = 20
-#: A joint's own weighing against itself :data:`TRAJECTORY_WINDOWS` windows back (the kernel's
-#: per-joint sums N_j, I_j; JointCheck._trajectory): the estimate at t and at t - T are nested, so
-#: under one load their difference d has variance k (1/I_j(t-T) - 1/I_j(t)) (k:
-#: :data:`JOINT_INFO_INFLATION`; with forgetting, (ΔI/I)² k (1/ΔI + 1/I(t-T))). Beyond
-#: :data:`TRAJECTORY_CHI2` of it, and by more than :data:`JOINT_MOVING_SHARE` of the rated payload,
-#: the joint is named (``balance``) while the check names nothing else and no load change is seen
-#: (a dump, the weighing not ready, the short memory away, the check's pause): a boom pressure's
-#: slow scale error moved the boom's weighing 25-40 kg/s under a σ of 3-8 kg while the other
-#: joints, with little information, kept χ² under its limit (``ok`` 52 and 67 kg off). Set on
-#: clean tuning data: d²/var reached 22 per joint on the clean runs of bench_faults seeds 15400,
-#: 6800, 9300 and 15500 (40 experiments), but 88 and 71 on the cached false-alarm chunks of seed
-#: 62000 (`lever`, `lever-slope5`), which a limit of 40 named (0.9 % of the lever samples lost);
-#: the two faults above reach only 59 and 75, so at 100 they stay unnamed (docs/sensor-health.md,
-#: 2026-11-29). The name clears once the joint has not moved so for as many windows again; the
-#: weighing then starts again.
-TRAJECTORY_WINDOWS = 50
-TRAJECTORY_CHI2 = 100.0
 #: A move (:data:`JOINT_MOVING_SHARE`) makes a joint weighed alone wait for a second one only once
 #: the weighing is settled: its last :data:`JOINT_MOVING_WINDOWS` windows hold at most this share
 #: of its information. A new load's first second converges by more than the moving limit with the
