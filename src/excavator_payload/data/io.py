@@ -117,17 +117,28 @@ def atomic_write_table(table: pa.Table, path: str | Path) -> None:
         Destination file; its folder is created if missing.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
+    tmp = _temporary_beside(path)
     try:
         pq.write_table(table, tmp, compression="zstd")
-        os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; a data file is as readable as any other
-        os.replace(tmp, path)
+        _put_in_place(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _temporary_beside(path: Path) -> str:
+    """A new empty temporary file in ``path``'s folder (created if missing), to rename over it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    return tmp
+
+
+def _put_in_place(tmp: str, path: Path) -> None:
+    """Rename the finished temporary file ``tmp`` over ``path``."""
+    os.chmod(tmp, new_file_mode())  # mkstemp makes 0600; a data file is as readable as any other
+    os.replace(tmp, path)
 
 
 class ParquetStreamWriter:
@@ -149,9 +160,7 @@ class ParquetStreamWriter:
         self.meta = meta
         self.rows = 0
         self._writer: pq.ParquetWriter | None = None
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, self._tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
-        os.close(fd)
+        self._tmp = _temporary_beside(self.path)
 
     def write(self, frame: pd.DataFrame) -> None:
         """Append ``frame``'s rows (the first chunk sets the columns and their types).
@@ -178,8 +187,7 @@ class ParquetStreamWriter:
             raise DatasetError(f"no rows to write to '{self.path}'")
         self._writer.close()
         self._writer = None
-        os.chmod(self._tmp, new_file_mode())  # mkstemp makes 0600
-        os.replace(self._tmp, self.path)
+        _put_in_place(self._tmp, self.path)
         return self.rows
 
     def abort(self) -> None:

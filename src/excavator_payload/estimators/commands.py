@@ -99,8 +99,19 @@ def status_breakdown(status) -> str:
     str
         The counts, comma-separated.
     """
-    counts = status.value_counts()
-    return ", ".join(f"{int(n)} {name}" for name, n in counts.items())
+    return counts_breakdown(status.value_counts())
+
+
+def counts_breakdown(counts) -> str:
+    """``"960 ok, 50 warming_up"`` from counts per status, most common first (ties in the
+    order given).
+
+    Parameters
+    ----------
+    counts : mapping of str to int
+        Estimates per status (a ``value_counts()`` or a :class:`collections.Counter`).
+    """
+    return ", ".join(f"{int(n)} {name}" for name, n in sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
 def register(app: typer.Typer) -> None:

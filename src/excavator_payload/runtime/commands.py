@@ -119,7 +119,7 @@ def register(app: typer.Typer) -> None:
 
         from excavator_payload.data.io import PARQUET_SUFFIXES, ParquetStreamWriter, check_output_path
         from excavator_payload.estimators.base import load_estimator
-        from excavator_payload.estimators.commands import STATUS_MEANING
+        from excavator_payload.estimators.commands import STATUS_MEANING, counts_breakdown
         from excavator_payload.runtime.can_sensor import PayloadSensor
         from excavator_payload.runtime.replay import (ReplayEstimates, ReplaySamples, replay_log,
                                                       samples_file_meta)
@@ -162,7 +162,7 @@ def register(app: typer.Typer) -> None:
             (c["other_senders"], "frames of the sensor PGNs from another source address ignored"))
             if n]
         # every status, as `estimate` counts them (it said '(9244 ok)', no word of the warming_up)
-        console.print(f"{est.name}: {estimates.count} estimates ({estimates.breakdown()}) in "
+        console.print(f"{est.name}: {estimates.count} estimates ({counts_breakdown(estimates.statuses)}) in "
                       f"{estimates.segments} segment(s) from {c['frames']} frames ({c['ignored']} "
                       f"ignored, {c['bad_frames']} bad{''.join('; ' + d for d in dropped)}) written to "
                       f"[bold]{escape(str(out))}[/bold]", highlight=False)

@@ -113,10 +113,6 @@ class ReplayEstimates:
         frame.attrs.update(self.attrs)
         return frame
 
-    def breakdown(self) -> str:
-        """``"960 ok, 50 warming_up"``: the estimates per status, most common first."""
-        return ", ".join(f"{n} {name}" for name, n in self.statuses.most_common())
-
 
 class ReplaySamples:
     """The samples a replay assembled (SI units, NaN where stale) written as a dataset file
@@ -255,7 +251,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     DatasetError
         No sensor frame, frames out of order, wrong rates, or no readable sample.
     """
-    rows = estimates if estimates is not None else ReplayEstimates()
+    kept = estimates if estimates is not None else ReplayEstimates()
     skipped = [0]
     ending: list[str] = []  # the line that says the log ends early (truncated)
     fed = 0
@@ -275,7 +271,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
     def keep(outputs):
         for o in outputs:
             if o is not None:
-                rows.add((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
+                kept.add((experiment, o.time - segment_start, o.estimate, o.status, o.sigma, o.time,
                           ",".join(o.stale), o.fault))
                 sensor.dm1.update(o.time, o.fault)
 
@@ -315,8 +311,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
             if last_frame_time is None or t - last_frame_time > segment_gap:
                 if sensor.pending:
                     keep([sensor.flush()])
-                if rows.count:
-                    sensor.dm1.update(rows.last_log_time, "")  # a new recording: its faults end here
+                if kept.count:
+                    sensor.dm1.update(kept.last_log_time, "")  # a new recording: its faults end here
                 sensor.reset()
                 experiment += 1
                 segment_start = t
@@ -337,7 +333,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         del sensor.estimator.step_values
         if bar is not None:
             bar.stop()
-    if not rows.count:
+    if not kept.count:
         raise DatasetError(f"CAN log '{path}': no frame is the sensor messages ({_expected(sensor)}) of "
                            f"the {sensor.sensor_set.name} sensor set{_foreign(sensor)}; the log holds "
                            f"{summary.describe()}. Another DBC (--dbc, --signal-map)?")
@@ -346,7 +342,7 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         raise DatasetError(f"CAN log '{path}': its time goes back between {backwards} of {fed} "
                            f"sensor frames (frames out of order?); sort the log by timestamp")
     check_message_rates(intervals, sensor, path)
-    if not rows.usable:
+    if not kept.usable:
         # The sensor sets' generated DBCs share their PGNs (0xFF00, ...): a log of the machine
         # set replayed with a thesis model (or the reverse) decoded garbage or NaN in every
         # sample and wrote estimates that were all NaN, with exit status 0.
@@ -359,10 +355,10 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
                            f"with another DBC or sensor set (--dbc, --signal-map)? The log holds "
                            f"{summary.describe()}")
     watch.check(f"CAN log '{path}'")
-    rows.flush()
-    rows.attrs.update(skipped_records=skipped[0], log_end=ending[0] if ending else "",
+    kept.flush()
+    kept.attrs.update(skipped_records=skipped[0], log_end=ending[0] if ending else "",
                       summary=summary.describe())
-    return rows if estimates is not None else rows.frame()
+    return kept if estimates is not None else kept.frame()
 
 
 def _keep_interval(kept: list[float], seen: Counter, name: str, interval: float, pick: random.Random) -> None:
