@@ -1,7 +1,9 @@
 """A day of loading against its targets: per-pass weights and truck totals on simulated shifts.
 
 The user's flow (docs/loadout.md): ``calibrated`` trained on ``cat345c-hydraulic-3pct`` from
-calibration swings of session 1, zeroed on one empty swing of session 2, then ``loadout`` over
+calibration swings of session 1 (``--calibration-motion calibration``: the README's recommended
+mix with reach motions; the default stays swings, which the earlier figures of docs/loadout.md
+were measured with), zeroed on one empty swing of session 2, then ``loadout`` over
 shifts of session 2. Per shift: passes found / missed / doubled / not weighed, the share of
 passes within 1 % of rated (target ≥ 95 %), the pass errors, passes within 2σ, and the share of
 trucks within 0.5 % of their load (target ≥ 95 %).

@@ -194,7 +194,8 @@ def _cwd_exists() -> bool:
 
 def _interrupted() -> int:
     err_console.print(Text.assemble(("interrupted", "red"),
-                                    " (finished work is kept; rerun the same command to resume)"))
+                                    " (no file was left half-written; what was saved before,"
+                                    " such as a shift's recorded trucks, is kept)"))
     return 130
 
 
