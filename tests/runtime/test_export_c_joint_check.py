@@ -210,3 +210,20 @@ def test_c_clears_a_pair_on_a_new_loads_sums_as_python_does(model, tmp_path):
     py = _assert_equal(model, source, shift, tmp_path / "build")
     assert py["fault"].astype(str).str.count(":balance").max() == 4  # a pair named
     assert model.kernel.regression._joints.cleared_pairs >= 1
+
+
+@pytest.mark.parametrize("seed", [106, 108])
+def test_c_clears_a_pair_on_its_own_sums_or_by_any_two_joints_as_python_does(model, seed, tmp_path):
+    """Two trucks of the `shift` motion on which this small test model names joints together and
+    the two clearing rules of docs/findings/false-alarms.md ("A pair cleared on its own sums...")
+    fire: seed 108's pair (boom and dipper) clears on its own load's sums when its own two agree
+    again; seed 106's three joints named together clear at a later load where only boom and dipper
+    are compared and agree (before, a pair cleared on the same load only once all three joints
+    were compared, and at a new load only when all of its own were). In C as in Python, sample by
+    sample."""
+    shift = simulate_machine_dataset(1, seed=seed, session=2, motion="shift", truck_target=20000.0)
+    source = export_c(model, tmp_path / "export")[1]
+    py = _assert_equal(model, source, shift, tmp_path / "build")
+    assert py["fault"].astype(str).str.count(":balance").max() >= 4  # a pair (or more) named
+    if seed == 106:
+        assert model.kernel.regression._joints.cleared_pairs >= 1

@@ -72,12 +72,39 @@ def test_a_pair_named_clears_when_its_joints_agree_on_a_new_loads_sums():
 
 def test_a_pair_stays_named_while_it_disagrees_or_is_not_compared_again():
     """A lasting fault: the pair disagrees on the new load's sums too, and stays named; so it does
-    while only one of its joints is compared on the new sums."""
+    while fewer than two joints are compared on the new sums."""
     kernel, check = _named_pair()
     kernel.new_loads += 1
     _windows(check, kernel, (1000.0, 700.0, None), 3 * JOINT_SAMPLES)
     assert check.fault == PAIR
     kernel, check = _named_pair()
     kernel.new_loads += 1
-    _windows(check, kernel, (1000.0, None, 1000.0), 3 * JOINT_SAMPLES)
+    _windows(check, kernel, (1000.0, None, None), 3 * JOINT_SAMPLES)
     assert check.fault == PAIR
+
+
+def test_a_pair_clears_when_one_of_it_and_the_third_joint_agree_on_a_new_loads_sums():
+    """A dig's pair (docs/findings/false-alarms.md, `shift` seed 63000): boom and bucket named, and
+    on every later load the boom and the dipper are compared while the bucket never holds enough
+    information to be compared again. Any two compared joints hold one of the pair: their agreeing
+    on the new load's sums clears the pair (and restarts the weighing); two that disagree do not."""
+    kernel, check = _named_pair()
+    kernel.new_loads += 1
+    _windows(check, kernel, (1000.0, None, 1000.0), 3 * JOINT_SAMPLES)
+    assert check.fault == "" and check.restart and check.cleared_pairs == 1
+    kernel, check = _named_pair()
+    kernel.new_loads += 1
+    _windows(check, kernel, (None, 700.0, 1000.0), 3 * JOINT_SAMPLES)
+    assert check.fault != "" and check.cleared_pairs == 0
+
+
+def test_a_pair_clears_when_its_own_two_agree_again_on_the_same_loads_sums():
+    """A pair named on the edge (`shift` seed 64000: boom and dipper 176 kg apart, χ² 15.2, on a
+    fresh dipper's first windows) whose own two agree again as they gather information on the same
+    load clears there (and restarts the weighing), as a joint named alone clears by agreeing with
+    another compared joint; before, it waited for the third joint or a new load (20 s)."""
+    kernel, check = StandIn(), JointCheck(RATED, 2.5)
+    _windows(check, kernel, (1000.0, 800.0, None), 3 * JOINT_SAMPLES)
+    assert check.fault == PAIR
+    _windows(check, kernel, (1000.0, 1000.0, None), 6 * JOINT_SAMPLES)  # the dipper's sums come to 933 kg
+    assert check.fault == "" and check.restart and check.cleared_pairs == 0

@@ -389,10 +389,11 @@ static void ep_jc_judge(ep_state *s)
            && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
                || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total))
                || (single >= 0 && ep_jc_slight(s, compared, single)));
-    /* a named joint is cleared only by agreeing with another compared joint; a pair named before
-     * this load also by its own joints agreeing on this load's sums */
-    if (s->jc_named && !failing && !((s->jc_named & ~compared) == 0 && compared != s->jc_named)
-        && !(s->jc_named_before_load && (s->jc_named & ~compared) == 0)) failing = 1;
+    /* a named joint is cleared only by agreeing with another compared joint (a pair: its own two
+     * agreeing again); a pair named before this load also by the joints compared on this load's
+     * sums agreeing */
+    if (s->jc_named && !failing
+        && !(n >= 2 && ((s->jc_named & ~compared) == 0 || s->jc_named_before_load))) failing = 1;
     if (failing != (s->jc_named != 0)) s->jc_run += 1;
     else s->jc_run = 0;
     if (s->jc_run < EP_JC_SAMPLES || held) {{

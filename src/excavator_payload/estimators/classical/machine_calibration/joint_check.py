@@ -58,7 +58,7 @@ class JointCheck:
     two joints compared, or when the rest disagree too, all are named and nothing is weighed. A
     named joint stays named until it agrees again with another compared joint (a new load, which
     the fault itself may trigger, restarts the sums, not the fault; a pair named before a new load
-    clears also when its own two agree on that load's sums: :attr:`named_before_load`). A new fault is held while the
+    clears also when the joints compared on that load's sums agree: :attr:`named_before_load`). A new fault is held while the
     kernel says the load is changing or the check pauses, unless its joint leads the weighing
     (:meth:`_leads`), and while its one joint moves the weighing by little (:meth:`_slight`). After
     a dump, a joint that weighs less than before it restarts the weighing (:meth:`_dumped_load`:
@@ -259,11 +259,12 @@ class JointCheck:
         # still (_slight: its own model error as likely as a sensor)
         held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
                                                and not self._leads(joints, m, w) or self._slight(joints, m, w))
-        if self.fault and not failing and not set(self.named) < set(joints) \
-                and not (self.named_before_load and set(self.named) <= set(joints)):
-            # a named joint is cleared only by agreeing with another compared joint; a pair named
-            # before the current load also by its own two agreeing on that load's sums (a dig: the
-            # boom holds its empty-bucket weighing while dipper and bucket dig, docs/findings/false-alarms.md)
+        if self.fault and not failing and not (len(joints) >= 2 and (set(self.named) <= set(joints)
+                                                                     or self.named_before_load)):
+            # a named joint is cleared only by agreeing with another compared joint (a pair: its
+            # own two agreeing again); a pair named before the current load also by the joints
+            # compared on that load's sums agreeing (any two of the three hold one of the pair; the
+            # other may never be compared again: a dig's bucket, docs/findings/false-alarms.md)
             failing = True
         if failing != bool(self.fault):
             self.run += 1
