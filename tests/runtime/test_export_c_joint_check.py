@@ -86,25 +86,22 @@ def test_off_exports_no_check(model, work, tmp_path):
 
 def test_c_suspect_and_monitor_faults_equal_python(model, tmp_path):
     """The rule before a fault is named (JointCheck.suspect: ``load_changing`` while the joints part
-    or the weighing moves) in C as in Python, on a boom head pressure 10 bar high for 3 s and, from
-    0.5 s into it, a boom rate 30 % high for 2.5 s; the boom's pressures named alone (the
-    trajectory test, JointCheck._trajectory: the boom's weighing moves while the others' stand);
-    and a sample the monitor keeps from the kernel (the rate's offset, named while that balance
-    fault stood) reports only the monitor's faults: C once reported the kernel's last balance
-    fault beside them."""
+    or the weighing moves) in C as in Python, on a boom head pressure 10 bar high for 3 s and then
+    a boom rate 30 % high for 2 s; and a sample the monitor keeps from the kernel (the rate's
+    offset, named while a balance fault stood) reports only the monitor's faults: C once reported
+    the kernel's last balance fault beside them."""
     clean = simulate_machine_dataset(2, seed=32, session=2, motion="operator")
     frame = clean.frame.copy()
     for e in clean.experiment_ids:
         rows = frame.index[frame["experiment"] == e]
         frame.loc[rows[400:700], "boom_head_pressure"] += 10 * BAR
-        frame.loc[rows[450:700], "boom_rate"] *= 1.3
+        frame.loc[rows[1000:1200], "boom_rate"] *= 1.3
     source = export_c(model, tmp_path / "export")[1]
     text = source.read_text()
     assert "ep_jc_track_moving" in text and "ep_jc_restart" in text
     py = _assert_equal(model, source, Dataset(frame, clean.meta), tmp_path / "build")
     assert (py["status"] == "load_changing").any()
     fault = py["fault"].astype(str)
-    assert (fault == "boom_head_pressure:balance,boom_rod_pressure:balance").any()
     after_balance = fault.shift().str.contains("balance").fillna(False).to_numpy()
     monitor_only = (fault.str.contains(":offset") & ~fault.str.contains("balance")).to_numpy()
     assert (after_balance & monitor_only).any()
@@ -164,9 +161,8 @@ def test_a_lone_joint_whose_weighing_moves_waits_for_a_second(model, tmp_path):
 def test_c_holds_a_slight_joint_as_python_does(model, work, tmp_path):
     """The rule that holds a fault of one joint moving the weighing by little (JointCheck._slight,
     ``EP_JC_SLIGHT_LIMIT``), with its limit raised past any weighing (the kernel's check, which the
-    export reads) and the trajectory test off (``EP_JC_TRAJ_CHI2``: it names a joint whose own
-    weighing moves, slight or not): on a dipper head pressure 5 bar high, which the default limits
-    name as one joint, no one joint is named, in Python and in C alike, sample by sample."""
+    export reads): on a dipper head pressure 5 bar high, which the default limit names as one joint
+    (the bucket), no one joint is named, in Python and in C alike, sample by sample."""
     clean = work[0]
     frame = clean.frame.copy()
     for e in clean.experiment_ids:
@@ -177,9 +173,8 @@ def test_c_holds_a_slight_joint_as_python_does(model, work, tmp_path):
     assert model.estimate(offset)["fault"].astype(str).isin(single).sum() > 100  # the default names one
     est = copy.deepcopy(model)
     est.kernel.regression._joints.slight_limit = 1e9
-    est.kernel.regression._joints.drift_chi2 = 1e9
     source = export_c(est, tmp_path / "export")[1]
-    assert "EP_JC_SLIGHT_LIMIT" in source.read_text() and "EP_JC_TRAJ_CHI2 EP_C(1000000000.0)" in source.read_text()
+    assert "EP_JC_SLIGHT_LIMIT" in source.read_text()
     py = _assert_equal(est, source, offset, tmp_path / "build")
     assert not py["fault"].astype(str).isin(single).any()
 

@@ -496,8 +496,7 @@ class Estimator(DegradedWeighing, ABC):
                 cleared = self._health.cleared_joints(pressures)
                 if any(cleared):  # a substitute ends: the windows that mix it with the signal
                     self._forget_joints(cleared)
-            if fault:  # a joint's weighing against itself says nothing of a cylinder now
-                self._hold_trajectory()
+            if fault:
                 substituted = self._health.substitute(values, self.degraded_rates(), pressures,
                                                       self.degraded_angles(), self.degraded_tilts())
                 if substituted is None:

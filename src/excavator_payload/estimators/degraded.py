@@ -84,10 +84,6 @@ class DegradedWeighing:
         """Weigh none of these link joints' windows over the samples held now (a signal just
         named: its samples before the name; an estimator with :meth:`degraded_pressures`)."""
 
-    def _hold_trajectory(self) -> None:
-        """The monitor names a signal this sample: a test of a joint's weighing against itself
-        waits (an estimator with :meth:`degraded_pressures` and a joint check)."""
-
     def jump_limit(self) -> float | None:
         """The largest move of an ``ok`` estimate from the one before while the monitor runs, kg
         (beyond it ``load_changing``: :data:`.health.JUMP_SHARE`); None (default): no such rule.

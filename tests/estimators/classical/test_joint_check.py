@@ -30,8 +30,6 @@ class StandIn:
     ready = True
     dumping = False
     num = info = num_short = info_short = 0.0  # no load change seen by the memories
-    settles = 0
-    num_joint = info_joint = (0.0, 0.0, 0.0)  # the trajectory test sees nothing (no sums)
 
     def _without(self, j):
         return math.nan, 0.0

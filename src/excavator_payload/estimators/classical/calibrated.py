@@ -517,12 +517,6 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         if isinstance(self.kernel, WeighingKernel):
             self.kernel.regression.forget(joints)
 
-    def _hold_trajectory(self) -> None:
-        """The monitor names a signal this sample: the joint check's trajectory test waits
-        (:meth:`CalibratedKernel.hold_joint_trajectories`)."""
-        if isinstance(self.kernel, WeighingKernel):
-            self.kernel.regression.hold_joint_trajectories()
-
     def zero(self, dataset: Dataset, force: bool = False) -> list[str]:
         """The zero check: re-estimate the machine-set sensor offsets from an empty-bucket motion,
         in place, and weigh with them (:meth:`MachineWeighing.zero`).

@@ -92,7 +92,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
         CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
-        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE, TRAJECTORY_WINDOWS)
+        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE)
 
     check = kernel._joints
     # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
@@ -133,13 +133,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "unsigned char jc_lone_moved;  /* a joint weighed alone has moved: it waits for a second (PressureKernel._joint_rules) */",
         "unsigned char jc_moved_settled;  /* it moved while its last windows held at most EP_JC_LONE_YOUNG of I */",
         "unsigned char jc_named_before_load;  /* a pair named before this load: its sums may clear it */",
-        f"ep_real jc_traj_num[{3 * (TRAJECTORY_WINDOWS + 1)}], jc_traj_info[{3 * (TRAJECTORY_WINDOWS + 1)}];"
-        "  /* the joints' sums of the last windows, a ring (JointCheck._trajectory) */",
-        "int jc_traj_slot, jc_traj_count;  /* the ring's next slot; windows in it since the sums restarted */",
-        "int jc_drifting;  /* bit j: joint j moved beyond the trajectory test this window */",
-        "int jc_drift_joint;  /* of those, the one furthest beyond (-1: none) */",
-        "int jc_drift;  /* the joint the trajectory test named (-1: none) */",
-        "int jc_drift_quiet;  /* windows in a row it has not moved so since */",
     ]
     definitions = f"""/* The joint consistency check (machine_calibration/joint_check.py, JointCheck): each joint's
  * estimate N_j / I_j against the others', chi2 about their 1/v_j-weighted mean with
@@ -167,9 +160,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_DUMP_RATE {c_number(DUMP_OPENING_RATE)}  /* rad/s: the bucket opening this fast dumps */
 #define EP_JC_DUMP_HOLD {kernel._dump_hold}  /* samples a dump lasts after its last fast opening */
 #define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
-#define EP_JC_TRAJ {TRAJECTORY_WINDOWS}  /* windows back a joint's weighing is compared with */
-#define EP_JC_TRAJ_CHI2 {c_number(check.drift_chi2)}
-#define EP_JC_TRAJ_FORGET {c_number(kernel.forgetting ** TRAJECTORY_WINDOWS)}  /* the forgetting over EP_JC_TRAJ windows */
 
 static void ep_jc_clear(ep_state *s)
 {{
@@ -207,13 +197,6 @@ static void ep_jc_reset(ep_state *s)
     s->jc_slot = 0;
     s->jc_moving = 0;
     s->jc_restart = 0;
-    for (j = 0; j < 3 * (EP_JC_TRAJ + 1); ++j) s->jc_traj_num[j] = s->jc_traj_info[j] = EP_C(0.0);
-    s->jc_traj_slot = 0;
-    s->jc_traj_count = 0;
-    s->jc_drifting = 0;
-    s->jc_drift_joint = -1;
-    s->jc_drift = -1;
-    s->jc_drift_quiet = 0;
 }}
 
 #if EP_JOINT_CHECK
@@ -240,7 +223,6 @@ static void ep_jc_reset_sums(ep_state *s)
     for (j = 0; j < 3; ++j)
         s->jc_num_joint[j] = s->jc_info_joint[j] = s->jc_num_short[j] = s->jc_info_short[j] = EP_C(0.0);
     s->jc_new_load = 1;
-    s->jc_traj_count = 0;  /* the trajectory test has nothing to compare with */
 }}
 
 /* CalibratedKernel._check_joints: a joint named has cleared, the weighing starts again
@@ -280,42 +262,6 @@ static void ep_jc_settle(ep_state *s)
         s->jc_num_joint[j] = s->jc_num_short[j];
         s->jc_info_joint[j] = s->jc_info_short[j];
     }}
-    s->jc_traj_count = 0;  /* the trajectory test has nothing to compare with */
-}}
-
-/* JointCheck._trajectory: each joint's N_j / I_j against its value EP_JC_TRAJ windows back on the
- * same sums; nested, so their difference d has variance k dI (I_old + dI) / (I^2 I_old) with
- * dI = I - lambda^T I_old; beyond EP_JC_TRAJ_CHI2 of it and by more than EP_JC_MOVING_LIMIT (and
- * I_old >= EP_JC_ENOUGH) the joint drifts */
-static void ep_jc_trajectory(ep_state *s)
-{{
-    int j, oldest = (s->jc_traj_slot + 1) % (EP_JC_TRAJ + 1);
-    ep_real best = EP_C(0.0);
-    s->jc_drifting = 0;
-    s->jc_drift_joint = -1;
-    for (j = 0; j < 3; ++j) {{
-        ep_real num = s->jc_num_joint[j], info = s->jc_info_joint[j];
-        if (s->jc_traj_count >= EP_JC_TRAJ) {{
-            ep_real num_old = s->jc_traj_num[3 * oldest + j], info_old = s->jc_traj_info[3 * oldest + j];
-            ep_real new_info = info - EP_JC_TRAJ_FORGET * info_old;
-            if (info_old >= EP_JC_ENOUGH && new_info > EP_C(0.0) && info > EP_C(0.0)) {{
-                ep_real move = num / info - num_old / info_old;
-                ep_real var = EP_JC_INFLATION * new_info * (info_old + new_info) / (info * info * info_old);
-                ep_real score = move * move / var;
-                if (EP_MATH(fabs)(move) > EP_JC_MOVING_LIMIT && score > EP_JC_TRAJ_CHI2) {{
-                    s->jc_drifting |= 1 << j;
-                    if (EP_MATH(fabs)(move) <= EP_JC_CHANGE_MIN && score > best) {{  /* past it: a load change */
-                        best = score;
-                        s->jc_drift_joint = j;
-                    }}
-                }}
-            }}
-        }}
-        s->jc_traj_num[3 * s->jc_traj_slot + j] = num;
-        s->jc_traj_info[3 * s->jc_traj_slot + j] = info;
-    }}
-    s->jc_traj_slot = (s->jc_traj_slot + 1) % (EP_JC_TRAJ + 1);
-    if (s->jc_traj_count < EP_JC_TRAJ) s->jc_traj_count += 1;
 }}
 
 /* CalibratedKernel._without: the weighing without joint j's share */
@@ -409,38 +355,6 @@ static int ep_jc_slight(const ep_state *s, int compared, int single)
     return EP_MATH(fabs)(n_all / i_all - n_rest / i_rest) <= EP_JC_SLIGHT_LIMIT;
 }}
 
-/* JointCheck._drift: the trajectory test names a joint that drifts when nothing is named and no
- * load change is seen; it clears after EP_JC_TRAJ windows in a row without a drift (the weighing
- * then starts again). 1: decided this window (the chi2 rules wait). */
-static int ep_jc_drift(ep_state *s)
-{{
-    if (s->jc_drift >= 0) {{
-        s->jc_drift_quiet = (s->jc_drifting >> s->jc_drift & 1) ? 0 : s->jc_drift_quiet + 1;
-        if (s->jc_drift_quiet >= EP_JC_TRAJ) {{
-            s->jc_restart = 1;
-            s->jc_named = 0;
-            s->jc_degraded = EP_NAN;
-            s->jc_degraded_info = EP_C(0.0);
-            s->jc_drift = -1;
-            s->jc_drift_quiet = 0;
-            s->jc_run = 0;
-        }} else {{
-            ep_jc_without(s, s->jc_drift);
-        }}
-        return 1;
-    }}
-    if (s->jc_named || s->jc_drift_joint < 0 || s->jc_dumping
-        || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY) || s->changing || s->jc_paused > 0)
-        return 0;
-    s->jc_named = 1 << s->jc_drift_joint;
-    s->jc_named_before_load = 0;
-    s->jc_drift = s->jc_drift_joint;
-    s->jc_drift_quiet = 0;
-    s->jc_run = 0;
-    ep_jc_without(s, s->jc_drift);
-    return 1;
-}}
-
 /* JointCheck._judge */
 static void ep_jc_judge(ep_state *s)
 {{
@@ -466,7 +380,6 @@ static void ep_jc_judge(ep_state *s)
             if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
     }}
     s->jc_checked = (unsigned char)(n >= 2);
-    if (ep_jc_drift(s)) return;
     failing = chi2 > EP_JC_CHI2;
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
@@ -516,7 +429,6 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
         s->jc_named_before_load = (unsigned char)((s->jc_named & (s->jc_named - 1)) != 0);
     }}
     ep_jc_track_moving(s);
-    ep_jc_trajectory(s);
     s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
     if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
         s->jc_dumped = 1;
@@ -598,7 +510,6 @@ static unsigned long ep_jc_faults(const ep_state *s)
     s->jc_reported = 0;
     if (v[EP_RATES[2]] > EP_JC_DUMP_RATE) s->jc_dump_left = EP_JC_DUMP_HOLD;  /* the bucket opens fast */
     else if (s->jc_dump_left) s->jc_dump_left -= 1;
-    if (s->hm_any_active) s->jc_traj_count = 0;  /* JointCheck.hold_trajectory: the monitor names a signal */
 #endif
 """,
         status="""#if EP_JOINT_CHECK

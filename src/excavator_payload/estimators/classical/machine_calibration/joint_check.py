@@ -26,13 +26,6 @@ pause, so that it compares what the joints weighed under one load:
 * **slight**: a new fault of one joint is held while the weighing on the check's sums moves by at
   most :data:`~.settings.JOINT_SLIGHT_SHARE` of the rated payload without that joint: so little
   information is as likely the joint's own model error as a sensor.
-* **a joint that drifts** (:meth:`_trajectory`): a joint's own weighing (the kernel's per-joint
-  sums) against itself :data:`~.settings.TRAJECTORY_WINDOWS` windows back, beyond
-  :data:`~.settings.TRAJECTORY_CHI2` of the nested difference's variance and by more than
-  :data:`~.settings.JOINT_MOVING_SHARE` of the rated payload, names that joint when nothing else
-  is named and no load change is seen: a slow scale error of the joint that holds most of the
-  information moves the weighing while the other joints, with little of it, do not outvote it.
-  It clears once the joint has held still so for as many windows (the weighing then restarts);
 * **a load left in a dump**: a joint weighed before the last dump and after it that weighs less
   after it (by :data:`~.settings.JOINT_CHANGE_SHARE` of the rated payload and beyond
   :data:`~.settings.JOINT_CHI2`) restarts the weighing, as a new load: a load too small for the
@@ -48,7 +41,7 @@ import math
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
     JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES,
-    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE, TRAJECTORY_CHI2, TRAJECTORY_WINDOWS)
+    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE)
 
 
 class JointCheck:
@@ -88,7 +81,6 @@ class JointCheck:
         self.change_min = JOINT_CHANGE_SHARE * float(rated)
         self.moving_limit = JOINT_MOVING_SHARE * float(rated)
         self.slight_limit = JOINT_SLIGHT_SHARE * float(rated)
-        self.drift_chi2 = TRAJECTORY_CHI2  # the trajectory test's limit (_trajectory)
         self.reset()
 
     def reset(self) -> None:
@@ -123,17 +115,6 @@ class JointCheck:
         # a named fault has cleared (the kernel's sums hold the fault), or a load left in a dump
         # (_dumped_load): the kernel restarts the weighing
         self.restart = False
-        # the kernel's per-joint sums (N_j, I_j) of the last TRAJECTORY_WINDOWS + 1 windows, a ring
-        # (_trajectory), restarted with the kernel's weighing (a new load, a settle)
-        self.traj_num = [[0.0, 0.0, 0.0] for _ in range(TRAJECTORY_WINDOWS + 1)]
-        self.traj_info = [[0.0, 0.0, 0.0] for _ in range(TRAJECTORY_WINDOWS + 1)]
-        self.traj_slot = 0
-        self.traj_count = 0  # windows in the ring since the kernel's sums last restarted (at most T)
-        self.traj_key = (0, 0)  # the kernel's (new_loads, settles) the ring follows
-        self.drifting = [False, False, False]  # each joint moved beyond the trajectory test this window
-        self.drift_joint = -1  # of those, the one furthest beyond (-1: none)
-        self.drift_named = False  # the joint named was named by the trajectory test
-        self.drift_quiet = 0  # windows in a row it has not moved so since
 
     def update(self, kernel, d_num: list, d_info: list) -> None:
         """One balance window, after the kernel has accumulated it.
@@ -154,7 +135,6 @@ class JointCheck:
             # a pair named (nothing weighed) is judged again on the new load's sums (:meth:`_judge`)
             self.named_before_load = len(self.named) > 1
         self._track_moving(kernel)
-        self._trajectory(kernel)
         self.dumping = kernel.dumping
         if self.dumping:  # the load leaves: what the joints weigh now is no one load (not summed)
             self.dumped = True
@@ -207,50 +187,6 @@ class JointCheck:
         self.slot = (self.slot + 1) % n
         self.moving = abs(now - then) > self.moving_limit
         self.moved_settled = self.moving and 0.0 < kernel.info and info_then >= (1.0 - LONE_YOUNG_SHARE) * kernel.info
-
-    def _trajectory(self, kernel) -> None:
-        """:attr:`drifting`: each joint's weighing N_j / I_j (the kernel's sums) against its value
-        :data:`~.settings.TRAJECTORY_WINDOWS` windows back, on the same sums (no new load or settle
-        since). The later estimate nests the earlier one, so under one load their difference d has
-        variance k ΔI (I_old + ΔI) / (I² I_old), ΔI = I - λ^T I_old (k/I_old - k/I without
-        forgetting); a joint drifts when d² passes :data:`~.settings.TRAJECTORY_CHI2` of it and
-        |d| the moving limit, with I_old enough to be compared. :attr:`drift_joint`: the one
-        furthest beyond of those that moved by at most the change limit
-        (:data:`~.settings.JOINT_CHANGE_SHARE`)."""
-        n = TRAJECTORY_WINDOWS + 1
-        key = (kernel.new_loads, kernel.settles)
-        if key != self.traj_key:  # the kernel's sums restarted: nothing to compare with
-            self.traj_key, self.traj_count = key, 0
-        oldest = (self.traj_slot + 1) % n  # written TRAJECTORY_WINDOWS windows ago
-        lam_t = kernel.forgetting ** TRAJECTORY_WINDOWS
-        best, self.drift_joint = 0.0, -1
-        for j in range(3):
-            num, info = kernel.num_joint[j], kernel.info_joint[j]
-            self.drifting[j] = False
-            if self.traj_count >= TRAJECTORY_WINDOWS:
-                num_old, info_old = self.traj_num[oldest][j], self.traj_info[oldest][j]
-                new_info = info - lam_t * info_old
-                if info_old >= self.enough and new_info > 0.0 and info > 0.0:
-                    move = num / info - num_old / info_old
-                    var = JOINT_INFO_INFLATION * new_info * (info_old + new_info) / (info * info * info_old)
-                    score = move * move / var
-                    self.drifting[j] = abs(move) > self.moving_limit and score > self.drift_chi2
-                    # a move past the change limit is a load change that joint alone weighs (a
-                    # stale joint's old load, a dump), the χ² rules' to judge, not a drift
-                    if self.drifting[j] and abs(move) <= self.change_min and score > best:
-                        best, self.drift_joint = score, j
-            self.traj_num[self.traj_slot][j], self.traj_info[self.traj_slot][j] = num, info
-        self.traj_slot = (self.traj_slot + 1) % n
-        self.traj_count = min(self.traj_count + 1, TRAJECTORY_WINDOWS)
-
-    def hold_trajectory(self) -> None:
-        """The health monitor names a signal this sample: the trajectory test (:meth:`_trajectory`)
-        compares nothing until :data:`~.settings.TRAJECTORY_WINDOWS` windows after the last such
-        sample. A substitute (a rate's angle slope, a tilt from before) moves every joint's weighing
-        by its own error, not a cylinder's: a stuck bucket rate weighed on its angle's slope in a
-        ``lever`` pass had the boom named and the weighing restarted mid-motion, 112 kg off at its
-        first ``ok`` (docs/sensor-health.md, "A joint's weighing 1 s back")."""
-        self.traj_count = 0
 
     @property
     def suspect(self) -> bool:
@@ -314,8 +250,6 @@ class JointCheck:
             chi2 = sum(w[j] * (m[j] - mean) ** 2 for j in joints)
         self.chi2 = chi2
         self.checked = len(joints) >= 2
-        if self._drift(kernel):
-            return
         failing = chi2 > JOINT_CHI2
         # the load is changing: the joints that move see it first; a new fault waits (its run
         # goes on: named at once if the joints still disagree when the pause ends)
@@ -349,30 +283,6 @@ class JointCheck:
             return
         self._name(_named(joints, m, w))
         self.degraded = kernel._without(self.named[0]) if len(self.named) == 1 else (math.nan, 0.0)
-
-    def _drift(self, kernel) -> bool:
-        """The trajectory test's name (:meth:`_trajectory`): a joint that drifts is named when no
-        fault is and no load change is seen (a dump, the weighing not ready, the short memory
-        away, the check's pause); it clears once it has not drifted for
-        :data:`~.settings.TRAJECTORY_WINDOWS` windows in a row, and the weighing starts again
-        (its sums hold the drift). Whether it decided this window (the χ² rules then wait)."""
-        if self.drift_named:
-            j = self.named[0]
-            self.drift_quiet = 0 if self.drifting[j] else self.drift_quiet + 1
-            if self.drift_quiet >= TRAJECTORY_WINDOWS:
-                self.restart = True
-                self.fault, self.degraded, self.named = "", (math.nan, 0.0), ()
-                self.drift_named, self.drift_quiet, self.run = False, 0, 0
-            else:
-                self.degraded = kernel._without(j)
-            return True
-        if self.fault or self.drift_joint < 0 or self.dumping or not kernel.ready or kernel.changing \
-                or self.paused > 0:
-            return False
-        self._name([self.drift_joint])
-        self.drift_named, self.drift_quiet, self.run = True, 0, 0
-        self.degraded = kernel._without(self.drift_joint)
-        return True
 
     def _name(self, named) -> None:
         self.named = tuple(named)

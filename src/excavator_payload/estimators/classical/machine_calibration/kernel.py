@@ -233,12 +233,6 @@ class CalibratedKernel(PressureRegression):
         self._ring_drop[:, mask] = True
         self._terms_inside[:, mask] = False
 
-    def hold_joint_trajectories(self) -> None:
-        """The health monitor names a signal now: the joint check's trajectory test waits
-        (:meth:`JointCheck.hold_trajectory`); nothing without the check."""
-        if hasattr(self, "_joints"):
-            self._joints.hold_trajectory()
-
     def _call(self, sample: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         if self._trigger is None:
             self._bind()

@@ -164,24 +164,6 @@ JOINT_SAMPLES = 10
 #: tried and dropped: clean lever motions on a slope reach χ² 15.7 with the estimate 4 kg off.
 JOINT_MOVING_SHARE = 0.003
 JOINT_MOVING_WINDOWS = 20
-#: A joint's own weighing against itself :data:`TRAJECTORY_WINDOWS` windows back (the kernel's
-#: per-joint sums N_j, I_j; JointCheck._trajectory): the estimate at t and at t - T are nested, so
-#: under one load their difference d has variance k (1/I_j(t-T) - 1/I_j(t)) (k:
-#: :data:`JOINT_INFO_INFLATION`; with forgetting, (ΔI/I)² k (1/ΔI + 1/I(t-T))). Beyond
-#: :data:`TRAJECTORY_CHI2` of it, and by more than :data:`JOINT_MOVING_SHARE` of the rated payload,
-#: the joint is named (``balance``) while the check names nothing else and no load change is seen
-#: (a dump, the weighing not ready, the short memory away, the check's pause): a boom pressure's
-#: slow scale error moved the boom's weighing 25-40 kg/s under a σ of 3-8 kg while the other
-#: joints, with little information, kept χ² under its limit (``ok`` 52 and 67 kg off). 1 s back,
-#: not 0.5 s: a joint's clean model error changes with the pose and comes back, a sensor's scale
-#: error keeps its sign. Set on the windows recorded on bench_faults seeds 15400, 6800, 9300 and
-#: 15500 (40 clean experiments: d²/var at most 26 at 1 s back) and the false-alarm tuning chunks
-#: of ``lever`` and ``lever-slope5`` (seed 62000, 80 experiments: 52, where 0.5 s back reached 88);
-#: the two gain faults reach 109 and 138. docs/sensor-health.md, "A joint's weighing 1 s back".
-#: The name clears once the joint has not moved so for as many windows again; the weighing then
-#: starts again.
-TRAJECTORY_WINDOWS = 100
-TRAJECTORY_CHI2 = 80.0
 #: A move (:data:`JOINT_MOVING_SHARE`) makes a joint weighed alone wait for a second one only once
 #: the weighing is settled: its last :data:`JOINT_MOVING_WINDOWS` windows hold at most this share
 #: of its information. A new load's first second converges by more than the moving limit with the
