@@ -3,7 +3,8 @@ machine file), zeroed on an empty swing of the weighing session, judged on motio
 
 Training: swings, work cycles (up to the dump) and lifts of session 1 (``--n-train`` in all, in
 the ratio 2:2:1), or one or more ``--mixture`` of swings, work cycles, lifts and ``reach``
-motions (every joint through its range at once; each motion kind simulated once, mixtures take
+motions (every joint through its range at once) and ``slopes`` (work cycles on a slope, up to the
+dump); each motion kind simulated once, mixtures take
 its first experiments, so every mixture draws from the same data). Zero: one empty swing of
 session 2 (as ``calibrated``'s README flow). Judged on session-2 families of
 ``bench_any_motion`` (``nmpc``, ``work-cycle``, ``operator``, and the held-out operator model
@@ -56,7 +57,7 @@ def joined(parts: list[Dataset]) -> Dataset:
 
 
 #: training motion kinds and the offset of each one's seed from ``--train-seed``
-KINDS = {"swing": 0, "work-cycle": 1, "lifts": 2, "reach": 3}
+KINDS = {"swing": 0, "work-cycle": 1, "lifts": 2, "reach": 3, "slopes": 4}
 
 
 def parse_mixture(text: str) -> tuple[str, dict[str, int]]:
@@ -81,7 +82,7 @@ def training_motions(counts: dict[str, int], seed: int) -> dict[str, Dataset]:
     for kind, n in counts.items():
         if n > 0:
             d = simulate_dataset(n, seed=seed + KINDS[kind], motion=kind, **common)
-            out[kind] = d.until_dump() if kind == "work-cycle" else d
+            out[kind] = d.until_dump() if kind in ("work-cycle", "slopes") else d
     return out
 
 
@@ -105,7 +106,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("balance-net"))
     ap.add_argument("--option", action="append", default=[], help="KEY=VALUE estimator option")
     ap.add_argument("--mixture", action="append", default=[], metavar="NAME=KIND:N,...",
-                    help="a training mixture (repeatable; KIND swing, work-cycle, lifts or reach), "
+                    help="a training mixture (repeatable; KIND swing, work-cycle, lifts, reach or slopes), "
                          "e.g. reach30=swing:30,work-cycle:30,lifts:10,reach:30; default the 2:2:1 "
                          "swings, work cycles and lifts of --n-train")
     ap.add_argument("--held-out", action="store_true",

@@ -118,6 +118,37 @@ def test_zero_recovers_the_weighing_sessions_offsets(fitted, machine_data, tmp_p
     np.testing.assert_array_equal(a["payload_estimate"].to_numpy(), b["payload_estimate"].to_numpy())
 
 
+def test_the_zero_divides_the_windows_information_by_kappa_squared(fitted, machine_data, monkeypatch):
+    """The zero's windows overlap and the model's error runs along a motion, so they tell κ²
+    times less than their nominal information: the zero divides it by κ² (measured on the
+    tuning draws, a zero that trusted them fully put the zero swing's model error into the
+    offsets — angle offsets 4-11 times the true ones — and weighed `multisine` at efficiency
+    16.5 instead of 4.1 with the true offsets). Dividing the information by T is the same as a
+    prior √T times narrower; a T below 1 is refused."""
+    est = copy.deepcopy(fitted)
+    zero = est.experiments(machine_data["zero"].until_dump(), payload=machine_data["zero"].has_payload)
+    start = est.model.offsets.copy()
+    tempered = copy.deepcopy(est.model)
+    tempered.zero(zero, temper=4.0)
+    narrowed = copy.deepcopy(est.model)
+    prior = narrowed.offset_prior_std()
+    monkeypatch.setattr(narrowed, "offset_prior_std", lambda: 0.5 * prior)
+    narrowed.zero(zero)
+    np.testing.assert_allclose(tempered.offsets, narrowed.offsets, rtol=1e-9, atol=1e-12 * np.max(prior))
+    plain = copy.deepcopy(est.model)
+    plain.zero(zero)
+    assert not np.allclose(plain.offsets, tempered.offsets)
+    # the estimator's zero tempers by its own κ²
+    est.zero(machine_data["zero"])
+    by_kappa = copy.deepcopy(fitted.model)
+    by_kappa.offsets = start
+    by_kappa.zero(zero, temper=fitted.kappa**2)
+    assert fitted.kappa > 1.0
+    np.testing.assert_allclose(est.model.offsets, by_kappa.offsets, rtol=1e-12)
+    with pytest.raises(EstimatorError, match="temper must be >= 1"):
+        copy.deepcopy(fitted.model).zero(zero, temper=0.5)
+
+
 def test_zero_with_a_load_it_was_not_told_of_is_refused(fitted, machine_data):
     """1500 kg left in the bucket of the zero motion, the data saying 0: the zero took the
     load for offsets (angle offsets of degrees) and was kept. Now it is refused, asking whether

@@ -606,16 +606,24 @@ class BalanceModel:
         other = ZERO_PRIOR["pressure" if L.pressure else "torque"]
         return np.array([ZERO_PRIOR["angle"] if i < angles else other for i in range(self.offset_count())])
 
-    def zero(self, experiments: list[Samples]) -> np.ndarray:
+    def zero(self, experiments: list[Samples], temper: float = 1.0) -> np.ndarray:
         """Re-estimate the sensors' offsets from motions of known payload (``m``; an empty
         bucket when None): the maximum a-posteriori offsets under :data:`ZERO_PRIOR`, from the
-        balance linearised in them. Returns the change of the offsets.
+        balance linearised in them, the windows' information divided by ``temper``. Returns the
+        change of the offsets.
 
         Parameters
         ----------
         experiments : list of Samples
             The zero motion(s); their payload ``m`` (None: an empty bucket).
+        temper : float
+            How many times the windows' nominal information overstates what the motion tells
+            (``balance-net`` passes κ²: the windows overlap and the model's error runs along a
+            motion). With 1 a long zero motion overrides the prior and its offsets take up the
+            model's error on that motion.
         """
+        if not temper >= 1.0:
+            raise EstimatorError(f"balance-net: the zero's temper must be >= 1 (got {temper})")
         L = self.layout
         n_off = self.offset_count()
         base = self.offsets.copy()
@@ -649,8 +657,8 @@ class BalanceModel:
         A = np.diag(1.0 / np.square(prior))
         g = np.zeros(n_off)
         for j in range(L.n):
-            A += (J[:, j] * w[:, j:j + 1]).T @ J[:, j]
-            g += (J[:, j] * w[:, j:j + 1]).T @ r0[:, j]
+            A += (J[:, j] * w[:, j:j + 1]).T @ J[:, j] / temper
+            g += (J[:, j] * w[:, j:j + 1]).T @ r0[:, j] / temper
         delta = np.linalg.solve(A, -g)
         self.offsets = base + delta
         # how the offsets' remaining uncertainty (the posterior's covariance A⁻¹) weighs on a

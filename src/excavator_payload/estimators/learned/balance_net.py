@@ -29,7 +29,8 @@ each window from a ring: batch and stream are one computation.
   trained magnitude of the other signals, the sensor set's own for the house's inclination;
   not a machine's.
 * ``zero`` re-estimates the sensors' offsets from an empty-bucket motion
-  (:meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`).
+  (:meth:`BalanceModel.zero <.balance_model.BalanceModel.zero>`), the windows' information
+  divided by κ² (they overlap, as in σ).
 """
 
 from __future__ import annotations
@@ -361,7 +362,7 @@ class BalanceNet(Estimator):
         lightest = np.argsort([abs(float(e.m[0])) if e.m is not None else 0.0 for e in held], kind="stable")
         for i in lightest[:CROSS_ZEROS]:
             try:
-                self.model.zero([held[i]])
+                self.model.zero([held[i]], temper=self.kappa**2)
                 self.cross_zero_chi2.append(self._offset_chi2())
                 out += self._final_errors([e for k, e in enumerate(held) if k != i])
             except EstimatorError:  # this one never moved inside the trained range
@@ -488,7 +489,7 @@ class BalanceNet(Estimator):
         experiments = self.experiments(dataset.until_dump(), payload=dataset.has_payload)
         if sum(len(e) for e in experiments) < self.model.width:
             raise EstimatorError(f"{self.name}: the zero motion is shorter than one balance window")
-        self.model.zero(experiments)
+        self.model.zero(experiments, temper=self.kappa**2)
         self._fn = None
         self.reset()
         self.zero_refusals, self.zero_report = [], []
