@@ -180,6 +180,23 @@ def fit_floors(errors: np.ndarray, nominal: np.ndarray, novelty: np.ndarray,
     return a1 + a2, b, c
 
 
+_NO_SUMS = (0.0, 0.0, 0.0, 0.0)
+
+
+def _add_window(sums: tuple, w: np.ndarray, phi: np.ndarray, r: np.ndarray, novelty: float) -> tuple:
+    """The weighing's sums ``(num, info, novelty, misfit)`` with one window added: its channels'
+    ``Σ w φ r`` and information ``Σ w φ²``, the novelty and the channels' χ² at the estimate after
+    it, each weighted by the window's information."""
+    num, info, novelty_sum, misfit = sums
+    added = float(np.sum(w * phi * phi))
+    num += float(np.sum(w * phi * r))
+    info += added
+    novelty_sum += added * novelty
+    if info > 0:
+        misfit += added * float(np.sum(w * (r - num / info * phi) ** 2))
+    return num, info, novelty_sum, misfit
+
+
 class _Columns:
     """``x[..., i]`` of a list of CasADi symbols (the model indexes samples' columns so)."""
 
@@ -569,10 +586,7 @@ class BalanceNet(Estimator):
         self._ring: list = []  # (terms, used) of the window's samples
         self._frames: list = []  # machine set: the newest frames, not yet judged
         self._disagree = 0
-        self._num_new = 0.0  # the windows no channel of the weighed load explains
-        self._info_new = 0.0
-        self._novelty_new = 0.0
-        self._misfit_new = 0.0
+        self._new = _NO_SUMS  # (num, info, novelty, misfit) of the windows no channel of the weighed load explains
 
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """A gap of up to :data:`MAX_BRIDGED_GAP` keeps the sums (the load is the same; each
@@ -679,30 +693,20 @@ class BalanceNet(Estimator):
             if np.any(w > 0) and not np.any(agree & (w > 0)):
                 # the load weighed so far explains no channel: a new load, or a regime the
                 # model never saw; the windows are weighed on their own meanwhile
-                self._num_new += float(np.sum(w * phi * r))
-                self._info_new += float(np.sum(w * phi * phi))
-                own = float(np.sum(w * phi * phi))
-                self._novelty_new += own * novelty
-                if self._info_new > 0:
-                    self._misfit_new += own * float(np.sum(w * (r - self._num_new / self._info_new * phi) ** 2))
+                self._new = _add_window(self._new, w, phi, r, novelty)
                 self._disagree += 1
                 if self._disagree * m.period >= float(self.options["new_load"]):
-                    if (self._info_new > 0 and abs(self._num_new / self._info_new - est)
-                            > NEW_LOAD_SHARE * self.payload_scale):
-                        self.num, self.info = self._num_new, self._info_new  # a new load
-                        self.novelty, self.misfit = self._novelty_new, self._misfit_new
-                    self._num_new = self._info_new = self._novelty_new = self._misfit_new = 0.0
+                    num_new, info_new = self._new[:2]
+                    if info_new > 0 and abs(num_new / info_new - est) > NEW_LOAD_SHARE * self.payload_scale:
+                        self.num, self.info, self.novelty, self.misfit = self._new  # a new load
+                    self._new = _NO_SUMS
                     self._disagree = 0
                 return self._result()
             self._disagree = 0
-            self._num_new = self._info_new = self._novelty_new = self._misfit_new = 0.0
+            self._new = _NO_SUMS
             w = np.where(agree, w, 0.0)
-        self.num += float(np.sum(w * phi * r))
-        added = float(np.sum(w * phi * phi))
-        self.info += added
-        self.novelty += added * novelty
-        if self.info > 0:
-            self.misfit += added * float(np.sum(w * (r - self.num / self.info * phi) ** 2))
+        self.num, self.info, self.novelty, self.misfit = _add_window(
+            (self.num, self.info, self.novelty, self.misfit), w, phi, r, novelty)
         return self._result()
 
     # -- persistence ------------------------------------------------------------------------
