@@ -290,3 +290,49 @@ def test_a_model_saved_before_the_novelty_floor_loads_with_its_constant_floor(fi
     constant.floor_a, constant.floor_b, constant.floor_c = 25.0, 0.0, 0.0
     a, b = old.estimate(machine_data["test"]), constant.estimate(machine_data["test"])
     np.testing.assert_array_equal(a["sigma"].to_numpy(), b["sigma"].to_numpy())
+
+
+def test_both_chambers_reach_the_joint_through_one_map(fitted, machine_data):
+    """Tied maps (the default since 2026-11-29): each measured column of a cylinder is its
+    untied head column minus AREA_RATIO times its untied rod column (the rod column carries the
+    balance's minus sign), so a steady back pressure cannot be a free function of the angle."""
+    from excavator_payload.estimators.learned.balance_model import AREA_RATIO
+
+    s = fitted.experiments(machine_data["wide"])[0]
+    tied = BalanceModel(tuple(MACHINE_SENSORS.signals), order=3)
+    untied = BalanceModel(tuple(MACHINE_SENSORS.signals), order=3, tied_maps=False)
+    for m in (tied, untied):
+        m.lo, m.hi = s.q.min(0), s.q.max(0) + 1e-3
+    a, b = tied.design(s)["measured"], untied.design(s)["measured"]
+    assert len(a) * 2 == len(b) == untied.block_sizes()["measured"] and len(a) == tied.block_sizes()["measured"]
+    for i, (plain, _) in enumerate(a):
+        head, rod = b[2 * i][0], b[2 * i + 1][0]
+        for j in range(len(plain)):
+            expected = np.asarray(head[j]) + AREA_RATIO * np.asarray(rod[j])
+            np.testing.assert_allclose(np.broadcast_to(plain[j], expected.shape), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_a_model_saved_with_a_map_per_chamber_loads_as_it_was(fitted, machine_data, tmp_path):
+    """A folder saved before the tied maps (no ``tied_maps`` in its state, a head and a rod map
+    per cylinder) loads with a map per chamber; written with the rod maps at AREA_RATIO times
+    the head maps it is the same balance, so it weighs exactly as the tied model."""
+    import json
+
+    from excavator_payload.estimators.learned.balance_model import AREA_RATIO
+
+    est = copy.deepcopy(fitted)
+    sizes = est.model.block_sizes()
+    k = sizes["measured"]
+    maps = est.model.coef[:k]
+    est.model.tied_maps = False
+    est.model.coef = np.concatenate([np.column_stack([maps, AREA_RATIO * maps]).ravel(), fitted.model.coef[k:]])
+    folder = est.save(tmp_path / "m")
+    config = json.loads((folder / "estimator.json").read_text())
+    assert config["state"].pop("tied_maps") is False
+    (folder / "estimator.json").write_text(json.dumps(config))
+    old = load_estimator(folder)
+    assert old.model.tied_maps is False and len(old.model.coef) == len(fitted.model.coef) + k
+    a, b = old.estimate(machine_data["test"]), fitted.estimate(machine_data["test"])
+    np.testing.assert_allclose(a["payload_estimate"].to_numpy(float), b["payload_estimate"].to_numpy(float),
+                               rtol=1e-9, atol=1e-6)
+    assert load_estimator(fitted.save(tmp_path / "n")).model.tied_maps is True

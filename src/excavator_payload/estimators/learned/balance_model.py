@@ -12,9 +12,15 @@ with :math:`F` and :math:`U` the basis forces of :mod:`.chain` (symmetric pairs 
 every pair for the payload point), :math:`T_k` Chebyshev polynomials of the joint's angle over
 its trained range and :math:`s_j` the direction of the joint's motion. A torque is measured in
 N·m; a cylinder's force reaches its joint through a moment arm nobody told us, so
-:math:`h_j = \sum_k (a^{s}_{jk} p_{h,j} - b^{s}_{jk} p_{r,j})\,T_k(q_j)`: a map of each
-chamber's pressure per direction of motion, which also takes the seals' Coulomb and
-load-proportional friction (they change sign with the motion). Everything is linear in the
+:math:`h_j = \sum_k a^{s}_{jk} (p_{h,j} - \rho\, p_{r,j})\,T_k(q_j)`: one map of the
+piston's pressure difference per direction of motion and sign of the load, which also takes the
+seals' load-proportional friction (it changes sign with the motion). Both chambers push on the
+same piston, so they reach the joint through the same moment arm (:data:`AREA_RATIO` ρ). A map of
+each chamber on its own (``tied_maps=False``, the structure before 2026-11-29) let the rod map
+times the steady back pressure be any function of the joint's angle, which on level ground is
+indistinguishable from the boom's gravity: the fit split the boom's weight between them at
+random, and on a tilted house only the gravity part turns with the tilt (docs/balance-net.md,
+session 19). Everything is linear in the
 unknown constants: one weighted least-squares fit, with the first head-pressure map's constant
 set to 1 (the balance is homogeneous: only ratios matter, and the payload comes out in kg
 because :math:`m` multiplies :math:`\varphi`).
@@ -52,10 +58,13 @@ PRESSURE_SCALE = 1e-6
 TORQUE_SCALE = 1e-3
 #: Scale of the payload's columns (kg → t).
 MASS_SCALE = 1e-3
-#: Rod-to-head area ratio that tells a pushing cylinder from a pulling one (seal friction grows
+#: Rod-to-head area ratio ρ that tells a pushing cylinder from a pulling one (seal friction grows
 #: with the load's size, whatever its sign: the maps differ by the load's sign as well as the
-#: motion's). Cylinders of excavators have 0.45-0.6; a wrong guess only misjudges the sign of
-#: small loads, where the friction they carry is small too.
+#: motion's), and with which the rod pressure enters the piston's map, ``p_h − ρ p_r``.
+#: Cylinders of excavators have 0.45-0.6; a wrong guess misjudges the sign of small loads, where
+#: the friction they carry is small too, and scales a map whose load side is the rod (each sign
+#: of the load has its own map); ρ 0.45 / 0.5 / 0.6 against the simulated machine's 0.50-0.53
+#: gave 5.1 / 4.5 / 4.1 kg RMS on noise-free 5° slopes (10.0 with untied maps; session 19).
 AREA_RATIO = 0.5
 #: Relative ridge on the normal equations: the basis forces are redundant on purpose (a base
 #: parameter set would need the arm's structure); the ridge picks the smallest fit.
@@ -210,6 +219,9 @@ class BalanceModel:
         Fitted: the payload point on the basis (and the boom foot's x offset).
     zero_std : float
         kg: what the zero's remaining offset uncertainty weighs (:meth:`zero`).
+    tied_maps : bool
+        Pressures: one map of ``p_h − ρ p_r`` per direction of motion and sign of the load (True),
+        or one of each chamber (False: models saved before 2026-11-29).
     """
 
     signals: tuple
@@ -226,6 +238,7 @@ class BalanceModel:
     offsets: np.ndarray = field(default_factory=lambda: np.zeros(0))
     point: np.ndarray = field(default_factory=lambda: np.zeros(0))
     zero_std: float = 0.0
+    tied_maps: bool = True
 
     def __post_init__(self) -> None:
         self.layout = Layout(self.signals)
@@ -292,12 +305,16 @@ class BalanceModel:
             sgn = ops.sign(qd[j])
             if L.pressure:
                 up_move, down_move = 0.5 * (1.0 + sgn), 0.5 * (1.0 - sgn)
-                pushes = 0.5 * (1.0 + ops.sign(head[j] - AREA_RATIO * rod[j]))
+                piston = head[j] - AREA_RATIO * rod[j]  # the piston's force over its head area
+                pushes = 0.5 * (1.0 + ops.sign(piston))
                 for ind in (up_move * pushes, up_move * (1.0 - pushes), down_move * pushes,
                             down_move * (1.0 - pushes)):
                     for k in range(K):
-                        measured.append(only(j, ind * head[j] * T[j][k] * PRESSURE_SCALE))
-                        measured.append(only(j, -ind * rod[j] * T[j][k] * PRESSURE_SCALE))
+                        if self.tied_maps:
+                            measured.append(only(j, ind * piston * T[j][k] * PRESSURE_SCALE))
+                        else:
+                            measured.append(only(j, ind * head[j] * T[j][k] * PRESSURE_SCALE))
+                            measured.append(only(j, -ind * rod[j] * T[j][k] * PRESSURE_SCALE))
             else:
                 measured.append(only(j, head[j] * TORQUE_SCALE))
             for feat in (0.5 * (1.0 + sgn), 0.5 * (1.0 - sgn), qd[j]):
@@ -311,7 +328,8 @@ class BalanceModel:
         """Columns of each block of the design."""
         L, K = self.layout, self._map_order()
         nb = 2 * L.n
-        sizes = {"measured": (8 * K if L.pressure else 1) * L.n, "friction": 3 * K * L.n,
+        maps = 4 * K if self.tied_maps else 8 * K
+        sizes = {"measured": (maps if L.pressure else 1) * L.n, "friction": 3 * K * L.n,
                  "empty": nb * (nb + 1) // 2 + nb, "payload": nb * nb + nb}
         if L.slew is not None:
             sizes["empty"] += (nb + 1) * (nb + 2) // 2 - 1

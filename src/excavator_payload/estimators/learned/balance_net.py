@@ -713,7 +713,7 @@ class BalanceNet(Estimator):
     def _config(self) -> dict:
         return {"kappa": self.kappa, "model_std": self.model_std, "floor_a": self.floor_a,
                 "floor_b": self.floor_b, "floor_c": self.floor_c, "typical_info": self.typical_info, "zero_std": self.model.zero_std, "payload_scale": self.payload_scale, "training": self.training,
-                "zero_chi2_limit": self.zero_chi2_limit,
+                "zero_chi2_limit": self.zero_chi2_limit, "tied_maps": bool(self.model.tied_maps),
                 "period": self.model.period if self.model is not None else None}
 
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -730,6 +730,8 @@ class BalanceNet(Estimator):
         try:
             self.model = self._new_model(self.sensor_set.signals)
             self.model.period = float(config["period"])
+            # absent in models saved before it: one map of each chamber
+            self.model.tied_maps = bool(config.get("tied_maps", False))
             for key in ("coef", "lo", "hi", "channel_var", "offsets", "point"):
                 setattr(self.model, key, np.asarray(arrays[key], float))
             self.kappa = float(config["kappa"])
