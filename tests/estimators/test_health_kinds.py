@@ -116,7 +116,8 @@ def test_a_lasting_rate_bias_is_named_offset_once_the_track_slopes(reference, wo
     """A rate reading 1 °/s high from a move on, to the end: the track of angle − integrated
     rate (τ = 4 s) absorbs it and the offset check never names it; its slope passes 0.5 °/s and
     the rate is named offset (7 s after the onset here), nothing before the onset nor on the
-    clean run."""
+    clean run. The boom's own level limit (``LINK_OFFSET_LIMIT``) names a boom rate's bias
+    sooner than the slope does."""
     frame = _one(work)
     a = _moving(frame, rate, 0.1)
     v = frame[rate].to_numpy(float).copy()
@@ -127,13 +128,20 @@ def test_a_lasting_rate_bias_is_named_offset_once_the_track_slopes(reference, wo
     assert not named[:a].any()
     assert named[a:].any()
     assert not any(_faults(reference, _one(work)))
-    limit = health.OFFSET_SLOPE_LIMIT
-    try:  # the bound lifted: the same bias goes unnamed
-        health.OFFSET_SLOPE_LIMIT = np.inf
+    limit, own = health.OFFSET_SLOPE_LIMIT, health.LINK_OFFSET_LIMIT
+    try:  # the boom's own level limit off: named by the slope alone, later
+        health.LINK_OFFSET_LIMIT = {}
+        by_slope = np.array([f"{rate}:offset" in f for f in _faults(reference, frame)])
+        health.OFFSET_SLOPE_LIMIT = np.inf  # and the bound lifted too: the same bias goes unnamed
         lifted = np.array([f"{rate}:offset" in f for f in _faults(reference, frame)])
     finally:
-        health.OFFSET_SLOPE_LIMIT = limit
+        health.OFFSET_SLOPE_LIMIT, health.LINK_OFFSET_LIMIT = limit, own
     assert not lifted.any()
+    assert by_slope.any()
+    if rate == "boom_rate":  # the boom's own limit (LINK_OFFSET_LIMIT) names it sooner
+        assert np.argmax(named) < np.argmax(by_slope)
+    else:
+        assert (named == by_slope).all()
 
 
 def test_noise_reference_is_saved_and_a_noisy_signal_never_ok(fitting, work, tmp_path):

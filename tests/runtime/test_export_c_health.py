@@ -240,13 +240,16 @@ def test_constants_are_read_at_export_time(models, faulty, tmp_path, monkeypatch
     est = copy.deepcopy(models["calibrated-momentum"])
     before = export_c(est, tmp_path / "before")[1].read_text()
     monkeypatch.setattr(health, "OFFSET_LIMIT", 0.02)
+    monkeypatch.setattr(health, "LINK_OFFSET_LIMIT", {"boom": 0.012})
     monkeypatch.setattr(health, "HOLD", 0.35)
     monkeypatch.setattr(health, "STUCK_QUANTA", 4.0)
     monkeypatch.setattr(health, "TILT_OFFSET_LIMIT", 0.03)
     est._health_for = None  # a fresh monitor with the new constants
     source = export_c(est, tmp_path / "export")[1]
     text = source.read_text()
-    assert text != before and "#define EP_HM_OFFSET_LIMIT EP_C(0.02)" in text and "#define EP_HM_HOLD 35" in text
+    assert text != before and "#define EP_HM_HOLD 35" in text
+    # per link (boom, dipper, bucket): the boom's own limit, the others the general one
+    assert "EP_HM_OFFSET_LIMIT[3] = {\n    EP_C(0.012), EP_C(0.02), EP_C(0.02)\n};" in text
     assert "#define EP_HM_TILT_OFFSET_LIMIT EP_C(0.03)" in text
     _assert_equal(est, source, faulty, tmp_path / "build")
 

@@ -32,13 +32,13 @@ its joint's motion, the fitting data's noise):
 * ``offset`` (FMI 13, out of calibration): a link's angle minus its integrated rate, smoothed
   over :data:`OFFSET_SMOOTH`, leaves its own slow track (a level and a slope following it with
   time constant :data:`OFFSET_TAU`: the gyro's bias ramps it) by more than :data:`OFFSET_LIMIT`
-  for :data:`OFFSET_SAMPLES` samples, or the track's slope passes :data:`OFFSET_SLOPE_LIMIT` (a
-  rate's lasting bias, which the track would absorb). A lasting offset or a drift faster than about
-  OFFSET_LIMIT / OFFSET_TAU; while flagged the track follows only with :data:`OFFSET_TAU_FLAGGED`,
-  so a lasting offset is named for tens of seconds, not for ever. Both signals named. The
-  size of the house's tilt (hypot of pitch and roll: on a slope they turn into each other as
-  the house slews, the size does not) against its own track the same way (beyond
-  :data:`TILT_OFFSET_LIMIT`), both named.
+  (boom, dipper: :data:`LINK_OFFSET_LIMIT`) for :data:`OFFSET_SAMPLES` samples, or the track's slope
+  passes :data:`OFFSET_SLOPE_LIMIT` (a rate's lasting bias, which the track would absorb). A
+  lasting offset or a drift faster than about OFFSET_LIMIT / OFFSET_TAU; while flagged the track
+  follows only with :data:`OFFSET_TAU_FLAGGED`, so a lasting offset is named for tens of seconds,
+  not for ever. Both signals named. The size of the house's tilt (hypot of pitch and roll: on a
+  slope they turn into each other as the house slews, the size does not) against its own track
+  the same way (beyond :data:`TILT_OFFSET_LIMIT`), both named.
 * ``gain`` (FMI 13): over :data:`GAIN_WINDOW` with the angle spread at least :data:`GAIN_MIN_STD`,
   the least-squares slope of (angle − integrated rate) against the angle exceeds
   :data:`GAIN_LIMIT` (a scale error of either signal; both named).
@@ -108,6 +108,11 @@ OFFSET_TAU = 4.0
 OFFSET_TAU_FLAGGED = 30.0
 OFFSET_LIMIT = 0.035
 OFFSET_SAMPLES = 5
+#: A link's own offset limit, rad, where its angle carries less acceleration leak than the bucket's
+#: (clean tuning data: the boom within 0.0104 rad, the dipper 0.0153, the bucket 0.030): a boom
+#: rate's bias or scale error moves the weighing most (docs/sensor-health.md, "Each link its own
+#: offset limit").
+LINK_OFFSET_LIMIT = {"boom": 0.015, "dipper": 0.025}
 #: The house tilt's size against its own track: the deviation that counts, rad. No link's IMU
 #: acceleration leak in it: on the clean tuning data it stays between 0.007 and 0.01 rad (the
 #: links' reach 0.0225), so 0.015, not the links' 0.035 (docs/sensor-health.md "Time to name").
@@ -225,6 +230,7 @@ class HealthMonitor:
         self.hold = int(round(HOLD / self.period))
         self.duration = (self.n_stuck - 1) * self.period
         links = [k for k in LINKS if f"{k}_angle" in idx and f"{k}_rate" in idx]
+        self.offset_limit = [float(LINK_OFFSET_LIMIT.get(k, OFFSET_LIMIT)) for k in links]
         self.link_angle = [idx[f"{k}_angle"] for k in links]
         self.link_rate = [idx[f"{k}_rate"] for k in links]
         self.angles = [idx[s] for s in self.signals if s.endswith("_angle")]
@@ -563,12 +569,13 @@ class HealthMonitor:
             alpha, beta = self.track_gains[1 if self.active and self._is_active(a, _TRACK_FLAGGED) else 0]
             track[0] = predicted + alpha * error
             track[1] += beta * error
-            self.off_run[j] = self.off_run[j] + 1 if (abs(error) > OFFSET_LIMIT
+            limit = self.offset_limit[j]
+            self.off_run[j] = self.off_run[j] + 1 if (abs(error) > limit
                                                       or abs(track[1]) > OFFSET_SLOPE_LIMIT) else 0
             if self.off_run[j] >= self.offset_evaluations:
                 found += [(a, "offset"), (r, "offset")]
             gain = self._gain(j, c)
-            self.suspect_links[j] = (abs(error) > SUSPECT_SHARE * OFFSET_LIMIT
+            self.suspect_links[j] = (abs(error) > SUSPECT_SHARE * limit
                                      or abs(track[1]) > SUSPECT_SHARE * OFFSET_SLOPE_LIMIT
                                      or abs(gain) > SUSPECT_SHARE * GAIN_LIMIT)
             self.gain_run[j] = self.gain_run[j] + 1 if abs(gain) > GAIN_LIMIT else 0

@@ -266,7 +266,6 @@ unsigned long ep_faults(const ep_state *s, int kind);
 #define EP_HM_HALF_PERIOD {c_number(0.5 * m.period)}
 #define EP_HM_DISAGREE_LIMIT {c_number(H.DISAGREE_LIMIT)}
 #define EP_HM_DISAGREE_PER_RATE_CHANGE {c_number(H.DISAGREE_PER_RATE_CHANGE)}
-#define EP_HM_OFFSET_LIMIT {c_number(H.OFFSET_LIMIT)}
 #define EP_HM_TILT_OFFSET_LIMIT {c_number(H.TILT_OFFSET_LIMIT)}
 #define EP_HM_OFFSET_SLOPE_LIMIT {c_number(H.OFFSET_SLOPE_LIMIT)}
 #define EP_HM_GAIN_LIMIT {c_number(H.GAIN_LIMIT)}
@@ -279,7 +278,8 @@ unsigned long ep_faults(const ep_state *s, int kind);
 {_ints("EP_HM_LINK_ANGLE", m.link_angle)}{_ints("EP_HM_LINK_RATE", m.link_rate)}\
 {_ints("EP_HM_GROUP", group)}{_ints("EP_HM_PARTNER", partner)}{_ints("EP_HM_IS_RATE", is_rate)}\
 {_ints("EP_HM_LONE", lone)}{c_array("EP_HM_QUANTUM", m.quantum)}{c_array("EP_HM_NOISE_LIMIT", m.noise_limit)}\
-{c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}
+{c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}\
+{c_array("EP_HM_OFFSET_LIMIT", m.offset_limit)}
 {_more_defines(m, drop_joint, int_link, kind_of) if more else ""}\
 {tilt_defines(m) if tilts else ""}\
 {tilt_functions(_angle_functions(_C_FUNCTIONS)) if tilts else _angle_functions(_C_FUNCTIONS) if angles else _C_FUNCTIONS}\
@@ -534,7 +534,7 @@ static void ep_hm_offset_and_gain(ep_state *s, unsigned long found[EP_N_FAULT_KI
         slow = ep_hm_active(s, a, EP_HM_FLAGGED_KINDS);
         s->hm_track[j][0] = predicted + EP_HM_ALPHA[slow] * error;
         s->hm_track[j][1] += EP_HM_BETA[slow] * error;
-        s->hm_off_run[j] = (EP_MATH(fabs)(error) > EP_HM_OFFSET_LIMIT
+        s->hm_off_run[j] = (EP_MATH(fabs)(error) > EP_HM_OFFSET_LIMIT[j]
                             || EP_MATH(fabs)(s->hm_track[j][1]) > EP_HM_OFFSET_SLOPE_LIMIT)
                            ? (s->hm_off_run[j] < EP_HM_CAP ? s->hm_off_run[j] + 1 : EP_HM_CAP) : 0;
         if (s->hm_off_run[j] >= EP_HM_OFFSET_EVALUATIONS) {
