@@ -48,9 +48,17 @@ def test_c_equals_python_with_the_imu_dynamics_re_estimated(models, machine_faul
     assert both.any() and np.max(np.abs(off[both] - on[both])) > 0.1
 
 
-def test_c_equals_python_across_loads_and_a_settle(models, tmp_path):
+@pytest.mark.parametrize("dump_restarts", [False, True])
+def test_c_equals_python_across_loads_and_a_settle(models, tmp_path, monkeypatch, dump_restarts):
     """A truck loaded pass after pass: the weighing restarts on each new load (the nuisances
-    back at the calibration's) and settles (the short memory's sums) on the same samples."""
+    back at the calibration's) and settles (the short memory's sums) on the same samples; with
+    the dumps' restarts (``settings.DUMP_RESTARTS``, the default) it restarts at each dump's end
+    instead of settling, in C as in Python."""
+    from excavator_payload.estimators.classical.machine_calibration import kernel as kernel_module
+    from excavator_payload.estimators.classical.machine_calibration import settings
+
+    monkeypatch.setattr(kernel_module, "DUMP_RESTARTS", dump_restarts)
+    monkeypatch.setattr(settings, "DUMP_RESTARTS", dump_restarts)
     truck = simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
     est = models["on"]
     est.reset()
@@ -58,7 +66,7 @@ def test_c_equals_python_across_loads_and_a_settle(models, tmp_path):
     for t, row in zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)):
         est.step_values(t, row)
     kernel = est.kernel.regression
-    assert kernel.new_loads >= 1 and kernel.settles >= 1
+    assert kernel.new_loads >= 1 and (kernel.dump_restarts if dump_restarts else kernel.settles) >= 1
     source = export_c(est, tmp_path / "export")[1]
     for single in (False, True):
         _assert_c_equals_python(est, source, truck, tmp_path / "build", single)

@@ -179,12 +179,19 @@ def test_c_holds_a_slight_joint_as_python_does(model, work, tmp_path):
     assert not py["fault"].astype(str).isin(single).any()
 
 
-def test_c_restarts_after_a_dumped_load_as_python_does(model, tmp_path):
+@pytest.mark.parametrize("dump_restarts", [False, True])
+def test_c_restarts_after_a_dumped_load_as_python_does(model, tmp_path, monkeypatch, dump_restarts):
     """A `slopes` work cycle that dumps 239 kg, too little for the new-load test, and then lowers
     the boom alone (the stale joint, docs/findings/false-alarms.md): the check restarts the
     weighing once the boom weighs less after the dump than before it (JointCheck._dumped_load,
-    ``ep_jc_dumped_load``), in C as in Python, sample by sample."""
+    ``ep_jc_dumped_load``), in C as in Python, sample by sample. With the dumps' restarts
+    (``settings.DUMP_RESTARTS``, the default) the dump's end restarts it first, in C as in Python."""
+    from excavator_payload.estimators.classical.machine_calibration import kernel as kernel_module
+    from excavator_payload.estimators.classical.machine_calibration import settings
     from excavator_payload.evaluation import demo_machine as dm
+
+    monkeypatch.setattr(kernel_module, "DUMP_RESTARTS", dump_restarts)
+    monkeypatch.setattr(settings, "DUMP_RESTARTS", dump_restarts)
     from excavator_payload.simulation.generate import simulate_dataset
 
     cycles = simulate_dataset(4, seed=70000, motion="slopes", machine="cat345c-hydraulic", session=dm.SESSION_WORK,
@@ -195,7 +202,8 @@ def test_c_restarts_after_a_dumped_load_as_python_does(model, tmp_path):
     source = export_c(model, tmp_path / "export")[1]
     assert "ep_jc_dumped_load" in source.read_text()
     _assert_equal(model, source, small, tmp_path / "build")
-    assert model.kernel.regression._joints.dumped_loads == 1
+    kernel = model.kernel.regression
+    assert (kernel._joints.dumped_loads, kernel.dump_restarts) == ((0, 1) if dump_restarts else (1, 0))
 
 
 def test_c_clears_a_pair_on_a_new_loads_sums_as_python_does(model, tmp_path):

@@ -57,7 +57,7 @@ def pressure_regression_model(est) -> CModel:
     from excavator_payload.estimators.classical.calibrated_machine import (
         CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
     from excavator_payload.estimators.classical.machine_calibration.settings import (
-        BOOM_READY_WINDOWS, SETTLE_WINDOWS, STEADY_WINDOWS)
+        BOOM_READY_WINDOWS, DUMP_OPENING_RATE, DUMP_RESTARTS, DUMP_TURN, SETTLE_WINDOWS, STEADY_WINDOWS)
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL, PressureKernel)
@@ -179,6 +179,17 @@ def pressure_regression_model(est) -> CModel:
             "/* CalibratedKernel._settle: a load_changing episode of EP_SETTLE_WINDOWS windows or more",
             " * that ends without a new load sets the whole memory to the short one */",
             f"#define EP_SETTLE_WINDOWS {SETTLE_WINDOWS}",
+            "/* CalibratedKernel.update / dump_pending (--new-load, settings.DUMP_RESTARTS): the bucket",
+            " * opening faster than EP_DUMP_RATE (rad/s), held EP_DUMP_HOLD samples, is a dump once it has",
+            " * opened by EP_DUMP_TURN (rad) with more than EP_DUMP_LOAD_MIN kg weighed as it began (or the",
+            " * weighing not ready): load_changing until it ends, then the weighing restarts */",
+            f"#define EP_DUMP_RESTARTS {1 if DUMP_RESTARTS else 0}",
+            f"#define EP_DUMP_RATE {c_number(DUMP_OPENING_RATE)}",
+            f"#define EP_DUMP_HOLD {kernel._dump_hold}",
+            f"#define EP_DUMP_TURN {c_number(DUMP_TURN)}",
+            f"#define EP_DUMP_LOAD_MIN {c_number(kernel._dump_load_min)}",
+            "#define EP_DUMP_PENDING(s) (EP_NEW_LOAD && EP_DUMP_RESTARTS && (s)->dump_left > 0 && (s)->dump_load \\",
+            "                            && (s)->dump_turned)",
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -276,16 +287,22 @@ def pressure_regression_model(est) -> CModel:
 if (1) {
     ep_real change, spread, limit;
     unsigned char was_changing = s->changing, restarted = 0;
+    unsigned char dumped = (unsigned char)(EP_DUMP_RESTARTS && s->dump_ended);  /* a dump has ended */
     s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
     s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
     s->changing = 0;
-    if ((!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY) && s->info_short > EP_C(0.0) && s->info_short < s->info) {
-        change = s->num_short / s->info_short - s->num / s->info;
-        spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
-        if (spread < EP_C(0.0)) spread = EP_C(0.0);
-        limit = EP_NEW_LOAD_SIGMAS * EP_MATH(sqrt)(spread);
-        if (limit < EP_NEW_LOAD_MIN) limit = EP_NEW_LOAD_MIN;
-        if (EP_MATH(fabs)(change) > limit) {  /* a new load: restart the weighing */
+    s->dump_ended = 0;
+    if (dumped || ((!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY) && s->info_short > EP_C(0.0)
+                   && s->info_short < s->info)) {
+        change = spread = limit = EP_C(0.0);
+        if (!dumped) {
+            change = s->num_short / s->info_short - s->num / s->info;
+            spread = EP_C(1.0) / s->info_short - EP_C(1.0) / s->info;
+            if (spread < EP_C(0.0)) spread = EP_C(0.0);
+            limit = EP_NEW_LOAD_SIGMAS * EP_MATH(sqrt)(spread);
+            if (limit < EP_NEW_LOAD_MIN) limit = EP_NEW_LOAD_MIN;
+        }
+        if (dumped || EP_MATH(fabs)(change) > limit) {  /* a new load (or a dump's end): restart the weighing */
             s->num = s->info = s->num_short = s->info_short = EP_C(0.0);
             s->boom_windows = 0;
             s->changing_windows = 0;
@@ -414,7 +431,8 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         }}
     }}"""
     not_ready = " || (EP_WAIT_FOR_BOOM && (s->boom_windows < EP_BOOM_READY || !s->steady))" if calibrated else ""
-    changing_status = "s->changing ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" if calibrated else "EP_STATUS_OK"
+    changing_status = "(s->changing || EP_DUMP_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" \
+        if calibrated else "EP_STATUS_OK"
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
     step = f"""    /* InverseDynamicsEstimator._step with the machine set's kernel. The ring holds the
@@ -428,7 +446,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
 {time_push}    s->ring_used[newest] = 1;
     s->ring_next = (newest + 1) % EP_RING;
     if (s->ring_filled < EP_RING) s->ring_filled += 1;
-#if EP_GATING
+@DUMP@#if EP_GATING
     if (s->ring_filled >= 4) {{  /* the sample two before the newest, two neighbours each side */
         ep_real *m = s->ring + ((newest + EP_RING - 2) % EP_RING) * EP_N_SIGNALS;
         const ep_real *b = s->ring + ((newest + EP_RING - 3) % EP_RING) * EP_N_SIGNALS;
@@ -453,6 +471,23 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
     if (rejected) return EP_STATUS_REJECTED;  /* the sample two before this one was an outlier */
     if (s->info < EP_WARM_INFO) return EP_STATUS_WARMING_UP;
     return {changing_status};"""
+    dump = """#if EP_NEW_LOAD
+    if (v[EP_RATES[2]] > EP_DUMP_RATE) {  /* the bucket opens fast: a dump (CalibratedKernel.update) */
+        if (!s->dump_left) {  /* it starts: can it leave a load? */
+            s->dump_load = (unsigned char)(!(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)
+                                           || !(s->info > EP_C(0.0)) || s->num / s->info > EP_DUMP_LOAD_MIN);
+            s->dump_from = v[EP_ANGLES[2]];
+            s->dump_turned = 0;
+        }
+        s->dump_left = EP_DUMP_HOLD;
+    } else if (s->dump_left) {
+        s->dump_left -= 1;
+        if (!s->dump_left && s->dump_load && s->dump_turned) s->dump_ended = 1;  /* over: a new load */
+    }
+    if (s->dump_left && v[EP_ANGLES[2]] - s->dump_from > EP_DUMP_TURN) s->dump_turned = 1;  /* turned over */
+#endif
+""" if calibrated else ""
+    step = step.replace("@DUMP@", dump)
     on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
      * (the differentiator needs evenly spaced samples), a long one (or time going back)
      * restarts */
@@ -483,11 +518,17 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
                    "ep_real info_short;  /* ... and of w phi^2 */"]
         fields.append("unsigned char changing;  /* the short memory has left the whole one */")
         fields.append("unsigned int changing_windows;  /* windows of the load_changing episode (up to EP_SETTLE_WINDOWS) */")
+        fields += ["int dump_left;  /* samples the bucket's fast opening still counts (EP_DUMP_HOLD) */",
+                   "ep_real dump_from;  /* the bucket's angle as it began to open fast, rad */",
+                   "unsigned char dump_load, dump_turned, dump_ended;  /* a load to leave; opened EP_DUMP_TURN; "
+                   "over since the last window */"]
         fields += ["ep_real steady_history[EP_STEADY + 1];  /* the last estimates (CalibratedKernel.steady) */",
                    "unsigned int steady_count;  /* estimates since the boom was ready */",
                    "unsigned char steady;  /* the estimate has held still: reported */"]
         reset += ("\n    s->boom_windows = 0;\n    s->num_short = EP_C(0.0);\n    s->info_short = EP_C(0.0);"
                   "\n    s->changing = 0;\n    s->changing_windows = 0;"
+                  "\n    s->dump_left = 0;\n    s->dump_from = EP_C(0.0);"
+                  "\n    s->dump_load = s->dump_turned = s->dump_ended = 0;"
                   "\n    s->steady = !EP_WAIT_FOR_BOOM;\n    s->steady_count = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",

@@ -13,7 +13,8 @@ the per-sample terms go into a second ring, and the residual and :math:`\varphi`
 balance's over its window (:func:`~.data.window_residuals`, the same weights). The kernel
 also owns ``--outside-calibration`` (a joint outside its covered angles gets no weight),
 ``--wait-for-boom`` (:attr:`CalibratedKernel.ready`, then :attr:`CalibratedKernel.steady`),
-``--new-load`` (a short memory against the whole one, :meth:`CalibratedKernel._accumulate`)
+``--new-load`` (a short memory against the whole one, :meth:`CalibratedKernel._accumulate`;
+and a dump's end, :attr:`CalibratedKernel.dump_pending`)
 and ``--joint-check`` (each joint's share of the sums against the others',
 :meth:`CalibratedKernel._check_joints`).
 """
@@ -28,8 +29,9 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import balance_weights
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
-    DUMP_HOLD, DUMP_OPENING_RATE, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS,
-    SIGNALS, STEADY_SHARE, STEADY_WINDOWS)
+    DUMP_HOLD, DUMP_LOAD_SHARE, DUMP_OPENING_RATE, DUMP_TURN, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS,
+    NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE, STEADY_WINDOWS)
+from excavator_payload.estimators.classical.machine_calibration.settings import DUMP_RESTARTS
 from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
@@ -108,6 +110,7 @@ class CalibratedKernel(PressureRegression):
         self._dump_hold = int(round(DUMP_HOLD / dt))  # samples a dump lasts after the bucket's last fast opening
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
+        self._dump_load_min = DUMP_LOAD_SHARE * float(cal.arm.machine.rated_payload)
         self._steady_limit = STEADY_SHARE * float(cal.arm.machine.rated_payload)
         # kg, in σ beside I^-1/2: the calibration's cross-checked model error and the zero's offsets
         # (their RMS over the calibrated poses; the momentum form carries each estimate's own
@@ -160,6 +163,10 @@ class CalibratedKernel(PressureRegression):
         self._ring_drop = np.zeros((2 * length, 3), bool)  # each sample's joints dropped (drop)
         self._count = 0
         self._dump_left = 0  # samples the dump still lasts (dumping)
+        self._dump_ended = False  # a dump has ended since the last window (_accumulate restarts)
+        self._dump_load = False  # the current dump began with a load in the bucket (or none known)
+        self._dump_from = 0.0  # the bucket's angle as it began to open fast, rad
+        self._dump_turned = False  # ... and it has opened by DUMP_TURN since: the load slides out
         # with --imu-nuisance: the filter's payload as the last window left it (the joint check's
         # moving rule reads it, as the C export's check runs before the filter's window)
         self.payload_before = math.nan
@@ -178,6 +185,7 @@ class CalibratedKernel(PressureRegression):
         self.changing_windows = 0  # windows of the current load_changing episode
         self.settles = 0  # changing episodes that ended with the whole memory set to the short one
         self.new_loads = 0  # new loads detected since the last reset
+        self.dump_restarts = 0  # ... of which restarts at a dump's end
         self.changing = False  # the short memory has left the whole one (status load_changing)
         self._restart_steady()
         if hasattr(self, "_joints"):
@@ -279,9 +287,19 @@ class CalibratedKernel(PressureRegression):
         self._count += 1
         self.rejected = False
         if values[RATES[2]] > DUMP_OPENING_RATE:  # the bucket opens fast: a dump (dumping)
+            if not self._dump_left:  # it starts: can it leave a load (dump_pending)?
+                self._dump_load = not self.ready or not self.info > 0.0 or \
+                    self.num / self.info > self._dump_load_min
+                self._dump_from = float(values[ANGLES[2]])
+                self._dump_turned = False
             self._dump_left = self._dump_hold
         elif self._dump_left:
             self._dump_left -= 1
+            # the dump is over: what the bucket holds now is a new load (_accumulate restarts)
+            if self._dump_left == 0 and self._dump_load and self._dump_turned:
+                self._dump_ended = True
+        if self._dump_left and values[ANGLES[2]] - self._dump_from > DUMP_TURN:  # turned over: a dump
+            self._dump_turned = True
         if self.judge and self._count >= 4:  # the sample two before this one, between its neighbours
             slots = [(pos - back) % length for back in (4, 3, 2, 1)]
             context = [self._ring[i] for i in slots] + [values]
@@ -421,6 +439,13 @@ class CalibratedKernel(PressureRegression):
         return self._dump_left > 0
 
     @property
+    def dump_pending(self) -> bool:
+        """Whether a dump is under way whose end will restart the weighing (``--new-load detect``,
+        :data:`~.settings.DUMP_RESTARTS`): the load leaves, so the estimate before it is not
+        reported ``ok`` (``load_changing``)."""
+        return self.new_load and DUMP_RESTARTS and self._dump_left > 0 and self._dump_load and self._dump_turned
+
+    @property
     def checks_joints(self) -> bool:
         """Whether the joint check can run: in the momentum form (the one it was set on)."""
         return self.balance == "momentum"
@@ -498,6 +523,11 @@ class CalibratedKernel(PressureRegression):
                 ns[j] = mu * ns[j] + d_num_joint[j]
                 is_[j] = mu * is_[j] + d_info_joint[j]
         was_changing, self.changing = self.changing, False
+        if self._dump_ended and DUMP_RESTARTS:
+            self._dump_ended = False
+            self.dump_restarts += 1
+            self._restart_load()
+            return
         if self.ready and 0.0 < self.info_short < self.info:
             change = self.num_short / self.info_short - self.num / self.info
             spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)

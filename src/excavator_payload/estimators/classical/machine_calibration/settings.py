@@ -196,6 +196,21 @@ JOINT_PAUSE_WINDOWS = 200
 #: samples.
 DUMP_OPENING_RATE = math.radians(40.0)
 DUMP_HOLD = 1.2
+#: With ``--new-load detect``: a dump says ``load_changing`` and its end (:data:`DUMP_HOLD` after
+#: the bucket's last fast opening) restarts the weighing, as a new load. Before, a dump's windows
+#: stayed in the sums until the new-load test saw the change once the boom moved again: a slopes
+#: cycle's emptied bucket was ``ok`` at the load before it for 2 s (881 kg) and the emptied
+#: bucket's first weights erred up to 86 kg (docs/findings/false-alarms.md, session 19).
+DUMP_RESTARTS = True
+#: ... when the weighing held more than this share of the rated payload as the bucket began to
+#: open (or was not ready): a load a dump can leave (the joint check's JOINT_CHANGE_SHARE); an
+#: empty bucket opened fast to set the next cut is no dump.
+DUMP_LOAD_SHARE = 0.02
+#: ... and when the bucket has opened by more than this since it began to open fast (rad): it
+#: turns over and the load slides out. Set on the tuning seed's motions (bench_false_alarms,
+#: seed 40000): dumps open 57-117° (slopes, shift), while an operator's or a joystick's quick
+#: bucket moves with the load kept open 2-14° and a work cycle's bucket up to its release 9-20°.
+DUMP_TURN = math.radians(30.0)
 #: A joint is compared only once its σ, (JOINT_INFO_INFLATION / I_j)^½, is within this share of
 #: the rated payload (an early joint on little information stood 115 kg off on a clean swing),
 #: and with the check on an estimate is ``ok`` only once two joints are compared: one joint
