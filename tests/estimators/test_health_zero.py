@@ -9,7 +9,7 @@ import pytest
 from excavator_payload.cli import main
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.io import write_dataset
-from excavator_payload.estimators.health import flagged_signals
+from excavator_payload.estimators.health_screen import flagged_signals
 
 
 @pytest.fixture(scope="module")

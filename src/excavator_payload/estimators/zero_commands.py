@@ -6,7 +6,7 @@ A short empty-bucket motion re-estimates the sensor offsets that drifted since c
 else the calibration identified stays. The result goes to a new model folder: the calibrated
 one is never overwritten (``--out`` equal to ``--model`` is refused), and an offset built on a
 signal the sensor health monitor flags in the motion is refused too (``--force`` zeroes anyway
-and says which; :func:`excavator_payload.estimators.health.refuse_flagged`).
+and says which; :func:`excavator_payload.estimators.health_screen.refuse_flagged`).
 
 The motion should move the boom, the dipper and the bucket: offsets are read from moving
 joints only (stiction leaves a still joint's force unknown), so a boom lift re-zeroes the boom's
@@ -45,7 +45,7 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
         would weigh worse than 1 % of rated (:class:`EstimatorError` otherwise, nothing saved).
     """
     from excavator_payload.data.io import read_dataset
-    from excavator_payload.estimators import health
+    from excavator_payload.estimators import health_screen
     from excavator_payload.estimators.base import load_estimator
     from excavator_payload.estimators.classical import calibrated_machine
 
@@ -58,13 +58,13 @@ def zero_model(model: str | Path, data: str | Path, out: str | Path, force: bool
         dataset.frame["payload"] = 0.0  # a zero check is an empty-bucket motion by definition
     notes = []
     if force:
-        flagged = health.flagged_signals(estimator, dataset)
+        flagged = health_screen.flagged_signals(estimator, dataset)
         if flagged:
             notes.append("zero: --force: built on signals the health monitor flags: "
                          + ", ".join(f"{s} ({w})" for s, w in flagged.items()))
     else:
         # every signal feeds the offsets (the rates and angles say which cylinder moved)
-        health.refuse_flagged(estimator, dataset, dataset.sensor_set.signals, "zero")
+        health_screen.refuse_flagged(estimator, dataset, dataset.sensor_set.signals, "zero")
     if getattr(estimator, "calibration", None) is not None:
         # flagged signals were judged above (refused, or --force with a note)
         estimator.zero_warnings = calibrated_machine.zero(estimator, dataset, force=True) + notes

@@ -541,10 +541,10 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         if weighing is None or not HYDRAULIC.carries(dataset):
             return zero(self, dataset)  # its one clear line
         if not force and self.health:
-            from excavator_payload.estimators import health
+            from excavator_payload.estimators.health_screen import refuse_flagged
 
             # every signal feeds the offsets (the rates and angles say which cylinder moved)
-            health.refuse_flagged(self, dataset, dataset.sensor_set.signals, "zero")
+            refuse_flagged(self, dataset, dataset.sensor_set.signals, "zero")
         warnings = weighing.zero(dataset, self.options)
         self.kernel = WeighingKernel(weighing, self.options)
         self.reset()
