@@ -30,9 +30,9 @@ pause, so that it compares what the joints weighed under one load:
   after it (by :data:`~.settings.JOINT_CHANGE_SHARE` of the rated payload and beyond
   :data:`~.settings.JOINT_CHI2`) restarts the weighing, as a new load: a load too small for the
   new-load test otherwise leaves the joints that stand with the old load's sums (:meth:`_dumped_load`).
-* **a bucket that crossed**: a new fault of the bucket (:data:`~.settings.SIDE_JOINTS`) whose sums hold windows of both signs of its
-  regressor φ_j (the payload's torque about it passed zero: a bucket curled past the pose where
-  the load sits over its pin) is held while the joint weighed on one side alone agrees with the
+* **a bucket that crossed**: a new fault of the bucket (:data:`~.settings.SIDE_JOINTS`) whose
+  sums hold windows of both signs of its regressor φ_j (the payload's torque about it passed
+  zero: a bucket curled past the pose where the load sits over its pin) is held while the joint weighed on one side alone agrees with the
   others (:meth:`_side_agrees`): a pressure's bias shows on both sides (b / φ_j), the model's
   error where the payload's lever is short on one (the braked end of a curl,
   docs/findings/false-alarms.md).
@@ -334,9 +334,10 @@ class JointCheck:
 
     def _side_agrees(self, joints: list, m: dict, w: dict) -> bool:
         """Whether the one joint the check would name, one of :data:`~.settings.SIDE_JOINTS`, holds
-        windows of both signs of its regressor φ_j (each side's information > 0) and, weighed on one side's sums alone (a side compared
-        only with I within :data:`~.settings.JOINT_CHECKED_SHARE`), agrees with the other compared
-        joints (χ² within :data:`~.settings.JOINT_CHI2`)."""
+        windows of both signs of its regressor φ_j (each side's information > 0) and, weighed on
+        one side's sums alone (a side compared only with I within
+        :data:`~.settings.JOINT_CHECKED_SHARE`), agrees with the other compared joints (χ² within
+        :data:`~.settings.JOINT_CHI2`)."""
         named = _named(joints, m, w)
         if len(named) != 1:
             return False
