@@ -235,3 +235,31 @@ def test_c_clears_a_pair_on_its_own_sums_or_by_any_two_joints_as_python_does(mod
     assert py["fault"].astype(str).str.count(":balance").max() >= 4  # a pair (or more) named
     if seed == 106:
         assert model.kernel.regression._joints.cleared_pairs >= 1
+
+
+def test_c_holds_a_joint_that_agrees_on_one_side_as_python_does(tmp_path, monkeypatch):
+    """The traced `slopes` cycle (bench_false_alarms.py seed 83000, experiment 31 of chunk 0: a
+    919 kg load) with the study model (10 calibration swings, seed 9200; zeroed on the empty swing):
+    the bucket weighed 914 kg in its curl and about 1 800 kg on the far side of its regressor's zero,
+    braking to a stop before the weighing was ready, and was named ``balance`` from the weighing's
+    readiness to the end (1 843 samples). It agrees with boom and dipper on the near side alone: held
+    (JointCheck._side_agrees, ``ep_jc_side_agrees``), nothing named, in C as in Python, sample by
+    sample; without the rule Python names the bucket."""
+    from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
+    from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
+    from excavator_payload.evaluation import demo_machine as dm
+    from excavator_payload.simulation.generate import simulate_dataset
+
+    est = CalibratedEstimator("cat345c-hydraulic-3pct").fit(dm.calibration_data(10, 9200))
+    est.zero(dm.zero_data(9150))
+    cycle = simulate_dataset(1, seed=83000 + 8000, motion="slopes", machine="cat345c-hydraulic",
+                             session=dm.SESSION_WORK, with_truth=True, workers=1, progress=False,
+                             first_experiment=31)
+    source = export_c(est, tmp_path / "export")[1]
+    assert "ep_jc_side_agrees" in source.read_text()
+    py = _assert_equal(est, source, cycle, tmp_path / "build")
+    assert not (py["status"] == "sensor_fault").any()
+    assert est.kernel.regression._joints.side_holds > 0
+    monkeypatch.setattr(JointCheck, "_side_agrees", lambda self, joints, m, w: False)
+    named = est.estimate(cycle)["fault"].astype(str).str.contains("bucket_head_pressure:balance", regex=False)
+    assert named.sum() > 1000

@@ -92,7 +92,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
         CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
-        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE)
+        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE, SIDE_JOINTS)
 
     check = kernel._joints
     # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
@@ -119,6 +119,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "ep_real jc_num_short[3], jc_info_short[3];  /* ... of the new-load test's short memory */",
         "ep_real jc_num[3], jc_info[3];  /* the joint check's own sums (restart with loads and pauses) */",
         "ep_real jc_after_num[3], jc_after_info[3];  /* ... their share since the last dump ended */",
+        "ep_real jc_neg_num[3], jc_neg_info[3];  /* ... their share of windows whose phi_j < 0 (ep_jc_side_agrees) */",
         "ep_real jc_degraded, jc_degraded_info;  /* the weighing without the joint named */",
         "ep_real jc_out_info;  /* the information of the estimate the last step reported */",
         f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
@@ -141,7 +142,9 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time; while the bucket dumps
  * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
  * and sums nothing; before the weighing is ready it names nothing new. No estimate is ok while
- * N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows (load_changing); a named
+ * N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows (load_changing); a new fault
+ * of one joint whose sums hold windows of both signs of its phi_j is held while one side alone
+ * agrees with the others (ep_jc_side_agrees); a named
  * joint that clears restarts the weighing, and so does a joint that weighs less after a dump than
  * before it (ep_jc_dumped_load: a load too small for the new-load test left). */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
@@ -159,12 +162,15 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
 #define EP_JC_DUMP_RATE {c_number(DUMP_OPENING_RATE)}  /* rad/s: the bucket opening this fast dumps */
 #define EP_JC_DUMP_HOLD {kernel._dump_hold}  /* samples a dump lasts after its last fast opening */
-#define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
+#define EP_JC_WEIGHED_INFO(s) {weighed_info}
+#define EP_JC_SIDE_JOINTS {sum(1 << j for j in range(3) if SIDE_JOINTS[j])}  /* bit j: ep_jc_side_agrees applies to joint j */  /* the information of the weighing reported */
 
 static void ep_jc_clear(ep_state *s)
 {{
     int j;
-    for (j = 0; j < 3; ++j) s->jc_num[j] = s->jc_info[j] = s->jc_after_num[j] = s->jc_after_info[j] = EP_C(0.0);
+    for (j = 0; j < 3; ++j)
+        s->jc_num[j] = s->jc_info[j] = s->jc_after_num[j] = s->jc_after_info[j] = s->jc_neg_num[j] = s->jc_neg_info[j]
+            = EP_C(0.0);
     s->jc_paused = 0;
     s->jc_dumped = 0;
 }}
@@ -355,6 +361,41 @@ static int ep_jc_slight(const ep_state *s, int compared, int single)
     return EP_MATH(fabs)(n_all / i_all - n_rest / i_rest) <= EP_JC_SLIGHT_LIMIT;
 }}
 
+/* JointCheck._side_agrees: joint `single`, one of EP_JC_SIDE_JOINTS, holds windows of both signs of phi (each side's information
+ * > 0) and, weighed on one side's sums alone (a side with I >= EP_JC_ENOUGH), agrees with the other
+ * compared joints (chi2 within EP_JC_CHI2) */
+static int ep_jc_side_agrees(const ep_state *s, int compared, int single, const ep_real m[3], const ep_real w[3])
+{{
+    ep_real n_side[2], i_side[2];
+    int k, j;
+    if (!(EP_JC_SIDE_JOINTS >> single & 1)) return 0;
+    n_side[0] = s->jc_num[single] - s->jc_neg_num[single];
+    i_side[0] = s->jc_info[single] - s->jc_neg_info[single];
+    n_side[1] = s->jc_neg_num[single];
+    i_side[1] = s->jc_neg_info[single];
+    if (!(i_side[0] > EP_C(0.0) && i_side[1] > EP_C(0.0))) return 0;
+    for (k = 0; k < 2; ++k) {{
+        ep_real ms[3], ws[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0);
+        if (i_side[k] < EP_JC_ENOUGH) continue;
+        for (j = 0; j < 3; ++j) {{
+            ms[j] = m[j];
+            ws[j] = w[j];
+        }}
+        ms[single] = n_side[k] / i_side[k];
+        ws[single] = EP_C(1.0) / (EP_JC_INFLATION / i_side[k] + EP_JC_EXTRA);
+        for (j = 0; j < 3; ++j)
+            if (compared >> j & 1) {{
+                sw += ws[j];
+                swm += ws[j] * ms[j];
+            }}
+        mean = swm / sw;
+        for (j = 0; j < 3; ++j)
+            if (compared >> j & 1) chi2 += ws[j] * ((ms[j] - mean) * (ms[j] - mean));
+        if (chi2 <= EP_JC_CHI2) return 1;
+    }}
+    return 0;
+}}
+
 /* JointCheck._judge */
 static void ep_jc_judge(ep_state *s)
 {{
@@ -384,11 +425,13 @@ static void ep_jc_judge(ep_state *s)
     if (failing && n == 3) single = ep_jc_single(m, w);
     /* the load is changing: a new fault waits (named at once if still there when the pause ends),
      * unless its joint holds most of the information (JointCheck._leads); and while the one joint
-     * it would name moves the weighing by at most EP_JC_SLIGHT_LIMIT (JointCheck._slight) */
+     * it would name moves the weighing by at most EP_JC_SLIGHT_LIMIT (JointCheck._slight), or crossed
+     * and agrees on one side (JointCheck._side_agrees) */
     held = failing && !s->jc_named
            && (s->jc_dumping || !(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)  /* dump, not ready */
                || ((s->changing || s->jc_paused > 0) && !(single >= 0 && EP_C(2.0) * s->jc_info[single] > total))
-               || (single >= 0 && ep_jc_slight(s, compared, single)));
+               || (single >= 0 && ep_jc_slight(s, compared, single))
+               || (single >= 0 && ep_jc_side_agrees(s, compared, single, m, w)));
     /* a named joint is cleared only by agreeing with another compared joint (a pair: its own two
      * agreeing again); a pair named before this load also by the joints compared on this load's
      * sums agreeing */
@@ -420,7 +463,7 @@ static void ep_jc_judge(ep_state *s)
 }}
 
 /* JointCheck.update: one balance window, after the kernel has summed it */
-static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
+static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3], const unsigned char neg[3])
 {{
     int j;
     if (s->jc_new_load) {{  /* the weighing restarted: so do the check's sums (not a fault named) */
@@ -442,6 +485,8 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3])
         s->jc_info[j] = EP_FORGETTING * s->jc_info[j] + di[j];
         s->jc_after_num[j] = EP_FORGETTING * s->jc_after_num[j] + dn[j];
         s->jc_after_info[j] = EP_FORGETTING * s->jc_after_info[j] + di[j];
+        s->jc_neg_num[j] = EP_FORGETTING * s->jc_neg_num[j] + (neg[j] ? dn[j] : EP_C(0.0));
+        s->jc_neg_info[j] = EP_FORGETTING * s->jc_neg_info[j] + (neg[j] ? di[j] : EP_C(0.0));
     }}
     if (s->jc_dumped && ep_jc_dumped_load(s)) {{  /* a load left in the dump: the weighing starts again */
         s->jc_restart = 1;
@@ -504,7 +549,7 @@ static unsigned long ep_jc_faults(const ep_state *s)
         accumulate="#if EP_JOINT_CHECK\nep_jc_accumulate(s, jd_num, jd_info);\n#endif",
         restart="\n#if EP_JOINT_CHECK\n            ep_jc_reset_sums(s);\n#endif",
         settle="\n#if EP_JOINT_CHECK\n                ep_jc_settle(s);\n#endif",
-        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info);\nif (s->jc_restart) {\n    s->jc_restart = 0;\n    ep_jc_restart(s);\n}\n#else\n(void)jd_num;\n(void)jd_info;\n#endif",
+        update="#if EP_JOINT_CHECK\nep_jc_update(s, jd_num, jd_info, jd_neg);\nif (s->jc_restart) {\n    s->jc_restart = 0;\n    ep_jc_restart(s);\n}\n#else\n(void)jd_num;\n(void)jd_info;\n(void)jd_neg;\n#endif",
         prologue="""#if EP_JOINT_CHECK
     unsigned char jc_gap = s->jc_gap;  /* this sample came after a gap (its status: gap) */
     s->jc_gap = 0;
@@ -558,10 +603,12 @@ def add_joint_check(model, est, kernel, signals, model_var: float):
     jc = joint_check_c(est, kernel, signals, model_var)
     step = model.step
     step = _once(step, "ep_real integral[6], momentum[6], bal[15], bal_rate[3];",
-                 "\n            ep_real jd_num[3], jd_info[3];  /* each joint's share (the joint check) */", "after")
+                 "\n            ep_real jd_num[3], jd_info[3];  /* each joint's share (the joint check) */"
+                 "\n            unsigned char jd_neg[3];  /* ... its phi_j < 0 in a weighed window */", "after")
     step = _once(step, "d_info += wt * (bal[3 + j] * bal[3 + j]);",
                  "\n            jd_num[j] = wt * (bal[3 + j] * bal[j]);"
-                 "\n            jd_info[j] = wt * (bal[3 + j] * bal[3 + j]);", "after")
+                 "\n            jd_info[j] = wt * (bal[3 + j] * bal[3 + j]);"
+                 "\n            jd_neg[j] = (unsigned char)(wt > EP_C(0.0) && bal[3 + j] < EP_C(0.0));", "after")
     step = _once(step, "s->info = EP_FORGETTING * s->info + d_info;\n", jc.accumulate + "\n", "after")
     step = _once(step, "restarted = 1;", jc.restart, "after")
     step = _once(step, "s->info = s->info_short;", jc.settle, "after")

@@ -30,6 +30,12 @@ pause, so that it compares what the joints weighed under one load:
   after it (by :data:`~.settings.JOINT_CHANGE_SHARE` of the rated payload and beyond
   :data:`~.settings.JOINT_CHI2`) restarts the weighing, as a new load: a load too small for the
   new-load test otherwise leaves the joints that stand with the old load's sums (:meth:`_dumped_load`).
+* **a bucket that crossed**: a new fault of the bucket (:data:`~.settings.SIDE_JOINTS`) whose
+  sums hold windows of both signs of its regressor φ_j (the payload's torque about it passed
+  zero: a bucket curled past the pose where the load sits over its pin) is held while the joint weighed on one side alone agrees with the
+  others (:meth:`_side_agrees`): a pressure's bias shows on both sides (b / φ_j), the model's
+  error where the payload's lever is short on one (the braked end of a curl,
+  docs/findings/false-alarms.md).
 
 What was measured with it is in docs/sensor-health.md ("The joint check").
 """
@@ -41,7 +47,7 @@ import math
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
     JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES,
-    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE)
+    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE, SIDE_JOINTS)
 
 
 class JointCheck:
@@ -60,7 +66,8 @@ class JointCheck:
     the fault itself may trigger, restarts the sums, not the fault; a pair named before a new load
     clears also when the joints compared on that load's sums agree: :attr:`named_before_load`). A new fault is held while the
     kernel says the load is changing or the check pauses, unless its joint leads the weighing
-    (:meth:`_leads`), and while its one joint moves the weighing by little (:meth:`_slight`). After
+    (:meth:`_leads`), while its one joint moves the weighing by little (:meth:`_slight`), and while
+    the bucket crossed its regressor's zero and agrees on one side (:meth:`_side_agrees`). After
     a dump, a joint that weighs less than before it restarts the weighing (:meth:`_dumped_load`:
     :attr:`restart`, as when a named joint clears).
 
@@ -109,14 +116,19 @@ class JointCheck:
         self.slot = 0  # the ring's slot the next window writes
         self.moving = False  # N / I moved by more than moving_limit over JOINT_MOVING_WINDOWS windows
         self.moved_settled = False  # ... while its last windows held at most LONE_YOUNG_SHARE of I
+        # each joint's share of the check's sums from windows whose regressor φ_j < 0 (the rest: φ_j > 0),
+        # same λ (_side_agrees)
+        self.neg_num = [0.0, 0.0, 0.0]
+        self.neg_info = [0.0, 0.0, 0.0]
         # a pair (or all three) named before the current load: the new load's sums may clear it
         self.named_before_load = False
         self.cleared_pairs = 0  # pairs cleared so on a new load's sums since the last reset
+        self.side_holds = 0  # windows a new fault was held by _side_agrees alone since the last reset
         # a named fault has cleared (the kernel's sums hold the fault), or a load left in a dump
         # (_dumped_load): the kernel restarts the weighing
         self.restart = False
 
-    def update(self, kernel, d_num: list, d_info: list) -> None:
+    def update(self, kernel, d_num: list, d_info: list, d_negative=None) -> None:
         """One balance window, after the kernel has accumulated it.
 
         Parameters
@@ -127,6 +139,8 @@ class JointCheck:
             The window's w φ r of each joint (boom, dipper, bucket).
         d_info : list
             The window's w φ² of each joint.
+        d_negative : list of bool, optional
+            Whether each joint's regressor φ is negative in this window (None: none is).
         """
         lam = kernel.forgetting
         if kernel.new_loads != self.loads:  # the weighing restarted: so do the check's sums
@@ -148,6 +162,9 @@ class JointCheck:
             i[j] = lam * i[j] + d_info[j]
             an[j] = lam * an[j] + d_num[j]
             ai[j] = lam * ai[j] + d_info[j]
+            negative = d_negative is not None and d_negative[j]
+            self.neg_num[j] = lam * self.neg_num[j] + (d_num[j] if negative else 0.0)
+            self.neg_info[j] = lam * self.neg_info[j] + (d_info[j] if negative else 0.0)
         if self.dumped and self._dumped_load():
             # a load left in the dump, too little for the new-load test: the weighing starts again
             # (the kernel restarts it, as after a named joint clears; the check's sums follow)
@@ -199,6 +216,7 @@ class JointCheck:
         self.paused = 0
         self.num, self.info = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         self.after_num, self.after_info = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
+        self.neg_num, self.neg_info = [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]
         self.dumped = False
 
     def _dumped_load(self) -> bool:
@@ -259,6 +277,10 @@ class JointCheck:
         # still (_slight: its own model error as likely as a sensor)
         held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
                                                and not self._leads(joints, m, w) or self._slight(joints, m, w))
+        # nor while the joint crossed (φ_j of both signs) and weighed on one side agrees (_side_agrees)
+        sided = failing and not self.fault and not held and self._side_agrees(joints, m, w)
+        self.side_holds += sided
+        held = held or sided
         if self.fault and not failing and not (len(joints) >= 2 and (set(self.named) <= set(joints)
                                                                      or self.named_before_load)):
             # a named joint is cleared only by agreeing with another compared joint (a pair: its
@@ -309,6 +331,32 @@ class JointCheck:
         whole = sum(self.num[j] for j in joints) / sum(self.info[j] for j in joints)
         without = sum(self.num[j] for j in rest) / sum(self.info[j] for j in rest)
         return abs(whole - without) <= self.slight_limit
+
+    def _side_agrees(self, joints: list, m: dict, w: dict) -> bool:
+        """Whether the one joint the check would name, one of :data:`~.settings.SIDE_JOINTS`, holds
+        windows of both signs of its regressor φ_j (each side's information > 0) and, weighed on
+        one side's sums alone (a side compared only with I within
+        :data:`~.settings.JOINT_CHECKED_SHARE`), agrees with the other compared joints (χ² within
+        :data:`~.settings.JOINT_CHI2`)."""
+        named = _named(joints, m, w)
+        if len(named) != 1:
+            return False
+        j = named[0]
+        if not SIDE_JOINTS[j]:
+            return False
+        sides = ((self.num[j] - self.neg_num[j], self.info[j] - self.neg_info[j]),
+                 (self.neg_num[j], self.neg_info[j]))
+        if not (sides[0][1] > 0.0 and sides[1][1] > 0.0):
+            return False
+        for n_side, i_side in sides:
+            if i_side < self.enough:
+                continue
+            ms, ws = dict(m), dict(w)
+            ms[j], ws[j] = n_side / i_side, 1.0 / (JOINT_INFO_INFLATION / i_side + self.extra)
+            mean = sum(ws[i] * ms[i] for i in joints) / sum(ws[i] for i in joints)
+            if sum(ws[i] * (ms[i] - mean) ** 2 for i in joints) <= JOINT_CHI2:
+                return True
+        return False
 
 
 def _named(joints: list, m: dict, w: dict) -> list:

@@ -328,7 +328,7 @@ class CalibratedKernel(PressureRegression):
             self._accumulate(d_num, d_info)
             self._track_steady()
             if self.joint_check:
-                self._check_joints(d_num, d_info)
+                self._check_joints(d_num, d_info, (wt > 0.0) & (phi < 0.0))
             return True
         # momentum: the terms of the differentiator window's centre (its q̈ serves the IMU
         # correction only) go into a second ring, the balance's window
@@ -376,7 +376,7 @@ class CalibratedKernel(PressureRegression):
             self._offset_share.window(self, start, wt, a, residual)
         self._track_steady()
         if self.joint_check:
-            self._check_joints(d_num, d_info)
+            self._check_joints(d_num, d_info, (wt > 0.0) & (phi < 0.0))
         if self._imu_nuisance is not None:
             self.payload_before = self._imu_nuisance.payload
         return True
@@ -450,12 +450,12 @@ class CalibratedKernel(PressureRegression):
         """Whether the joint check can run: in the momentum form (the one it was set on)."""
         return self.balance == "momentum"
 
-    def _check_joints(self, d_num: list, d_info: list) -> None:
+    def _check_joints(self, d_num: list, d_info: list, d_negative=None) -> None:
         """The joint consistency check of this window (:class:`~.joint_check.JointCheck`); when a
         joint it named has cleared, the weighing starts again (its sums hold the fault's windows),
         and so it does when a joint weighs less after a dump than before it (a load too small for
         the new-load test left, ``JointCheck._dumped_load``)."""
-        self._joints.update(self, d_num, d_info)
+        self._joints.update(self, d_num, d_info, None if d_negative is None else d_negative.tolist())
         if self._joints.restart:
             self._joints.restart = False
             self._restart_load()
