@@ -74,6 +74,10 @@ class CalibratedKernel(PressureRegression):
     #: weight, so it is weighed again only once its windows are clean; the sums it gave before
     #: are kept.
     drop = (False, False, False)
+    #: The weighed motions keep their load whatever the bucket does (the calibration's
+    #: cross-check weighs motions of known loads that stay in the bucket): a dump neither says
+    #: ``load_changing`` nor restarts the weighing. Python only: the exported C weighs work.
+    loads_stay = False
 
     def __init__(self, cal, half_window: int, forgetting: float, low_speed: str,
                  outside_calibration: str = "auto", wait_for_boom: str = "auto", new_load: str = "auto"):
@@ -443,7 +447,8 @@ class CalibratedKernel(PressureRegression):
         """Whether a dump is under way whose end will restart the weighing (``--new-load detect``,
         :data:`~.settings.DUMP_RESTARTS`): the load leaves, so the estimate before it is not
         reported ``ok`` (``load_changing``)."""
-        return self.new_load and DUMP_RESTARTS and self._dump_left > 0 and self._dump_load and self._dump_turned
+        return self.new_load and DUMP_RESTARTS and not self.loads_stay and self._dump_left > 0 and \
+            self._dump_load and self._dump_turned
 
     @property
     def checks_joints(self) -> bool:
@@ -523,7 +528,7 @@ class CalibratedKernel(PressureRegression):
                 ns[j] = mu * ns[j] + d_num_joint[j]
                 is_[j] = mu * is_[j] + d_info_joint[j]
         was_changing, self.changing = self.changing, False
-        if self._dump_ended and DUMP_RESTARTS:
+        if self._dump_ended and DUMP_RESTARTS and not self.loads_stay:
             self._dump_ended = False
             self.dump_restarts += 1
             self._restart_load()

@@ -215,6 +215,10 @@ class MachineWeighing:
         The experiments the calibration used.
     """
 
+    #: Its kernels weigh motions that keep their load (:attr:`~.kernel.CalibratedKernel.loads_stay`):
+    #: the cross-check's halves, whose held-out motions carry known loads that stay in the bucket.
+    loads_stay = False
+
     def __init__(self, calibration: MachineCalibration, difference_scale, noise_name: str = "estimated",
                  calibration_experiments=()):
         self.calibration = calibration
@@ -235,6 +239,7 @@ class MachineWeighing:
                                          options["outside_calibration"], options["wait_for_boom"],
                                          options["new_load"])
         kernel.spike_threshold = spike_threshold(self.difference_scale)
+        kernel.loads_stay = self.loads_stay
         if imu_nuisance_on(options, kernel.balance):
             kernel.use_imu_nuisance(self.calibration)
         if kernel.balance == "momentum" and float(getattr(self.calibration, "zero_std", 0.0)) > 0.0:
@@ -306,9 +311,16 @@ class MachineWeighing:
 
         weighing = cls(cal, difference_scale(dataset), "estimated" if pressure_std is None else noise, ids)
         if options["model_std"] == "cross":
-            cal.model_std = cross_validated_model_std(
-                dataset, calibrate_on,
-                lambda half: weigh_with(cls(half, weighing.difference_scale, weighing.noise_name, ids)))
+            def held_out(half: MachineCalibration) -> object:
+                """A half's weighing of the other half's motions: their known loads stay in the
+                bucket, so a fast turn of it is no dump (restarts there, which the weighing of work
+                never sees on a kept load, moved s by chance on `reach` motions, -0.09 to +2.05 kg;
+                docs/findings/any-motion.md, session 19)."""
+                twin = cls(half, weighing.difference_scale, weighing.noise_name, ids)
+                twin.loads_stay = True
+                return weigh_with(twin)
+
+            cal.model_std = cross_validated_model_std(dataset, calibrate_on, held_out)
             rated = float(arm.machine.rated_payload)
             if len(ids) >= MIN_CROSS_EXPERIMENTS:
                 report.append(
