@@ -29,9 +29,8 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import balance_weights
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
-    DUMP_HOLD, DUMP_LOAD_SHARE, DUMP_OPENING_RATE, DUMP_TURN, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE, NEW_LOAD_SIGMAS,
-    NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE, STEADY_WINDOWS)
-from excavator_payload.estimators.classical.machine_calibration.settings import DUMP_RESTARTS
+    DUMP_HOLD, DUMP_LOAD_SHARE, DUMP_OPENING_RATE, DUMP_RESTARTS, DUMP_TURN, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE,
+    NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE, STEADY_WINDOWS)
 from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, LOOK_AHEAD, RATES, PressureRegression
