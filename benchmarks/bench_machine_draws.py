@@ -60,6 +60,15 @@ def calibration(motions: int, seed: int, reach: int):
     return dm.calibration_mix(motions, seed, reach=reach)
 
 
+def zero_motion(kind: str, seed: int):
+    """The empty-bucket motion a draw is zeroed on: ``empty-swing`` (the project's empty swing of
+    draw ``seed``) or else a slow empty-bucket motion of the held-out lever model."""
+    if kind == "empty-swing":
+        return dm.zero_data(seed + 1)
+    return dm.simulate_trajectory(lever_trajectory(1, seed + 1, payloads=[0.0], slow=True), seed + 1,
+                                  dm.SESSION_WORK)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--draws", type=int, default=5)
@@ -106,11 +115,7 @@ def main() -> None:
         motions = a.motions[draw % len(a.motions)]
         zero_kind = a.zeros[draw % len(a.zeros)]
         cal = calibration(motions, seed, a.reach)
-        if zero_kind == "empty-swing":
-            zero = dm.zero_data(seed + 1)
-        else:  # a slow empty-bucket motion of the held-out lever model
-            zero = dm.simulate_trajectory(lever_trajectory(1, seed + 1, payloads=[0.0], slow=True), seed + 1,
-                                          dm.SESSION_WORK)
+        zero = zero_motion(zero_kind, seed)
         # one bound per draw for both forms, from the default form's calibration (as the study
         # does): a form that trusts its calibration less must not get a looser bound for it
         reference = CalibratedEstimator("cat345c-hydraulic-3pct", balance="differentiated").fit(cal)

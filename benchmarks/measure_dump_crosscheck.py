@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_machine_draws import judge  # noqa: E402
+from bench_machine_draws import judge, zero_motion  # noqa: E402
 from held_out_motions import joystick_trajectory, lever_trajectory, multisine_trajectory  # noqa: E402
 
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
@@ -115,11 +115,7 @@ def main() -> None:
     t0 = time.time()
     cal = dm.calibration_mix(a.motions, a.seed, reach=a.reach)
     kinds = {e: ("reach" if k >= a.motions - a.reach else "swing") for k, e in enumerate(cal.experiment_ids)}
-    if a.zero == "empty-swing":
-        zero = dm.zero_data(a.seed + 1)
-    else:
-        zero = dm.simulate_trajectory(lever_trajectory(1, a.seed + 1, payloads=[0.0], slow=True), a.seed + 1,
-                                      dm.SESSION_WORK)
+    zero = zero_motion(a.zero, a.seed)
     est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
     s = est.calibration.model_std
     table = CROSS["table"]

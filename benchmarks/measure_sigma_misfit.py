@@ -134,11 +134,7 @@ def measure(a) -> None:
                             ("multisine", multisine_trajectory, 6)):
         tests[name] = dm.simulate_trajectory(make(a.n_test, a.seed + off), a.seed + off, dm.SESSION_WORK)
     cal = bmd.calibration(a.motions, a.seed, a.reach)
-    if a.zero == "empty-swing":
-        zero = dm.zero_data(a.seed + 1)
-    else:
-        zero = dm.simulate_trajectory(lever_trajectory(1, a.seed + 1, payloads=[0.0], slow=True), a.seed + 1,
-                                      dm.SESSION_WORK)
+    zero = bmd.zero_motion(a.zero, a.seed)
     est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
     est.zero(zero)
     res = {"cross_e": cross[-1][0], "cross_v": cross[-1][1], "cross_chi": cross[-1][2],
