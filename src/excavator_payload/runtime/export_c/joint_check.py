@@ -91,7 +91,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         The calibration's model variance, kg² (the sigma).
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
-        CHANGING_SIGMAS, DUMP_OPENING_RATE, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
+        CHANGING_SIGMAS, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
         JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE, SIDE_JOINTS)
 
     check = kernel._joints
@@ -128,7 +128,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
         "int jc_run;       /* windows in a row beyond (or, while failing, within) the limit */",
         "int jc_paused;    /* windows of the current pause (0: not paused) */",
-        "int jc_dump_left; /* samples the dump still lasts (CalibratedKernel.dumping) */",
         "unsigned char jc_armed, jc_checked, jc_new_load, jc_reported, jc_gap, jc_dumping, jc_moving, jc_restart;",
         "unsigned char jc_dumped;  /* a dump since the check's sums started */",
         "unsigned char jc_lone_moved;  /* a joint weighed alone has moved: it waits for a second (PressureKernel._joint_rules) */",
@@ -140,7 +139,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * v_j = EP_JC_INFLATION / I_j + EP_JC_EXTRA; beyond EP_JC_CHI2 on EP_JC_SAMPLES windows in a row a
  * cylinder's pressures are named (EP_FAULT_BALANCE, FMI 13). Paused while the short memory has left
  * the whole weighing (a load change), at most EP_JC_PAUSE windows at a time; while the bucket dumps
- * (opens faster than EP_JC_DUMP_RATE within the last EP_JC_DUMP_HOLD samples) it names nothing new
+ * (opens faster than EP_DUMP_RATE within the last EP_DUMP_HOLD samples: the kernel's dump_left) it names nothing new
  * and sums nothing; before the weighing is ready it names nothing new. No estimate is ok while
  * N / I moved by more than EP_JC_MOVING_LIMIT over EP_JC_MOVING windows (load_changing); a new fault
  * of one joint whose sums hold windows of both signs of its phi_j is held while one side alone
@@ -160,10 +159,8 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
-#define EP_JC_DUMP_RATE {c_number(DUMP_OPENING_RATE)}  /* rad/s: the bucket opening this fast dumps */
-#define EP_JC_DUMP_HOLD {kernel._dump_hold}  /* samples a dump lasts after its last fast opening */
-#define EP_JC_WEIGHED_INFO(s) {weighed_info}
-#define EP_JC_SIDE_JOINTS {sum(1 << j for j in range(3) if SIDE_JOINTS[j])}  /* bit j: ep_jc_side_agrees applies to joint j */  /* the information of the weighing reported */
+#define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
+#define EP_JC_SIDE_JOINTS {sum(1 << j for j in range(3) if SIDE_JOINTS[j])}  /* bit j: ep_jc_side_agrees applies to joint j */
 
 static void ep_jc_clear(ep_state *s)
 {{
@@ -194,7 +191,6 @@ static void ep_jc_reset(ep_state *s)
     s->jc_named_before_load = 0;
     s->jc_reported = 0;
     s->jc_gap = 0;
-    s->jc_dump_left = 0;
     s->jc_dumping = 0;
     for (j = 0; j <= EP_JC_MOVING; ++j) {{
         s->jc_history[j] = EP_NAN;
@@ -473,7 +469,7 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3], 
         s->jc_named_before_load = (unsigned char)((s->jc_named & (s->jc_named - 1)) != 0);
     }}
     ep_jc_track_moving(s);
-    s->jc_dumping = (unsigned char)(s->jc_dump_left > 0);
+    s->jc_dumping = (unsigned char)(s->dump_left > 0);  /* CalibratedKernel.dumping */
     if (s->jc_dumping) {{  /* the load leaves: what the joints weigh now is no one load (not summed) */
         s->jc_dumped = 1;
         for (j = 0; j < 3; ++j) s->jc_after_num[j] = s->jc_after_info[j] = EP_C(0.0);
@@ -554,8 +550,6 @@ static unsigned long ep_jc_faults(const ep_state *s)
     unsigned char jc_gap = s->jc_gap;  /* this sample came after a gap (its status: gap) */
     s->jc_gap = 0;
     s->jc_reported = 0;
-    if (v[EP_RATES[2]] > EP_JC_DUMP_RATE) s->jc_dump_left = EP_JC_DUMP_HOLD;  /* the bucket opens fast */
-    else if (s->jc_dump_left) s->jc_dump_left -= 1;
 #endif
 """,
         status="""#if EP_JOINT_CHECK

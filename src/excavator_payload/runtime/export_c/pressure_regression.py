@@ -471,8 +471,8 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
     if (rejected) return EP_STATUS_REJECTED;  /* the sample two before this one was an outlier */
     if (s->info < EP_WARM_INFO) return EP_STATUS_WARMING_UP;
     return {changing_status};"""
-    dump = """#if EP_NEW_LOAD
-    if (v[EP_RATES[2]] > EP_DUMP_RATE) {  /* the bucket opens fast: a dump (CalibratedKernel.update) */
+    # always tracked, as in Python: the joint check reads dump_left too (CalibratedKernel.dumping)
+    dump = """    if (v[EP_RATES[2]] > EP_DUMP_RATE) {  /* the bucket opens fast: a dump (CalibratedKernel.update) */
         if (!s->dump_left) {  /* it starts: can it leave a load? */
             s->dump_load = (unsigned char)(!(!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY)
                                            || !(s->info > EP_C(0.0)) || s->num / s->info > EP_DUMP_LOAD_MIN);
@@ -485,7 +485,6 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         if (!s->dump_left && s->dump_load && s->dump_turned) s->dump_ended = 1;  /* over: a new load */
     }
     if (s->dump_left && v[EP_ANGLES[2]] - s->dump_from > EP_DUMP_TURN) s->dump_turned = 1;  /* turned over */
-#endif
 """ if calibrated else ""
     step = step.replace("@DUMP@", dump)
     on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
