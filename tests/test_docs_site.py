@@ -29,8 +29,11 @@ README = ROOT / "README.md"
 SETUP = ('python3.11 -m venv .venv && .venv/bin/pip install -e ".[test]" && .venv/bin/excavator-payload demo',
          ".venv/bin/python -m pytest")
 
-#: "A README a newcomer reads in five minutes" (issue: at most ~250 lines).
-README_MAX_LINES = 260
+#: "A README a newcomer reads in five minutes": the developers' guide says at most ~300 lines.
+README_MAX_LINES = 300
+#: ... of prose a reader can follow: a line count means nothing if a paragraph is one line.
+#: Tables, images, code and lines that are only a link are exempt.
+README_MAX_PROSE_WIDTH = 140
 
 
 def _mkdocs_missing() -> str | None:
@@ -128,6 +131,14 @@ def test_readme_points_into_the_site():
     text = README.read_text(encoding="utf-8")
     lines = text.count("\n")
     assert lines <= README_MAX_LINES, f"README.md has {lines} lines; move findings and details to docs/"
+    in_code, wide = False, []
+    for number, line in enumerate(text.splitlines(), 1):
+        if line.startswith("```"):
+            in_code = not in_code
+        exempt = in_code or line.startswith(("|", "![", "([", "[")) or line.startswith("```")
+        if not exempt and len(line) > README_MAX_PROSE_WIDTH:
+            wide.append(number)
+    assert not wide, f"README.md prose lines {wide} are wider than {README_MAX_PROSE_WIDTH} characters: wrap them"
     linked_pages = {link.partition("#")[0] for link in _local_links(text) if link.endswith(".md") or ".md#" in link}
     assert {"docs/getting-started.md", "docs/guide/machine.md", "docs/findings/index.md"} <= linked_pages
     assert "mkdocs serve" in text
