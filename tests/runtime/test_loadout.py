@@ -240,3 +240,40 @@ def test_a_model_never_zeroed_is_said_before_the_first_pass(shift, tmp_path, cap
     assert main(["loadout", "--model", str(tmp_path / "zeroed"), "--data", str(folder / "shift.parquet"),
                  "--db", str(tmp_path / "z.sqlite")]) == 0
     assert "never zeroed" not in capsys.readouterr().err
+
+
+def _record_tables(truth: bool):
+    passes = pd.DataFrame({
+        "source": ["a"] * 5, "truck": [1, 1, 1, 2, 2], "pass": [1, 2, 3, 1, 2],
+        "time_lock": [1.0, 2.0, 3.0, 4.0, 5.0], "weight": [4000.0, 3900.0, np.nan, 4100.0, 3950.0],
+        "sigma": [8.0, 7.0, np.nan, 9.0, 6.0], "status": ["ok", "ok", "not_weighed", "degraded", "ok"],
+        "reason": [None, None, "sensor_fault", None, None],
+        "true_weight": [4010.0, 3890.0, 4000.0, 4080.0, 3950.0] if truth else [np.nan] * 5})
+    trucks = pd.DataFrame({"source": ["a", "a"], "truck": [1, 2], "passes": [3, 2], "unweighed": [1, 0],
+                           "total": [7900.0, 8050.0], "target": [8000.0, np.nan],
+                           "true_total": [11900.0, 8030.0] if truth else [np.nan, np.nan]})
+    return passes, trucks
+
+
+@pytest.mark.parametrize("truth", [True, False])
+def test_the_shift_figure_shows_trucks_and_passes(truth):
+    """Each truck's weighed passes stacked (the pass not weighed left out and said), and the
+    passes against the truth with the 1 % band when the record has it, else their weights."""
+    import matplotlib.pyplot as plt
+
+    from excavator_payload.runtime.loadout import plot_shift
+
+    passes, trucks = _record_tables(truth)
+    fig = plot_shift(passes, trucks, rated=5000.0)
+    ax_t, ax_p = fig.axes
+    heights = sorted(round(p.get_height()) for p in ax_t.patches)
+    assert heights == [3900, 3950, 4000, 4100]  # four weighed passes, the degraded one included
+    assert any("not\nweighed" in a.get_text() for a in ax_t.texts)
+    assert ax_p.get_ylabel() == ("error, kg" if truth else "pass weight, kg")
+    points = ax_p.lines[0].get_ydata()
+    assert list(points) == ([-10.0, 10.0, 20.0, 0.0] if truth else [4000.0, 3900.0, 4100.0, 3950.0])
+    labels = ax_p.get_legend_handles_labels()[1]
+    assert ("± 1 % of rated (50 kg)" in labels) == truth and "not weighed" in labels
+    plt.close(fig)
+    empty = plot_shift(passes.iloc[:0], trucks.iloc[:0])  # a record with no truck yet
+    plt.close(empty)

@@ -592,9 +592,93 @@ def shift_summary(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | Non
     return out
 
 
+def plot_shift(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | None = None):
+    """The shift at a glance: each truck's passes stacked against its target, and each pass's
+    weight — against the truth with the 1 % band where the record has it — with its 2σ.
+
+    Parameters
+    ----------
+    passes, trucks : pandas.DataFrame
+        The record's tables (:func:`read_record`).
+    rated : float, optional
+        kg, the rated payload: draws the ±1 % band on the errors.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+    """
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    fig, (ax_t, ax_p) = plt.subplots(2, 1, figsize=(8, 6.5))
+    weighed = passes["status"].isin(["ok", DEGRADED]).to_numpy()
+    # trucks: one bar each, its weighed passes stacked; a truck's key is (source, truck)
+    keys = list(zip(trucks["source"], trucks["truck"]))
+    several = len(set(trucks["source"])) > 1
+    labels = [f"{s[:6]}:{n}" if several else str(n) for s, n in keys]
+    x = np.arange(len(keys))
+    colours = ("#4477aa", "#66ccee")
+    for i, (source, truck) in enumerate(keys):
+        rows = passes[(passes["source"] == source) & (passes["truck"] == truck)]
+        bottom = 0.0
+        for j, r in enumerate(rows.itertuples()):
+            if r.status not in ("ok", DEGRADED) or not math.isfinite(r.weight):
+                continue
+            ax_t.bar(i, r.weight, bottom=bottom, width=0.7, color=colours[j % 2], edgecolor="white",
+                     hatch="//" if r.status == DEGRADED else None)
+            bottom += r.weight
+        unweighed = int((~rows["status"].isin(["ok", DEGRADED])).sum())
+        if unweighed:
+            ax_t.annotate(f"{unweighed} not\nweighed", (i, bottom), ha="center", va="bottom", fontsize=7,
+                          color="#cc3311")
+    target = trucks["target"].to_numpy(float)
+    if np.isfinite(target).any():
+        ax_t.scatter(x, target, marker="_", s=400, color="black", zorder=3, label="target")
+    true_total = trucks["true_total"].to_numpy(float)
+    if np.isfinite(true_total).any():
+        ax_t.scatter(x, true_total, marker="o", s=14, color="#ee7733", zorder=4, label="true load")
+    ax_t.set_xticks(x, labels, fontsize=7 if len(x) > 20 else None)
+    ax_t.set_xlabel("truck")
+    ax_t.set_ylabel("load, kg")
+    ax_t.set_title(f"{len(keys)} trucks, {int(weighed.sum())} passes weighed of {len(passes)}")
+    tops = [v for v in (ax_t.get_ylim()[1], np.nanmax(target, initial=0.0), np.nanmax(true_total, initial=0.0))
+            if math.isfinite(v)]
+    ax_t.set_ylim(0.0, 1.2 * max(tops))  # room for the legend above the bars
+    if ax_t.get_legend_handles_labels()[0]:
+        ax_t.legend(loc="upper right", fontsize=8, ncol=2)
+    # passes in the record's order
+    order = np.arange(1, len(passes) + 1)
+    w = passes["weight"].to_numpy(float)
+    sig = passes["sigma"].to_numpy(float)
+    truth = passes["true_weight"].to_numpy(float)
+    known = weighed & np.isfinite(truth) & np.isfinite(w)
+    if known.any():
+        err = w - truth
+        ax_p.errorbar(order[known], err[known], yerr=2 * sig[known], fmt="o", ms=3, color="#4477aa",
+                      ecolor="#99bbdd", label="weight − truth, ± 2σ")
+        if rated:
+            ax_p.axhspan(-0.01 * rated, 0.01 * rated, color="#ccddaa", alpha=0.5, zorder=0,
+                         label=f"± 1 % of rated ({0.01 * rated:g} kg)")
+        ax_p.axhline(0.0, color="black", lw=0.6)
+        ax_p.set_ylabel("error, kg")
+    else:
+        ok = weighed & np.isfinite(w)
+        ax_p.errorbar(order[ok], w[ok], yerr=2 * sig[ok], fmt="o", ms=3, color="#4477aa",
+                      ecolor="#99bbdd", label="weight ± 2σ")
+        ax_p.set_ylabel("pass weight, kg")
+    if (~weighed).any():
+        ax_p.scatter(order[~weighed], np.zeros(int((~weighed).sum())), marker="x", color="#cc3311",
+                     label="not weighed")
+    ax_p.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax_p.set_xlabel("pass (in the record's order)")
+    ax_p.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
 def write_shift_report(db: str | Path, out: str | Path, rated: float | None = None) -> Path:
     """A shift report from a record: ``shift.md`` (trucks, passes, totals, against the truth
-    where recorded) and ``pass_weights.png`` (histogram of pass weights). Returns the Markdown.
+    where recorded) and ``pass_weights.png`` (:func:`plot_shift`). Returns the Markdown.
 
     Parameters
     ----------
@@ -615,13 +699,7 @@ def write_shift_report(db: str | Path, out: str | Path, rated: float | None = No
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     s = shift_summary(passes, trucks, rated)
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    weights = passes.loc[passes["status"].isin(["ok", DEGRADED]), "weight"].to_numpy(float)
-    ax.hist(weights, bins=max(5, min(30, len(weights) // 2 or 1)), color="#4477aa")
-    ax.set_xlabel("pass weight, kg")
-    ax.set_ylabel("passes")
-    ax.set_title(f"{len(weights)} passes weighed")
-    fig.tight_layout()
+    fig = plot_shift(passes, trucks, rated)
     png = out / "pass_weights.png"
     tmp = out / ".pass_weights.tmp.png"
     fig.savefig(tmp, dpi=110)
