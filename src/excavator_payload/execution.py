@@ -677,13 +677,16 @@ class Execution:
         results: list = [None] * len(tasks)
         columns = [TextColumn("[progress.description]{task.description}"), BarColumn(),
                    MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn()]
-        kwargs = {"console": console} if console is not None else {}
-        with Progress(*columns, disable=not progress, transient=False, **kwargs) as bar:
+        from rich import get_console
+
+        console = console if console is not None else get_console()
+        # rich draws nothing until the end where the output is no terminal (a log file, CI):
+        # there a plain line every tenth of the work or every minute says how far it is, and
+        # the bar is left out (it would only repeat the last line)
+        bar_drawn = progress and console.is_terminal
+        with Progress(*columns, disable=not bar_drawn, transient=False, console=console) as bar:
             bar_task = bar.add_task(description, total=sum(weights))
-            # rich draws nothing until the end where the output is no terminal (a log file, CI):
-            # there a plain line every tenth of the work or every minute says how far it is
-            plain = PlainProgress(description, sum(weights), bar.console) \
-                if progress and not bar.console.is_terminal else None
+            plain = PlainProgress(description, sum(weights), console) if progress and not bar_drawn else None
 
             def finished(index, result):
                 results[index] = result
