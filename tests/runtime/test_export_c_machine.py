@@ -293,50 +293,11 @@ def test_c_equals_python_where_a_dump_restarts(machine_models, tmp_path):
         _assert_c_equals_python(est, source, truck, tmp_path / "build", single)
 
 
-def test_c_equals_python_where_a_fill_restarts(machine_models, tmp_path, monkeypatch):
-    """A truck loaded pass after pass: the new-load test restarts the weighing mid-dig (the soil's
-    force, the load entering), and the curl's end restarts it once more, ``settings.FILL_HOLD``
-    after the bucket's last fast closing, on windows of the full bucket alone
-    (``CalibratedKernel.fill_pending``, ``fill_restarts``; docs/findings/false-alarms.md, session
-    20); never ``ok`` while it is pending. Without the rule the same truck restarts at no fill's
-    end and says other statuses. The C export restarts on the same samples."""
-    from excavator_payload.estimators.classical.machine_calibration import kernel as kernel_module
-    from excavator_payload.estimators.classical.machine_calibration import settings
-
-    truck = simulate_machine_dataset(1, seed=7, session=2, motion="shift", truck_target=12000.0)
-    est = machine_models["calibrated-momentum"]
-    f = truck.frame
-    rows = list(zip(f["time"].to_numpy(float), f[list(MACHINE_SENSORS.signals)].to_numpy(float)))
-
-    def run():
-        est.reset()
-        seen = []
-        for t, row in rows:
-            result = est.step_values(t, row)
-            seen.append((est.kernel.regression.fill_pending, str(result.status)))
-        return est.kernel.regression.fill_restarts, seen
-
-    restarts, pending = run()
-    passes = len(truck.experiment_meta[int(f["experiment"].iloc[0])]["passes"])
-    assert 1 <= restarts <= passes
-    assert any(p for p, _ in pending) and not any(p and s.endswith(".OK") for p, s in pending)
-    source = export_c(est, tmp_path / "export")[1]
-    assert "EP_FILL_PENDING" in source.read_text()
-    for single in (False, True):
-        _assert_c_equals_python(est, source, truck, tmp_path / "build", single)
-    monkeypatch.setattr(kernel_module, "FILL_RESTARTS", False)
-    monkeypatch.setattr(settings, "FILL_RESTARTS", False)
-    off, off_pending = run()
-    assert off == 0 and not any(p for p, _ in off_pending)
-    assert [s for _, s in off_pending] != [s for _, s in pending]
-
-
 def test_a_quick_bucket_move_that_keeps_its_load_restarts_nothing(machine_models):
     """An operator's quick bucket moves open the bucket faster than the dump rate (the joint
     check's ``dumping``) but by a few degrees, keeping the load: no dump (``settings.DUMP_TURN``),
     never ``load_changing`` for it, no restart (a first version restarted at each and put the
-    `operator` family at 10 % not ``ok``; docs/findings/false-alarms.md, session 19); nor do its
-    quick curls (no fill: ``settings.FILL_RESTARTS``)."""
+    `operator` family at 10 % not ``ok``; docs/findings/false-alarms.md, session 19)."""
     motions = simulate_machine_dataset(2, seed=32, session=2, motion="operator")
     est = machine_models["calibrated-momentum"]
     signals = list(MACHINE_SENSORS.signals)
@@ -347,6 +308,6 @@ def test_a_quick_bucket_move_that_keeps_its_load_restarts_nothing(machine_models
             est.step_values(t, row)
             kernel = est.kernel.regression
             dumping += kernel.dumping
-            pending += kernel.dump_pending + kernel.fill_pending
-        restarts += kernel.dump_restarts + kernel.fill_restarts
+            pending += kernel.dump_pending
+        restarts += kernel.dump_restarts
     assert dumping > 0 and pending == 0 and restarts == 0

@@ -542,9 +542,8 @@ class PressureKernel(PayloadKernel):
         status = Status.OK if self.info >= self.warm_info else Status.WARMING_UP
         if regression.rejected:  # the sample before this one was a one-frame outlier
             status = Status.REJECTED
-        elif status is Status.OK and (regression.changing or getattr(regression, "dump_pending", False)
-                                      or getattr(regression, "fill_pending", False)):
-            # the short memory has left the whole one, the bucket dumps or fills: the load changes
+        elif status is Status.OK and (regression.changing or getattr(regression, "dump_pending", False)):
+            # the short memory has left the whole one, or the bucket dumps: the load changes
             status = Status.LOAD_CHANGING
         if regression.joint_check:
             status = self._joint_rules(status)

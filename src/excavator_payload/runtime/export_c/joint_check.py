@@ -609,9 +609,9 @@ def add_joint_check(model, est, kernel, signals, model_var: float):
     step = _once(step, "s->steady_count = k + 1;\n        }\n", jc.update + "\n", "after")
     step = _once(step, "    for (i = 0; i < EP_N_SIGNALS; ++i) s->ring[newest * EP_N_SIGNALS + i] = v[i];",
                  jc.prologue, "before")
-    last = "    return (s->changing || EP_LOAD_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK;"
+    last = "    return (s->changing || EP_DUMP_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK;"
     step = _once(step, "    if (rejected) return EP_STATUS_REJECTED;",
-                 jc.status.replace("@KERNEL_STATUS@", "((s->changing || EP_LOAD_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK)") + "\n",
+                 jc.status.replace("@KERNEL_STATUS@", "((s->changing || EP_DUMP_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK)") + "\n",
                  "before")
     if step.count(last) != 1:
         raise RuntimeError("joint check export: the kernel's C has no single changing status")

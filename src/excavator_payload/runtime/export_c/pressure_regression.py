@@ -57,8 +57,7 @@ def pressure_regression_model(est) -> CModel:
     from excavator_payload.estimators.classical.calibrated_machine import (
         CHANGING_SIGMAS, NEW_LOAD_SIGMAS, CalibratedKernel)
     from excavator_payload.estimators.classical.machine_calibration.settings import (
-        BOOM_READY_WINDOWS, DUMP_OPENING_RATE, DUMP_RESTARTS, DUMP_TURN, FILL_CLOSING_RATE, FILL_RESTARTS, SETTLE_WINDOWS,
-        STEADY_WINDOWS)
+        BOOM_READY_WINDOWS, DUMP_OPENING_RATE, DUMP_RESTARTS, DUMP_TURN, SETTLE_WINDOWS, STEADY_WINDOWS)
     from excavator_payload.estimators.classical.inverse_dynamics import MAX_BRIDGED_GAP
     from excavator_payload.estimators.classical.pressure_regression import (
         ANGLES, PITCH, PRESSURES, RATES, ROLL, PressureKernel)
@@ -191,15 +190,6 @@ def pressure_regression_model(est) -> CModel:
             f"#define EP_DUMP_LOAD_MIN {c_number(kernel._dump_load_min)}",
             "#define EP_DUMP_PENDING(s) (EP_NEW_LOAD && EP_DUMP_RESTARTS && (s)->dump_left > 0 && (s)->dump_load \\",
             "                            && (s)->dump_turned)",
-            "/* CalibratedKernel.update / fill_pending (--new-load, settings.FILL_RESTARTS): the bucket",
-            " * closing faster than EP_FILL_RATE (rad/s), held EP_FILL_HOLD samples, is a fill when the",
-            " * new-load test restarted the weighing meanwhile: load_changing until it ends, then the",
-            " * weighing restarts on windows of the full bucket alone */",
-            f"#define EP_FILL_RESTARTS {1 if FILL_RESTARTS else 0}",
-            f"#define EP_FILL_RATE {c_number(FILL_CLOSING_RATE)}",
-            f"#define EP_FILL_HOLD {kernel._fill_hold}",
-            "#define EP_FILL_PENDING(s) (EP_NEW_LOAD && EP_FILL_RESTARTS && (s)->fill_left > 0 && (s)->fill_load)",
-            "#define EP_LOAD_PENDING(s) (EP_DUMP_PENDING(s) || EP_FILL_PENDING(s))  /* the bucket dumps or fills */",
         ]
         derivative = """    /* qdd = slope . window (CalibratedKernel: fixed weights k dt / sum (k dt)^2) */
     for (j = 0; j < 4; ++j) {
@@ -298,13 +288,10 @@ if (1) {
     ep_real change, spread, limit;
     unsigned char was_changing = s->changing, restarted = 0;
     unsigned char dumped = (unsigned char)(EP_DUMP_RESTARTS && s->dump_ended);  /* a dump has ended */
-    /* ... or a fill (its windows have left the balance): the same restart */
-    if (EP_FILL_RESTARTS && s->fill_ended) dumped = 1;
     s->num_short = EP_SHORT_FORGETTING * s->num_short + d_num;
     s->info_short = EP_SHORT_FORGETTING * s->info_short + d_info;
     s->changing = 0;
     s->dump_ended = 0;
-    s->fill_ended = 0;
     if (dumped || ((!EP_WAIT_FOR_BOOM || s->boom_windows >= EP_BOOM_READY) && s->info_short > EP_C(0.0)
                    && s->info_short < s->info)) {
         change = spread = limit = EP_C(0.0);
@@ -321,8 +308,6 @@ if (1) {
             s->changing_windows = 0;
             s->steady = !EP_WAIT_FOR_BOOM;
             s->steady_count = 0;
-            /* the new-load test restarted it while the bucket curls: a fill, whose end restarts it again */
-            if (!dumped && s->fill_left > 0) s->fill_load = 1;
             restarted = 1;
         } else {  /* CalibratedKernel.changing: the load is changing (status load_changing) */
             limit = EP_CHANGING_SIGMAS * EP_MATH(sqrt)(spread);
@@ -446,7 +431,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         }}
     }}"""
     not_ready = " || (EP_WAIT_FOR_BOOM && (s->boom_windows < EP_BOOM_READY || !s->steady))" if calibrated else ""
-    changing_status = "(s->changing || EP_LOAD_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" \
+    changing_status = "(s->changing || EP_DUMP_PENDING(s)) ? EP_STATUS_LOAD_CHANGING : EP_STATUS_OK" \
         if calibrated else "EP_STATUS_OK"
     time_push = "    (void)time;  /* uniform sampling: fixed slope weights */\n" if calibrated else \
         "    s->ring_time[newest] = time;\n"
@@ -500,13 +485,6 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         if (!s->dump_left && s->dump_load && s->dump_turned) s->dump_ended = 1;  /* over: a new load */
     }
     if (s->dump_left && v[EP_ANGLES[2]] - s->dump_from > EP_DUMP_TURN) s->dump_turned = 1;  /* turned over */
-    if (v[EP_RATES[2]] < -EP_FILL_RATE) {  /* the bucket closes fast: a curl, a fill if it restarts */
-        if (!s->fill_left) s->fill_load = 0;
-        s->fill_left = EP_FILL_HOLD;
-    } else if (s->fill_left) {
-        s->fill_left -= 1;
-        if (!s->fill_left && s->fill_load) s->fill_ended = 1;  /* over, its windows gone: the load is in */
-    }
 """ if calibrated else ""
     step = step.replace("@DUMP@", dump)
     on_gap = """    /* InverseDynamicsEstimator._on_gap: a short gap keeps the sums and restarts the window
@@ -542,9 +520,7 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
         fields += ["int dump_left;  /* samples the bucket's fast opening still counts (EP_DUMP_HOLD) */",
                    "ep_real dump_from;  /* the bucket's angle as it began to open fast, rad */",
                    "unsigned char dump_load, dump_turned, dump_ended;  /* a load to leave; opened EP_DUMP_TURN; "
-                   "over since the last window */",
-                   "int fill_left;  /* samples the bucket's fast closing still counts (EP_FILL_HOLD) */",
-                   "unsigned char fill_load, fill_ended;  /* a new load while it curled; over since the last window */"]
+                   "over since the last window */"]
         fields += ["ep_real steady_history[EP_STEADY + 1];  /* the last estimates (CalibratedKernel.steady) */",
                    "unsigned int steady_count;  /* estimates since the boom was ready */",
                    "unsigned char steady;  /* the estimate has held still: reported */"]
@@ -552,7 +528,6 @@ if (!s->steady && s->boom_windows >= EP_BOOM_READY && s->info > EP_C(0.0)) {
                   "\n    s->changing = 0;\n    s->changing_windows = 0;"
                   "\n    s->dump_left = 0;\n    s->dump_from = EP_C(0.0);"
                   "\n    s->dump_load = s->dump_turned = s->dump_ended = 0;"
-                  "\n    s->fill_left = 0;\n    s->fill_load = s->fill_ended = 0;"
                   "\n    s->steady = !EP_WAIT_FOR_BOOM;\n    s->steady_count = 0;")
     defines = [f"#define EP_HALF_WINDOW {h}  /* samples each side of the centred differentiator */",
                f"#define EP_WINDOW {width}  /* 2 EP_HALF_WINDOW + 1 */",

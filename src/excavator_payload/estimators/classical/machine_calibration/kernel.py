@@ -14,7 +14,7 @@ balance's over its window (:func:`~.data.window_residuals`, the same weights). T
 also owns ``--outside-calibration`` (a joint outside its covered angles gets no weight),
 ``--wait-for-boom`` (:attr:`CalibratedKernel.ready`, then :attr:`CalibratedKernel.steady`),
 ``--new-load`` (a short memory against the whole one, :meth:`CalibratedKernel._accumulate`;
-a dump's end, :attr:`CalibratedKernel.dump_pending`; a fill's end, :attr:`CalibratedKernel.fill_pending`)
+and a dump's end, :attr:`CalibratedKernel.dump_pending`)
 and ``--joint-check`` (each joint's share of the sums against the others',
 :meth:`CalibratedKernel._check_joints`).
 """
@@ -29,8 +29,7 @@ from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import balance_weights
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     BALANCE_HALF_WINDOW, BALANCE_RAMP, BOOM_READY_WINDOWS, CHANGING_MIN_SHARE, CHANGING_SIGMAS, COVERAGE_JOINTS,
-    DUMP_HOLD, DUMP_LOAD_SHARE, DUMP_OPENING_RATE, DUMP_RESTARTS, DUMP_TURN, FILL_CLOSING_RATE, FILL_HOLD,
-    FILL_RESTARTS, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE,
+    DUMP_HOLD, DUMP_LOAD_SHARE, DUMP_OPENING_RATE, DUMP_RESTARTS, DUMP_TURN, NEW_LOAD_MEMORY, NEW_LOAD_MIN_SHARE,
     NEW_LOAD_SIGMAS, NO_LIMIT, SETTLE_WINDOWS, SIGNALS, STEADY_SHARE, STEADY_WINDOWS)
 from excavator_payload.estimators.classical.machine_calibration.joint_check import JointCheck
 from excavator_payload.estimators.classical.machine_calibration.symbolic import kernel_function
@@ -112,7 +111,6 @@ class CalibratedKernel(PressureRegression):
         dt = 1.0 / MACHINE_SENSORS.sample_rate
         self._short_forgetting = math.exp(-dt / NEW_LOAD_MEMORY)
         self._dump_hold = int(round(DUMP_HOLD / dt))  # samples a dump lasts after the bucket's last fast opening
-        self._fill_hold = int(round(FILL_HOLD / dt))  # samples a fill lasts after the bucket's last fast closing
         self._new_load_min = NEW_LOAD_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._changing_min = CHANGING_MIN_SHARE * float(cal.arm.machine.rated_payload)
         self._dump_load_min = DUMP_LOAD_SHARE * float(cal.arm.machine.rated_payload)
@@ -172,9 +170,6 @@ class CalibratedKernel(PressureRegression):
         self._dump_load = False  # the current dump began with a load in the bucket (or none known)
         self._dump_from = 0.0  # the bucket's angle as it began to open fast, rad
         self._dump_turned = False  # ... and it has opened by DUMP_TURN since: the load slides out
-        self._fill_left = 0  # samples the bucket's curl still lasts (fill_pending)
-        self._fill_load = False  # the new-load test restarted the weighing during this curl: a fill
-        self._fill_ended = False  # a fill has ended since the last window (_accumulate restarts)
         # with --imu-nuisance: the filter's payload as the last window left it (the joint check's
         # moving rule reads it, as the C export's check runs before the filter's window)
         self.payload_before = math.nan
@@ -194,7 +189,6 @@ class CalibratedKernel(PressureRegression):
         self.settles = 0  # changing episodes that ended with the whole memory set to the short one
         self.new_loads = 0  # new loads detected since the last reset
         self.dump_restarts = 0  # ... of which restarts at a dump's end
-        self.fill_restarts = 0  # ... and at a fill's end
         self.changing = False  # the short memory has left the whole one (status load_changing)
         self._restart_steady()
         if hasattr(self, "_joints"):
@@ -309,15 +303,6 @@ class CalibratedKernel(PressureRegression):
                 self._dump_ended = True
         if self._dump_left and values[ANGLES[2]] - self._dump_from > DUMP_TURN:  # turned over: a dump
             self._dump_turned = True
-        if values[RATES[2]] < -FILL_CLOSING_RATE:  # the bucket closes fast: a curl (a fill if it restarts)
-            if not self._fill_left:
-                self._fill_load = False
-            self._fill_left = self._fill_hold
-        elif self._fill_left:
-            self._fill_left -= 1
-            # the curl is over and its windows have left the balance: the load is in (_accumulate restarts)
-            if self._fill_left == 0 and self._fill_load:
-                self._fill_ended = True
         if self.judge and self._count >= 4:  # the sample two before this one, between its neighbours
             slots = [(pos - back) % length for back in (4, 3, 2, 1)]
             context = [self._ring[i] for i in slots] + [values]
@@ -465,15 +450,6 @@ class CalibratedKernel(PressureRegression):
             self._dump_load and self._dump_turned
 
     @property
-    def fill_pending(self) -> bool:
-        """Whether a fill is under way whose end will restart the weighing (``--new-load detect``,
-        :data:`~.settings.FILL_RESTARTS`): the new-load test restarted the weighing while the
-        bucket curled faster than :data:`~.settings.FILL_CLOSING_RATE`, and the curl has not yet
-        been over for :data:`~.settings.FILL_HOLD` s; the sums hold the cut's windows, so an
-        estimate is not reported ``ok`` (``load_changing``)."""
-        return self.new_load and FILL_RESTARTS and not self.loads_stay and self._fill_left > 0 and self._fill_load
-
-    @property
     def checks_joints(self) -> bool:
         """Whether the joint check can run: in the momentum form (the one it was set on)."""
         return self.balance == "momentum"
@@ -551,14 +527,9 @@ class CalibratedKernel(PressureRegression):
                 ns[j] = mu * ns[j] + d_num_joint[j]
                 is_[j] = mu * is_[j] + d_info_joint[j]
         was_changing, self.changing = self.changing, False
-        filled, self._fill_ended = self._fill_ended, False  # a fill's end: its windows have left
         if self._dump_ended and DUMP_RESTARTS and not self.loads_stay:
             self._dump_ended = False
             self.dump_restarts += 1
-            self._restart_load()
-            return
-        if filled and FILL_RESTARTS and not self.loads_stay:
-            self.fill_restarts += 1
             self._restart_load()
             return
         if self.ready and 0.0 < self.info_short < self.info:
@@ -566,8 +537,6 @@ class CalibratedKernel(PressureRegression):
             spread = max(1.0 / self.info_short - 1.0 / self.info, 0.0)
             if abs(change) > max(self._new_load_min, NEW_LOAD_SIGMAS * math.sqrt(spread)):
                 self._restart_load()
-                # while the bucket curls: a fill, whose end restarts the weighing again (fill_pending)
-                self._fill_load = self._fill_load or self._fill_left > 0
                 return
             self.changing = abs(change) > max(self._changing_min, CHANGING_SIGMAS * math.sqrt(spread))
         if self.changing:

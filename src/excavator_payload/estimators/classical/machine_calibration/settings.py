@@ -217,16 +217,6 @@ DUMP_LOAD_SHARE = 0.02
 #: seed 40000): dumps open 57-117° (slopes, shift), while an operator's or a joystick's quick
 #: bucket moves with the load kept open 2-14° and a work cycle's bucket up to its release 9-20°.
 DUMP_TURN = math.radians(30.0)
-#: With ``--new-load detect``: a fill's end restarts the weighing once more. A fill is a curl of the
-#: bucket (closing faster than :data:`FILL_CLOSING_RATE`, rad/s) during which the new-load test
-#: restarted the weighing (the soil's force and the entering load move the estimate mid-dig);
-#: :data:`FILL_HOLD` s after the bucket's last fast closing the load is in and the balance windows
-#: hold none of the cut, and the weighing restarts on windows of the full bucket alone. Without
-#: it the sums kept the dig's windows, and the new-load test restarted the weighing again as the
-#: boom became ready, throwing its first windows away (docs/findings/false-alarms.md, session 20).
-FILL_RESTARTS = True
-FILL_CLOSING_RATE = math.radians(20.0)
-FILL_HOLD = 1.1
 #: A joint is compared only once its σ, (JOINT_INFO_INFLATION / I_j)^½, is within this share of
 #: the rated payload (an early joint on little information stood 115 kg off on a clean swing),
 #: and with the check on an estimate is ``ok`` only once two joints are compared: one joint
