@@ -1,5 +1,5 @@
 """A slew rate's scale (gain) error: what it does to the weighing, and whether it is named
-(issue 31; docs/sensor-health.md, "The slew rate's scale error").
+(issue 31; docs/sensor-health.md, "The slew rate's scale error on a slope").
 
 On the cached clean chunks of :mod:`bench_false_alarms` (``--seed``; the user's default flow,
 ``calibrated`` on the 3 % machine file, zeroed), per experiment: the clean run, then the slew

@@ -1,5 +1,5 @@
 """Level ground: could the house IMU's centripetal leak be the slew rate's partner? (issue 31;
-docs/sensor-health.md, "The slew rate's scale error"). A measurement, not a rule of the monitor.
+docs/sensor-health.md, "The slew rate's scale error on a slope"). A measurement, not a rule of the monitor.
 
 The simulator's house IMU sits ``house_imu_radius`` off the slew axis and leaks a share of its
 centripetal acceleration r·ψ̇² into the pitch it reports (``simulation/machine_sensors.py``). Over

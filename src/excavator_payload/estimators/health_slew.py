@@ -16,7 +16,7 @@ tangential (∝ ψ̈, along y: roll) accelerations leak into the tilt it reports
 sensor model, ``simulation/machine_sensors.py``). Seen in the direction they are
 K (sin roll · ψ̇² + sin pitch · ψ̈) / |tilt|² with one unknown K (the leak times the IMU's radius
 over g), which the slope would otherwise pick up (clean 7° slopes: |slope| up to 0.12; with K fitted
-in the same least squares, 0.03: docs/sensor-health.md, "The slew rate's scale error"). So the
+in the same least squares, 0.03: docs/sensor-health.md, "The slew rate's scale error on a slope"). So the
 window's fit has two regressors, θ and that leak term (ψ̈ the slew rate's difference over
 ± :data:`SLEW_ACCEL_HALF` samples; the fit uses the samples that have both neighbours).
 
