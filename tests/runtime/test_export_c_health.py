@@ -411,3 +411,20 @@ def test_c_drops_a_named_pressures_joint_without_the_joint_check_too(models, pre
     assert "ep_jc_status" not in source.read_text() and "&s->hm_drop" in source.read_text()
     py = _assert_equal(est, source, pressure_faults, tmp_path / "build")
     assert (py["status"] == Status.DEGRADED.value).sum() > 100
+
+
+@pytest.mark.parametrize("name,single", [("calibrated-momentum", False), ("calibrated-momentum", True),
+                                         ("inverse-dynamics", False)])
+def test_c_names_a_slew_rate_gain_on_a_slope_as_python_does(name, single, models, tmp_path):
+    """A slew rate × 0.75 from 5 s on ground tilted about 9° (estimators/health_slew.py): C names
+    the slew rate and both tilts ``gain`` at the same samples as Python, and neither names it on
+    the clean work."""
+    slope = simulate_machine_dataset(1, seed=32, session=2, motion="slopes")
+    frame = slope.frame.copy()
+    frame.loc[frame.index[500:], "slew_rate"] *= 0.75
+    est = models[name]
+    source = export_c(est, tmp_path / "export", precision="float32" if single else "float64")[1]
+    py = _assert_equal(est, source, Dataset(frame, slope.meta), tmp_path / "build", single=single)
+    assert py["fault"].str.contains("slew_rate:gain").sum() > 500
+    clean = _assert_equal(est, source, slope, tmp_path / "clean", single=single)
+    assert not clean["fault"].str.contains(":gain").any()

@@ -41,7 +41,9 @@ its joint's motion, the fitting data's noise):
   the same way (beyond :data:`TILT_OFFSET_LIMIT`), both named.
 * ``gain`` (FMI 13): over :data:`GAIN_WINDOW` with the angle spread at least :data:`GAIN_MIN_STD`,
   the least-squares slope of (angle − integrated rate) against the angle exceeds
-  :data:`GAIN_LIMIT` (a scale error of either signal; both named).
+  :data:`GAIN_LIMIT` (a scale error of either signal; both named). The slew rate the same way
+  against the slew angle the house tilt's direction says, on a slope
+  (:mod:`~excavator_payload.estimators.health_slew`; the slew rate and both tilts named).
 
 * ``balance`` (FMI 13) is not this monitor's: the ``calibrated`` estimator's kernel names a
   cylinder's head and rod pressures when its joint's share of the weighing disagrees with the
@@ -66,6 +68,8 @@ from collections import deque
 
 import numpy as np
 
+from excavator_payload.estimators.health_slew import (SLEW_GAIN_EVALUATIONS, SLEW_GAIN_LIMIT, house_terms,
+                                                     slew_gain_slope)
 from excavator_payload.platforms import HYDRAULIC
 
 #: Window over which a stuck signal does not move, s (0.2 s, tried in the time-to-name work,
@@ -248,6 +252,8 @@ class HealthMonitor:
         self.tilts = [idx[s] for s in ("house_pitch", "house_roll")] \
             if "house_pitch" in idx and "house_roll" in idx else []
         self.slew = idx.get("slew_rate")
+        # the slew rate's partner on a slope: the tilt's direction (health_slew); named together
+        self.slew_watched = [*self.tilts, self.slew] if self.tilts and self.slew is not None else []
         ref = reference or {}
         self.noise_limit = np.array([NOISE_FACTOR * float(ref[s]) if s in ref and float(ref[s]) > 0
                                      else np.inf for s in self.signals])
@@ -297,6 +303,7 @@ class HealthMonitor:
         # the last `size` samples, written twice (at k and k + size) so that any window is one
         # ordered slice; and per sample each link's (angle − integrated rate, cumulative sums)
         self.buffer = np.zeros((2 * self.size, n))
+        self.house = np.zeros((2 * self.size, 3))  # the slew check's house_terms, as the buffer
         self.ring: list = [None] * self.size
         self.prev: list | None = None
         self.noise_blocks: deque = deque()
@@ -318,6 +325,9 @@ class HealthMonitor:
         self.broken_until = [0] * L  # a link's gain is not judged until its windows are clean
         self.suspect_links = [False] * L  # at the link's last evaluation (see SUSPECT_SHARE)
         self.suspect_tilt = False
+        self.slew_run = 0
+        self.slew_broken_until = 0  # the slew check waits for a window free of other faults
+        self.slew_slope = math.nan  # at its last evaluation (NaN: not judged)
 
     def step(self, time: float, values) -> str:
         """Judge one finite, plausible sample; the active faults as ``"signal:kind,..."``
@@ -437,6 +447,8 @@ class HealthMonitor:
         c = self.count
         k = c % size
         self.buffer[k] = self.buffer[k + size] = values
+        if self.slew_watched:
+            self.house[k] = self.house[k + size] = house_terms(v[self.tilts[0]], v[self.tilts[1]])
         # -- per link: angle − integrated rate, and running totals for offset and gain ------
         prev, integral = self.prev, self.integral
         if self.origin is None:
@@ -494,7 +506,30 @@ class HealthMonitor:
             self._offset_and_gain(found, c)
         elif phase == 3 and c >= self.n_smooth and self.tilts:
             self._tilt_offset(found, c)
+        elif phase == 4 and c >= self.n_gain and self.slew_watched:
+            self._slew_gain(found, end, c)
         return found
+
+    def _slew_gain(self, found: list, end: int, c: int) -> None:
+        """The slew rate against the slew angle the house tilt's direction says
+        (:func:`~excavator_payload.estimators.health_slew.slew_gain_slope`): ``gain`` on the slew
+        rate and both tilts, kept while no window is judged. Not judged while any of them is named
+        with another kind, nor until the window holds no sample of that."""
+        watched = self.slew_watched
+        if any(i in watched and kind != "gain" for i, kind in found) \
+                or (self.active and any(i in watched and kind != "gain" for i, kind in self.active)):
+            self.slew_broken_until = c + self.n_gain
+        if c < self.slew_broken_until:
+            self.slew_run, self.slew_slope = 0, math.nan
+            return
+        self.slew_slope = slope = slew_gain_slope(self.house[end - self.n_gain:end],
+                                                  self.buffer[end - self.n_gain:end, self.slew], self.period,
+                                                  GAIN_MIN_STD)
+        self.slew_run = self.slew_run + 1 if abs(slope) > SLEW_GAIN_LIMIT else 0  # NaN: not judged
+        # once named, a scale error stays named until a judged window clears it: at rest, or on
+        # level ground, the house says nothing, and weighing on would restart with the bad rate
+        if self.slew_run >= SLEW_GAIN_EVALUATIONS or (math.isnan(slope) and (self.slew, "gain") in self.active):
+            found += [(i, "gain") for i in watched]
 
     def _stuck(self, found: list, v: list, end: int) -> None:
         w = self.buffer[end - self.n_stuck:end]

@@ -32,6 +32,7 @@ from excavator_payload.runtime import dbc
 from excavator_payload.runtime.export_c.c_text import c_array, c_number
 from excavator_payload.runtime.export_c.health_degraded import (
     C_FORGET, TILT_FIELDS, tilt_defines, tilt_functions, tilt_substitute)
+from excavator_payload.runtime.export_c.health_slew import SLEW_FIELDS, slew_defines, slew_functions
 from excavator_payload.runtime.export_c.joint_check import exports_joint_check
 
 
@@ -232,6 +233,11 @@ unsigned long ep_faults(const ep_state *s, int kind);
                                 "    int hm_angle_state[EP_HM_N_LINKS];    /* 0 not named, 1 reference taken, 2 none to be had */\n"
                                 "    int hm_angle_age[EP_HM_N_LINKS], hm_angle_clean[EP_HM_N_LINKS];\n"
                                 "    int hm_reported;")
+    slew = bool(m.slew_watched)  # the slew rate against the tilt's direction (health_slew)
+    if tilts and not slew:
+        raise ValueError("health: the C tilt substitute reads the slew check's ring")
+    if slew:
+        fields = fields.replace("    int hm_reported;", SLEW_FIELDS + "    int hm_reported;")
     if tilts:
         fields = fields.replace("    int hm_reported;", TILT_FIELDS + "    int hm_reported;")
     if drops:
@@ -281,8 +287,8 @@ unsigned long ep_faults(const ep_state *s, int kind);
 {c_array("EP_HM_NOISE_RELATIVE", m.noise_relative)}{c_array("EP_HM_ALPHA", alpha)}{c_array("EP_HM_BETA", beta)}\
 {c_array("EP_HM_OFFSET_LIMIT", m.offset_limit)}
 {_more_defines(m, drop_joint, int_link, kind_of) if more else ""}\
-{tilt_defines(m) if tilts else ""}\
-{tilt_functions(_angle_functions(_C_FUNCTIONS)) if tilts else _angle_functions(_C_FUNCTIONS) if angles else _C_FUNCTIONS}\
+{slew_defines(m) if slew else ""}{tilt_defines(m) if tilts else ""}\
+{_functions(slew, angles, tilts)}\
 {tilt_substitute(_C_SUBSTITUTE_MORE) if tilts else _C_SUBSTITUTE_MORE if more else _C_SUBSTITUTE}
 {C_FORGET if drops else ""}\
 #endif
@@ -355,7 +361,8 @@ unsigned long ep_faults(const ep_state *s, int kind)
     return parts
 
 
-# HealthMonitor.step, _faults, _stuck, _noise, _offset_and_gain, _tilt_offset and _gain
+# HealthMonitor.step, _faults, _stuck, _noise, _offset_and_gain, _tilt_offset and _gain (_slew_gain:
+# health_slew.py)
 _C_FUNCTIONS = r"""
 #define EP_HM_BIT(i) (1UL << (i))
 /* ring rows `back` samples before the newest */
@@ -705,6 +712,14 @@ static int ep_hm_substitute(const ep_state *s, const ep_real v[EP_N_SIGNALS], ep
     return 1;
 }
 """
+
+def _functions(slew: bool, angles: bool, tilts: bool) -> str:
+    """The monitor's C functions: with the slew check, the lost angles' references, the tilt
+    substitute's reference, as the export has them."""
+    text = slew_functions(_C_FUNCTIONS) if slew else _C_FUNCTIONS
+    text = _angle_functions(text) if angles else text
+    return tilt_functions(text) if tilts else text
+
 
 def _more_defines(m, drop_joint, int_link, kind_of) -> str:
     """The extended substitute's tables: each pressure's joint, each lost angle's link."""
