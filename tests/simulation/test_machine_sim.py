@@ -433,3 +433,23 @@ def test_lag_delay_is_the_delay_the_imu_filter_gives_a_ramp():
     assert lag_delay(0.0, dt) == 0.0
     with pytest.raises(ValueError, match="lag_delay"):
         lag_delay(-1.0, dt)
+
+
+def test_the_truth_says_what_is_in_the_bucket_at_each_sample():
+    """``true_bucket_load`` follows a shift's passes (filled, carried, released: the metadata's
+    times) where ``payload`` is one figure; a file without the column still has its truth."""
+    from excavator_payload.simulation.machine_sim import simulate_machine_dataset
+
+    data = simulate_machine_dataset(1, seed=3, session=1, motion="shift", truck_target=8000.0, with_truth=True)
+    f, passes = data.frame, data.experiment_meta[0]["passes"]
+    t, load = f["time"].to_numpy(float), f["true_bucket_load"].to_numpy(float)
+    assert load[0] == 0.0 and np.all(load >= 0.0)
+    for p in passes:
+        carried = (t > p["fill"][1]) & (t < p["release"][0])
+        assert np.allclose(load[carried], p["payload"], rtol=1e-12)
+        emptied = (t > p["release"][1]) & (t < p["release"][1] + 1.0)
+        assert np.all(load[emptied] == 0.0)
+    assert np.ptp(f["payload"].to_numpy(float)) == 0.0  # one figure per experiment
+    assert data.has_truth
+    older = type(data)(f.drop(columns=["true_bucket_load"]), data.meta)
+    assert older.has_truth

@@ -74,7 +74,7 @@ class Dataset:
 
     @property
     def has_truth(self) -> bool:
-        return all(c in self.frame.columns for c in self.sensor_set.truth_columns)
+        return all(c in self.frame.columns for c in self.sensor_set.required_truth_columns)
 
     @property
     def experiment_meta(self) -> dict[int, dict]:

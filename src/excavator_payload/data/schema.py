@@ -118,6 +118,9 @@ class SensorSet:
         example the true joint torques and accelerations, which this set does not measure).
     extra_units : mapping
         SI unit of each :attr:`truth_extra` column.
+    truth_added : tuple of str
+        Columns of :attr:`truth_extra` added after files were written without them: a file
+        lacking them still has its truth (:attr:`required_truth_columns`).
     rate_pairs : tuple of (signal, rate, unit, least change)
         Each rate checked against the change of the signal it is the rate of (validation: a rate
         in degrees beside an angle in radians): the signal, its rate, the rate's unit and the
@@ -133,6 +136,7 @@ class SensorSet:
     truth_extra: tuple[str, ...] = ()
     extra_units: Mapping[str, str] = field(default_factory=dict)
     rate_pairs: tuple[tuple[str, str, str, float], ...] = ()
+    truth_added: tuple[str, ...] = ()
 
     @property
     def sample_period(self) -> float:
@@ -148,6 +152,11 @@ class SensorSet:
     def truth_columns(self) -> tuple[str, ...]:
         """Noise-free columns of ``--with-truth``: ``true_<signal>`` then :attr:`truth_extra`."""
         return tuple(f"true_{s}" for s in self.signals) + self.truth_extra
+
+    @property
+    def required_truth_columns(self) -> tuple[str, ...]:
+        """The truth columns a file must have to count as with truth (all but :attr:`truth_added`)."""
+        return tuple(c for c in self.truth_columns if c not in self.truth_added)
 
     @property
     def cylinder_chambers(self) -> tuple[str, ...]:
@@ -250,11 +259,12 @@ MACHINE_SENSORS = SensorSet(
     },
     truth_extra=("true_boom_torque", "true_dipper_torque", "true_bucket_torque",
                  "true_boom_accel", "true_dipper_accel", "true_bucket_accel", "true_slew_accel",
-                 "true_slew_angle"),
+                 "true_slew_angle", "true_bucket_load"),
     extra_units={"true_boom_torque": "N*m", "true_dipper_torque": "N*m", "true_bucket_torque": "N*m",
                  "true_boom_accel": "rad/s^2", "true_dipper_accel": "rad/s^2",
                  "true_bucket_accel": "rad/s^2", "true_slew_accel": "rad/s^2",
-                 "true_slew_angle": "rad"},
+                 "true_slew_angle": "rad", "true_bucket_load": "kg"},
+    truth_added=("true_bucket_load",),
     rate_pairs=(("boom_angle", "boom_rate", "rad/s", 0.02), ("dipper_angle", "dipper_rate", "rad/s", 0.02),
                 ("bucket_angle", "bucket_rate", "rad/s", 0.02)),
 )

@@ -208,7 +208,8 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
     dict of str to numpy.ndarray
         ``tau`` (N·m, (n, 4)), cylinder ``load``, ``friction`` (N), ``head`` and ``rod``
         pressures (Pa), ``lengths`` (m), ``speeds`` (m/s), all (n, 3), and house
-        ``inclination`` (rad, (n, 2)).
+        ``inclination`` (rad, (n, 2)), and ``bucket_load`` (kg, (n,): the payload mass in the
+        bucket at each sample, as the physics took it).
     """
     tilt = np.broadcast_to(np.asarray(tilt, float), (len(time), 2))
     sig = arm.motion_signals(q, qd, qdd, tilt, payload)
@@ -240,7 +241,8 @@ def motion_physics(arm: HydraulicArmModel, time: np.ndarray, q: np.ndarray, qd: 
     friction = np.where(np.isnan(held), friction, held)
     head, rod = arm.pressures(sig["load"] + friction)
     return {"tau": sig["tau"], "load": sig["load"], "friction": friction, "head": head, "rod": rod,
-            "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"]}
+            "lengths": sig["length"], "speeds": sig["speed"], "inclination": sig["inclination"],
+            "bucket_load": np.broadcast_to(np.asarray(payload, float), (len(time),)).copy()}
 
 
 def _truth_columns(q, qd, qdd, physics) -> dict[str, np.ndarray]:
@@ -300,6 +302,9 @@ def experiment_rows(experiment: int, time: np.ndarray, q, qd, qdd, physics, payl
         for j, name in enumerate(("boom", "dipper", "bucket", "slew")):
             data[f"true_{name}_accel"] = qdd[:, j]
         data["true_slew_angle"] = q[:, 3]
+        # what is in the bucket at each sample (``payload`` is one figure per experiment: a work
+        # cycle's load after its dump, a shift's truck total)
+        data["true_bucket_load"] = physics["bucket_load"]
     frame = pd.DataFrame(data)
     return frame[list(MACHINE_SENSORS.columns) + (list(MACHINE_SENSORS.truth_columns) if with_truth else [])]
 
