@@ -67,8 +67,8 @@ IMU_PRIOR_STD = np.array([0.02, 0.02, 0.02, 0.02, 0.005])
 #: :mod:`.imu_nuisance`), the calibration's posterior as prior: the lag and the house IMU's
 #: sensitivity (the link IMUs' add nothing: docs/findings/nuisance-oracle.md).
 IMU_NUISANCES: tuple[str, ...] = ("imu_lag", "house_imu_acceleration_sensitivity")
-#: Choices of ``--imu-nuisance`` (``auto``: on in the momentum form unless ``--joint-check on``,
-#: whose σ the C export cannot combine with it; measured on held-out draws:
+#: Choices of ``--imu-nuisance`` (``auto``: on in the momentum form, with or without the joint
+#: check — :func:`.weighing.imu_nuisance_on`; measured on held-out draws:
 #: docs/findings/nuisance-oracle.md, "On by default").
 IMU_NUISANCE_CHOICES = ("auto", "on", "off")
 #: Moving samples per cylinder below which fit warns that calibration learned little of it
