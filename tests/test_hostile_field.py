@@ -8,7 +8,9 @@ each failing on the code before its fix (docs/findings/hardening.md, "session 20
 * a rate of the wrong sign passed every check (no estimate, or a weighing without it, and no word
   why); two swapped rates were called "in °/s";
 * a log of two bridged channels (each sensor frame twice, the copy a few ms later) was refused
-  as a log at the wrong rate.
+  as a log at the wrong rate; a DBC message longer than its frames (J1939 TP) was "out of range";
+* one frame's glitched timestamp refused the whole log; a CSV log with hex data was refused;
+* known loads in pounds were calibrated into a machine twice as heavy and weighed 2.2 times.
 """
 
 from __future__ import annotations
@@ -310,3 +312,28 @@ def test_known_loads_in_pounds_are_refused_by_the_calibration(machine_calibratio
     pounds = create_estimator("calibrated", "cat345c-hydraulic-3pct").fit(Dataset(frame, cal.meta))
     said = " ".join(pounds.fit_refusals)
     assert "scale the machine file's link masses and cylinder areas" in said and "pounds" in said, said
+
+
+def test_a_csv_log_with_hex_data_is_read_as_hex(model_and_log, tmp_path, capsys):
+    """python-can's CSV holds base64; hex text is valid base64 too, so every 8-byte frame read as
+    12 bytes of garbage and the log was refused as "out of the DBC's ranges"."""
+    import base64
+
+    from excavator_payload.data.io import read_estimates
+
+    model, log = model_and_log
+    assert main(["can-replay", "--log", str(log), "--model", str(model), "--out", str(tmp_path / "a.parquet")]) == 0
+    written = tmp_path / "b64.csv"
+    import can
+
+    with can.Logger(str(written)) as writer:
+        for m in can.LogReader(str(log)):
+            writer.on_message_received(m)
+    lines = written.read_text().splitlines()
+    hexed = [lines[0]] + [",".join(f[:-1] + [base64.b64decode(f[-1]).hex()]) for f in (x.split(",") for x in lines[1:])]
+    (tmp_path / "hex.csv").write_text("\n".join(hexed) + "\n")
+    assert main(["can-replay", "--log", str(tmp_path / "hex.csv"), "--model", str(model),
+                 "--out", str(tmp_path / "b.parquet")]) == 0
+    one, two = read_estimates(tmp_path / "a.parquet"), read_estimates(tmp_path / "b.parquet")
+    assert list(one["status"]) == list(two["status"]) and (one["status"] == "ok").sum() > 500
+    np.testing.assert_allclose(one["payload_estimate"].to_numpy(), two["payload_estimate"].to_numpy(), atol=1e-3)

@@ -232,7 +232,32 @@ def _read_frames(path: Path, skipped: list[int] | None) -> Iterator[can.Message]
         if suffix == ".txt":
             yield from _python_can(path, skipped, can.io.canutils.CanutilsLogReader)
             return
+    if suffix == ".csv":
+        yield from _csv_hex_data(_python_can(path, skipped, can.LogReader), path)
+        return
     yield from _python_can(path, skipped, can.LogReader)
+
+
+def _csv_hex_data(frames: Iterator[can.Message], path: Path) -> Iterator[can.Message]:
+    """python-can's CSV frames, with a ``data`` column written in hex (as other tools write it)
+    read as hex: python-can reads the column as base64 only, and hex text is valid base64, so
+    every 8-byte frame decoded as 12 bytes of garbage and the log was refused as "out of the
+    DBC's ranges". A frame whose data is not its DLC's length both ways is refused in one line."""
+    import base64
+
+    for number, message in enumerate(frames, 2):
+        if len(message.data) != message.dlc and not message.is_remote_frame:
+            text = base64.b64encode(bytes(message.data)).decode("ascii").rstrip("=")
+            try:
+                data = bytes.fromhex(text)
+            except ValueError:
+                data = None
+            if data is None or len(data) != message.dlc:
+                raise DatasetError(f"CAN log '{path}': line {number}'s data ({len(message.data)} bytes as base64) "
+                                   f"does not match its dlc {message.dlc}: the data column must be base64 "
+                                   "(python-can's CSV) or hex")
+            message.data = bytearray(data)
+        yield message
 
 
 def _bad_text_line(path: Path) -> str | None:
