@@ -22,6 +22,7 @@ import pyarrow.parquet as pq
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import ESTIMATE_COLUMNS, FORMAT_VERSION, METADATA_KEY
 from excavator_payload.errors import DatasetError
+from excavator_payload.textfiles import is_special, not_a_file
 
 # Validation and unit checks live in validation.py and units.py; named here too.
 from excavator_payload.data.units import (  # noqa: F401
@@ -274,6 +275,8 @@ def _read_schema(path: Path) -> pa.Schema:
         raise DatasetError(f"dataset file '{path}' does not exist")
     if path.is_dir():
         raise DatasetError(f"'{path}' is a folder, not a Parquet dataset file")
+    if is_special(path):  # a named pipe: pyarrow waited for a writer for ever
+        raise DatasetError(not_a_file(path, "dataset file"))
     try:
         return pq.read_schema(path)
     except (pa.ArrowInvalid, OSError) as exc:

@@ -167,6 +167,11 @@ RATE_MIN_WINDOWS = 2
 #: A rate whose integral is more than this times its signal's change (median over the moving
 #: windows) is in degrees: 180/π = 57.3 ≫ √57.3 ≈ 7.6 ≫ 1 (the geometric middle).
 RATE_RATIO_LIMIT = math.sqrt(180.0 / math.pi)
+#: A rate beyond that limit is called one in degrees when it is within this factor of 180/π
+#: (else another joint's rate or another signal: two swapped rates read 14.3 and 0.06).
+DEGREE_TOLERANCE = 2.0
+#: A rate running against its angle is called one of the wrong sign within this factor of -1.
+SIGN_TOLERANCE = 1.25
 
 
 def check_signal_units(frame: pd.DataFrame, sensors: SensorSet, source: str, rates: bool = True) -> None:
@@ -403,8 +408,29 @@ def _check_rates(frame: pd.DataFrame, sensors: SensorSet, source: str) -> None:
         ratio = float(worst.iloc[0]) if len(worst) else pooled
         if np.isfinite(ratio) and abs(ratio) > RATE_RATIO_LIMIT:
             degrees = unit.replace("rad", "°")
+            if abs(math.log(abs(ratio) / math.degrees(1.0))) <= math.log(DEGREE_TOLERANCE):
+                guess = f"is it in {degrees} instead of {unit}?" + (" (and of the wrong sign)" if ratio < 0 else "")
+            else:  # two joints' rates swapped read 14.3 and 0.06: "in °/s?" sent the user to the units
+                guess = (f"not {180 / math.pi:.3g} times, as a rate in {degrees} would be: is it another "
+                         f"joint's rate (two rates swapped in the wiring or the signal map) or another signal?")
             raise DatasetError(f"{source}: column '{rate}' is {ratio:.3g} times the rate of change of "
-                               f"'{signal}'{where}; is it in {degrees} instead of {unit}?")
+                               f"'{signal}'{where}; {guess}")
+        # A rate of the wrong sign (a sensor mounted the other way round, a negative factor or a
+        # signed/unsigned slip in a DBC) passed: the health monitor then held every estimate as a
+        # sensor fault (boom) or weighed on without the rate, and nothing said why. So did two
+        # swapped rates whose ratios stayed below the degree limit. Valid data: every experiment's
+        # ratio 0.93-1.08; a ratio near 0 is a dead rate sensor, the health monitor's to name.
+        backwards = judged[(judged < -1.0 / RATE_RATIO_LIMIT) & (judged > -RATE_RATIO_LIMIT)]
+        if len(backwards) and len(backwards) >= 0.5 * len(judged):
+            first = float(backwards.iloc[0])
+            flip = abs(math.log(-first)) <= math.log(SIGN_TOLERANCE)
+            guess = ("a rate of the wrong sign (the sensor mounted the other way round, or a negative factor or a "
+                     "signed/unsigned slip in the DBC or signal map)? Flip its sign" if flip else
+                     "another joint's rate (two rates swapped in the wiring or the signal map), or one of the "
+                     "wrong sign?")
+            raise DatasetError(f"{source}: column '{rate}' runs against '{signal}': its integral is {first:.3g} "
+                               f"times the angle's change (experiment {backwards.index[0]}; {len(backwards)} of "
+                               f"{len(judged)} experiments judged); {guess}")
 
 
 def _check_shrunk(frame: pd.DataFrame, sensors: SensorSet, signal: str, rate: str, min_change: float,

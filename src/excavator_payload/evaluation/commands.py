@@ -180,7 +180,9 @@ def register(app: typer.Typer) -> None:
         curve = None
         if calibration is not None:
             if not calibration.is_file():
-                raise DatasetError(f"calibration curve file '{calibration}' does not exist")
+                from excavator_payload.textfiles import not_a_file
+
+                raise DatasetError(not_a_file(calibration, "calibration curve file"))
             try:
                 curve = pd.read_csv(calibration)
             except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:

@@ -223,7 +223,9 @@ def load_machine(name_or_path: str | Path | Machine) -> Machine:
         text = (resources.files("excavator_payload.model") / "presets" / f"{text_name}.toml").read_text(encoding="utf-8")
     elif path.suffix == ".toml" or path.exists():
         if not path.is_file():
-            raise MachineError(f"machine file '{path}' does not exist")
+            from excavator_payload.textfiles import not_a_file
+
+            raise MachineError(not_a_file(path, "machine file"))
         source = f"machine file '{path}'"
         text = read_config_text(path, errors="replace")
     else:

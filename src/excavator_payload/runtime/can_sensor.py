@@ -249,10 +249,13 @@ class PayloadSensor:
             {m: [i for i, _ in self.codec._by_message[m]] for m in names},
             {m: self.codec.nominal_period(m) for m in names}, stale_tolerance)
         self.counters = {"frames": 0, "ignored": 0, "samples": 0, "bad_frames": 0, "stale": 0,
-                         "duplicates": 0, "other_senders": 0}
+                         "duplicates": 0, "other_senders": 0, "other_channels": 0}
         #: (message, source address) -> frames of a sensor PGN from an address not the message's
         self.foreign: dict[tuple[str, int], int] = {}
         self._sender: dict[str, int] = {}  # message -> the address it locked onto (null-address DBC)
+        self._channel: dict[str, object] = {}  # message -> the log channel it was first heard on
+        #: message -> (frames shorter than the DBC's message, the last one's length)
+        self.short: dict[str, tuple[int, int]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -297,6 +300,16 @@ class PayloadSensor:
                 key = (spec.name, address)
                 self.foreign[key] = self.foreign.get(key, 0) + 1
                 return None
+        # A log of two channels that a gateway bridges holds each sensor frame twice, the copy a
+        # few ms later: read as a message at twice its rate, the log was refused ("frames 0.006 s
+        # apart, but the DBC says 0.01 s"). A message is the frames of the channel it is first
+        # heard on (a live bus or a one-channel log: always the same channel).
+        channel = getattr(message, "channel", None)
+        if channel is not None:
+            first = self._channel.setdefault(spec.name, channel)
+            if channel != first:
+                self.counters["other_channels"] += 1
+                return None
         return spec
 
     def feed(self, message: can.Message, received_at: float | None = None, spec=None) -> list[SensorOutput]:
@@ -328,6 +341,8 @@ class PayloadSensor:
             self.counters["duplicates"] += 1
             return []
         self._last_frame[spec.name] = (stamp, data)
+        if len(data) < spec.length:
+            self.short[spec.name] = (self.short.get(spec.name, (0, len(data)))[0] + 1, len(data))
         decoded = self.codec.decode(spec, data)
         if any(v != v for _, v in decoded):
             self.counters["bad_frames"] += 1

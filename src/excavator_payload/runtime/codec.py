@@ -16,7 +16,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from excavator_payload.data.schema import SensorSet, get_sensor_set
-from excavator_payload.textfiles import read_config_text
+from excavator_payload.textfiles import not_a_file, read_config_text
 from excavator_payload.runtime.dbc import (
     NULL_ADDRESS, CanConfigError, _pgn, error_indicator, is_j1939, load_dbc, not_available,
     sensor_layout, sensor_set_database, valid_raw_max)
@@ -366,7 +366,7 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
 
     path = Path(path)
     if not path.is_file():
-        raise CanConfigError(f"signal map '{path}' does not exist")
+        raise CanConfigError(not_a_file(path, "signal map"))
     try:
         data = tomllib.loads(read_config_text(path))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:

@@ -159,7 +159,8 @@ def register(app: typer.Typer) -> None:
         dropped = [f"{n} {what}" for n, what in (
             (attrs.get("skipped_records", 0), "unreadable log records skipped"),
             (c["duplicates"], "duplicate frames dropped"),
-            (c["other_senders"], "frames of the sensor PGNs from another source address ignored"))
+            (c["other_senders"], "frames of the sensor PGNs from another source address ignored"),
+            (c["other_channels"], "frames of the sensor messages on a second log channel (a bridged copy) ignored"))
             if n]
         # every status, as `estimate` counts them (it said '(9244 ok)', no word of the warming_up)
         console.print(f"{est.name}: {estimates.count} estimates ({counts_breakdown(estimates.statuses)}) in "

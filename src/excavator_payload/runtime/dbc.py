@@ -516,7 +516,9 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
     """
     path = Path(path)
     if not path.is_file():
-        raise CanConfigError(f"DBC file '{path}' does not exist")
+        from excavator_payload.textfiles import not_a_file
+
+        raise CanConfigError(not_a_file(path, "DBC file"))
     # cantools only logs a message defined twice (same name or frame id) and keeps the last:
     # two lines on stderr, then frames decoded by whichever definition won
     logger = logging.getLogger("cantools.database")
@@ -524,7 +526,7 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
     logger.addHandler(overwritten)
     propagate, logger.propagate = logger.propagate, False
     try:
-        database = cantools.database.load_file(str(path), database_format="dbc", strict=True)
+        database = cantools.database.load_string(dbc_text(path), database_format="dbc", strict=True)
     except Exception as exc:  # cantools raises many types for bad files
         raise CanConfigError(f"'{path}' is not a readable DBC file: {exc}") from None
     finally:
@@ -536,6 +538,27 @@ def load_dbc(path: str | Path) -> cantools.database.can.Database:
         raise CanConfigError(f"'{path}' defines message(s) {', '.join(map(repr, twice))} twice (the same "
                              "name or frame id): keep one definition")
     return database
+
+
+def dbc_text(path: str | Path) -> str:
+    """The text of a DBC file: UTF-8 or UTF-16 when it starts with their byte-order mark (a DBC
+    saved by Notepad or PowerShell: cantools read the mark as text and refused the file with
+    "Invalid syntax at line 1, column 1"), else cp1252, the encoding of Vector's tools (and
+    cantools' default), which reads any byte.
+
+    Parameters
+    ----------
+    path : str or Path
+        The DBC file.
+    """
+    import codecs
+
+    raw = Path(path).read_bytes()
+    if raw.startswith(codecs.BOM_UTF8):
+        return raw[len(codecs.BOM_UTF8):].decode("utf-8", errors="replace")
+    if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        return raw.decode("utf-16", errors="replace")
+    return raw.decode("cp1252", errors="replace")
 
 
 class _Collect(logging.Handler):

@@ -656,6 +656,7 @@ def check_log_units(path, sensor, guard, source: str) -> None:
         One line naming each signal in another unit, its DBC source and the likely unit.
     """
     from excavator_payload.runtime.logs import read_frames
+    from excavator_payload.runtime.replay import _short
 
     from excavator_payload.runtime import dbc
 
@@ -683,6 +684,6 @@ def check_log_units(path, sensor, guard, source: str) -> None:
             raise DatasetError(f"{source}: no sample in it has all the signals of the model's "
                                f"{sensor.sensor_set.name} sensor set readable ({sensor.counters['bad_frames']} "
                                f"of {fed} sensor frames shorter than the DBC's messages, out of its ranges or "
-                               "not available); recorded with another DBC (--dbc, --signal-map)?")
+                               f"not available{_short(sensor)}); recorded with another DBC (--dbc, --signal-map)?")
     finally:
         sensor.reset()

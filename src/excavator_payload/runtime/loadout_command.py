@@ -247,7 +247,8 @@ def _from_bus(estimator, db, target, model, log, interface, channel, dbc_file, s
             record.close()
         c = sensor.counters
         console.print(f"{c['samples']} samples from {c['frames']} frames ({c['ignored']} of other ids, "
-                      f"{c['other_senders']} of the sensor PGNs from other source addresses, {c['bad_frames']} bad); "
+                      f"{c['other_senders']} of the sensor PGNs from other source addresses, "
+                      f"{c['other_channels']} of them on a second log channel, {c['bad_frames']} bad); "
                       f"truck changes: {bus.presses} button presses, {bus.gaps} gaps of 30 s or more; "
                       f"units judged on {bus.guard.judged} windows of {bus.guard.size} samples",
                       markup=False, highlight=False)

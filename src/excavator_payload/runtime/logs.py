@@ -150,7 +150,8 @@ def read_frames(path: str | Path, skipped: list[int] | None = None,
         A folder, a missing file, an unknown or unreadable format.
     """
     count = [0, math.inf, -math.inf]  # frames, first and last finite timestamp
-    for message in _read_frames(Path(path), skipped):
+    skipped = skipped if skipped is not None else [0]
+    for message in _without_clock_glitches(_read_frames(Path(path), skipped), skipped, Path(path)):
         count[0] += 1
         t = float(message.timestamp)
         if math.isfinite(t):
@@ -164,11 +165,55 @@ def read_frames(path: str | Path, skipped: list[int] | None = None,
                           "and are weighed, the rest of the recording is missing")
 
 
+#: s, a frame this far ahead of the one before it and of the one after it carries a glitched
+#: timestamp (a logger's clock read wrong for one frame), not a new recording.
+CLOCK_GLITCH = 10.0
+#: More glitched frames than this share of a log's frames are two clocks, not glitches.
+CLOCK_GLITCH_SHARE = 1e-3
+
+
+def _without_clock_glitches(frames: Iterator[can.Message], skipped: list[int],
+                            path: Path) -> Iterator[can.Message]:
+    """``frames`` without the single frames whose timestamp jumps more than :data:`CLOCK_GLITCH`
+    ahead of both neighbours (counted in ``skipped``, as an unreadable record). One such frame
+    (a timestamp 10⁹ s ahead) made every later frame "go back" and the whole log was refused
+    ("its time goes back between 27995 of 55992 sensor frames"); a new recording after a gap
+    jumps ahead and stays there, and is kept. Many such frames are no glitch but a shuffled log
+    or two clocks interleaved (:data:`CLOCK_GLITCH_SHARE`): refused, as before, in one line."""
+    last, held, frames_seen, glitches = None, None, 0, 0
+    for message in frames:
+        frames_seen += 1
+        t = float(message.timestamp)
+        if held is not None:
+            if math.isfinite(t) and t < float(held.timestamp) - CLOCK_GLITCH:
+                glitches += 1  # the held frame was alone ahead: its time is wrong
+                skipped[0] += 1
+            else:
+                last = float(held.timestamp)
+                yield held
+            held = None
+        if math.isfinite(t) and (last is None or t > last + CLOCK_GLITCH):
+            held = message  # the first frame, or a jump ahead: a new recording, or one glitched frame
+            continue
+        if math.isfinite(t):
+            last = t
+        yield message
+    if held is not None:
+        yield held
+    if glitches > 3 and glitches > CLOCK_GLITCH_SHARE * frames_seen:
+        raise DatasetError(f"CAN log '{path}': {glitches} of its {frames_seen} frames have a timestamp more than "
+                           f"{CLOCK_GLITCH:g} s ahead of the frames before and after them: frames out of order "
+                           "(a log merged and never sorted? sort it by timestamp), or two clocks interleaved "
+                           "(channels logged with different time bases: give a log on one clock)")
+
+
 def _read_frames(path: Path, skipped: list[int] | None) -> Iterator[can.Message]:
     if path.is_dir():
         raise DatasetError(f"CAN log '{path}' is a folder, not a log file")
     if not path.is_file():
-        raise DatasetError(f"CAN log '{path}' does not exist")
+        from excavator_payload.textfiles import not_a_file
+
+        raise DatasetError(not_a_file(path, "CAN log"))
     check_suffix(path)
     suffix = path.suffix.lower()
     skipped = skipped if skipped is not None else [0]
@@ -187,7 +232,32 @@ def _read_frames(path: Path, skipped: list[int] | None) -> Iterator[can.Message]
         if suffix == ".txt":
             yield from _python_can(path, skipped, can.io.canutils.CanutilsLogReader)
             return
+    if suffix == ".csv":
+        yield from _csv_hex_data(_python_can(path, skipped, can.LogReader), path)
+        return
     yield from _python_can(path, skipped, can.LogReader)
+
+
+def _csv_hex_data(frames: Iterator[can.Message], path: Path) -> Iterator[can.Message]:
+    """python-can's CSV frames, with a ``data`` column written in hex (as other tools write it)
+    read as hex: python-can reads the column as base64 only, and hex text is valid base64, so
+    every 8-byte frame decoded as 12 bytes of garbage and the log was refused as "out of the
+    DBC's ranges". A frame whose data is not its DLC's length both ways is refused in one line."""
+    import base64
+
+    for number, message in enumerate(frames, 2):
+        if len(message.data) != message.dlc and not message.is_remote_frame:
+            text = base64.b64encode(bytes(message.data)).decode("ascii").rstrip("=")
+            try:
+                data = bytes.fromhex(text)
+            except ValueError:
+                data = None
+            if data is None or len(data) != message.dlc:
+                raise DatasetError(f"CAN log '{path}': line {number}'s data ({len(message.data)} bytes as base64) "
+                                   f"does not match its dlc {message.dlc}: the data column must be base64 "
+                                   "(python-can's CSV) or hex")
+            message.data = bytearray(data)
+        yield message
 
 
 def _bad_text_line(path: Path) -> str | None:

@@ -351,8 +351,8 @@ def replay_log(path: str | Path, sensor: PayloadSensor, segment_gap: float = SEG
         never = f"; never heard: {', '.join(silent)}" if silent else ""
         raise DatasetError(f"CAN log '{path}': no sample in it has all the signals of the model's "
                            f"{sensor.sensor_set.name} sensor set readable ({bad} of {fed} sensor frames "
-                           f"out of the DBC's ranges or not available{never}{_foreign(sensor)}); recorded "
-                           f"with another DBC or sensor set (--dbc, --signal-map)? The log holds "
+                           f"out of the DBC's ranges or not available{never}{_foreign(sensor)}{_short(sensor)}); "
+                           f"recorded with another DBC or sensor set (--dbc, --signal-map)? The log holds "
                            f"{summary.describe()}")
     watch.check(f"CAN log '{path}'")
     kept.flush()
@@ -384,6 +384,19 @@ def _expected(sensor: PayloadSensor) -> str:
         else:
             parts.append(f"{name}: id 0x{message.frame_id:X}")
     return "; ".join(parts)
+
+
+def _short(sensor: PayloadSensor) -> str:
+    """Which sensor messages came in frames shorter than the DBC's (a DBC message of more than 8
+    bytes on classic CAN is sent by J1939's transport protocol, which is not reassembled here:
+    the line said only "out of the DBC's ranges or not available")."""
+    parts = []
+    for name, (n, length) in sorted(sensor.short.items()):
+        size = sensor.codec.messages[name].length
+        tp = (" (more than a classic CAN frame carries: sent by J1939's transport protocol, TP.CM/TP.DT, "
+              "which is not reassembled; map the signals to single-frame messages)" if size > 8 else "")
+        parts.append(f"{name} is {size} bytes in the DBC, {n} of its frames {length}{tp}")
+    return ("; frames shorter than the DBC's messages: " + ", ".join(parts)) if parts else ""
 
 
 def _foreign(sensor: PayloadSensor) -> str:

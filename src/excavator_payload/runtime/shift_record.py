@@ -116,6 +116,55 @@ def check_record_schema(db: sqlite3.Connection, path: str | Path) -> None:
                                f"record layout); give a new --db")
 
 
+#: The first bytes of an SQLite write-ahead log (either checksum byte order).
+_WAL_MAGIC = (b"\x37\x7f\x06\x82", b"\x37\x7f\x06\x83")
+
+
+def check_record_files(path: str | Path) -> None:
+    """Refuse a shift record SQLite would read wrongly: a named pipe or device (SQLite said "disk
+    I/O error"), or a record beside which lies a write-ahead log (``<record>-wal``) that is not its
+    own. SQLite applies any ``-wal`` file it finds beside a database to it, whoever wrote it: a
+    stale one left by another database of that name (a record deleted without its ``-wal``, a
+    copy of one machine's record next to another's log) replaced the record's pages with the
+    other database's: ``report`` called it "not a shift record" and the next ``loadout`` wrote
+    its passes into the other database, the record's earlier trucks gone. A record that is not in
+    WAL mode (or has no pages yet) has no log of its own, so such a file is foreign.
+
+    Parameters
+    ----------
+    path : str or Path
+        The shift record (it may not exist yet).
+
+    Raises
+    ------
+    DatasetError
+        The path is a special file, or a foreign write-ahead log lies beside it.
+    """
+    from excavator_payload.textfiles import is_special, not_a_file
+
+    path = Path(path)
+    if is_special(path):
+        raise DatasetError(not_a_file(path, "--db"))
+    wal = Path(f"{path}-wal")
+    try:
+        with open(wal, "rb") as f:
+            magic = f.read(4)
+    except OSError:
+        return  # none (or unreadable: SQLite says so itself)
+    if magic not in _WAL_MAGIC:
+        return  # an empty or reset log: nothing SQLite would apply
+    header = b""
+    if path.is_file():
+        with open(path, "rb") as f:
+            header = f.read(20)
+    in_wal_mode = len(header) == 20 and header.startswith(b"SQLite format 3\x00") and header[18:20] == b"\x02\x02"
+    if not in_wal_mode:
+        state = "does not exist yet" if not path.is_file() or not header else "is not in WAL mode"
+        raise DatasetError(f"--db '{path}': beside it lies '{wal.name}', a write-ahead log that is not this "
+                           f"record's (the record {state}): SQLite would apply another database's pages to it; "
+                           f"move '{wal.name}' (and '{path.name}-shm') away, then run again")
+
+
 class ShiftRecord:
     """The shift's SQLite record (module doc): rerunning the same data replaces, never doubles.
 
@@ -130,6 +179,7 @@ class ShiftRecord:
         self.path = path
         if path.is_dir():
             raise DatasetError(f"--db '{path}' is a folder; give a file name such as shift.sqlite")
+        check_record_files(path)
         try:
             self.db = sqlite3.connect(path)
             check_record_schema(self.db, path)
@@ -569,7 +619,10 @@ def read_record(path: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """
     path = Path(path)
     if not path.is_file():
-        raise DatasetError(f"--db '{path}' does not exist")
+        from excavator_payload.textfiles import not_a_file
+
+        raise DatasetError(not_a_file(path, "--db"))
+    check_record_files(path)
     try:
         with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
             check_record_schema(db, path)

@@ -271,7 +271,9 @@ def read_trajectory(path: str | Path) -> Trajectory:
     if path.is_dir():
         raise DatasetError(f"trajectory file '{path}' is a folder; give a Parquet file")
     if not path.is_file():
-        raise DatasetError(f"trajectory file '{path}' does not exist")
+        from excavator_payload.textfiles import not_a_file
+
+        raise DatasetError(not_a_file(path, "trajectory file"))
     with open(path, "rb") as handle:
         head = handle.read(4)
     if head != b"PAR1":

@@ -13,6 +13,7 @@ adds (:func:`coverage_notes`, :func:`waiting_notes`) are here too.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -200,6 +201,26 @@ def imu_nuisance_on(options: dict, balance: str) -> bool:
     return balance == "momentum" and options.get("imu_nuisance", "auto") != "off"
 
 
+#: A calibration that moves the machine file's link masses and cylinder areas by more than this
+#: share (their median; the prior allows 5 %, calibrations from a file 3 % off moved them by at
+#: most 4 %) was given known loads in another unit, or another machine's file.
+MAX_FORCE_SCALE = 0.25
+
+
+def force_scale(cal) -> float:
+    """The factor the calibration ``cal`` scaled the machine file's forces by: the median of
+    ``1 + δ`` over the link masses and cylinder areas (1 when it kept them).
+
+    Parameters
+    ----------
+    cal : MachineCalibration
+        A fitted calibration (its ``z`` starts with the relative changes δ of
+        :data:`CALIBRATED_PARAMETERS`).
+    """
+    deltas = [float(cal.z[i]) for i, n in enumerate(CALIBRATED_PARAMETERS) if n.endswith(("_mass", "_area"))]
+    return 1.0 + float(np.median(deltas)) if deltas else 1.0
+
+
 class MachineWeighing:
     """What a ``calibrated`` estimator holds on the machine sensor set, with its save and restore.
 
@@ -308,6 +329,18 @@ class MachineWeighing:
                 f"{', '.join(still)} of {n_valid}; {MIN_MOVING_SAMPLES} or more wanted): what it "
                 "learned of them is mostly the machine file's. Calibrate with motions that move the "
                 "boom, dipper and bucket (and slew)")
+
+        scale = force_scale(cal)
+        if abs(math.log(scale)) > math.log(1.0 + MAX_FORCE_SCALE):
+            # known loads in pounds (2.2 times kg, below the 2x-the-largest-load limit) were
+            # calibrated into a machine twice as heavy with cylinders twice as large: saved, zeroed
+            # (±34 kg said) and weighed 2.2 times every load, `ok`
+            refusals.append(
+                f"{name}: the calibration had to scale the machine file's link masses and cylinder "
+                f"areas by {scale:.2f} (median of them; its prior allows ±{100 * prior:.0f} %, a right file "
+                f"needs a few %): the known loads look {scale:.2f} times {'too heavy' if scale > 1 else 'too light'} "
+                "for this machine: is column 'payload' in kg (pounds are 2.2 times as many), and is "
+                "--machine this machine's file?")
 
         weighing = cls(cal, difference_scale(dataset), "estimated" if pressure_std is None else noise, ids)
         if options["model_std"] == "cross":
