@@ -1,6 +1,6 @@
 """Hostile-input figures for the README: cases tried, crashes, silent wrong results, data lost.
 
-Runs every case of ``tests/test_hostile_cli.py`` (the same code the test suite runs) against
+Runs every case of ``tests/test_hostile_cli.py`` (``tests/hostile``; the same code the suite runs) against
 the package on ``PYTHONPATH`` and prints one row per group of cases and a total. A case is
 
 * a **crash** if it ends with a traceback, an "internal error", an exit status other than 0
@@ -20,23 +20,25 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import importlib.util
 import io
 import shutil
 import sys
 import tempfile
 from collections import Counter, defaultdict
 from pathlib import Path
+from types import SimpleNamespace
 
 HERE = Path(__file__).resolve().parent
 
 
 def load_cases():
-    spec = importlib.util.spec_from_file_location("hostile_cases", HERE.parent / "tests" / "test_hostile_cli.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["hostile_cases"] = module  # dataclasses look their module up
-    spec.loader.exec_module(module)
-    return module
+    """The suite's cases and harness (``tests/hostile``), as one namespace."""
+    sys.path.insert(0, str(HERE.parent))  # the repository root: ``tests`` is a package there
+    from tests import hostile
+    from tests.hostile import harness
+
+    return SimpleNamespace(ALL_CASES=hostile.ALL_CASES, build_inputs=harness.build_inputs,
+                           run_case=harness.run_case, Outcome=harness.Outcome)
 
 
 def main() -> None:
