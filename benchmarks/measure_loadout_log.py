@@ -3,7 +3,7 @@
 Usage (after `loadout --data … --db data.sqlite` and `loadout --log … --truth … --db log.sqlite`,
 docs/loadout.md, "From a CAN log"):
 
-    python tests/runtime/measure_loadout_log.py data.sqlite log.sqlite [RATED_KG]
+    python benchmarks/measure_loadout_log.py data.sqlite log.sqlite [RATED_KG]
 
 Prints the pass counts, the largest and mean difference of pass weights and truck totals, and
 each record's errors against the truth (passes within 1 % of rated, trucks within 0.5 %).
@@ -49,4 +49,6 @@ def main(data_db: str, log_db: str, rated: float | None = None) -> None:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 3:
+        sys.exit(__doc__)  # the usage: too few arguments
     main(sys.argv[1], sys.argv[2], float(sys.argv[3]) if len(sys.argv) > 3 else None)

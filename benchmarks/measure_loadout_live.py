@@ -1,7 +1,7 @@
 """A CAN log played onto a python-can virtual bus, weighed live by the loadout, against the record
 of the same log replayed (`loadout --log`).
 
-Usage: python tests/runtime/measure_loadout_live.py MODEL LOG DBC MAP LOG_RECORD [TARGET_KG]
+Usage: python benchmarks/measure_loadout_live.py MODEL LOG DBC MAP LOG_RECORD [TARGET_KG]
 
 The log's frames go onto the bus as fast as the loadout takes them (timestamps kept; the feeder
 keeps a few thousand frames queued so the receiver's time-outs never fire on a queue run dry).
@@ -85,4 +85,6 @@ def main(model, log, dbc_path, map_path, record, target=None):
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 6:
+        sys.exit(__doc__)  # the usage: too few arguments
     main(*sys.argv[1:6], float(sys.argv[6]) if len(sys.argv) > 6 else None)

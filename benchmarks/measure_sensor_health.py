@@ -1,6 +1,6 @@
 """Measure the sensor health monitor for docs/sensor-health.md (not a test: run by hand).
 
-    python tests/estimators/measure_sensor_health.py MODEL clean-nmpc.parquet clean-operator.parquet ...
+    python benchmarks/measure_sensor_health.py MODEL clean-nmpc.parquet clean-operator.parquet ...
 
 False alarms: the share of ``sensor_fault`` samples after each experiment's first second on
 clean data. Detection: per experiment, each fault kind injected once on a signal drawn from
@@ -100,4 +100,6 @@ def main(model, paths, seed=0):
 
 
 if __name__ == "__main__":
+    if len(sys.argv) < 3:
+        sys.exit(__doc__)  # the usage: too few arguments
     main(sys.argv[1], sys.argv[2:])

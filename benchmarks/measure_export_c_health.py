@@ -1,7 +1,7 @@
 """Measure the C export's sensor health monitor (docs/sensor-health.md): ns per ``ep_step`` with
 and without it (``-DEP_HEALTH=0``) on a work-cycle replay, ``sizeof(ep_state)``, code size and
 the lines of generated C it adds. Run:
-``OMP_NUM_THREADS=1 python -m tests.runtime.measure_export_c_health``."""
+``OMP_NUM_THREADS=1 PYTHONPATH=src python benchmarks/measure_export_c_health.py``."""
 
 import statistics
 import subprocess
