@@ -133,14 +133,19 @@ def oracle_zero(est, before_zero: np.ndarray):
 
 def oracle(est, noise: str = "field"):
     """``est`` weighing with the simulator's own machine file, session offsets and IMU dynamics."""
-    nz = NOISES[noise]
+    return oracle_with(est, NOISES[noise], load_machine("cat345c-hydraulic"))
+
+
+def oracle_with(est, nz, machine):
+    """``est`` weighing with ``machine`` (a machine file), the session's true offsets and the IMU
+    dynamics of the noise preset ``nz`` (a ``MachineNoise``; no lag where it has none)."""
     src = est.calibration
-    cal = MachineCalibration(HydraulicArmModel(load_machine("cat345c-hydraulic"), compiled=False))
+    cal = MachineCalibration(HydraulicArmModel(machine, compiled=False))
     offsets = session_offsets(dm.SESSION_WORK, nz)
     z = np.zeros_like(src.z)
     z[N_DELTA:N_DELTA + N_OFFSETS] = [offsets[s] for s in OFFSET_SIGNALS]
     k_link = nz.acceleration_leak * nz.link_imu_distance / 9.81
-    z[N_DELTA + N_OFFSETS:] = [lag_delay(nz.imu_lag, 0.01), k_link, k_link, k_link,
+    z[N_DELTA + N_OFFSETS:] = [lag_delay(nz.imu_lag, 0.01) if nz.imu_lag > 0 else 0.0, k_link, k_link, k_link,
                                nz.acceleration_leak * nz.house_imu_radius / 9.81]
     cal.z = z
     for name in ("covariance", "pressure_std", "rate_var", "window_inflation", "angle_coverage", "model_std",

@@ -96,11 +96,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--set", action="append", default=[], help="NAME=VALUE: a kernel setting for this run")
     a = ap.parse_args()
-    from excavator_payload.estimators.classical.machine_calibration import kernel as kernel_module
-
-    for item in a.set:
-        name, value = item.split("=")
-        setattr(kernel_module, name, type(getattr(kernel_module, name))(eval(value)))
+    wal.set_kernel(a.set)
     PressureKernel.step = wal._recording_step(PressureKernel.step)
     est = bfa.calibrated(a.calibration, a.cache)
     folder = a.cache / "shift" if a.seed == bfa.SEED else a.cache / f"seed-{a.seed}" / "shift"

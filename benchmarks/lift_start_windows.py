@@ -49,17 +49,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_false_alarms as bfa  # noqa: E402
 import wait_after_load as wal  # noqa: E402
 from bench_efficiency_gap import FIELD, N_DELTA, N_OFFSETS  # noqa: E402
+from bench_efficiency_gap import oracle_with as oracle  # noqa: E402
 
 from excavator_payload.data.io import write_dataset  # noqa: E402
 from excavator_payload.estimators.classical.machine_calibration.kernel import CalibratedKernel  # noqa: E402
-from excavator_payload.estimators.classical.machine_calibration.settings import (  # noqa: E402
-    BALANCE_HALF_WINDOW, OFFSET_SIGNALS)
-from excavator_payload.estimators.classical.machine_calibration.solver import MachineCalibration  # noqa: E402
+from excavator_payload.estimators.classical.machine_calibration.settings import BALANCE_HALF_WINDOW  # noqa: E402
 from excavator_payload.estimators.classical.pressure_regression import LOOK_AHEAD, PressureKernel  # noqa: E402
 from excavator_payload.evaluation import demo_machine as dm  # noqa: E402
-from excavator_payload.model.hydraulic import HydraulicArmModel  # noqa: E402
 from excavator_payload.model.machine import load_machine  # noqa: E402
-from excavator_payload.platforms.hydraulic import MachineNoise, session_offsets  # noqa: E402
+from excavator_payload.platforms.hydraulic import MachineNoise  # noqa: E402
 from excavator_payload.simulation.generate import simulate_dataset  # noqa: E402
 from excavator_payload.simulation.machine_sensors import lag_delay  # noqa: E402
 
@@ -89,27 +87,6 @@ def machine_of(no_friction: bool):
     off = dict(coulomb=1.0, load_coefficient=0.0, viscous=0.0, static_ratio=1.0)
     return replace(m, boom_cylinder=replace(m.boom_cylinder, **off), dipper_cylinder=replace(m.dipper_cylinder, **off),
                    bucket_cylinder=replace(m.bucket_cylinder, **off))
-
-
-def oracle(est, noise: MachineNoise, machine):
-    """``est`` weighing with ``machine``, the session's true offsets and IMU dynamics of ``noise``
-    (as ``bench_efficiency_gap.oracle``, the machine passed in)."""
-    src = est.calibration
-    cal = MachineCalibration(HydraulicArmModel(machine, compiled=False))
-    offsets = session_offsets(dm.SESSION_WORK, noise)
-    z = np.zeros_like(src.z)
-    z[N_DELTA:N_DELTA + N_OFFSETS] = [offsets[s] for s in OFFSET_SIGNALS]
-    k_link = noise.acceleration_leak * noise.link_imu_distance / 9.81
-    z[N_DELTA + N_OFFSETS:] = [lag_delay(noise.imu_lag, 0.01) if noise.imu_lag > 0 else 0.0, k_link, k_link, k_link,
-                               noise.acceleration_leak * noise.house_imu_radius / 9.81]
-    cal.z = z
-    for name in ("covariance", "pressure_std", "rate_var", "window_inflation", "angle_coverage", "model_std",
-                 "zero_std", "balance", "accel_var"):
-        setattr(cal, name, copy.deepcopy(getattr(src, name)))
-    out = copy.deepcopy(est)
-    out.use_calibration(cal)
-    out.health = False  # noise-free data would read as stuck sensors
-    return out
 
 
 def true_imu(est, noise: MachineNoise, which=slice(None)):

@@ -171,6 +171,15 @@ def study_chunk(est, path: Path, family: str, chunk: int) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def set_kernel(items: list[str]) -> None:
+    """Apply ``--set NAME=VALUE`` items to the kernel module's settings for this run."""
+    from excavator_payload.estimators.classical.machine_calibration import kernel as kernel_module
+
+    for item in items:
+        name, value = item.split("=")
+        setattr(kernel_module, name, type(getattr(kernel_module, name))(eval(value)))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--cache", type=Path, default=Path("/work/scratch/alarms"))
@@ -181,11 +190,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--set", action="append", default=[], help="NAME=VALUE: a kernel setting for this run")
     a = ap.parse_args()
-    from excavator_payload.estimators.classical.machine_calibration import kernel as kernel_module
-
-    for item in a.set:
-        name, value = item.split("=")
-        setattr(kernel_module, name, type(getattr(kernel_module, name))(eval(value)))
+    set_kernel(a.set)
     PressureKernel.step = _recording_step(PressureKernel.step)
     est = bfa.calibrated(a.calibration, a.cache)
     folder = a.cache / a.family if a.seed == bfa.SEED else a.cache / f"seed-{a.seed}" / a.family
