@@ -273,8 +273,8 @@ class JointCheck:
         # goes on: named at once if the joints still disagree when the pause ends)
         # nor while the bucket dumps or before the weighing is ready (a new load's first windows:
         # the fill, a dig), whichever joint leads
-        # nor while the one joint it would name moves the weighing by less than a load that holds
-        # still (_slight: its own model error as likely as a sensor)
+        # nor while the one joint it would name moves the weighing by less than the model error the
+        # check allows a joint (_slight: its own model error as likely as a sensor)
         held = failing and not self.fault and (self.dumping or not kernel.ready or (kernel.changing or self.paused > 0)
                                                and not self._leads(joints, m, w) or self._slight(joints, m, w))
         # nor while the joint crossed (φ_j of both signs) and weighed on one side agrees (_side_agrees)
