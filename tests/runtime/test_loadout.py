@@ -276,4 +276,5 @@ def test_the_shift_figure_shows_trucks_and_passes(truth):
     assert ("± 1 % of rated (50 kg)" in labels) == truth and "not weighed" in labels
     plt.close(fig)
     empty = plot_shift(passes.iloc[:0], trucks.iloc[:0])  # a record with no truck yet
+    assert [a.get_text() for a in empty.axes[1].texts] == ["no passes in the record"]
     plt.close(empty)

@@ -640,12 +640,17 @@ def plot_shift(passes: pd.DataFrame, trucks: pd.DataFrame, rated: float | None =
     ax_t.set_xticks(x, labels, fontsize=7 if len(x) > 20 else None)
     ax_t.set_xlabel("truck")
     ax_t.set_ylabel("load, kg")
-    ax_t.set_title(f"{len(keys)} trucks, {int(weighed.sum())} passes weighed of {len(passes)}")
+    ax_t.set_title(f"{len(keys)} truck{'s' * (len(keys) != 1)}, {int(weighed.sum())} passes weighed of {len(passes)}")
     tops = [v for v in (ax_t.get_ylim()[1], np.nanmax(target, initial=0.0), np.nanmax(true_total, initial=0.0))
             if math.isfinite(v)]
     ax_t.set_ylim(0.0, 1.2 * max(tops))  # room for the legend above the bars
     if ax_t.get_legend_handles_labels()[0]:
         ax_t.legend(loc="upper right", fontsize=8, ncol=2)
+    if passes.empty:  # a record whose trucks had no pass yet: say so rather than draw empty axes
+        ax_p.text(0.5, 0.5, "no passes in the record", ha="center", va="center", transform=ax_p.transAxes)
+        ax_p.set_axis_off()
+        fig.tight_layout()
+        return fig
     # passes in the record's order
     order = np.arange(1, len(passes) + 1)
     w = passes["weight"].to_numpy(float)
