@@ -357,6 +357,22 @@ static int ep_jc_slight(const ep_state *s, int compared, int single)
     return EP_MATH(fabs)(n_all / i_all - n_rest / i_rest) <= EP_JC_SLIGHT_LIMIT;
 }}
 
+/* joint_check._spread: chi2 of the compared joints' weighings about their weighted mean */
+static ep_real ep_jc_spread(int compared, const ep_real m[3], const ep_real w[3])
+{{
+    ep_real sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0);
+    int j;
+    for (j = 0; j < 3; ++j)
+        if (compared >> j & 1) {{
+            sw += w[j];
+            swm += w[j] * m[j];
+        }}
+    mean = swm / sw;
+    for (j = 0; j < 3; ++j)
+        if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
+    return chi2;
+}}
+
 /* JointCheck._side_agrees: joint `single`, one of EP_JC_SIDE_JOINTS, holds windows of both signs of phi (each side's information
  * > 0) and, weighed on one side's sums alone (a side with I >= EP_JC_ENOUGH), agrees with the other
  * compared joints (chi2 within EP_JC_CHI2) */
@@ -371,7 +387,7 @@ static int ep_jc_side_agrees(const ep_state *s, int compared, int single, const 
     i_side[1] = s->jc_neg_info[single];
     if (!(i_side[0] > EP_C(0.0) && i_side[1] > EP_C(0.0))) return 0;
     for (k = 0; k < 2; ++k) {{
-        ep_real ms[3], ws[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0);
+        ep_real ms[3], ws[3];
         if (i_side[k] < EP_JC_ENOUGH) continue;
         for (j = 0; j < 3; ++j) {{
             ms[j] = m[j];
@@ -379,15 +395,7 @@ static int ep_jc_side_agrees(const ep_state *s, int compared, int single, const 
         }}
         ms[single] = n_side[k] / i_side[k];
         ws[single] = EP_C(1.0) / (EP_JC_INFLATION / i_side[k] + EP_JC_EXTRA);
-        for (j = 0; j < 3; ++j)
-            if (compared >> j & 1) {{
-                sw += ws[j];
-                swm += ws[j] * ms[j];
-            }}
-        mean = swm / sw;
-        for (j = 0; j < 3; ++j)
-            if (compared >> j & 1) chi2 += ws[j] * ((ms[j] - mean) * (ms[j] - mean));
-        if (chi2 <= EP_JC_CHI2) return 1;
+        if (ep_jc_spread(compared, ms, ws) <= EP_JC_CHI2) return 1;
     }}
     return 0;
 }}
@@ -395,7 +403,7 @@ static int ep_jc_side_agrees(const ep_state *s, int compared, int single, const 
 /* JointCheck._judge */
 static void ep_jc_judge(ep_state *s)
 {{
-    ep_real m[3], w[3], sw = EP_C(0.0), swm = EP_C(0.0), mean, chi2 = EP_C(0.0), total = EP_C(0.0);
+    ep_real m[3], w[3], chi2 = EP_C(0.0), total = EP_C(0.0);
     int j, compared = 0, n = 0, failing, held, single = -1;
     for (j = 0; j < 3; ++j) {{
         if (s->jc_info[j] >= EP_JC_ENOUGH) {{
@@ -406,16 +414,7 @@ static void ep_jc_judge(ep_state *s)
             total += s->jc_info[j];
         }}
     }}
-    if (n >= 2) {{
-        for (j = 0; j < 3; ++j)
-            if (compared >> j & 1) {{
-                sw += w[j];
-                swm += w[j] * m[j];
-            }}
-        mean = swm / sw;
-        for (j = 0; j < 3; ++j)
-            if (compared >> j & 1) chi2 += w[j] * ((m[j] - mean) * (m[j] - mean));
-    }}
+    if (n >= 2) chi2 = ep_jc_spread(compared, m, w);
     s->jc_checked = (unsigned char)(n >= 2);
     failing = chi2 > EP_JC_CHI2;
     if (failing && n == 3) single = ep_jc_single(m, w);

@@ -264,8 +264,7 @@ class JointCheck:
         if len(joints) >= 2:
             m = {j: nj[j] / ij[j] for j in joints}
             w = {j: 1.0 / (JOINT_INFO_INFLATION / ij[j] + extra) for j in joints}
-            mean = sum(w[j] * m[j] for j in joints) / sum(w.values())
-            chi2 = sum(w[j] * (m[j] - mean) ** 2 for j in joints)
+            chi2 = _spread(joints, m, w)
         self.chi2 = chi2
         self.checked = len(joints) >= 2
         failing = chi2 > JOINT_CHI2
@@ -353,10 +352,15 @@ class JointCheck:
                 continue
             ms, ws = dict(m), dict(w)
             ms[j], ws[j] = n_side / i_side, 1.0 / (JOINT_INFO_INFLATION / i_side + self.extra)
-            mean = sum(ws[i] * ms[i] for i in joints) / sum(ws[i] for i in joints)
-            if sum(ws[i] * (ms[i] - mean) ** 2 for i in joints) <= JOINT_CHI2:
+            if _spread(joints, ms, ws) <= JOINT_CHI2:
                 return True
         return False
+
+
+def _spread(joints: list, m: dict, w: dict) -> float:
+    """χ² of the joints' weighings about their weighted mean: Σ w_j (m_j − m̄)²."""
+    mean = sum(w[j] * m[j] for j in joints) / sum(w[j] for j in joints)
+    return sum(w[j] * (m[j] - mean) ** 2 for j in joints)
 
 
 def _named(joints: list, m: dict, w: dict) -> list:
