@@ -1,4 +1,5 @@
-"""A machine's bus laid out as in the field, for the tests and ``measure_field_bus.py``.
+"""A machine's bus laid out as in the field, for the tests and ``benchmarks/measure_field_bus.py``;
+and a CANedge logger's MF4 layout (:func:`write_canedge_mf4`).
 
 The machine sensor set's signals in J1939 proprietary-B messages at 100 Hz from the arm's
 sensor ECU (source address 0xA0), except the house inclination: a separate inclinometer
@@ -7,7 +8,12 @@ sensor ECU (source address 0xA0), except the house inclination: a separate incli
 
 from __future__ import annotations
 
+from datetime import datetime, timezone
 from pathlib import Path
+
+import numpy as np
+from asammdf import MDF, Signal, Source
+from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT, SOURCE_BUS
 
 from excavator_payload.data.schema import get_sensor_set
 from excavator_payload.runtime import dbc
@@ -162,3 +168,28 @@ def rescaled_dbc(text: str, changes: dict) -> str:
         out, n = re.subn(rf'( SG_ {name} : \S+ )\(([^,]+),([^)]+)\) \[([^|]+)\|([^\]]+)\] "[^"]*"', scaled, out)
         assert n == 1, name
     return out
+
+
+def write_canedge_mf4(frames, path: Path) -> Path:
+    """``frames`` (python-can messages) as a CANedge-style MDF 4.11 bus log; returns the path written."""
+    start = frames[0].timestamp
+    dtype = np.dtype([("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"),
+                      ("CAN_DataFrame.IDE", "<u1"), ("CAN_DataFrame.DLC", "<u1"),
+                      ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(8,)u1"),
+                      ("CAN_DataFrame.Dir", "<u1")])
+    records = np.zeros(len(frames), dtype=dtype)
+    records["CAN_DataFrame.BusChannel"] = 1
+    records["CAN_DataFrame.ID"] = [f.arbitration_id for f in frames]
+    records["CAN_DataFrame.IDE"] = [int(f.is_extended_id) for f in frames]
+    records["CAN_DataFrame.DLC"] = [len(f.data) for f in frames]
+    records["CAN_DataFrame.DataLength"] = [len(f.data) for f in frames]
+    records["CAN_DataFrame.DataBytes"] = np.array([list(bytes(f.data).ljust(8, b"\0")[:8]) for f in frames],
+                                                  dtype="u1")
+    mdf = MDF(version="4.11")
+    mdf.header.start_time = datetime.fromtimestamp(start, timezone.utc)
+    source = Source(name="CAN1", path="CAN1", comment="", source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)
+    mdf.append(Signal(samples=records, timestamps=np.array([f.timestamp - start for f in frames]),
+                      name="CAN_DataFrame", source=source, flags=Signal.Flags.stream_sync),
+               acq_name="CAN1", acq_source=source)
+    mdf.groups[-1].channel_group.flags |= FLAG_CG_BUS_EVENT
+    return Path(mdf.save(path, overwrite=True))  # asammdf may lower the suffix

@@ -75,7 +75,7 @@ def test_mf4_written_by_can_record(tmp_path, swings, model, reference):
 def test_mf4_built_like_a_canedge_log(tmp_path, swings, model, reference):
     """An MDF 4 file made with asammdf's own API the way a CANedge logger writes bus logging:
     a CAN_DataFrame channel group (bus-event flag, CAN bus source), times from the file's start."""
-    from .measure_real_canedge import write_canedge_mf4
+    from .field_bus import write_canedge_mf4
 
     log = write_canedge_mf4(_frames(swings), tmp_path / "00000001.MF4")  # asammdf may lower the suffix
     assert log.is_file()

@@ -1,6 +1,6 @@
 """Our sensor frames inside a real vehicle's bus: the numbers of docs/field-bus.md ("A real logger's file").
 
-    python tests/runtime/measure_real_canedge.py REAL.MF4 DATA.parquet MODEL_DIR OUT_DIR
+    python benchmarks/measure_real_canedge.py REAL.MF4 DATA.parquet MODEL_DIR OUT_DIR
 
 REAL.MF4 is a CAN log from a real CANedge logger (e.g. the public J1939 sample files of
 CSS-Electronics/api-examples; not shipped here). Every frame of it is merged, by time, with the
@@ -12,13 +12,10 @@ source address, 11-bit ids).
 """
 
 import sys
-from datetime import datetime, timezone
 from pathlib import Path
 
 import can
 import numpy as np
-from asammdf import MDF, Signal, Source
-from asammdf.blocks.v4_constants import BUS_TYPE_CAN, FLAG_CG_BUS_EVENT, SOURCE_BUS
 
 from excavator_payload.data.io import read_dataset
 from excavator_payload.estimators.base import load_estimator
@@ -27,30 +24,9 @@ from excavator_payload.runtime.logs import read_frames
 from excavator_payload.runtime.record import record_dataset
 from excavator_payload.runtime.replay import replay_log
 
-
-def write_canedge_mf4(frames, path: Path) -> Path:
-    """``frames`` (python-can messages) as a CANedge-style MDF 4.11 bus log; returns the path written."""
-    start = frames[0].timestamp
-    dtype = np.dtype([("CAN_DataFrame.BusChannel", "<u1"), ("CAN_DataFrame.ID", "<u4"),
-                      ("CAN_DataFrame.IDE", "<u1"), ("CAN_DataFrame.DLC", "<u1"),
-                      ("CAN_DataFrame.DataLength", "<u1"), ("CAN_DataFrame.DataBytes", "(8,)u1"),
-                      ("CAN_DataFrame.Dir", "<u1")])
-    records = np.zeros(len(frames), dtype=dtype)
-    records["CAN_DataFrame.BusChannel"] = 1
-    records["CAN_DataFrame.ID"] = [f.arbitration_id for f in frames]
-    records["CAN_DataFrame.IDE"] = [int(f.is_extended_id) for f in frames]
-    records["CAN_DataFrame.DLC"] = [len(f.data) for f in frames]
-    records["CAN_DataFrame.DataLength"] = [len(f.data) for f in frames]
-    records["CAN_DataFrame.DataBytes"] = np.array([list(bytes(f.data).ljust(8, b"\0")[:8]) for f in frames],
-                                                  dtype="u1")
-    mdf = MDF(version="4.11")
-    mdf.header.start_time = datetime.fromtimestamp(start, timezone.utc)
-    source = Source(name="CAN1", path="CAN1", comment="", source_type=SOURCE_BUS, bus_type=BUS_TYPE_CAN)
-    mdf.append(Signal(samples=records, timestamps=np.array([f.timestamp - start for f in frames]),
-                      name="CAN_DataFrame", source=source, flags=Signal.Flags.stream_sync),
-               acq_name="CAN1", acq_source=source)
-    mdf.groups[-1].channel_group.flags |= FLAG_CG_BUS_EVENT
-    return Path(mdf.save(path, overwrite=True))  # asammdf may lower the suffix
+# The CANedge-layout writer is a test fixture (tests/runtime/field_bus.py); this script reuses it.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "runtime"))
+from field_bus import write_canedge_mf4  # noqa: E402
 
 
 def main(real: str, data: str, model: str, out: str) -> None:

@@ -1,8 +1,9 @@
 """Measure balance-net's exports (docs/balance-net-export.md): step cost in C, Python and ONNX
 (graph alone and with the host loop), sizes. Run:
-``OMP_NUM_THREADS=1 python -m tests.runtime.measure_balance_net_export``."""
+``OMP_NUM_THREADS=1 python benchmarks/measure_balance_net_export.py``."""
 
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -14,7 +15,9 @@ from excavator_payload.runtime.export_c import export_c
 from excavator_payload.runtime.export_onnx import export_onnx
 from excavator_payload.runtime.export_onnx_balance import STATE, OnnxBalanceNet
 
-from .test_export_balance_net import _machine, _thesis
+# The two trained models are the export tests' fixtures; this script times them.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.runtime.test_export_balance_net import _machine, _thesis  # noqa: E402
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Mixed rates, jitter and bursts against the lock-step log: the numbers of docs/field-bus.md.
 
-    OMP_NUM_THREADS=1 python tests/runtime/measure_field_bus.py [N_EXPERIMENTS]
+    OMP_NUM_THREADS=1 python benchmarks/measure_field_bus.py [N_EXPERIMENTS]
 
 A machine-set dataset (field noise, NMPC-free swings) recorded twice: the 100 Hz lock-step log of
 the generated DBC, and the field layout (house inclination at 10 Hz from its own address) with
@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parent))
+# The field layout is a test fixture (tests/runtime/field_bus.py); this script reuses it.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "runtime"))
 from field_bus import write_field_files  # noqa: E402
 
 from excavator_payload.estimators.base import create_estimator  # noqa: E402
