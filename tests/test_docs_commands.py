@@ -3,7 +3,8 @@
 A user copies a command from the docs; an option renamed or removed since (or a value the
 option does not take) must fail here, not in their shell. Each command line in a fenced shell
 block is parsed by the CLI's own parser (option names, types, choices, the callbacks that
-resolve names) without running it. Optional parts written ``[--opt VALUE]`` are parsed as
+resolve names) without running it, and the names the commands resolve in their body (an
+estimator, a machine preset, a motion, a noise preset) are looked up. Optional parts written ``[--opt VALUE]`` are parsed as
 given, and ``a|b|c`` alternatives as their first choice.
 """
 
@@ -18,6 +19,9 @@ import typer
 from typer._click import exceptions as click_exceptions
 
 from excavator_payload.cli import app
+from excavator_payload.estimators.registry import estimator_names
+from excavator_payload.model.machine import list_presets
+from excavator_payload.platforms.registry import PLATFORMS
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
@@ -65,9 +69,34 @@ def parse_error(args: list[str]) -> str | None:
     if command is None:
         return f"no command {args[0]!r}"
     try:
-        command.make_context(args[0], list(args[1:]))
+        ctx = command.make_context(args[0], list(args[1:]))
     except click_exceptions.ClickException as error:
         return error.format_message()
+    return unknown_name(args[0], ctx.params)
+
+
+def unknown_name(command: str, params: dict) -> str | None:
+    """What in ``params`` names nothing the package knows (None: every name resolves).
+
+    Parameters
+    ----------
+    command : str
+        The command's name.
+    params : dict
+        Its parsed parameters.
+    """
+    motions = {m for p in PLATFORMS.values() for m in p.motions}
+    noises = {n for p in PLATFORMS.values() for n in p.noise_presets}
+    name = params.get("name") or params.get("estimator")
+    if command in ("train", "estimators") and isinstance(name, str) and name not in estimator_names():
+        return f"no estimator {name!r}"
+    machine = params.get("machine")
+    if isinstance(machine, str) and not machine.endswith(".toml") and machine not in list_presets():
+        return f"no machine preset {machine!r}"
+    if isinstance(params.get("motion"), str) and params["motion"] not in motions:
+        return f"no motion {params['motion']!r}"
+    if isinstance(params.get("noise"), str) and params["noise"] not in noises:
+        return f"no noise preset {params['noise']!r}"
     return None
 
 
@@ -91,6 +120,10 @@ def test_a_documented_command_parses(where, line, args):
     "excavator-payload simulate --out d.parquet -n five",          # not a number
     "excavator-payload train calibrated --data d.parquet",         # --out missing
     "excavator-payload weigh --data d.parquet",                    # no such command
+    "excavator-payload train calibratd --data d.parquet --out m",  # no such estimator
+    "excavator-payload simulate --out d.parquet --machine cat354c",  # no such machine
+    "excavator-payload simulate --out d.parquet --motion swings",  # no such motion
+    "excavator-payload simulate --out d.parquet --noise feild",    # no such noise preset
 ])
 def test_a_wrong_command_is_caught(tmp_path, line):
     doc = tmp_path / "page.md"
