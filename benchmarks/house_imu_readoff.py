@@ -3,10 +3,11 @@ own pitch and roll (issue 28; docs/findings/false-alarms.md, "The house IMU's se
 its signals").
 
 The link IMUs' sensitivities are read off their signals at calibration
-(``machine_calibration.data.imu_sensitivities``), and since this session the house IMU's too
+(``machine_calibration.data.imu_sensitivities``); the house IMU's can be too
 (``house_imu_sensitivity``: the kernel's own leak terms, ``symbolic.house_imu_leak``, and the
-model's ``house_inclination`` for a ground tilt; the calibration's prior mean in the momentum
-form). This measures it on ``simulate --motion calibration`` data of the given seeds (cached),
+model's ``house_inclination`` for a ground tilt). The calibration does not use it: as the
+momentum form's prior mean it helped with empty-swing zeros and hurt with slow ones on nine
+fresh draws. This measures it on ``simulate --motion calibration`` data of the given seeds (cached),
 from the first 5 and all 10 motions and per motion, against the simulator's
 k = leak · radius / g.
 

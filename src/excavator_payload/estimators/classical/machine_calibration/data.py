@@ -376,6 +376,9 @@ def house_imu_sensitivity(dataset: Dataset, half_window: int = CALIBRATION_HALF_
     a ground tilt :math:`g` (2) per run through the model's ``house_inclination`` linearised at
     level ground, :math:`\psi` the slew rate integrated over the run. Least squares with
     :data:`IMU_PRIOR_STD`'s house entry as prior (mean 0); runs as in :func:`imu_sensitivities`.
+    A measurement (``benchmarks/house_imu_readoff.py``): the calibration does not use it (as the
+    momentum form's prior mean it helped with empty-swing zeros and hurt with slow ones on fresh
+    calibration draws, docs/findings/false-alarms.md).
 
     Parameters
     ----------

@@ -2,8 +2,7 @@ r"""The IMU dynamics re-estimated while weighing (``--imu-nuisance on``): :class
 
 The calibration identifies the IMUs' output lag and acceleration sensitivities once; a
 calibration that saw few motions can get the lag wrong by milliseconds, and the momentum form
-does not fit the house IMU's sensitivity (weighing starts from its prior: the mean read off the
-house IMU's pitch and roll with ``--imu-leak signals``, the prior's std).
+does not identify the house IMU's sensitivity at all (its prior is what weighing starts from).
 Beside :class:`~.kernel.CalibratedKernel`'s sums this filter carries the payload :math:`m`
 and the nuisances :data:`~.settings.IMU_NUISANCES`, whitened by the calibration's posterior
 (:math:`\nu = \mu + Lu`, :math:`LL^\top = C`, prior :math:`u \sim N(0, I)`). Per momentum

@@ -118,9 +118,8 @@ NEW_LOAD_CHOICES = ("auto", "detect", "off")
 #: ``signals``: read off each IMU's own angle and rate (``imu_sensitivities``) and held in
 #: calibration, zero and weighing; ``fit``: identified in the calibration fit with the other
 #: parameters; ``none``: not modelled (0); ``auto`` (the default): ``signals`` in the momentum
-#: form, ``fit`` in the per-sample form. The house IMU's is fitted in the per-sample form; in the
-#: momentum form it is not fitted, and with ``signals`` its prior mean is read off the house IMU's
-#: pitch and roll (``house_imu_sensitivity``, the prior's std kept).
+#: form, ``fit`` in the per-sample form. The house IMU's is fitted in the per-sample form and
+#: left out of the momentum form whatever the choice.
 IMU_LEAK_CHOICES = ("auto", "signals", "fit", "none")
 #: The new-load test compares the estimate of a short memory (exponential, this time constant,
 #: s) with the whole weighing's ...

@@ -46,7 +46,7 @@ from excavator_payload.data.dataset import Dataset
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.classical.machine_calibration.data import (
-    accel_variance, balance_weights, calibration_arrays, held_direction, house_imu_sensitivity, imu_sensitivities,
+    accel_variance, balance_weights, calibration_arrays, held_direction, imu_sensitivities,
     momentum_windows, pressure_noise_from_data, rate_variance, window_residuals)
 from excavator_payload.estimators.classical.machine_calibration.kernel import CalibratedKernel
 from excavator_payload.estimators.classical.machine_calibration.settings import (
@@ -536,20 +536,13 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
     # cannot tell it from the geometry and the lag (the momentum form left it out: free, the
     # sensitivities wandered), the IMU's angle minus its integrated rate shows it alone
     links = len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS) + 1 + np.arange(3)
-    house = len(CALIBRATED_PARAMETERS) + len(OFFSET_SIGNALS) + 4
     if imu_leak == "auto":
         imu_leak = "signals" if balance == "momentum" else "fit"
     if imu_leak == "signals":
         k, k_std = imu_sensitivities(dataset, machine=arm.machine)
         prior_mean[links] = k
-        cal.covariance[links, links] = k_std**2
-        if balance == "momentum":
-            # the house IMU's too, off its pitch and roll against the slew's accelerations, as
-            # the mean; its std stays the prior's: the per-load IMU nuisance filter starts from
-            # it, and held to the read-off's std the lift's first `ok` weighed worse
-            # (docs/findings/false-alarms.md, "The house IMU's sensitivity read off its signals")
-            prior_mean[house] = house_imu_sensitivity(dataset)[0]
         cal.z = prior_mean.copy()
+        cal.covariance[links, links] = k_std**2
     if imu_leak != "fit":
         free = np.setdiff1d(free, links)
     if balance == "momentum":
@@ -558,10 +551,11 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         # error, which the first pass's residuals would blame on the transmitters. Of the IMU
         # dynamics the fit takes the lag (and the links' leak with --imu-leak fit): with the
         # four acceleration sensitivities free the parameters wander; the links' leak is read
-        # off their own signals and held by default, the house's is not fitted (its mean read off
-        # its pitch and roll with --imu-leak signals; what each cost:
-        # docs/findings/machine-calibration.md, "The IMUs' dynamic error"). A window with a
-        # standstill carries its still share of unknown friction
+        # off their own signals and held by default, the house's is left out (what each cost:
+        # docs/findings/machine-calibration.md, "The IMUs' dynamic error"; the house's read off
+        # its pitch and roll, data.house_imu_sensitivity, as the prior's mean helped with empty-
+        # swing zeros and hurt with slow ones on fresh draws: docs/findings/false-alarms.md). A
+        # window with a standstill carries its still share of unknown friction
         # (:meth:`MachineCalibration.evaluate_windows`).
         if pressure_std is None:
             cal.pressure_std = pressure_noise_from_data(dataset)
