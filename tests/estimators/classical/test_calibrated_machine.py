@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from excavator_payload.data.dataset import Dataset
+from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.errors import EstimatorError
 from excavator_payload.estimators.base import create_estimator, load_estimator
 from excavator_payload.estimators.status import Status
@@ -842,6 +843,43 @@ def test_imu_leak_is_read_off_the_imus_own_signals(setup):
             clean[c] = clean["true_" + c]
         none, _ = cm.imu_sensitivities(Dataset(clean, setup["cal"].meta))
         assert np.all(np.abs(none) < 0.05 * truth)
+
+
+def test_house_imu_leak_is_read_off_its_pitch_and_roll(setup, momentum):
+    """On fixed ground the house's pitch and roll move only with the slew's accelerations: the
+    simulator's k = leak · radius / g is found from the kernel's own leak terms; true signals
+    give about 0; a 3° ground slope (the house's tilt turning with the slew, the model's
+    house_inclination) does not move it with the tilt term and does without; the momentum form
+    does not use it (a measurement: benchmarks/house_imu_readoff.py)."""
+    from excavator_payload.model.hydraulic import hydraulic_symbolic
+    from excavator_payload.simulation.machine_sensors import get_machine_noise
+
+    field = get_machine_noise("field")
+    truth = field.acceleration_leak * field.house_imu_radius / 9.81
+    k, std = cm.house_imu_sensitivity(setup["cal"])
+    assert k == pytest.approx(truth, rel=0.1) and 0 < std < 0.1 * truth
+    frame = setup["cal"].frame
+    if "true_house_pitch" in frame:
+        clean = frame.copy()
+        clean[["house_pitch", "house_roll"]] = clean[["true_house_pitch", "true_house_roll"]].to_numpy()
+        assert abs(cm.house_imu_sensitivity(Dataset(clean, setup["cal"].meta))[0]) < 0.05 * truth
+    sloped = frame.copy()
+    f = hydraulic_symbolic().functions["house_inclination"]
+    for _, rows in sloped.groupby("experiment").groups.items():
+        rate = sloped.loc[rows, "true_slew_rate" if "true_slew_rate" in sloped else "slew_rate"].to_numpy()
+        q = np.zeros((4, len(rows)))
+        q[3] = 0.7 + np.r_[0.0, np.cumsum(0.5 * (rate[1:] + rate[:-1]) / MACHINE_SENSORS.sample_rate)]
+        tilt = np.asarray(f.map(len(rows))(q, np.outer([0.05, 0.02], np.ones(len(rows)))))
+        sloped.loc[rows, ["house_pitch", "house_roll"]] += tilt.T
+    on_slope, _ = cm.house_imu_sensitivity(Dataset(sloped, setup["cal"].meta))
+    assert on_slope == pytest.approx(k, rel=0.05)
+    assert cm.house_imu_sensitivity(Dataset(sloped, setup["cal"].meta), tilt=False)[0] != pytest.approx(k, rel=0.05)
+    # the momentum form does not take it (its prior mean stays 0: on fresh draws it helped with
+    # empty-swing zeros and hurt with slow ones, docs/findings/false-alarms.md)
+    cal = momentum.calibration
+    house = len(cm.CALIBRATED_PARAMETERS) + len(cm.OFFSET_SIGNALS) + 4
+    assert cal.z[house] == 0.0
+    assert np.sqrt(cal.covariance[house, house]) == pytest.approx(cm.IMU_PRIOR_STD[4])
 
 
 def test_imu_leak_signals_is_held_in_calibration(setup):

@@ -92,7 +92,16 @@ def test_sigma_adds_the_share_and_streams_as_the_batch(zeroed, test_swing, tmp_p
     np.testing.assert_array_equal(copied, batch)
     # the grid's RMS share is no longer in σ: the per-estimate share replaces it
     assert est.kernel.regression.model_std == pytest.approx(s)
-    assert np.median(share[has]) < est.calibration.zero_std
+    # ... and it is the estimate's own: it moves as the swing adds poses whose sensitivities to
+    # the offsets add up or cancel (1.3-6.9 kg on main f58db74, 4.4-7.7 kg with the house IMU's
+    # read-off: one load, one swing), where the grid's is one number (5.9 kg both). Its size is
+    # the grid's: the same posterior through the weighing's sensitivity, at the swing's poses
+    # instead of the static grid's. Which side of the grid's RMS its median falls is not a
+    # property (0.69 and 1.05 of it on those two calibrations); a lost term or a unit slip is
+    # (docs/findings/false-alarms.md, "The house IMU's sensitivity read off its signals").
+    ok_share = share[has & (share > 0)]
+    assert ok_share.max() > 1.5 * ok_share.min()
+    assert 0.5 < np.median(ok_share) / est.calibration.zero_std < 2.0
 
 
 def test_no_share_before_a_zero(zeroed, test_swing):

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from excavator_payload.estimators.classical.machine_calibration.data import (  # noqa: F401
     _glitches, _window_sums, accel_variance, accelerations, angle_coverage, balance_weights,
-    calibration_arrays, held_direction, imu_sensitivities, momentum_windows, pressure_noise_from_data,
-    rate_variance, window_residuals)
+    calibration_arrays, held_direction, house_imu_sensitivity, imu_sensitivities, momentum_windows,
+    pressure_noise_from_data, rate_variance, window_residuals)
 from excavator_payload.estimators.classical.machine_calibration.kernel import CalibratedKernel  # noqa: F401
 from excavator_payload.estimators.classical.machine_calibration.settings import (  # noqa: F401
     _OFFSET_COLUMNS, _PARAM_INDEX, BALANCE_CHOICES, BALANCE_HALF_WINDOW, BALANCE_RAMP, CALIBRATED_PARAMETERS,
@@ -25,8 +25,8 @@ from excavator_payload.estimators.classical.machine_calibration.settings import 
 from excavator_payload.estimators.classical.machine_calibration.solver import (  # noqa: F401
     MachineCalibration, calibrate, cross_validated_model_std, zero_offsets)
 from excavator_payload.estimators.classical.machine_calibration.symbolic import (  # noqa: F401
-    _corrected_signals, _momentum_terms, _unpack, compiled, kernel_function, momentum_function,
-    residual_function)
+    _corrected_signals, _momentum_terms, _unpack, compiled, house_imu_leak, kernel_function,
+    momentum_function, residual_function)
 from excavator_payload.estimators.classical.machine_calibration.weighing import (  # noqa: F401
     MachineWeighing, coverage_notes, hardly_moved, machine_arm, waiting_notes, zero)
 from excavator_payload.estimators.classical.pressure_regression import (  # noqa: F401

@@ -18,7 +18,8 @@ From a :class:`~excavator_payload.data.dataset.Dataset` of the machine sensor se
             - \frac{m}{W}\Big[-\sum_j u_j P_{m,j} - \sum_j w_j F_{m,j}\,\Delta t\Big];
 
 * **the seals' presliding state** (:func:`held_direction`);
-* **glitches and the IMUs' acceleration leak** (:func:`_glitches`, :func:`imu_sensitivities`);
+* **glitches and the IMUs' acceleration leak** (:func:`_glitches`, :func:`imu_sensitivities`,
+  :func:`house_imu_sensitivity`);
 * **the angles the calibration covered** (:func:`angle_coverage`).
 """
 
@@ -358,6 +359,103 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
     sigma2 = max(float(residual @ residual) / max(len(y) - 3, 1), 1e-30)
     posterior = np.linalg.inv(X.T @ X / sigma2 + np.diag(1.0 / prior**2))
     return posterior @ (X.T @ y) / sigma2, np.sqrt(np.diag(posterior))
+
+
+def house_imu_sensitivity(dataset: Dataset, half_window: int = CALIBRATION_HALF_WINDOW,
+                          tilt: bool = True) -> tuple[float, float]:
+    r"""The house IMU's acceleration sensitivity, read off its own pitch and roll.
+
+    On ground that does not move, the house's true pitch and roll within a run depend only on
+    the slew angle (constant on level ground), so what the slew's accelerations add is the
+    fusion's leak (:func:`~.symbolic.house_imu_leak`, the kernel's definition),
+
+    .. math:: \tilde\theta = k\,\dot\psi^2 + c_\theta + J_\theta(\psi)\,g + \varepsilon,
+              \qquad \tilde\phi = -k\,\ddot\psi + c_\phi + J_\phi(\psi)\,g + \varepsilon,
+
+    with :math:`c` per run and channel (offset and tilt at the run's start) and, with ``tilt``,
+    a ground tilt :math:`g` (2) per run through the model's ``house_inclination`` linearised at
+    level ground, :math:`\psi` the slew rate integrated over the run. Least squares with
+    :data:`IMU_PRIOR_STD`'s house entry as prior (mean 0); runs as in :func:`imu_sensitivities`.
+    A measurement (``benchmarks/house_imu_readoff.py``): the calibration does not use it (as the
+    momentum form's prior mean it helped with empty-swing zeros and hurt with slow ones on fresh
+    calibration draws, docs/findings/false-alarms.md).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data (no payload needed).
+    half_window : int
+        Samples each side of the differentiator for the slew acceleration.
+    tilt : bool
+        Model a ground tilt per run (the house's pitch and roll varying with the slew angle).
+
+    Returns
+    -------
+    k, std : float
+        Sensitivity (s²) and its posterior std.
+    """
+    from excavator_payload.estimators.classical.machine_calibration.symbolic import house_imu_leak
+    from excavator_payload.estimators.classical.pressure_regression import PITCH, ROLL
+
+    f = dataset.frame
+    values = f[list(SIGNALS)].to_numpy(float)
+    qdd = accelerations(dataset, half_window)
+    dt = 1.0 / MACHINE_SENSORS.sample_rate
+    exp = f["experiment"].to_numpy()
+    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1)
+    ok &= ~_glitches(values[:, [PITCH, ROLL, RATES[3]]], exp, half_window)
+    runs = np.cumsum(np.r_[True, (exp[1:] != exp[:-1]) | ~ok[:-1]])
+    ys, xs, groups = [], [], []
+    for run in np.unique(runs[ok]):
+        idx = np.flatnonzero((runs == run) & ok)
+        if len(idx) < 4 * half_window:
+            continue
+        rate = values[idx, RATES[3]]
+        centripetal, tangential = house_imu_leak(rate, qdd[idx, 3])
+        y = np.r_[values[idx, PITCH], values[idx, ROLL]]
+        x = np.r_[centripetal, -tangential]
+        n = len(idx)
+        nuisance = [np.r_[np.ones(n), np.zeros(n)], np.r_[np.zeros(n), np.ones(n)]]
+        if tilt:
+            slew = np.r_[0.0, np.cumsum(0.5 * (rate[1:] + rate[:-1]) * dt)]
+            nuisance += list(_tilt_columns(slew).T)
+        Q, _ = np.linalg.qr(np.column_stack(nuisance))
+        ys.append(y - Q @ (Q.T @ y))
+        xs.append(x - Q @ (Q.T @ x))
+        groups.append(np.full(2 * n, exp[idx[0]]))
+    prior = float(IMU_PRIOR_STD[4])
+    if not ys:
+        return 0.0, prior
+    y, x, group = np.concatenate(ys), np.concatenate(xs), np.concatenate(groups)
+    xx = float(x @ x)
+    residual = y - x * (float(x @ y) / xx if xx > 0 else 0.0)
+    sigma2 = max(float(residual @ residual) / max(len(y) - 1, 1), 1e-30)
+    # the residuals are not white (the IMUs' filter, the differentiator): the data's variance
+    # at least that of the experiments' own estimates about the whole (their scatter measured
+    # ~10x the white-noise posterior std on the recommended motions)
+    per = [(float(x[group == e] @ y[group == e]), float(x[group == e] @ x[group == e])) for e in np.unique(group)]
+    k_all = float(x @ y) / xx if xx > 0 else 0.0
+    if len(per) > 1 and xx > 0:
+        # the sandwich (cluster-robust) variance of the pooled slope, experiments as clusters
+        scatter = sum((xy_e - k_all * xx_e) ** 2 for xy_e, xx_e in per) / xx**2
+        data_var = max(sigma2 / xx, scatter * len(per) / (len(per) - 1))
+    else:
+        data_var = sigma2 / xx if xx > 0 else np.inf
+    variance = 1.0 / (1.0 / data_var + 1.0 / prior**2)
+    return variance * k_all / data_var, float(np.sqrt(variance))
+
+
+def _tilt_columns(slew: np.ndarray, step: float = 1e-4) -> np.ndarray:
+    """(2n, 2): the house's (pitch; roll) per rad of ground pitch and roll at slew angles
+    ``slew`` (the model's ``house_inclination`` at level ground, differenced)."""
+    from excavator_payload.model.hydraulic import hydraulic_symbolic
+
+    f = hydraulic_symbolic().functions["house_inclination"].map(len(slew))
+    q = np.zeros((4, len(slew)))
+    q[3] = slew
+    level = np.asarray(f(q, np.zeros((2, len(slew)))))
+    cols = [(np.asarray(f(q, np.outer(np.eye(2)[i] * step, np.ones(len(slew))))) - level) / step for i in range(2)]
+    return np.column_stack([c.reshape(-1) for c in cols])
 
 
 def calibration_arrays(dataset: Dataset, half_window: int, machine=None):

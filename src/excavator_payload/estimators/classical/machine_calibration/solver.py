@@ -552,8 +552,10 @@ def calibrate(arm: HydraulicArmModel, dataset: Dataset, prior_std: float = 0.05,
         # dynamics the fit takes the lag (and the links' leak with --imu-leak fit): with the
         # four acceleration sensitivities free the parameters wander; the links' leak is read
         # off their own signals and held by default, the house's is left out (what each cost:
-        # docs/findings/machine-calibration.md, "The IMUs' dynamic error"). A window with a
-        # standstill carries its still share of unknown friction
+        # docs/findings/machine-calibration.md, "The IMUs' dynamic error"; the house's read off
+        # its pitch and roll, data.house_imu_sensitivity, as the prior's mean helped with empty-
+        # swing zeros and hurt with slow ones on fresh draws: docs/findings/false-alarms.md). A
+        # window with a standstill carries its still share of unknown friction
         # (:meth:`MachineCalibration.evaluate_windows`).
         if pressure_std is None:
             cal.pressure_std = pressure_noise_from_data(dataset)

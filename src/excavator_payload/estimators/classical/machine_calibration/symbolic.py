@@ -38,6 +38,29 @@ from excavator_payload.model.codegen import native
 from excavator_payload.model.hydraulic import HYDRAULIC_PARAMETER_NAMES, hydraulic_symbolic
 
 
+def house_imu_leak(slew_rate, slew_accel):
+    r"""The slew accelerations the house IMU's sensitivity k multiplies: the measured pitch
+    carries :math:`+k\,\dot\psi^2` (centripetal, the IMU ahead of the slew axis), the measured
+    roll :math:`-k\,\ddot\psi` (tangential). One definition for the kernel
+    (:func:`_corrected_signals`) and the calibration's read-off
+    (:func:`~.data.house_imu_sensitivity`); numbers or CasADi symbols.
+
+    Parameters
+    ----------
+    slew_rate : float, numpy.ndarray or casadi.SX
+        Slew rate, rad/s.
+    slew_accel : float, numpy.ndarray or casadi.SX
+        Slew acceleration, rad/s².
+
+    Returns
+    -------
+    centripetal, tangential
+        :math:`\dot\psi^2` ((rad/s)², into pitch, +k) and :math:`\ddot\psi` (rad/s², into
+        roll, −k).
+    """
+    return slew_rate**2, slew_accel
+
+
 def _corrected_signals(x, qdd, offsets, imu):
     """Symbolic sensor correction of one raw sample: offsets, then the IMUs' dynamic error.
 
@@ -63,9 +86,9 @@ def _corrected_signals(x, qdd, offsets, imu):
     q = ca.vertcat(*angles, 0)
     # the house IMU ahead of the slew axis: centripetal acceleration into pitch, tangential
     # into roll
-    slew_rate = rates[3] + lag * qdd[3]
-    pitch = corr[PITCH] - k_house * slew_rate**2
-    roll = corr[ROLL] + k_house * qdd[3]
+    centripetal, tangential = house_imu_leak(rates[3] + lag * qdd[3], qdd[3])
+    pitch = corr[PITCH] - k_house * centripetal
+    roll = corr[ROLL] + k_house * tangential
     # ground tilt from the house IMU at slew angle 0 (inverse of house_inclination at ψ = 0,
     # as pressure_regression.ground_tilt)
     tilt = ca.vertcat(ca.asin(ca.sin(pitch) / ca.cos(roll)), roll)
