@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from excavator_payload.data.dataset import Dataset
 from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.simulation.generate import simulate_dataset
@@ -31,3 +33,10 @@ def zeroed_momentum_models(swings: Dataset) -> dict:
     on.options["imu_nuisance"] = "on"
     on.use_calibration()
     return {"unzeroed": fitted, "off": off, "on": on}
+
+
+def mean_abs_error(est, ds: Dataset) -> float:
+    """Mean |error| (kg) of ``est`` on ``ds`` after each experiment's discarded first samples."""
+    e = est.estimate(ds)["payload_estimate"].to_numpy() - ds.frame["payload"].to_numpy()
+    judged = ds.frame.groupby("experiment").cumcount().to_numpy() >= dm.DISCARD
+    return float(np.nanmean(np.abs(e[judged])))

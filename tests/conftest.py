@@ -34,7 +34,8 @@ def machine_calibration():
 #: The longest test files, started first: with two workers (pytest-xdist, one file per worker at
 #: a time) a long file begun last would leave one worker running it alone at the end.
 LONG_FILES = ("estimators/test_conformance.py", "test_hostile_cli.py",
-              "estimators/classical/test_calibrated_machine.py", "evaluation/test_demo_machine.py")
+              "estimators/classical/test_calibrated_machine.py", "evaluation/test_demo_machine.py",
+              "estimators/classical/test_calibrated_machine_momentum.py")
 
 
 def pytest_collection_modifyitems(config, items):
