@@ -263,3 +263,22 @@ def test_c_holds_a_joint_that_agrees_on_one_side_as_python_does(tmp_path, monkey
     monkeypatch.setattr(JointCheck, "_side_agrees", lambda self, joints, m, w: False)
     named = est.estimate(cycle)["fault"].astype(str).str.contains("bucket_head_pressure:balance", regex=False)
     assert named.sum() > 1000
+
+
+@pytest.mark.parametrize("pause_restarts", [True, False])
+def test_c_restarts_at_a_pauses_end_as_python_does(model, work, tmp_path, monkeypatch, pause_restarts):
+    """The clean operator motion's second experiment, on which this small test model's check
+    pauses and the memories agree again: the weighing restarts there (``settings.PAUSE_RESTARTS``,
+    ``EP_JC_PAUSE_RESTARTS``), in C as in Python, sample by sample; with the rule off neither does."""
+    from excavator_payload.estimators.classical.machine_calibration import joint_check as joint_check_module
+    from excavator_payload.estimators.classical.machine_calibration import settings
+
+    monkeypatch.setattr(joint_check_module, "PAUSE_RESTARTS", pause_restarts)
+    monkeypatch.setattr(settings, "PAUSE_RESTARTS", pause_restarts)
+    clean = work[0]
+    second = Dataset(clean.frame[clean.frame["experiment"] == clean.experiment_ids[1]].reset_index(drop=True),
+                     clean.meta)
+    source = export_c(model, tmp_path / "export")[1]
+    assert f"#define EP_JC_PAUSE_RESTARTS {int(pause_restarts)}" in source.read_text()
+    _assert_equal(model, source, second, tmp_path / "build")
+    assert model.kernel.regression._joints.pause_restarts == (1 if pause_restarts else 0)

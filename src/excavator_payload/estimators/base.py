@@ -263,6 +263,16 @@ class Estimator(DegradedWeighing, ABC):
     def _restore(self, config: dict, arrays: Mapping[str, np.ndarray]) -> None:
         """Restore what :meth:`_config` and :meth:`_arrays` saved."""
 
+    def _substituting(self, on: bool) -> None:
+        """Told before each sample the model weighs whether it weighs substitutes (``degraded``);
+        nothing here (``calibrated``: its joint check restarts no weighing then).
+
+        Parameters
+        ----------
+        on : bool
+            Whether the sample holds the monitor's substitutes.
+        """
+
     def _on_gap(self, time: float, values: np.ndarray) -> None:
         """Called when time jumps by more than 1.5 sample periods: restart by default."""
         self._reset()
@@ -525,6 +535,7 @@ class Estimator(DegradedWeighing, ABC):
         """The rest of :meth:`step_values` for a sample the monitor let through (``degraded``:
         with substitutes; sigma widened by :data:`.health.DEGRADED_SIGMA_FACTOR`, plus the
         estimate's move since the degraded samples began)."""
+        self._substituting(degraded)
         gap = False
         if self._last_time is not None:
             dt = time - self._last_time

@@ -505,6 +505,18 @@ class CalibratedEstimator(InverseDynamicsEstimator):
         if isinstance(self.kernel, WeighingKernel):
             self.kernel.regression.drop = tuple(bool(j) for j in joints)
 
+    def _substituting(self, on: bool) -> None:
+        """The kernel weighs the next sample with the monitor's substitutes, or not
+        (:attr:`CalibratedKernel.substituting`).
+
+        Parameters
+        ----------
+        on : bool
+            Whether the sample holds substitutes (``degraded``).
+        """
+        if isinstance(self.kernel, WeighingKernel):
+            self.kernel.regression.substituting = bool(on)
+
     def _forget_joints(self, joints: tuple[bool, ...]) -> None:
         """The kernel weighs none of these joints' windows over the samples it holds now
         (:meth:`CalibratedKernel.forget`).

@@ -61,7 +61,7 @@ class CHealth:
     api: str
 
     #: ep_step: before anything (the fault report is the last sample's only)
-    clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n#endif\n"
+    clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n    s->hm_substituting = 0;\n#endif\n"
     #: ep_step: its locals for degraded weighing (HealthMonitor.substitute)
     locals = "#if EP_HEALTH\n    ep_real hm_used[EP_N_SIGNALS];\n    int degraded = 0;\n#endif\n"
     #: ep_step: where Estimator.step_values calls the monitor
@@ -78,6 +78,7 @@ class CHealth:
              "        }\n"
              "        v = hm_used;\n"
              "        degraded = 1;\n"
+             "        s->hm_substituting = 1;  /* Estimator._substituting: the model weighs substitutes */\n"
              "    }\n"
              "#endif\n")
     #: ep_step: after the model's sigma (Estimator._use: widened while degraded)
@@ -187,6 +188,7 @@ unsigned long ep_faults(const ep_state *s, int kind);
     ep_real hm_last_time;
     int hm_has_last_time;
     ep_real hm_degraded_from;  /* the estimate when the degraded samples began (NaN: not degraded) */
+    int hm_substituting;       /* this ep_step weighs the monitor's substitutes (degraded) */
     int hm_count;              /* samples since the windows started (saturates) */
     int hm_phase;              /* count modulo EP_HM_EVERY: the stagger */
     int hm_raw_next, hm_sum_next;
@@ -322,7 +324,7 @@ unsigned long ep_faults(const ep_state *s, int kind)
     if more:
         parts.check = CHealth.check.replace("ep_hm_substitute(s, v, hm_used)", "ep_hm_substitute(s, v, hm_used, &s->hm_drop)")
     if drops:
-        parts.clear = "#if EP_HEALTH\n    s->hm_reported = 0;\n    s->hm_drop = 0;\n#endif\n"
+        parts.clear = CHealth.clear.replace("#endif\n", "    s->hm_drop = 0;\n#endif\n")
     if balance:  # a sample the monitor keeps from the kernel reports no balance fault (as in Python)
         parts.clear = parts.clear.replace("#endif\n", "    s->jc_reported = 0;\n#endif\n")
     if angles and not drops:  # no pressure's joint to drop (before: also a model that drops one
@@ -408,6 +410,7 @@ static void ep_hm_reset(ep_state *s)
     s->hm_has_last_time = 0;
     s->hm_last_time = EP_C(0.0);
     s->hm_degraded_from = EP_NAN;
+    s->hm_substituting = 0;
     ep_hm_restart(s);
 }
 

@@ -92,7 +92,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     """
     from excavator_payload.estimators.classical.machine_calibration.settings import (
         CHANGING_SIGMAS, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
-        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE, SIDE_JOINTS)
+        JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE, PAUSE_RESTARTS, SIDE_JOINTS)
 
     check = kernel._joints
     # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
@@ -145,7 +145,8 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
  * of one joint whose sums hold windows of both signs of its phi_j is held while one side alone
  * agrees with the others (ep_jc_side_agrees); a named
  * joint that clears restarts the weighing, and so does a joint that weighs less after a dump than
- * before it (ep_jc_dumped_load: a load too small for the new-load test left). */
+ * before it (ep_jc_dumped_load: a load too small for the new-load test left), and a pause that ends
+ * with the memories agreeing again (the weighing's sums hold the windows the pause saw). */
 #define EP_JOINT_CHECK EP_HEALTH  /* runs with the health monitor (Estimator._step) */
 #define EP_JC_INFLATION {c_number(JOINT_INFO_INFLATION)}
 #define EP_JC_EXTRA {c_number(check.extra)}  /* model std^2 + each joint's model error^2, kg^2 */
@@ -159,6 +160,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
+#define EP_JC_PAUSE_RESTARTS {int(bool(PAUSE_RESTARTS))}  /* a pause's end restarts the weighing */
 #define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
 #define EP_JC_SIDE_JOINTS {sum(1 << j for j in range(3) if SIDE_JOINTS[j])}  /* bit j: ep_jc_side_agrees applies to joint j */
 
@@ -460,7 +462,7 @@ static void ep_jc_judge(ep_state *s)
 /* JointCheck.update: one balance window, after the kernel has summed it */
 static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3], const unsigned char neg[3])
 {{
-    int j;
+    int j, ended = 0;
     if (s->jc_new_load) {{  /* the weighing restarted: so do the check's sums (not a fault named) */
         s->jc_new_load = 0;
         ep_jc_clear(s);
@@ -498,9 +500,15 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3], 
         }}
     }} else {{
         s->jc_armed = 1;
-        if (s->jc_paused) ep_jc_clear(s);
+        if (s->jc_paused) {{
+            ep_jc_clear(s);
+            ended = 1;
+        }}
     }}
     ep_jc_judge(s);
+    /* a pause ended: the weighing's sums hold the windows it saw, it starts again as the check's did;
+     * not while it weighs the monitor's substitutes (it would start again on them alone) */
+    if (ended && EP_JC_PAUSE_RESTARTS && !s->hm_substituting) s->jc_restart = 1;
 }}
 
 /* PressureKernel._joint_rules and step's last rule: load_changing while the check pauses, a

@@ -15,7 +15,8 @@ pause, so that it compares what the joints weighed under one load:
   :data:`~.settings.CHANGING_SIGMAS`), a new fault is held and the kernel says
   ``load_changing``: in a dump the joints that move see the load leave first, while a standing
   boom, which carries most of the information, keeps the whole weighing where it was. The pause
-  ends when the memories agree again (the check then starts from nothing) or after
+  ends when the memories agree again (the check then starts from nothing, and so does the
+  weighing, whose sums hold the windows the pause saw: :attr:`restart`) or after
   :data:`~.settings.JOINT_PAUSE_WINDOWS` windows that weigh anything (a lasting difference: a
   held fault is named at once). A fault whose one joint holds more than half of the compared
   information is not held: the whole weighing follows that joint, the change is its doing;
@@ -47,7 +48,7 @@ import math
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
     JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES,
-    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE, SIDE_JOINTS)
+    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE, PAUSE_RESTARTS, SIDE_JOINTS)
 
 
 class JointCheck:
@@ -69,7 +70,8 @@ class JointCheck:
     (:meth:`_leads`), while its one joint moves the weighing by little (:meth:`_slight`), and while
     the bucket crossed its regressor's zero and agrees on one side (:meth:`_side_agrees`). After
     a dump, a joint that weighs less than before it restarts the weighing (:meth:`_dumped_load`:
-    :attr:`restart`, as when a named joint clears).
+    :attr:`restart`, as when a named joint clears), and so does a pause that ends with the
+    memories agreeing again (:attr:`pause_restarts`).
 
     Parameters
     ----------
@@ -110,6 +112,7 @@ class JointCheck:
         self.after_info = [0.0, 0.0, 0.0]
         self.dumped = False  # a dump since the check's sums started
         self.dumped_loads = 0  # restarts of the weighing by _dumped_load since the last reset
+        self.pause_restarts = 0  # ... and at a pause's end since the last reset
         # the whole weighing N / I of the last JOINT_MOVING_WINDOWS + 1 windows (NaN: none), a ring
         self.history = [math.nan] * (JOINT_MOVING_WINDOWS + 1)
         self.history_info = [0.0] * (JOINT_MOVING_WINDOWS + 1)  # ... and its information I, a ring
@@ -125,7 +128,7 @@ class JointCheck:
         self.cleared_pairs = 0  # pairs cleared so on a new load's sums since the last reset
         self.side_holds = 0  # windows a new fault was held by _side_agrees alone since the last reset
         # a named fault has cleared (the kernel's sums hold the fault), or a load left in a dump
-        # (_dumped_load): the kernel restarts the weighing
+        # (_dumped_load), or a pause ended: the kernel restarts the weighing
         self.restart = False
 
     def update(self, kernel, d_num: list, d_info: list, d_negative=None) -> None:
@@ -172,6 +175,7 @@ class JointCheck:
             self.dumped_loads += 1
             self._resume()
             return
+        ended = False  # a pause ends on this window
         if self._load_moves(kernel):
             if self.armed and (not self.paused or d_info[0] + d_info[1] + d_info[2] > 0.0):
                 self.paused += 1  # it lasts so many windows with information, not of standstill
@@ -182,7 +186,16 @@ class JointCheck:
             self.armed = True
             if self.paused:
                 self._resume()
+                ended = True
         self._judge(kernel)
+        if ended and PAUSE_RESTARTS and not getattr(kernel, "substituting", False):
+            # the weighing's sums still hold the windows of what the pause saw (a load change too
+            # small for the new-load test, or a fault that moved the weighing): it starts again
+            # as the check's sums did (a boom rod pressure 12 bar low for 0.7 s: ok 61 kg off after
+            # it, the check's fresh sums agreeing; docs/sensor-health.md, session 21); not while the
+            # weighing runs on the monitor's substitutes: it would start again on them alone
+            self.restart = True
+            self.pause_restarts += 1
 
     def _track_moving(self, kernel) -> None:
         """:attr:`moving`: the whole weighing reported against its value
