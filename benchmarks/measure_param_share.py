@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from functools import lru_cache
 from pathlib import Path
 
@@ -54,6 +53,10 @@ from excavator_payload.estimators.classical.machine_calibration.settings import 
 from excavator_payload.estimators.classical.machine_calibration.symbolic import _momentum_terms
 from excavator_payload.model.codegen import native
 from excavator_payload.model.hydraulic import HYDRAULIC_PARAMETER_NAMES
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import sigma_terms  # noqa: E402
+from sigma_terms import SETS, band, least_s  # noqa: E402
 
 _N_DELTA, _N_OFF = len(CALIBRATED_PARAMETERS), len(OFFSET_SIGNALS)
 
@@ -221,8 +224,6 @@ class Shares:
         return math.hypot(self.offset.std if self.offset is not None else 0.0, self.scale * self.param.std)
 
 
-SETS = ["nmpc", "work-cycle", "slope-5deg", "lever", "joystick", "multisine"]
-COVERAGE = 0.95  # as SIGMA_COVERAGE
 STATE = {"scale": 0.0, "options": {}}
 #: --variant: what the share carries (param_share.parameter_map's options)
 INERTIAS = tuple(f"{link}_inertia_{k}" for link in ("boom", "dipper", "bucket") for k in ("u", "y", "w"))
@@ -261,80 +262,22 @@ def patch() -> None:
     w.MachineWeighing.kernel, w.MachineWeighing.zero = _kernel, _zero
 
 
-def judged_ok(ds, out) -> np.ndarray:
-    """``ok`` samples after each experiment's first second with a finite σ (as the cross-check)."""
-    f = ds.frame
-    t = f["time"].to_numpy(float)
-    start = f.groupby("experiment", sort=False)["time"].transform("min").to_numpy(float)
-    return (out["status"].astype(str).to_numpy() == "ok") & (t - start >= 1.0) & np.isfinite(out["sigma"].to_numpy(float))
-
-
-def two_runs(est, ds):
-    """(estimates, σ² today, s_p²) per sample: weighed with k = 0 and k = 1."""
-    shares = est.kernel.regression._offset_share
-    shares.scale = 0.0
-    o0 = est.estimate(ds)
-    shares.scale = 1.0
-    o1 = est.estimate(ds)
-    shares.scale = 0.0
-    assert np.array_equal(o0["payload_estimate"].to_numpy(), o1["payload_estimate"].to_numpy(), equal_nan=True)
-    assert (o0["status"].astype(str) == o1["status"].astype(str)).all()
-    s0, s1 = o0["sigma"].to_numpy(float), o1["sigma"].to_numpy(float)
-    return o0, s0**2, s1**2 - s0**2
+def set_share(est, value: float) -> None:
+    """The parameter share's scale k in σ² (0: σ as today)."""
+    est.kernel.regression._offset_share.scale = value
 
 
 def measure(a) -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import bench_machine_draws as bmd
-    from held_out_motions import joystick_trajectory, lever_trajectory, multisine_trajectory
-
-    from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
-    from excavator_payload.estimators.classical.machine_calibration import solver, weighing
-    from excavator_payload.evaluation import demo_machine as dm
-
+    """Draw 0 weighed with the parameter share off and on (``sigma_terms.measure``), saved as ``*_sp``."""
     patch()
     STATE["options"] = VARIANTS[a.variant]
-    cross = []
 
-    def cross_check(dataset, calibrate_fold, weigh_with):
-        ids = list(dataset.experiment_ids)
-        parts = ([], [], [])
-        for train, test in ((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2])):
-            fold = weigh_with(calibrate_fold(dataset.subset(train)))
-            held = dataset.subset(test)
-            out, v, sp = two_runs(fold, held)
-            ok = judged_ok(held, out)
-            parts[0].append((out["payload_estimate"].to_numpy(float) - held.frame["payload"].to_numpy(float))[ok])
-            parts[1].append(v[ok])
-            parts[2].append(sp[ok])
-        cross.append([np.concatenate(p) for p in parts])
-        return solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with)  # s as today (k = 0)
+    def describe(e, v, sp):
+        return (f"2σ today {np.mean(np.abs(e) <= 2 * np.sqrt(v)):.1%}, with the share "
+                f"{np.mean(np.abs(e) <= 2 * np.sqrt(v + sp)):.1%}; RMS error {np.sqrt(np.mean(e ** 2)):.1f} kg, "
+                f"median σ today {np.median(np.sqrt(v)):.1f} kg, median s_p {np.median(np.sqrt(np.maximum(sp, 0))):.1f} kg")
 
-    weighing.cross_validated_model_std = cross_check
-    t0 = time.time()
-    tests = {k: v for k, v in dm.test_sets(a.n_test, a.seed + 2).items() if k in SETS}
-    for name, make, off in (("lever", lever_trajectory, 4), ("joystick", joystick_trajectory, 5),
-                            ("multisine", multisine_trajectory, 6)):
-        tests[name] = dm.simulate_trajectory(make(a.n_test, a.seed + off), a.seed + off, dm.SESSION_WORK)
-    print(f"test sets simulated ({time.time() - t0:.0f} s)", flush=True)
-    cal = bmd.calibration(a.motions, a.seed, a.reach)
-    zero = bmd.zero_motion(a.zero, a.seed)
-    est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
-    print(f"calibrated ({time.time() - t0:.0f} s)", flush=True)
-    est.zero(zero)
-    res = {"cross_e": cross[-1][0], "cross_v": cross[-1][1], "cross_sp": cross[-1][2],
-           "s": est.calibration.model_std}
-    for name, ds in tests.items():
-        out, v, sp = two_runs(est, ds)
-        ok = judged_ok(ds, out)
-        e = out["payload_estimate"].to_numpy(float) - ds.frame["payload"].to_numpy(float)
-        res[name + "_e"], res[name + "_v"], res[name + "_sp"] = e[ok], v[ok], sp[ok]
-        res[name + "_exp"] = ds.frame["experiment"].to_numpy()[ok]
-        print(f"{name:11s} 2σ today {np.mean(np.abs(e[ok]) <= 2 * np.sqrt(v[ok])):.1%}, with the share "
-              f"{np.mean(np.abs(e[ok]) <= 2 * np.sqrt(v[ok] + sp[ok])):.1%}; RMS error "
-              f"{np.sqrt(np.mean(e[ok] ** 2)):.1f} kg, median σ today {np.median(np.sqrt(v[ok])):.1f} kg, "
-              f"median s_p {np.median(np.sqrt(np.maximum(sp[ok], 0))):.1f} kg ({time.time() - t0:.0f} s)", flush=True)
-        np.savez(a.out, **res)
+    sigma_terms.measure(a, set_share, "sp", describe)
 
 
 def lift(a) -> None:
@@ -346,30 +289,13 @@ def lift(a) -> None:
     import wait_after_load as wal
 
     from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
-    from excavator_payload.estimators.classical.machine_calibration import solver, weighing
     from excavator_payload.estimators.classical.pressure_regression import PressureKernel
     from excavator_payload.evaluation import demo_machine as dm
 
     patch()
     STATE["options"] = VARIANTS[a.variant]
     PressureKernel.step = wal._recording_step(PressureKernel.step)
-    cross = []
-
-    def cross_check(dataset, calibrate_fold, weigh_with):
-        ids = list(dataset.experiment_ids)
-        parts = ([], [], [])
-        for train, test in ((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2])):
-            fold = weigh_with(calibrate_fold(dataset.subset(train)))
-            held = dataset.subset(test)
-            out, v, sp = two_runs(fold, held)
-            ok = judged_ok(held, out)
-            parts[0].append((out["payload_estimate"].to_numpy(float) - held.frame["payload"].to_numpy(float))[ok])
-            parts[1].append(v[ok])
-            parts[2].append(sp[ok])
-        cross.append([np.concatenate(p) for p in parts])
-        return solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with)
-
-    weighing.cross_validated_model_std = cross_check
+    cross = sigma_terms.record_cross_check(set_share)
     est = CalibratedEstimator("cat345c-hydraulic-3pct").fit(dm.calibration_data(10, 9200))
     est.zero(dm.zero_data(9150))
     e, v, sp = cross[-1]
@@ -470,19 +396,6 @@ def check(a) -> None:
         print("                                      D δ          " + " ".join(f"{x:+.3f}" for x in (D @ dz) / units))
 
 
-def least_s(e, v) -> float:
-    """The least s with |e| ≤ 2√(v + s²) on COVERAGE of the samples (as the cross-check)."""
-    def covered(s):
-        return np.mean(np.abs(e) <= 2 * np.sqrt(v + s * s))
-    if covered(0.0) >= COVERAGE:
-        return 0.0
-    low, high = 0.0, float(np.abs(e).max())
-    for _ in range(40):
-        mid = 0.5 * (low + high)
-        low, high = (low, mid) if covered(mid) >= COVERAGE else (mid, high)
-    return high
-
-
 def fit(rule, e, v, sp):
     """(s, k) by ``rule`` on one cross-check (v: σ² there with s = 0, i.e. 1/I)."""
     if rule == "today":
@@ -498,12 +411,6 @@ def fit(rule, e, v, sp):
         if best is None or mean < best[0]:
             best = (mean, s, k)
     return best[1], best[2]
-
-
-def band(cells) -> str:
-    x = np.array(cells)
-    return (f"in 90-99 % {np.sum((x >= .9) & (x <= .99))}, above {np.sum(x > .99)}, below {np.sum(x < .9)} "
-            f"of {len(x)}; lowest {x.min():.1%}, mean {x.mean():.1%}")
 
 
 def analyse(paths) -> None:

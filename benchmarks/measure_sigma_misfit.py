@@ -27,13 +27,13 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-SETS = ["nmpc", "work-cycle", "slope-5deg", "lever", "joystick", "multisine"]
-COVERAGE = 0.95  # as SIGMA_COVERAGE
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import sigma_terms  # noqa: E402
+from sigma_terms import SETS, band, least_s  # noqa: E402
 
 
 def patch_kernel() -> None:
@@ -78,89 +78,17 @@ def patch_kernel() -> None:
     K.extra_std = property(extra_std)
 
 
-def judged_ok(ds, out) -> np.ndarray:
-    """``ok`` samples after each experiment's first second with a finite σ (as the cross-check)."""
-    f = ds.frame
-    t = f["time"].to_numpy(float)
-    start = f.groupby("experiment", sort=False)["time"].transform("min").to_numpy(float)
-    return (out["status"].astype(str).to_numpy() == "ok") & (t - start >= 1.0) & np.isfinite(out["sigma"].to_numpy(float))
-
-
-def two_runs(est, ds):
-    """(estimates, σ² as today, χ̄²) per sample: weighed with c = 0 and c = 1."""
-    reg = est.kernel.regression
-    reg.misfit_coef = 0.0
-    o0 = est.estimate(ds)
-    reg.misfit_coef = 1.0
-    o1 = est.estimate(ds)
-    reg.misfit_coef = 0.0
-    assert np.array_equal(o0["payload_estimate"].to_numpy(), o1["payload_estimate"].to_numpy(), equal_nan=True)
-    assert (o0["status"].astype(str) == o1["status"].astype(str)).all()
-    s0, s1 = o0["sigma"].to_numpy(float), o1["sigma"].to_numpy(float)
-    return o0, s0**2, s1**2 - s0**2
-
-
 def measure(a) -> None:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    import bench_machine_draws as bmd
-    from held_out_motions import joystick_trajectory, lever_trajectory, multisine_trajectory
-
-    from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
-    from excavator_payload.estimators.classical.machine_calibration import solver
-    from excavator_payload.estimators.classical.machine_calibration import weighing
-    from excavator_payload.evaluation import demo_machine as dm
-
+    """Draw 0 weighed with the misfit term off and on (``sigma_terms.measure``), saved as ``*_chi``."""
     patch_kernel()
-    cross = []
 
-    def cross_check(dataset, calibrate_fold, weigh_with):
-        ids = list(dataset.experiment_ids)
-        parts = ([], [], [])
-        for train, test in ((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2])):
-            fold = weigh_with(calibrate_fold(dataset.subset(train)))
-            held = dataset.subset(test)
-            out, v, chi = two_runs(fold, held)
-            ok = judged_ok(held, out)
-            parts[0].append((out["payload_estimate"].to_numpy(float) - held.frame["payload"].to_numpy(float))[ok])
-            parts[1].append(v[ok])
-            parts[2].append(chi[ok])
-        cross.append([np.concatenate(p) for p in parts])
-        return solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with)  # s as today
+    def set_term(est, value):
+        est.kernel.regression.misfit_coef = value
 
-    weighing.cross_validated_model_std = cross_check
-    t0 = time.time()
-    tests = {k: v for k, v in dm.test_sets(a.n_test, a.seed + 2).items() if k in SETS}
-    for name, make, off in (("lever", lever_trajectory, 4), ("joystick", joystick_trajectory, 5),
-                            ("multisine", multisine_trajectory, 6)):
-        tests[name] = dm.simulate_trajectory(make(a.n_test, a.seed + off), a.seed + off, dm.SESSION_WORK)
-    cal = bmd.calibration(a.motions, a.seed, a.reach)
-    zero = bmd.zero_motion(a.zero, a.seed)
-    est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(cal)
-    est.zero(zero)
-    res = {"cross_e": cross[-1][0], "cross_v": cross[-1][1], "cross_chi": cross[-1][2],
-           "s": est.calibration.model_std}
-    for name, ds in tests.items():
-        out, v, chi = two_runs(est, ds)
-        ok = judged_ok(ds, out)
-        e = out["payload_estimate"].to_numpy(float) - ds.frame["payload"].to_numpy(float)
-        res[name + "_e"], res[name + "_v"], res[name + "_chi"] = e[ok], v[ok], chi[ok]
-        res[name + "_exp"] = ds.frame["experiment"].to_numpy()[ok]
-        print(f"{name:11s} 2σ {np.mean(np.abs(e[ok]) <= 2 * np.sqrt(v[ok])):.1%}  χ̄² median {np.median(chi[ok]):.2f}  "
-              f"({time.time() - t0:.0f} s)", flush=True)
-    np.savez(a.out, **res)
+    def describe(e, v, chi):
+        return f"2σ {np.mean(np.abs(e) <= 2 * np.sqrt(v)):.1%}  χ̄² median {np.median(chi):.2f}"
 
-
-def least_s(e, v) -> float:
-    """The least s with |e| ≤ 2√(v + s²) on COVERAGE of the samples (as the cross-check)."""
-    def covered(s):
-        return np.mean(np.abs(e) <= 2 * np.sqrt(v + s * s))
-    if covered(0.0) >= COVERAGE:
-        return 0.0
-    low, high = 0.0, float(np.abs(e).max())
-    for _ in range(40):
-        mid = 0.5 * (low + high)
-        low, high = (low, mid) if covered(mid) >= COVERAGE else (mid, high)
-    return high
+    sigma_terms.measure(a, set_term, "chi", describe)
 
 
 def fit(rule, e, v, chi):
@@ -178,12 +106,6 @@ def fit(rule, e, v, chi):
     a_c = np.linalg.lstsq(np.c_[np.ones_like(chi), chi], e**2 - v, rcond=None)[0]
     c = max(float(a_c[1]), 0.0)
     return least_s(e, v + c * chi), c
-
-
-def band(cells) -> str:
-    x = np.array(cells)
-    return (f"in 90-99 % {np.sum((x >= .9) & (x <= .99))}, above {np.sum(x > .99)}, below {np.sum(x < .9)} "
-            f"of {len(x)}; lowest {x.min():.1%}")
 
 
 def analyse(paths) -> None:
