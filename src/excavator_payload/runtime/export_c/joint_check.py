@@ -93,7 +93,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
     from excavator_payload.estimators.classical.machine_calibration.settings import (
         CHANGING_SIGMAS, JOINT_CHI2, JOINT_INFO_INFLATION, JOINT_MOVING_WINDOWS,
         JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES, LONE_YOUNG_SHARE, PAUSE_RESTARTS, SIDE_JOINTS)
-    # PAUSE_MOVED_SHARE reaches C as check.pause_moved, kg (as the moving limit)
 
     check = kernel._joints
     # --imu-nuisance on: the weighing reported is the filter's, with its marginal information
@@ -126,7 +125,6 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
         f"ep_real jc_history[{JOINT_MOVING_WINDOWS + 1}];  /* the whole weighing N / I of the last windows, a ring */",
         f"ep_real jc_history_info[{JOINT_MOVING_WINDOWS + 1}];  /* ... and its information I */",
         "int jc_slot;      /* the ring's slot the next window writes */",
-        "ep_real jc_last, jc_pause_from;  /* the weighing reported after the last window, after the pause's first (NaN: none) */",
         "int jc_named;     /* bit j: joint j named (boom, dipper, bucket) */",
         "int jc_run;       /* windows in a row beyond (or, while failing, within) the limit */",
         "int jc_paused;    /* windows of the current pause (0: not paused) */",
@@ -162,8 +160,7 @@ def joint_check_c(est, kernel, signals, model_var: float) -> CJointCheck:
 #define EP_JC_CHANGE_MIN {c_number(check.change_min)}  /* kg: the pause's least change */
 #define EP_JC_CHANGE_SIGMAS {c_number(CHANGING_SIGMAS)}
 #define EP_JC_PAUSE {JOINT_PAUSE_WINDOWS}
-#define EP_JC_PAUSE_RESTARTS {int(bool(PAUSE_RESTARTS))}  /* a pause's end restarts the weighing ... */
-#define EP_JC_PAUSE_MOVED {c_number(check.pause_moved)}  /* kg: ... if it moved by more in the pause */
+#define EP_JC_PAUSE_RESTARTS {int(bool(PAUSE_RESTARTS))}  /* a pause's end restarts the weighing */
 #define EP_JC_WEIGHED_INFO(s) {weighed_info}  /* the information of the weighing reported */
 #define EP_JC_SIDE_JOINTS {sum(1 << j for j in range(3) if SIDE_JOINTS[j])}  /* bit j: ep_jc_side_agrees applies to joint j */
 
@@ -201,7 +198,6 @@ static void ep_jc_reset(ep_state *s)
         s->jc_history[j] = EP_NAN;
         s->jc_history_info[j] = EP_C(0.0);
     }}
-    s->jc_last = s->jc_pause_from = EP_NAN;
     s->jc_slot = 0;
     s->jc_moving = 0;
     s->jc_restart = 0;
@@ -255,7 +251,6 @@ static void ep_jc_track_moving(ep_state *s)
     ep_real then = s->jc_history[oldest], info_then = s->jc_history_info[oldest];
     s->jc_history[s->jc_slot] = now;
     s->jc_history_info[s->jc_slot] = s->info;
-    s->jc_last = now;
     s->jc_slot = (s->jc_slot + 1) % (EP_JC_MOVING + 1);
     s->jc_moving = (unsigned char)(EP_MATH(fabs)(now - then) > EP_JC_MOVING_LIMIT);
     /* a joint alone waits only on a move of a settled weighing (not a new load converging) */
@@ -497,7 +492,6 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3], 
     }}
     if (ep_jc_load_moves(s)) {{
         if (s->jc_armed && (!s->jc_paused || di[0] + di[1] + di[2] > EP_C(0.0))) {{
-            if (!s->jc_paused) s->jc_pause_from = s->jc_last;
             s->jc_paused += 1;  /* windows with information, not of standstill */
             if (s->jc_paused > EP_JC_PAUSE) {{  /* a lasting difference: judged on the sums */
                 s->jc_paused = 0;
@@ -513,10 +507,8 @@ static void ep_jc_update(ep_state *s, const ep_real dn[3], const ep_real di[3], 
     }}
     ep_jc_judge(s);
     /* a pause ended: the weighing's sums hold the windows it saw, it starts again as the check's did;
-     * not while it weighs the monitor's substitutes (it would start again on them alone), nor when
-     * the weighing held still in the pause (a NaN on either side: it moved) */
-    if (ended && EP_JC_PAUSE_RESTARTS && !s->hm_substituting
-        && !(EP_MATH(fabs)(s->jc_last - s->jc_pause_from) <= EP_JC_PAUSE_MOVED)) s->jc_restart = 1;
+     * not while it weighs the monitor's substitutes (it would start again on them alone) */
+    if (ended && EP_JC_PAUSE_RESTARTS && !s->hm_substituting) s->jc_restart = 1;
 }}
 
 /* PressureKernel._joint_rules and step's last rule: load_changing while the check pauses, a

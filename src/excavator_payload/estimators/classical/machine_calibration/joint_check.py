@@ -48,7 +48,7 @@ import math
 from excavator_payload.estimators.classical.machine_calibration.settings import (
     CHANGING_SIGMAS, JOINT_CHANGE_SHARE, JOINT_CHECKED_SHARE, JOINT_CHI2, JOINT_INFO_INFLATION,
     JOINT_MODEL_SHARE, JOINT_MOVING_SHARE, JOINT_MOVING_WINDOWS, JOINT_PAUSE_WINDOWS, JOINT_PRESSURES, JOINT_SAMPLES,
-    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE, PAUSE_MOVED_SHARE, PAUSE_RESTARTS, SIDE_JOINTS)
+    JOINT_SLIGHT_SHARE, LONE_YOUNG_SHARE, PAUSE_RESTARTS, SIDE_JOINTS)
 
 
 class JointCheck:
@@ -90,7 +90,6 @@ class JointCheck:
         self.change_min = JOINT_CHANGE_SHARE * float(rated)
         self.moving_limit = JOINT_MOVING_SHARE * float(rated)
         self.slight_limit = JOINT_SLIGHT_SHARE * float(rated)
-        self.pause_moved = PAUSE_MOVED_SHARE * float(rated)  # kg: a pause's end restarts past this
         self.reset()
 
     def reset(self) -> None:
@@ -114,8 +113,6 @@ class JointCheck:
         self.dumped = False  # a dump since the check's sums started
         self.dumped_loads = 0  # restarts of the weighing by _dumped_load since the last reset
         self.pause_restarts = 0  # ... and at a pause's end since the last reset
-        self.reported = math.nan  # the weighing reported after the last window (_track_moving)
-        self.pause_from = math.nan  # ... after the current pause's first window (NaN: none yet)
         # the whole weighing N / I of the last JOINT_MOVING_WINDOWS + 1 windows (NaN: none), a ring
         self.history = [math.nan] * (JOINT_MOVING_WINDOWS + 1)
         self.history_info = [0.0] * (JOINT_MOVING_WINDOWS + 1)  # ... and its information I, a ring
@@ -181,8 +178,6 @@ class JointCheck:
         ended = False  # a pause ends on this window
         if self._load_moves(kernel):
             if self.armed and (not self.paused or d_info[0] + d_info[1] + d_info[2] > 0.0):
-                if not self.paused:
-                    self.pause_from = self.reported
                 self.paused += 1  # it lasts so many windows with information, not of standstill
                 if self.paused > JOINT_PAUSE_WINDOWS:  # a lasting difference: judged on the sums
                     self.paused = 0
@@ -193,15 +188,12 @@ class JointCheck:
                 self._resume()
                 ended = True
         self._judge(kernel)
-        # NaN on either side (the weighing began or stopped reporting in the pause): moved
-        moved = not abs(self.reported - self.pause_from) <= self.pause_moved
-        if ended and moved and PAUSE_RESTARTS and not getattr(kernel, "substituting", False):
+        if ended and PAUSE_RESTARTS and not getattr(kernel, "substituting", False):
             # the weighing's sums still hold the windows of what the pause saw (a load change too
             # small for the new-load test, or a fault that moved the weighing): it starts again
             # as the check's sums did (a boom rod pressure 12 bar low for 0.7 s: ok 61 kg off after
             # it, the check's fresh sums agreeing; docs/sensor-health.md, session 21); not while the
-            # weighing runs on the monitor's substitutes: it would start again on them alone; nor
-            # when the weighing held still in the pause (PAUSE_MOVED_SHARE: nothing entered it)
+            # weighing runs on the monitor's substitutes: it would start again on them alone
             self.restart = True
             self.pause_restarts += 1
 
@@ -222,7 +214,6 @@ class JointCheck:
         oldest = (self.slot + 1) % n
         then, info_then = self.history[oldest], self.history_info[oldest]  # NaN until the ring is full
         self.history[self.slot], self.history_info[self.slot] = now, kernel.info
-        self.reported = now
         self.slot = (self.slot + 1) % n
         self.moving = abs(now - then) > self.moving_limit
         self.moved_settled = self.moving and 0.0 < kernel.info and info_then >= (1.0 - LONE_YOUNG_SHARE) * kernel.info

@@ -200,15 +200,6 @@ JOINT_PAUSE_WINDOWS = 200
 #: a boom rod pressure 12 bar low for 0.7 s came out ``ok`` 61 kg off, a boom rate's bias in the
 #: warm-up 56 kg; docs/sensor-health.md, session 21).
 PAUSE_RESTARTS = True
-#: ... but only when the weighing reported (``JointCheck``'s N / I, or the filter's payload with
-#: ``--imu-nuisance on``) moved by more than this share of the rated payload from the pause's first
-#: window to its end: what the pause saw then entered the weighing. A clean `lever` pass paused and
-#: ended 0.37 s later with N / I 0.8 kg moved, and the restart left it ``warming_up`` to the
-#: experiment's end; the two faults above moved it 30 and 43 kg (a 5 kg limit restarted two more
-#: pauses on the tuning seeds, 6 and 10 kg moved, and changed no case; docs/sensor-health.md,
-#: session 21).
-#: 0: a pause in which it moved at all restarts (NaN on either side counts as moved).
-PAUSE_MOVED_SHARE = JOINT_MOVING_SHARE
 #: The bucket dumps while it opens faster than this (rad/s): a load leaves only then, and the
 #: joints that move see it leave before the standing ones. Until the bucket has opened no faster
 #: for :data:`DUMP_HOLD` s the check names nothing new and does not sum the windows: what the
