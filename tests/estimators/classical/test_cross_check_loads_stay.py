@@ -25,9 +25,9 @@ def fitted():
     twins = []
     original = weighing.cross_validated_model_std
 
-    def spy(dataset, calibrate_fold, weigh_with):
+    def spy(dataset, calibrate_fold, weigh_with, folds=2):
         twins.append(weigh_with(calibrate_fold(dataset.subset(list(dataset.experiment_ids)[0::2]))))
-        return original(dataset, calibrate_fold, weigh_with)
+        return original(dataset, calibrate_fold, weigh_with, folds=folds)
 
     weighing.cross_validated_model_std = spy
     try:

@@ -280,6 +280,14 @@ GLITCH_SIGMAS = 8.0
 SIGMA_COVERAGE = 0.95
 #: Fewest calibration experiments for the cross-check (two folds of at least two motions).
 MIN_CROSS_EXPERIMENTS = 4
+#: Folds of the second cross-check that decides a refusal when the halves weigh each other worse
+#: than 1 % of rated (at most one per motion: one motion out on 5 motions); σ keeps the halves' s.
+REFUSAL_FOLDS = 5
+#: Share of the rated payload that the folds' 2·s must stay inside for that check to accept: half
+#: the 1 % a motion's worst error is judged by, as a motion's worst error ran to about twice the
+#: 2·s band (5-motion tuning draws: within 27 kg at 2·s = 15 kg; the per-sample form at
+#: 2·s = 41 kg weighed a third to two thirds of the motions within 1 %).
+REFUSAL_FOLDS_SHARE = 0.005
 
 #: The largest magnitude a restored calibration ``z`` may hold (a pressure offset of 10,000
 #: bar; real calibrations stay below 3e5).

@@ -652,7 +652,7 @@ def zero_offsets(cal: MachineCalibration, dataset: Dataset, low_speed: str = "do
     return len(values), cal.moving_samples(values, qdd)
 
 
-def cross_validated_model_std(dataset: Dataset, calibrate_fold, weigh_with) -> float:
+def cross_validated_model_std(dataset: Dataset, calibrate_fold, weigh_with, folds: int = 2) -> float:
     r"""The model error's standard deviation (kg) that σ must carry beside :math:`I^{-1/2}`.
 
     :math:`I^{-1/2}` is the estimate's spread from the sensor noise alone; the calibrated model
@@ -662,7 +662,9 @@ def cross_validated_model_std(dataset: Dataset, calibrate_fold, weigh_with) -> f
     other half; :math:`s` is the least value with :math:`|e| \le 2\sqrt{1/I + s^2}` on
     :data:`SIGMA_COVERAGE` of the held-out ``ok`` samples after their first second. Half the
     motions calibrate worse than all of them: the floor errs on the safe side. 0 with fewer
-    than :data:`MIN_CROSS_EXPERIMENTS`.
+    than :data:`MIN_CROSS_EXPERIMENTS`. With ``folds`` K > 2, motion i is held out in fold
+    i mod K and the other motions calibrate it (K ≥ the motions: one motion out); K = 2 is the
+    two halves above.
 
     Parameters
     ----------
@@ -673,13 +675,17 @@ def cross_validated_model_std(dataset: Dataset, calibrate_fold, weigh_with) -> f
     weigh_with : callable
         ``weigh_with(calibration) -> estimator``: a fitted estimator weighing with it (its
         ``estimate`` gives ``payload_estimate``, ``status`` and ``sigma``).
+    folds : int
+        K, the number of folds (2: the halves that σ's s is fitted by).
     """
     ids = list(dataset.experiment_ids)
     if len(ids) < MIN_CROSS_EXPERIMENTS:
         return 0.0
+    k = max(2, min(int(folds), len(ids)))
     errors, variances = [], []
-    for train, test in ((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2])):
-        fold = weigh_with(calibrate_fold(dataset.subset(train)))
+    for i in range(k):
+        test = ids[i::k]
+        fold = weigh_with(calibrate_fold(dataset.subset([e for e in ids if e not in test])))
         held = dataset.subset(test)
         out = fold.estimate(held)
         f = held.frame
