@@ -59,8 +59,11 @@ def per_experiment(est, ds, label):
     return pd.concat(frames, ignore_index=True)
 
 
-def logged_cross(dataset, calibrate_fold, weigh_with):
-    """:func:`~.solver.cross_validated_model_std`, logging each held-out experiment."""
+def logged_cross(dataset, calibrate_fold, weigh_with, folds=2):
+    """:func:`~.solver.cross_validated_model_std`, logging each held-out experiment of the halves
+    (train's second check before a refusal, ``folds`` > 2, runs unlogged)."""
+    if folds != 2:
+        return solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with, folds=folds)
     ids = list(dataset.experiment_ids)
     rows = []
     for fold_no, (train, test) in enumerate(((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2]))):

@@ -34,52 +34,6 @@ import numpy as np
 SETS = ("nmpc", "work-cycle", "slope-5deg", "lever", "joystick", "multisine")
 
 
-def kfold_model_std(dataset, calibrate_fold, weigh_with, folds: int) -> float:
-    """:func:`~excavator_payload.estimators.classical.machine_calibration.solver.cross_validated_model_std`
-    with ``folds`` folds (motion i held out in fold i mod K; K = 2 is today's two halves).
-
-    Parameters
-    ----------
-    dataset : Dataset
-        The calibration motions (known payloads).
-    calibrate_fold : callable
-        ``calibrate_fold(subset) -> MachineCalibration``.
-    weigh_with : callable
-        ``weigh_with(calibration) -> estimator`` weighing with it.
-    folds : int
-        K, at most the number of motions (then leave-one-motion-out).
-    """
-    from excavator_payload.estimators.classical.machine_calibration.settings import SIGMA_COVERAGE
-
-    ids = list(dataset.experiment_ids)
-    k = min(folds, len(ids))
-    errors, variances = [], []
-    for i in range(k):
-        test = ids[i::k]
-        fold = weigh_with(calibrate_fold(dataset.subset([e for e in ids if e not in test])))
-        held = dataset.subset(test)
-        out = fold.estimate(held)
-        f = held.frame
-        t = f["time"].to_numpy(float)
-        start = f.groupby("experiment", sort=False)["time"].transform("min").to_numpy(float)
-        sigma = out["sigma"].to_numpy(float)
-        ok = (out["status"].astype(str).to_numpy() == "ok") & (t - start >= 1.0) & np.isfinite(sigma)
-        errors.append((out["payload_estimate"].to_numpy(float) - f["payload"].to_numpy(float))[ok])
-        variances.append(sigma[ok] ** 2)
-    e, v = np.abs(np.concatenate(errors)), np.concatenate(variances)
-
-    def covered(s: float) -> float:
-        return float(np.mean(e <= 2.0 * np.sqrt(v + s * s)))
-
-    if not len(e) or covered(0.0) >= SIGMA_COVERAGE:
-        return 0.0
-    low, high = 0.0, float(e.max())
-    for _ in range(40):  # the least s covering SIGMA_COVERAGE, as the solver bisects it
-        mid = 0.5 * (low + high)
-        low, high = (low, mid) if covered(mid) >= SIGMA_COVERAGE else (mid, high)
-    return high
-
-
 def measure(a) -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     import bench_machine_draws as bmd
@@ -89,12 +43,14 @@ def measure(a) -> None:
 
     res = {"seed": a.seed, "motions": a.motions, "s": {}, "seconds": {}}
 
-    def cross_check(dataset, calibrate_fold, weigh_with):
+    def cross_check(dataset, calibrate_fold, weigh_with, folds=2):
+        if folds != 2:  # train's second check before a refusal: not what is measured here
+            return solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with, folds=folds)
         n = len(dataset.experiment_ids)
         for k in a.folds:
             k = n if k == 0 or k > n else k
             t0 = time.time()
-            res["s"][str(k)] = kfold_model_std(dataset, calibrate_fold, weigh_with, k)
+            res["s"][str(k)] = solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with, folds=k)
             res["seconds"][str(k)] = time.time() - t0
             print(f"K={k}: s {res['s'][str(k)]:.2f} kg ({res['seconds'][str(k)]:.0f} s)", flush=True)
         t0 = time.time()
@@ -152,9 +108,12 @@ def main() -> None:
     a, rest = ap.parse_known_args()
     if a.bench:
         sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from excavator_payload.estimators.classical.machine_calibration import weighing
+        from excavator_payload.estimators.classical.machine_calibration import solver, weighing
 
-        weighing.cross_validated_model_std = lambda d, c, w: kfold_model_std(d, c, w, a.bench)
+        def bench_folds(d, c, w, folds=2):  # σ's s from K folds; train's refusal check as it is
+            return solver.cross_validated_model_std(d, c, w, folds=a.bench if folds == 2 else folds)
+
+        weighing.cross_validated_model_std = bench_folds
         sys.argv = [str(Path(__file__).resolve().parent / "bench_machine_draws.py")] + [r for r in rest if r != "--"]
         runpy.run_path(sys.argv[0], run_name="__main__")
     elif a.analyse:

@@ -63,7 +63,9 @@ def record_cross_check(set_term: Callable[[object, float], None]) -> list:
 
     cross = []
 
-    def cross_check(dataset, calibrate_fold, weigh_with):
+    def cross_check(dataset, calibrate_fold, weigh_with, folds=2):
+        if folds != 2:  # train's second check before a refusal: not recorded
+            return solver.cross_validated_model_std(dataset, calibrate_fold, weigh_with, folds=folds)
         ids = list(dataset.experiment_ids)
         parts = ([], [], [])
         for train, test in ((ids[0::2], ids[1::2]), (ids[1::2], ids[0::2])):
