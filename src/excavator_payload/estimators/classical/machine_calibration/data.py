@@ -282,6 +282,34 @@ def _glitches(x: np.ndarray, experiment: np.ndarray, half_window: int) -> np.nda
     return correlate1d(bad.astype(float), np.ones(2 * half_window + 3), mode="constant") > 0
 
 
+def _clean_runs(dataset: Dataset, half_window: int, judged: list, machine=None):
+    """The signals, their accelerations, which samples are clean (finite, inside ``machine``'s
+    angle ranges, no glitch in the ``judged`` columns) and the runs of consecutive clean samples
+    of one experiment that a read-off fits on: (values, qdd, ok, runs).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        Machine-sensor-set data.
+    half_window : int
+        Samples each side of the differentiator.
+    judged : list of int
+        Columns of :data:`SIGNALS` a glitch is looked for in.
+    machine : HydraulicMachine or None
+        Machine whose angle ranges end a run (None: no range check).
+    """
+    values = dataset.frame[list(SIGNALS)].to_numpy(float)
+    qdd = accelerations(dataset, half_window)
+    exp = dataset.frame["experiment"].to_numpy()
+    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1)
+    if machine is not None:
+        ranges = machine.angle_ranges
+        ok &= np.all((ranges[:, 0] <= values[:, ANGLES]) & (values[:, ANGLES] <= ranges[:, 1]), axis=1)
+    ok &= ~_glitches(values[:, judged], exp, half_window)
+    runs = np.cumsum(np.r_[True, (exp[1:] != exp[:-1]) | ~ok[:-1]])
+    return values, qdd, ok, runs
+
+
 def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WINDOW,
                       machine=None) -> tuple[np.ndarray, np.ndarray]:
     r"""The link IMUs' acceleration sensitivities, read off their own signals.
@@ -319,17 +347,8 @@ def imu_sensitivities(dataset: Dataset, half_window: int = CALIBRATION_HALF_WIND
     k, std : ndarray
         Sensitivities of the boom, dipper and bucket IMUs (s²) and their posterior std.
     """
-    f = dataset.frame
-    values = f[list(SIGNALS)].to_numpy(float)
-    qdd = accelerations(dataset, half_window)
+    values, qdd, ok, runs = _clean_runs(dataset, half_window, [*ANGLES, *RATES[:3]], machine)
     dt = 1.0 / MACHINE_SENSORS.sample_rate
-    exp = f["experiment"].to_numpy()
-    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1)
-    if machine is not None:
-        ranges = machine.angle_ranges
-        ok &= np.all((ranges[:, 0] <= values[:, ANGLES]) & (values[:, ANGLES] <= ranges[:, 1]), axis=1)
-    ok &= ~_glitches(values[:, [*ANGLES, *RATES[:3]]], exp, half_window)
-    runs = np.cumsum(np.r_[True, (exp[1:] != exp[:-1]) | ~ok[:-1]])
     absolute = np.cumsum(qdd[:, :3], axis=1)
     ys, xs = [], []
     for run in np.unique(runs[ok]):
@@ -397,14 +416,9 @@ def house_imu_sensitivity(dataset: Dataset, half_window: int = CALIBRATION_HALF_
     from excavator_payload.estimators.classical.machine_calibration.symbolic import house_imu_leak
     from excavator_payload.estimators.classical.pressure_regression import PITCH, ROLL
 
-    f = dataset.frame
-    values = f[list(SIGNALS)].to_numpy(float)
-    qdd = accelerations(dataset, half_window)
+    values, qdd, ok, runs = _clean_runs(dataset, half_window, [PITCH, ROLL, RATES[3]])
     dt = 1.0 / MACHINE_SENSORS.sample_rate
-    exp = f["experiment"].to_numpy()
-    ok = np.all(np.isfinite(values), axis=1) & np.all(np.isfinite(qdd), axis=1)
-    ok &= ~_glitches(values[:, [PITCH, ROLL, RATES[3]]], exp, half_window)
-    runs = np.cumsum(np.r_[True, (exp[1:] != exp[:-1]) | ~ok[:-1]])
+    exp = dataset.frame["experiment"].to_numpy()
     ys, xs, groups = [], [], []
     for run in np.unique(runs[ok]):
         idx = np.flatnonzero((runs == run) & ok)
