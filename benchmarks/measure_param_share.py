@@ -171,25 +171,10 @@ class ParameterShare(OffsetShare):
     def _jacobian_function(self):
         return parameter_jacobian_function()
 
-    def _solve(self, kernel) -> float:
-        """OffsetShare's, keeping g (``--check`` reads it)."""
-        nz = kernel._imu_nuisance
-        if nz is None:
-            if not kernel.info > 0.0:
-                return 0.0
-            m = kernel.num / kernel.info
-            g = (self.Gr[0] + self.c - 2.0 * m * self.Gphi[0]) / kernel.info
-        else:
-            if not (nz.variance > 0.0 and math.isfinite(nz.variance)):
-                return 0.0
-            T, theta, Hinv = nz.solved
-            m = theta[0]
-            V = self.Gr - m * self.Gphi
-            V[0] += self.c - self.Gphi.T @ (T @ theta)
-            g = (Hinv[0] @ T.T) @ V
-        self.gradient = g
-        s = float(math.sqrt(float(g @ g)))
-        return s if math.isfinite(s) else 0.0
+    def _gradient(self, kernel):
+        """OffsetShare's, kept (``--check`` reads it)."""
+        self.gradient = super()._gradient(kernel)
+        return self.gradient
 
 
 class Shares:

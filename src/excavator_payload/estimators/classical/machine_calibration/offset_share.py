@@ -175,19 +175,24 @@ class OffsetShare(KernelJacobianRing):
         self.std = self._solve(kernel)
 
     def _solve(self, kernel) -> float:
+        g = self._gradient(kernel)
+        if g is None:
+            return 0.0
+        s = float(math.sqrt(float(g @ g)))
+        return s if math.isfinite(s) else 0.0
+
+    def _gradient(self, kernel):
+        """∂m̂/∂v of the current estimate (the module's equations), None before there is one."""
         nz = kernel._imu_nuisance
         if nz is None:
             if not kernel.info > 0.0:
-                return 0.0
+                return None
             m = kernel.num / kernel.info
-            g = (self.Gr[0] + self.c - 2.0 * m * self.Gphi[0]) / kernel.info
-        else:
-            if not (nz.variance > 0.0 and math.isfinite(nz.variance)):
-                return 0.0
-            T, theta, Hinv = nz.solved
-            m = theta[0]
-            V = self.Gr - m * self.Gphi
-            V[0] += self.c - self.Gphi.T @ (T @ theta)
-            g = (Hinv[0] @ T.T) @ V
-        s = float(math.sqrt(float(g @ g)))
-        return s if math.isfinite(s) else 0.0
+            return (self.Gr[0] + self.c - 2.0 * m * self.Gphi[0]) / kernel.info
+        if not (nz.variance > 0.0 and math.isfinite(nz.variance)):
+            return None
+        T, theta, Hinv = nz.solved
+        m = theta[0]
+        V = self.Gr - m * self.Gphi
+        V[0] += self.c - self.Gphi.T @ (T @ theta)
+        return (Hinv[0] @ T.T) @ V
