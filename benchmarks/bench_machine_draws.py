@@ -34,7 +34,8 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_any_motion import alarms_and_coverage, sigma_without_zero, zero_part  # noqa: E402
-from held_out_motions import joystick_trajectory, lever_trajectory, multisine_trajectory  # noqa: E402
+from held_out_motions import (grade_trajectory, jerky_trajectory, joystick_trajectory,  # noqa: E402
+                               lever_trajectory, multisine_trajectory, trench_trajectory, tremor_trajectory)
 
 from excavator_payload.estimators.classical import calibrated_machine as cm
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
@@ -42,6 +43,8 @@ from excavator_payload.evaluation import demo_machine as dm
 from excavator_payload.evaluation.crb_machine import dataset_machine_bound
 
 SETS = ("nmpc", "work-cycle", "slope-5deg")
+#: the held-out families of session 22 (:mod:`held_out_motions`)
+NEW_HELD_OUT = {"trench": trench_trajectory, "grade": grade_trajectory, "jerky": jerky_trajectory}
 
 
 def judge(est, ds, label, bound) -> dict:
@@ -51,12 +54,56 @@ def judge(est, ds, label, bound) -> dict:
     frame = est.estimate(ds)
     row = dm.summary_row(evaluate_estimates(ds, frame, label=label, bound=bound, with_bound=bound is not None,
                                             discard=dm.DISCARD), dm.RATED_PAYLOAD, None)
-    return {**row, **alarms_and_coverage(ds, frame, zero_part(est), sigma_without_zero(est, ds))}
+    return {**row, **alarms_and_coverage(ds, frame, zero_part(est), sigma_without_zero(est, ds)),
+            "ok_share": ok_share(ds, frame)}
 
 
-def calibration(motions: int, seed: int, reach: int):
+def ok_share(ds, frame) -> float:
+    """Share of the samples after each experiment's first second whose status is ``ok``."""
+    f = ds.frame
+    t = f["time"].to_numpy(float)
+    first = f.groupby("experiment")["time"].transform("min").to_numpy(float)
+    judged = (t - first) >= 1.0
+    return float((frame["status"].astype(str).to_numpy()[judged] == "ok").mean())
+
+
+def balance_net_rows(train_seed: int, zero, tests: dict, t0: float) -> list[dict]:
+    """balance-net trained on the *reach30* mixture of ``train_seed`` (as docs/balance-net.md),
+    zeroed on ``zero`` and judged on ``tests`` (no bound: its efficiency is NaN here).
+
+    Parameters
+    ----------
+    train_seed : int
+        Seed of the training motions (``bench_balance_net.py --train-seed``).
+    zero : Dataset
+        The empty-bucket motion it is zeroed on.
+    tests : dict
+        Test sets by name.
+    t0 : float
+        Start time of the run (for the progress lines), s.
+    """
+    from bench_balance_net import mixture, training_motions
+
+    from excavator_payload.estimators.base import create_estimator
+
+    counts = {"swing": 25, "work-cycle": 25, "lifts": 20, "reach": 30}
+    est = create_estimator("balance-net", None).fit(mixture(training_motions(counts, train_seed), counts))
+    est.zero(zero)
+    rows = []
+    for name, ds in tests.items():
+        row = judge(est, ds, "balance-net", None)
+        rows.append({"draw": -1, "calibration_seed": train_seed, "motions": 100, "zero": "empty-swing",
+                     "balance": "balance-net", "test": name, **row})
+        print(f"balance-net {name:20s} MAX {row['mean_max_kg']:6.1f} kg  ≤1 % {row['within_1pct']:.0%}  "
+              f"0.25 % {row['within_0.25pct']:.0%}  2σ {row['sigma_covers']:.1%}  ok {row['ok_share']:.1%}  "
+              f"alarms {row['false_alarms']:.2%}  ({time.time() - t0:.0f} s)", flush=True)
+    return rows
+
+
+def calibration(motions: int, seed: int, reach):
     """``motions`` calibration motions of draw ``seed``: swings (the study's), the last ``reach``
-    of them `reach` motions (random known loads) instead (:func:`dm.calibration_mix`)."""
+    of them `reach` motions (random known loads) instead (:func:`dm.calibration_mix`; None: the
+    recommended share, :func:`dm.reach_count`)."""
     return dm.calibration_mix(motions, seed, reach=reach)
 
 
@@ -77,19 +124,25 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("machine-draws"))
     ap.add_argument("--sets", nargs="+", default=list(SETS),
                     choices=[*SETS, "swing", "hand-made trajectory", "lever", "joystick", "multisine",
-                             "multisine-creep"], help="test sets")
+                             "multisine-creep", "tremor", *NEW_HELD_OUT], help="test sets")
     ap.add_argument("--motions", type=int, nargs="+", default=[10],
                     help="calibration motions per draw, cycled over the draws")
     ap.add_argument("--zeros", nargs="+", default=["empty-swing"], choices=["empty-swing", "slow-lever"],
                     help="zero motion per draw, cycled over the draws")
-    ap.add_argument("--reach", type=int, default=0,
+    ap.add_argument("--reach", default="0",
                     help="of each draw's calibration motions, this many are `reach` motions (every joint "
-                         "through its range at once) instead of swings")
+                         "through its range at once) instead of swings; `auto`: the recommended mix's "
+                         "share (3 in 10, 2 in 5)")
+    ap.add_argument("--balance-net", type=int, default=None, metavar="TRAIN_SEED",
+                    help="also balance-net trained as docs/balance-net.md (reach30: 25 swings, 25 work "
+                         "cycles, 20 lifts, 30 reach motions of seed TRAIN_SEED), zeroed on draw 0's empty "
+                         "swing, judged on the same test sets")
     ap.add_argument("--balance", choices=cm.BALANCE_CHOICES, action="append",
                     help="the form(s) to calibrate (default: both)")
     ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                     help="an option of the calibrated estimator (repeatable), e.g. imu_nuisance=on")
     a = ap.parse_args()
+    a.reach = None if a.reach == "auto" else int(a.reach)
     options = dict(o.split("=", 1) for o in a.option)
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
@@ -108,8 +161,16 @@ def main() -> None:
     if "multisine-creep" in a.sets:
         tests["multisine-creep"] = dm.simulate_trajectory(multisine_trajectory(a.n_test, a.seed + 7, creep=True),
                                                           a.seed + 7, dm.SESSION_WORK)
+    if "tremor" in a.sets:
+        tests["tremor"] = dm.simulate_trajectory(tremor_trajectory(a.n_test, a.seed + 8), a.seed + 8, dm.SESSION_WORK)
+    for k, name in enumerate(NEW_HELD_OUT):  # held out since session 22; light and heavy loads in turn
+        if name in a.sets:
+            tests[name] = dm.simulate_trajectory(NEW_HELD_OUT[name](a.n_test, a.seed + 9 + k), a.seed + 9 + k,
+                                                 dm.SESSION_WORK)
     print(f"test sets simulated in {time.time() - t0:.0f} s", flush=True)
     rows = []
+    if a.balance_net is not None:
+        rows += balance_net_rows(a.balance_net, dm.zero_data(a.seed + 1), tests, t0)
     for draw in range(a.draws):
         seed = a.seed + 1000 * draw  # draw 0: the study's calibration and zero check
         motions = a.motions[draw % len(a.motions)]
@@ -141,7 +202,8 @@ def main() -> None:
                       f"eff {row['efficiency']:.2f}  0.25 % {row['within_0.25pct']:.0%}  2σ {row['sigma_covers']:.1%} "
                       f"(without the zero's {row['sigma_covers_without_zero']:.1%}, its grid RMS "
                       f"{row['zero_std']:.1f} kg {row['sigma_covers_grid']:.1%})  "
-                      f"alarms {row['false_alarms']:.2%}  ({time.time() - t0:.0f} s)", flush=True)
+                      f"alarms {row['false_alarms']:.2%}  ok {row['ok_share']:.1%}  ({time.time() - t0:.0f} s)",
+                      flush=True)
         pd.DataFrame(rows).to_csv(a.out / "draws.csv", index=False)
     table = pd.DataFrame(rows)
     print("\nover draws: mean [worst, best]")
