@@ -573,8 +573,9 @@ def grade_motion(rng: np.random.Generator, arm: HydraulicArmModel, payload: floa
             u = min(max(now - t0, 0.0), t_line)
             want = np.array([np.interp(u, line_t, joints[:, k]) for k in range(2)])
             ff = np.array([np.interp(u, line_t, rates[:, k]) for k in range(2)]) if t0 <= now <= t0 + t_line else 0.0
+            # the levers are held through the stroke (a dead zone here made the spools hunt at
+            # 12 Hz, a chatter no hand makes)
             lever[:2] = ff + gain[:2] * (want - q_now[:2])
-            lever[:2][np.abs(want - q_now[:2]) < 0.05 * DEG] = 0.0
             return lever
         targets = np.array([lift, q_now[1], curl, slew if now >= t_slew else 0.0])
         error = targets - q_now
