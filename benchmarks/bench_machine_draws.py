@@ -21,6 +21,14 @@ held-out operator models of :mod:`held_out_motions` as test sets)::
     PYTHONPATH=src python benchmarks/bench_machine_draws.py --draws 10 --motions 5 10 \
         --zeros empty-swing slow-lever --balance momentum --seed 501 \
         --sets nmpc work-cycle slope-5deg lever joystick --n-test 24 --out draws-any
+
+The held-out families of session 22 (``trench``, ``grade``, ``jerky``: light and heavy loads in
+turn), the recommended calibration mix, and ``balance-net`` (one training) on the same test sets;
+the rows carry ``ok_share`` (samples ``ok`` after each experiment's first second)::
+
+    PYTHONPATH=src python benchmarks/bench_machine_draws.py --draws 5 --motions 10 5 --reach auto \
+        --zeros empty-swing empty-swing slow-lever slow-lever --seed 150101 \
+        --sets trench grade jerky --n-test 16 --balance momentum --balance-net 150500 --out fresh
 """
 
 from __future__ import annotations
