@@ -21,8 +21,8 @@ import numpy as np
 from excavator_payload.data.schema import MACHINE_SENSORS
 from excavator_payload.estimators.classical.machine_calibration.data import calibration_arrays
 from excavator_payload.estimators.classical.machine_calibration.settings import (
-    CALIBRATED_PARAMETERS, CALIBRATION_HALF_WINDOW, HELD_IN_MOMENTUM, MIN_ZERO_MOVING_SAMPLES,
-    OFFSET_PRIOR_STD, OFFSET_SIGNALS, ZERO_OFFSET_CHI2)
+    CALIBRATED_PARAMETERS, CALIBRATION_HALF_WINDOW, HELD_IN_MOMENTUM, MIN_ZERO_BOOM_TRAVEL,
+    MIN_ZERO_MOVING_SAMPLES, OFFSET_PRIOR_STD, OFFSET_SIGNALS, ZERO_OFFSET_CHI2)
 from excavator_payload.estimators.classical.pressure_regression import ANGLES, PRESSURES
 from excavator_payload.estimators.offset_drift import offsets_beyond_drift
 
@@ -237,7 +237,9 @@ def zero_quality(cal: "MachineCalibration", dataset, moving: np.ndarray,
       zero motion's poses and speeds and carry it to every later weighing — the measured reason
       why zeros on different empty motions weigh differently.
 
-    Refused (reasons in ``refusals``): a cylinder the motion did not move (``moving`` below
+    Refused (reasons in ``refusals``): a boom that travelled less than
+    :data:`~excavator_payload.estimators.classical.machine_calibration.settings.MIN_ZERO_BOOM_TRAVEL`
+    (:func:`boom_travel`), a cylinder the motion did not move (``moving`` below
     :data:`~excavator_payload.estimators.classical.calibrated_machine.MIN_ZERO_MOVING_SAMPLES`)
     or whose force offset it did not determine (:data:`DETERMINED_SHARE`), a predicted error
     above :data:`MAX_ERROR_SHARE` of the rated payload, and offsets beyond a working session's
@@ -291,6 +293,14 @@ def zero_quality(cal: "MachineCalibration", dataset, moving: np.ndarray,
             f"bucket, moving the {' and '.join(still)} up and down through "
             f"{'their' if len(still) > 1 else 'its'} range, {MIN_ZERO_MOVING_SAMPLES / rate:.0f} s or "
             "more each, at a steady speed")
+    travel = boom_travel(dataset)
+    if "boom" not in still and travel < MIN_ZERO_BOOM_TRAVEL:  # a still boom is named above
+        refusals.append(
+            f"the zero motion moved the boom through only {math.degrees(travel):.0f}° "
+            f"({math.degrees(MIN_ZERO_BOOM_TRAVEL):.0f}° or more wanted: its offsets would take up the "
+            "model's error at that one boom pose): repeat it with the empty bucket, raising and lowering "
+            f"the boom through {math.degrees(MIN_ZERO_BOOM_TRAVEL):.0f}° or more while you move the dipper "
+            "and bucket, as in an empty swing (lift, slew, lower)")
     rated = float(cal.arm.machine.rated_payload)
     if predicted > MAX_ERROR_SHARE * rated:
         refusals.append(
@@ -303,6 +313,23 @@ def zero_quality(cal: "MachineCalibration", dataset, moving: np.ndarray,
     if far:
         refusals.append(far)
     return ZeroQuality(predicted, offset_part, model_part, determined, refusals)
+
+
+def boom_travel(dataset) -> float:
+    """How far the zero motion moved the boom (rad): the 2nd to 98th percentile of its measured
+    angle (a glitch or a few stray samples do not count as travel; 0 without finite samples).
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The zero motion (machine sensor set).
+    """
+    boom = dataset.frame["boom_angle"].to_numpy(float)
+    boom = boom[np.isfinite(boom)]
+    if len(boom) == 0:
+        return 0.0
+    low, high = np.percentile(boom, [2.0, 98.0])
+    return float(high - low)
 
 
 def far_offsets(offsets: np.ndarray, drift_std: np.ndarray = OFFSET_PRIOR_STD) -> str:

@@ -76,6 +76,13 @@ IMU_NUISANCE_CHOICES = ("auto", "on", "off")
 MIN_MOVING_SAMPLES = 200
 #: The same for one cylinder in the zero check (1 s at 100 Hz).
 MIN_ZERO_MOVING_SAMPLES = 100
+#: ``zero`` refuses a motion whose boom angle travels less than this (rad; the 2nd to 98th
+#: percentile of its measured angle): its offsets take up the model's error at that one boom
+#: pose. Tuning (calibration draws of seeds 140000-144999): empty multi-sine motions moved the
+#: boom 4-11° and weighed a family worse than 1 % of rated after 2 of 16 zeros (worst MAX
+#: 121 kg); every other accepted empty motion moved it 22° or more and weighed within 1 %
+#: (findings: "Which empty motions a zero accepts").
+MIN_ZERO_BOOM_TRAVEL = 15.0 * DEG
 #: ``zero`` refuses offsets whose sum of squares in prior standard deviations
 #: (:data:`OFFSET_PRIOR_STD`, a working session's drift) exceeds this: χ² of the 11 offsets at
 #: 10⁻⁶ (37.4 at 10⁻⁴). Clean zero checks on 62 empty motions (swings, slow one-lever moves, joystick passes, 5°
