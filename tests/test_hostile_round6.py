@@ -350,3 +350,29 @@ def test_a_stroke_too_short_for_the_joint_range_is_refused(tmp_path, capsys):
                                     "--out", str(tmp_path / "x.parquet"), "--quiet", "--workers", "1"])
     assert "boom_cylinder.stroke" in line and "cannot reach" in line
     assert not (tmp_path / "x.parquet").exists()
+
+
+# -- tables as spreadsheets and other tools write them --------------------------------------------
+@pytest.mark.parametrize("sep,decimal", [(";", ","), ("\t", ".")])
+def test_a_csv_with_semicolons_or_tabs_reads_as_the_comma_one(swings, tmp_path, sep, decimal):
+    """A spreadsheet in a German locale saves "CSV" with ';' and decimal commas: read as one
+    column, every signal was "missing"."""
+    data, _ = swings
+    log = data.frame.drop(columns=["payload"])
+    log.to_csv(tmp_path / "comma.csv", index=False)
+    log.to_csv(tmp_path / "other.csv", index=False, sep=sep, decimal=decimal)
+    a, b = read_dataset(tmp_path / "comma.csv"), read_dataset(tmp_path / "other.csv")
+    pd.testing.assert_frame_equal(a.frame, b.frame)
+
+
+def test_a_column_twice_is_named_not_called_corrupt(swings, tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    _, path = swings
+    table = pq.read_table(path)
+    twice = pa.Table.from_arrays([*table.columns, table.column("boom_angle")],
+                                 names=[*table.column_names, "boom_angle"]).replace_schema_metadata(table.schema.metadata)
+    pq.write_table(twice, tmp_path / "twice.parquet")
+    with pytest.raises(DatasetError, match="'boom_angle' appear more than once"):
+        read_dataset(tmp_path / "twice.parquet")
