@@ -376,3 +376,16 @@ def test_a_column_twice_is_named_not_called_corrupt(swings, tmp_path):
     pq.write_table(twice, tmp_path / "twice.parquet")
     with pytest.raises(DatasetError, match="'boom_angle' appear more than once"):
         read_dataset(tmp_path / "twice.parquet")
+
+
+def test_a_model_of_the_other_sensor_set_with_a_map_is_named_as_such(tmp_path):
+    """A thesis model with the machine map said "the signal map does not say where boom_accel,
+    dipper_accel, boom_torque, dipper_torque come from"."""
+    from excavator_payload.data.schema import get_sensor_set
+    from excavator_payload.errors import ExcavatorPayloadError
+    from excavator_payload.runtime.codec import SignalCodec
+
+    dbc_path, map_path, _ = _field_files(tmp_path)
+    with pytest.raises(ExcavatorPayloadError, match="maps the machine sensor set's signals, but the model "
+                                                    "weighs from the thesis set's"):
+        SignalCodec.from_files(get_sensor_set("thesis"), dbc_path, map_path)

@@ -99,8 +99,8 @@ from excavator_payload.estimators.checks import (  # noqa: F401
     sensor_margin)
 from excavator_payload.estimators.options import Option  # noqa: F401
 from excavator_payload.estimators.persistence import (  # noqa: F401
-    ARRAYS_FILE, CONFIG_FILE, DIGEST_KEY, SAVE_FORMAT, SAVE_VERSION, _jsonable, _machine_from_dict, _saved_limits,
-    arrays_digest, load_estimator)
+    ARRAYS_FILE, CONFIG_FILE, DIGEST_KEY, SAVE_FORMAT, SAVE_VERSION, _jsonable, _machine_from_dict,
+    _saved_limits, arrays_digest, load_estimator)
 from excavator_payload.estimators.registry import (  # noqa: F401
     _REGISTRY, ESTIMATOR_MODULES, create_estimator, estimator_class, estimator_names, register)
 from excavator_payload.estimators.degraded import DegradedWeighing

@@ -87,6 +87,14 @@ class SignalCodec:
         if missing:
             import difflib
 
+            from excavator_payload.data.schema import SENSOR_SETS
+
+            other = next((o for o in SENSOR_SETS.values() if o.name != sensor_set.name
+                          and set(o.signals) <= set(self.sources)), None)
+            if other is not None:  # a thesis model with a machine map (or the reverse)
+                raise CanConfigError(f"the signal map maps the {other.name} sensor set's signals, but the "
+                                     f"model weighs from the {sensor_set.name} set's ({', '.join(missing)} "
+                                     "unmapped): a model of the other sensor set?")
             hints = [f"{u!r} (misspelt {c[0]!r}?)" for u in unknown
                      for c in [difflib.get_close_matches(u, missing, n=1, cutoff=0.75)] if c]
             raise CanConfigError(f"the signal map does not say where {', '.join(missing)} come from"
