@@ -279,6 +279,7 @@ def test_a_model_saved_before_the_novelty_floor_loads_with_its_constant_floor(fi
     config = json.loads((folder / "estimator.json").read_text())
     for key in ("floor_a", "floor_b", "floor_c"):
         config["state"].pop(key)
+    config.pop("arrays_sha256")  # saved before it too (session 22)
     (folder / "estimator.json").write_text(json.dumps(config))
     arrays = dict(np.load(folder / "arrays.npz"))
     arrays.pop("novelty_mean"), arrays.pop("novelty_precision")

@@ -60,10 +60,24 @@ def is_field_table(path: str | Path) -> bool:
     return "experiment" not in names and any(c in names for c in TIME_COLUMNS)
 
 
+def _csv_dialect(path: Path) -> dict:
+    """``pandas.read_csv`` arguments for the file's separator: ``;`` (with decimal commas, as a
+    spreadsheet in a German or French locale saves "CSV") or a tab, when its header holds no
+    comma; else the default. Read as one column, such a file was "missing" every signal."""
+    with open(path, encoding="utf-8-sig", errors="replace") as f:
+        header, first = f.readline(), f.readline()
+    if "," in header:
+        return {}
+    sep = max((";", "\t"), key=header.count)
+    if not header.count(sep):
+        return {}
+    return {"sep": sep, "decimal": "," if "," in first else "."}
+
+
 def _read_table(path: Path) -> pd.DataFrame:
     try:
         if path.suffix.lower() == ".csv":
-            return pd.read_csv(path)
+            return pd.read_csv(path, **_csv_dialect(path))
         return pd.read_parquet(path)
     except (ValueError, OSError, UnicodeDecodeError, pd.errors.ParserError) as exc:
         raise DatasetError(f"'{path}' could not be read as a table: {str(exc).splitlines()[0]}") from None

@@ -278,9 +278,14 @@ def _read_schema(path: Path) -> pa.Schema:
     if is_special(path):  # a named pipe: pyarrow waited for a writer for ever
         raise DatasetError(not_a_file(path, "dataset file"))
     try:
-        return pq.read_schema(path)
+        schema = pq.read_schema(path)
     except (pa.ArrowInvalid, OSError) as exc:
         raise DatasetError(f"'{path}' is not a readable Parquet file (truncated or another format?): {exc}") from None
+    twice = sorted({n for n in schema.names if schema.names.count(n) > 1})
+    if twice:  # pyarrow's "Multiple matches for FieldRef" was called a truncated or corrupt file
+        raise DatasetError(f"'{path}': column(s) {', '.join(map(repr, twice))} appear more than once; "
+                           "keep one of each (which one holds the signal?)")
+    return schema
 
 
 #: Suffixes of the Parquet files the commands write.

@@ -96,7 +96,8 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
     grouped = frame.groupby("experiment", sort=False)
     times = grouped["time"]
     if not (times.apply(lambda t: bool(np.all(np.diff(t.to_numpy()) > 0)))).all():
-        raise DatasetError(f"{source}: 'time' must increase strictly within each experiment")
+        raise DatasetError(f"{source}: 'time' must increase strictly within each experiment"
+                           + _where_time_goes_back(frame))
     # Time in milliseconds, or data of another rate labelled as this sensor set, would pass
     # every column check and give every sample a "gap" (or wrong physics): check the rate.
     same = exp[1:] == exp[:-1]
@@ -107,9 +108,63 @@ def validate_frame(frame: pd.DataFrame, source: str = "dataset",
             raise DatasetError(f"{source}: samples are {period:.4g} s apart, but the {sensors.name} "
                                f"sensor set samples at {sensors.sample_rate:g} Hz "
                                f"({sensors.sample_period:g} s); is 'time' in seconds?")
+        _check_experiment_periods(exp[1:][same], steps, sensors, source)
     if has_payload and (grouped["payload"].nunique() > 1).any():
         raise DatasetError(f"{source}: 'payload' must be constant within an experiment")
     _check_rates(frame, sensors, source)
+
+
+def _where_time_goes_back(frame: pd.DataFrame) -> str:
+    """``"; in experiment 3 it goes from 7.2 s back to 0 s (row 812): …"`` for the first step of
+    ``time`` that does not increase within an experiment (a time back at the experiment's start
+    is two recordings under one number)."""
+    exp = frame["experiment"].to_numpy()
+    t = frame["time"].to_numpy(dtype=float)
+    same = exp[1:] == exp[:-1]
+    bad = np.flatnonzero(same & (np.diff(t) <= 0))
+    if not bad.size:
+        return ""
+    i = int(bad[0])
+    first = t[np.flatnonzero(exp == exp[i])[0]]
+    what = "repeats" if t[i + 1] == t[i] else f"goes from {t[i]:.6g} s back to {t[i + 1]:.6g} s"
+    if t[i + 1] <= first + 0.5 * (t[i] - first):
+        hint = ": two recordings under one experiment number? Number each its own"
+    elif t[i + 1] == t[i]:
+        hint = ": a sample logged twice? Drop the repeated rows"
+    else:
+        hint = ": rows out of order? Sort by experiment, then time"
+    return f"; in experiment {exp[i]:g} (row {i + 1}, counted from 0) it {what}{hint}"
+
+
+#: An experiment with fewer sample intervals than this is not judged on its own interval (too
+#: short to weigh anyway; a logger's jitter could tip a median of two).
+PERIOD_MIN_STEPS = 10
+
+
+def _check_experiment_periods(owner: np.ndarray, steps: np.ndarray, sensors: SensorSet,
+                              source: str) -> None:
+    """Each experiment's median sample interval at the sensor set's period (±20 %), not only the
+    file's: one experiment resampled to another rate, or its time in milliseconds, passed the
+    file-wide check and was read as samples with a gap between every two (no estimate, no word)."""
+    period = sensors.sample_period
+    order = np.argsort(owner, kind="stable")
+    ids, starts = np.unique(owner[order], return_index=True)
+    bad = []
+    for k, chunk in zip(ids, np.split(steps[order], starts[1:])):
+        if chunk.size >= PERIOD_MIN_STEPS:
+            median = float(np.median(chunk))
+            if not 0.8 * period <= median <= 1.25 * period:
+                bad.append((k, median))
+    if bad:
+        k, median = bad[0]
+        ratio = median / period
+        why = ("is its 'time' in milliseconds?" if 300.0 <= ratio <= 3000.0
+               else f"it is sampled at {1.0 / median:.4g} Hz: resample it to {sensors.sample_rate:g} Hz "
+                    "(or record it at that rate)")
+        more = f"; {len(bad)} experiments alike" if len(bad) > 1 else ""
+        raise DatasetError(f"{source}: experiment {int(k)}: samples are {median:.4g} s apart (median), "
+                           f"but the {sensors.name} sensor set samples at {sensors.sample_rate:g} Hz "
+                           f"({period:g} s) as the other experiments do; {why}{more}")
 
 
 def _misspelt(missing: list[str], unknown: list[str]) -> str:

@@ -99,8 +99,8 @@ from excavator_payload.estimators.checks import (  # noqa: F401
     sensor_margin)
 from excavator_payload.estimators.options import Option  # noqa: F401
 from excavator_payload.estimators.persistence import (  # noqa: F401
-    ARRAYS_FILE, CONFIG_FILE, SAVE_FORMAT, SAVE_VERSION, _jsonable, _machine_from_dict, _saved_limits,
-    load_estimator)
+    ARRAYS_FILE, CONFIG_FILE, DIGEST_KEY, SAVE_FORMAT, SAVE_VERSION, _jsonable, _machine_from_dict,
+    _saved_limits, arrays_digest, load_estimator)
 from excavator_payload.estimators.registry import (  # noqa: F401
     _REGISTRY, ESTIMATOR_MODULES, create_estimator, estimator_class, estimator_names, register)
 from excavator_payload.estimators.degraded import DegradedWeighing
@@ -812,6 +812,7 @@ class Estimator(DegradedWeighing, ABC):
             "state": _jsonable(self._config()),
         }
         arrays = self._arrays()
+        config[DIGEST_KEY] = arrays_digest(arrays)  # the arrays belong to this file alone
         text = json.dumps(config, indent=2)
         # estimator.json is what makes a folder a model: it goes first and comes back last, so
         # an interrupted save never leaves old settings beside new arrays (or the reverse).

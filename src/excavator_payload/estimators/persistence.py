@@ -7,6 +7,7 @@ own state goes through its ``_config`` / ``_arrays`` / ``_restore``.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from enum import Enum
@@ -25,6 +26,32 @@ SAVE_FORMAT = "excavator-payload-estimator"
 SAVE_VERSION = 1
 CONFIG_FILE = "estimator.json"
 ARRAYS_FILE = "arrays.npz"
+#: The key of ``estimator.json`` holding :func:`arrays_digest` of the arrays saved with it (files
+#: saved before 2026-11-30 have none and are read as before).
+DIGEST_KEY = "arrays_sha256"
+
+
+def arrays_digest(arrays: dict) -> str:
+    """SHA-256 of a model's arrays (names, dtypes, shapes and values), independent of the zip
+    container: ``estimator.json`` keeps it so that an ``arrays.npz`` edited, re-saved with other
+    types, or copied in from another model folder is refused instead of weighed with.
+
+    Parameters
+    ----------
+    arrays : dict of str to numpy.ndarray
+        The arrays as saved to (or read from) ``arrays.npz``.
+
+    Returns
+    -------
+    str
+        The hex digest.
+    """
+    digest = hashlib.sha256()
+    for key in sorted(arrays):
+        value = np.asarray(arrays[key])  # as np.savez stores it; tobytes() is C order
+        digest.update(f"{key}|{value.dtype.str}|{value.shape}|".encode())
+        digest.update(value.tobytes())
+    return digest.hexdigest()
 
 
 def _jsonable(obj):
@@ -66,13 +93,14 @@ def load_estimator(directory: str | Path, expected: type | None = None):
     if not cfg_path.is_file():
         raise EstimatorError(f"'{directory}' is not a saved estimator (no {CONFIG_FILE})")
     try:
-        config = json.loads(cfg_path.read_text(encoding="utf-8"))
+        # utf-8-sig: an estimator.json opened and saved in Notepad starts with a byte-order mark
+        config = json.loads(cfg_path.read_text(encoding="utf-8-sig"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise EstimatorError(f"'{cfg_path}' is corrupt: {exc}") from None
     if not isinstance(config, dict) or config.get("format") != SAVE_FORMAT:
         raise EstimatorError(f"'{directory}' was not saved by excavator-payload")
     if config.get("version") != SAVE_VERSION:
-        raise EstimatorError(f"'{directory}' has save format version {config.get('version')}, "
+        raise EstimatorError(f"'{directory}' has save format version {config.get('version')!r}, "
                              f"this software reads {SAVE_VERSION}")
     name = config.get("estimator")
     if not isinstance(name, str):
@@ -137,6 +165,12 @@ def load_estimator(directory: str | Path, expected: type | None = None):
     except Exception as exc:  # any other failure to rebuild it from the files: corrupt files
         raise EstimatorError(f"'{directory}' is corrupt or incomplete: "
                              f"{type(exc).__name__}: {exc}") from None
+    saved = config.get(DIGEST_KEY)
+    if saved is not None and saved != arrays_digest(arrays):
+        # checked after the folder rebuilt: the specific reasons above keep their own lines
+        raise EstimatorError(f"'{arrays_path}' is not the arrays.npz saved with its estimator.json (edited, "
+                             "re-saved, or copied in from another model folder): the model folder is corrupt; "
+                             "use the folder as saved, or train (and zero) again")
     est.fitted = True
     est.reset()
     return est

@@ -718,9 +718,11 @@ SIZE_LIMITS: dict[str, tuple[float, str]] = {
     **{key: (1.0e10, "kg·m²") for key in ("inertia", "slew_inertia")},
 }
 #: How far (share of its longest length) a cylinder's pin-to-pin length may leave its
-#: ``stroke`` over the joint's angle range. The stroke enters no computation: a roughly right
-#: file (``off_by`` 10 %: the boom's pins need 5.5 % beyond its stroke) passes; a stroke that
-#: cannot move the joint through its range (in mm, of another cylinder) does not.
+#: ``stroke`` over the joint's angle range; and the share of the range's travel the stroke's
+#: travel may fall short by (every preset, scaled and ``off_by`` 10 % file: 1.03-1.21 times
+#: it). The stroke enters no computation: a roughly right file (``off_by`` 10 %: the boom's
+#: pins need 5.5 % beyond its stroke) passes; a stroke that cannot move the joint through its
+#: range (in mm, of another cylinder, too short a travel) does not.
 STROKE_TOLERANCE = 0.25
 #: The slowest a machine may cross each joint's angle range (the slew: a half turn) at its pump
 #: flow and ``max_slew_rate``, s. Real machines take seconds; a pump flow 125× too low (the
@@ -754,6 +756,14 @@ def _check_geometry(m: HydraulicMachine, source: str) -> None:
             raise MachineError(f"{source}: field '{name}_cylinder.stroke' [{short:g}, {long:g}] m cannot "
                                f"move the {name} over its angle_range: the pins need "
                                f"{lengths.min():.4g} … {lengths.max():.4g} m")
+        travel = float(lengths.max() - lengths.min())
+        if long - short < (1.0 - STROKE_TOLERANCE) * travel:
+            # both ends within the slack, yet a stroke of 0.5 m where the range needs 1.85 m
+            raise MachineError(f"{source}: field '{name}_cylinder.stroke' [{short:g}, {long:g}] m travels "
+                               f"{long - short:.4g} m, but moving the {name} over its angle_range takes "
+                               f"{travel:.4g} m ({lengths.min():.4g} … {lengths.max():.4g} m pin to pin): a "
+                               f"cylinder that cannot reach its joint's range; check the stroke or "
+                               f"'{name}.angle_range'")
     with np.errstate(all="ignore"):
         rates = arm.largest_joint_rates(points)
     widths = np.r_[np.diff(m.angle_ranges, axis=1)[:, 0], math.pi]

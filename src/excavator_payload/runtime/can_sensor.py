@@ -18,7 +18,7 @@ they neither decode nor keep a recording's segment open (:mod:`~excavator_payloa
 
 A frame that repeats the last one of its message (same bytes, less than a quarter of its period
 later: a log of two bridged channels, or of the receive and the transmit echo) is a duplicate
-and dropped. Frames of other ids are ignored; a frame of the wrong length or with an
+and dropped. Frames of other ids are ignored; a frame shorter than its message or with an
 out-of-range or not-available raw value gives NaN signals (the sample is then ``invalid_input``),
 never an exception. When no sample has arrived for ``stale_after`` seconds the sensor keeps
 publishing at the sample rate with status ``stale`` (last estimate kept); the next sample

@@ -83,9 +83,22 @@ class SignalCodec:
         self.database = database
         self.sources = dict(sources)
         missing = [s for s in sensor_set.signals if s not in self.sources]
-        if missing:
-            raise CanConfigError(f"the signal map does not say where {', '.join(missing)} come from")
         unknown = [s for s in self.sources if s not in sensor_set.signals]
+        if missing:
+            import difflib
+
+            from excavator_payload.data.schema import SENSOR_SETS
+
+            other = next((o for o in SENSOR_SETS.values() if o.name != sensor_set.name
+                          and set(o.signals) <= set(self.sources)), None)
+            if other is not None:  # a thesis model with a machine map (or the reverse)
+                raise CanConfigError(f"the signal map maps the {other.name} sensor set's signals, but the "
+                                     f"model weighs from the {sensor_set.name} set's ({', '.join(missing)} "
+                                     "unmapped): a model of the other sensor set?")
+            hints = [f"{u!r} (misspelt {c[0]!r}?)" for u in unknown
+                     for c in [difflib.get_close_matches(u, missing, n=1, cutoff=0.75)] if c]
+            raise CanConfigError(f"the signal map does not say where {', '.join(missing)} come from"
+                                 + (f"; it names {', '.join(hints)}" if hints else ""))
         if unknown:  # a misspelt name (its signal is then missing, or mapped twice)
             raise CanConfigError(f"the signal map names {', '.join(map(repr, unknown))}, not signals of the "
                                  f"{sensor_set.name} sensor set ({', '.join(sensor_set.signals)})")
@@ -111,6 +124,14 @@ class SignalCodec:
             except KeyError:
                 raise CanConfigError(f"{signal}: message {src.message!r} has no signal "
                                      f"{src.signal!r}") from None
+            if dbc_signal.multiplexer_ids:
+                # a multiplexed signal is in one page of its message's frames: decoded as missing
+                # from every other page (no sample ever whole), recorded in none but page 0
+                selector = next((s.name for s in message.signals if s.is_multiplexer), "?")
+                raise CanConfigError(f"{signal}: DBC signal {src.message}.{src.signal} is multiplexed (sent only "
+                                     f"when {selector} = {', '.join(map(str, dbc_signal.multiplexer_ids))}); "
+                                     "multiplexed messages are not read: map signals of messages that carry "
+                                     "them in every frame")
             scale = float(dbc_signal.conversion.scale)
             if not (math.isfinite(scale) and scale != 0):
                 # a scale of 0 decodes every frame as the signal's offset: a constant boom angle
@@ -240,8 +261,9 @@ class SignalCodec:
     def decode(self, message, data: bytes) -> list[tuple[int, float]]:
         """(signal index, SI value) of every one of our signals in a frame of ``message``.
 
-        A frame of the wrong length, a J1939 error / not-available raw value or a value outside
-        the signal's DBC range gives NaN for the signals concerned (never an exception).
+        A frame shorter than the message (a longer one is read by the message's bytes), a J1939
+        error / not-available raw value or a value outside the signal's DBC range gives NaN for
+        the signals concerned (never an exception).
 
         Parameters
         ----------
@@ -251,10 +273,12 @@ class SignalCodec:
             The frame's data bytes.
         """
         targets = self._by_message[message.name]
-        if len(data) != message.length:
+        if len(data) < message.length:
             return [(i, math.nan) for i, _ in targets]
         try:
-            raw = message.decode(bytes(data), decode_choices=False, scaling=False)
+            # bytes beyond the DBC's length: a CAN FD frame padded to its next length (12 … 64
+            # bytes), or a classic frame padded to 8; every signal lies in the DBC's bytes
+            raw = message.decode(bytes(data[:message.length]), decode_choices=False, scaling=False)
         except Exception:  # a frame cantools cannot decode is a bad frame, not a crash
             return [(i, math.nan) for i, _ in targets]
         out = []
@@ -318,6 +342,50 @@ class SignalCodec:
             raw = min(max(raw, bottom), top)
         return int(raw)
 
+    def beyond_range(self, values: np.ndarray) -> dict[str, tuple[int, int, float, float]]:
+        """Per signal, how many finite values cannot go on the bus as themselves: outside the DBC
+        signal's ``[minimum, maximum]`` or its raw width (sent as the J1939 error indicator, or
+        clipped in another DBC).
+
+        Parameters
+        ----------
+        values : array_like
+            Samples (rows) of signals in SI units, sensor-set column order.
+
+        Returns
+        -------
+        dict
+            Our signal name -> (values beyond, finite values, the data's min and max in the DBC's
+            unit), for the signals with any beyond.
+        """
+        values = np.atleast_2d(np.asarray(values, dtype=float))
+        out = {}
+        for name, message in self.messages.items():
+            for i, src in self._by_message[name]:
+                sig = message.get_signal_by_name(src.signal)
+                v = values[:, i]
+                finite = np.isfinite(v)
+                with np.errstate(all="ignore"):
+                    dbc_value = (v - src.offset) / src.factor
+                    half = 0.5 * abs(float(sig.scale))
+                    lo = -math.inf if sig.minimum is None else sig.minimum - half
+                    hi = math.inf if sig.maximum is None else sig.maximum + half
+                    bad = (dbc_value < lo) | (dbc_value > hi) | ~np.isfinite(dbc_value)
+                    if not sig.is_float:
+                        raw = np.round((dbc_value - sig.offset) / sig.scale)
+                        if sig.is_signed:
+                            bottom, top = -float(1 << (sig.length - 1)), float((1 << (sig.length - 1)) - 1)
+                        else:
+                            bottom = 0.0
+                            top = float(valid_raw_max(sig.length) if self.j1939 else (1 << sig.length) - 1)
+                        bad |= (raw < bottom) | (raw > top)
+                count = int(np.count_nonzero(bad & finite))
+                if count:
+                    shown = dbc_value[finite]
+                    out[self.sensor_set.signals[i]] = (count, int(finite.sum()), float(shown.min()),
+                                                       float(shown.max()))
+        return out
+
     def quantise(self, values: np.ndarray) -> np.ndarray:
         """What the receiver decodes from ``values`` (rows of samples): encode then decode.
 
@@ -339,6 +407,10 @@ class SignalCodec:
                 for i, v in self.decode(message, data):
                     out[r, i] = v
         return out
+
+
+#: The top-level tables of a signal map (``truck_button``: ``loadout``'s new-truck button).
+MAP_TABLES = ("signals", "messages", "truck_button")
 
 
 def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
@@ -371,6 +443,14 @@ def read_signal_map(path: str | Path) -> dict[str, SignalSource]:
         data = tomllib.loads(read_config_text(path))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise CanConfigError(f"signal map '{path}' is not valid TOML: {exc}") from None
+    strays = [k for k in data if k not in MAP_TABLES]
+    if strays:  # a misspelt [messages.X] table: its source address or period silently not applied
+        import difflib
+
+        close = difflib.get_close_matches(strays[0], MAP_TABLES, n=1, cutoff=0.6)
+        raise CanConfigError(f"signal map '{path}': unknown table or key {strays[0]!r}"
+                             + (f" (misspelt {close[0]!r}?)" if close else "")
+                             + f"; a signal map has {', '.join(MAP_TABLES)}")
     table = data.get("signals")
     if not isinstance(table, dict) or not table:
         raise CanConfigError(f"signal map '{path}' has no [signals.<name>] tables")

@@ -16,6 +16,8 @@ console = Console()
 #: A truck target below this share of the machine's rated payload (less than a tenth of one
 #: bucket) is refused: a target in tonnes.
 TARGET_SHARE = 0.1
+#: The largest --target, in rated buckets: a 400 t haul truck is 80 of a 5 t bucket.
+TARGET_MOST = 1000.0
 
 
 def _say(line: str) -> None:
@@ -121,6 +123,10 @@ def register(app: typer.Typer) -> None:
             # --target 20 meant 20 t: every truck was "full" after its first pass
             raise DatasetError(f"--target {target:g} kg is less than a tenth of one bucket (rated {rated:g} kg): "
                                f"in tonnes? give kg (e.g. --target {target * 1000:g})")
+        if target is not None and rated and target > TARGET_MOST * rated:
+            # --target 2e7 (grams): every truck "short" by tonnes, every pass still weighed
+            raise DatasetError(f"--target {target:g} kg is more than {TARGET_MOST:g} buckets (rated {rated:g} kg), "
+                               f"more than a truck takes: in grams? give kg (e.g. --target {target / 1000:g})")
         if data is not None:
             trucks = _from_dataset(estimator, data, db, target, model)
         else:

@@ -75,6 +75,27 @@ def message_strides(codec: SignalCodec, period: float) -> dict[str, int]:
     return strides
 
 
+#: Share of a signal's values beyond its DBC signal's range (sent as the error indicator, or
+#: clipped) above which the DBC cannot carry the data: a range or raw width too small for the
+#: signal, or a factor in the signal map off by a unit. A few glitches stay glitches.
+BEYOND_RANGE_SHARE = 0.01
+
+
+def _check_ranges(codec: SignalCodec, values: np.ndarray) -> None:
+    """Refuse a log whose DBC cannot carry the data: the frames would hold the error indicator
+    (or clipped values) where the data had numbers, and the log be written without a word."""
+    beyond = {k: v for k, v in codec.beyond_range(values).items() if v[0] > BEYOND_RANGE_SHARE * v[1]}
+    if beyond:
+        name, (count, finite, low, high) = next(iter(beyond.items()))
+        src = codec.sources[name]
+        sig = codec.messages[src.message].get_signal_by_name(src.signal)
+        more = f"; {len(beyond)} signals alike ({', '.join(beyond)})" if len(beyond) > 1 else ""
+        raise DatasetError(f"{name}: {count} of {finite} values ({low:.4g} … {high:.4g} in the DBC's unit) lie "
+                           f"beyond what DBC signal {src.message}.{src.signal} carries ([{sig.minimum}, "
+                           f"{sig.maximum}], {sig.length} bits × {sig.scale:g}); widen the signal in the DBC or "
+                           f"check the signal map's factor{more}")
+
+
 def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None = None,
                    start_time: float = 0.0, channel: int | str = 1, progress: bool = False,
                    jitter: float = 0.0, burst_every: float = 0.0, burst_length: int = 3,
@@ -125,6 +146,7 @@ def record_dataset(dataset: Dataset, out: str | Path, codec: SignalCodec | None 
     frame = dataset.frame
     times = frame["time"].to_numpy(dtype=float)
     values = dataset.signals()
+    _check_ranges(codec, values)
     exp = frame["experiment"].to_numpy()
     starts = np.flatnonzero(np.r_[True, exp[1:] != exp[:-1]])
     bounds = np.r_[starts, len(exp)]

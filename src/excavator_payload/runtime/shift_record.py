@@ -101,12 +101,20 @@ def check_record_schema(db: sqlite3.Connection, path: str | Path) -> None:
     Raises
     ------
     DatasetError
-        A newer record, or a table named as ours without our columns.
+        A newer record, a table named as ours without our columns, or tables that are all
+        another program's.
     """
     version = db.execute("PRAGMA user_version").fetchone()[0]
     if version > SCHEMA_VERSION:
         raise DatasetError(f"--db '{path}' is a shift record of a newer excavator-payload (layout version "
                            f"{version}, this one reads up to {SCHEMA_VERSION}); upgrade, or give a new --db")
+    tables = [row[0] for row in db.execute("SELECT name FROM sqlite_master WHERE type = 'table' "
+                                            "AND name NOT LIKE 'sqlite_%' ORDER BY name")]
+    if tables and not set(tables) & set(RECORD_COLUMNS):
+        # an application's database given as --db: loadout added the record's tables to it
+        shown = ", ".join(tables[:5]) + (", …" if len(tables) > 5 else "")
+        raise DatasetError(f"--db '{path}' holds another program's table(s) ({shown}) and no shift record: "
+                           "a shift record is a file of its own; give a new --db")
     for table, needed in RECORD_COLUMNS.items():
         have = {row[1] for row in db.execute(f"PRAGMA table_info({table})")}
         missing = [c for c in needed if c not in have]

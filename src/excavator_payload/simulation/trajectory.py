@@ -142,7 +142,8 @@ def trajectory_from_frame(frame: pd.DataFrame, source: str = "trajectory") -> Tr
     unknown = [str(c) for c in frame.columns if c not in known]
     for c in unknown:
         absent = [k for k in known if k not in frame.columns]
-        close = difflib.get_close_matches(c, absent, n=1, cutoff=MISSPELT_CUTOFF)
+        # lower case first: 'Time' or 'Boom_Angle' (a spreadsheet's header) is ours in other case
+        close = difflib.get_close_matches(c.strip().lower(), absent, n=1, cutoff=MISSPELT_CUTOFF)
         if close:  # a misspelt optional column was silently ignored: level ground was simulated
             raise DatasetError(f"{source}: column '{c}' is not a trajectory column; did you mean "
                                f"'{close[0]}'? (columns: {', '.join(known)})")

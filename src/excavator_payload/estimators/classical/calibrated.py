@@ -243,6 +243,7 @@ class WeighingKernel(PressureKernel):
 
         arm = machine_arm(estimator.name, estimator.machine)
         dataset, ids = calibration_subset(estimator, dataset)
+        dataset, ids = _without_stubs(estimator, dataset, ids)
         weighing, messages = MachineWeighing.fit(estimator.name, arm, dataset, ids, estimator.options,
                                                  lambda half: estimator._weighing_twin(half, dataset.sensor_set))
         estimator.fit_warnings += messages["warnings"]
@@ -618,6 +619,27 @@ def calibration_subset(estimator, dataset: Dataset) -> tuple[Dataset, list]:
         ids = ids[:n]
         dataset = dataset.subset(ids)
     return dataset, ids
+
+
+#: A machine calibration experiment shorter than this (s) is not a motion: a stray row or two
+#: under its own number. Counted as a motion it took a half of the cross-check's motions (four
+#: experiments: a good calibration refused, "±104 kg", for one row numbered 99).
+SHORTEST_MOTION = 1.0
+
+
+def _without_stubs(estimator, dataset: Dataset, ids: list) -> tuple[Dataset, list]:
+    """The calibration experiments without those shorter than :data:`SHORTEST_MOTION` (each
+    named in a warning); all of them when none is left (the calibration then says why)."""
+    counts = dataset.frame.groupby("experiment", sort=False).size()
+    least = max(2, int(round(SHORTEST_MOTION * dataset.sensor_set.sample_rate)))
+    stubs = [k for k in ids if counts.get(k, 0) < least]
+    if not stubs or len(stubs) == len(ids):
+        return dataset, ids
+    shown = ", ".join(f"{k} ({counts.get(k, 0)} samples)" for k in stubs[:5]) + (", …" if len(stubs) > 5 else "")
+    estimator.fit_warnings.append(f"{estimator.name}: calibration experiment(s) {shown} shorter than "
+                                  f"{SHORTEST_MOTION:g} s: not motions, not used")
+    kept = [k for k in ids if k not in stubs]
+    return dataset.subset(kept), kept
 
 
 def judged_errors(dataset: Dataset, estimates: pd.DataFrame,
