@@ -15,6 +15,10 @@ as ``bench_machine_draws.py --balance-net``), zeroed on the empty swing of ``--s
 ``bench_balance_net.py --held-out``, then ``trench`` / ``grade`` / ``jerky`` at ``--seed`` + 9, 10, 11):
 the eight families of docs/balance-net.md and the three of session 22.
 
+Session 22 judged ``stat:0.3|info:0.3`` (2κ/√I ≤ 0.3 % of the largest trained payload, or the
+current share) on fresh seeds and did not keep it (docs/balance-net.md, "When the weight is
+shown"); ``check`` runs the estimator at its defaults (or ``--option``) against a rule.
+
 Usage::
 
     PYTHONPATH=src python benchmarks/bench_balance_net_ready.py trace --train-seed 147500 \
@@ -62,7 +66,15 @@ class Traced(BalanceNet):
 
 
 def test_sets(n: int, seed: int) -> dict:
-    """The eleven test families of ``seed`` (``n`` experiments each)."""
+    """The eleven test families of ``seed``.
+
+    Parameters
+    ----------
+    n : int
+        Experiments per family.
+    seed : int
+        The test seed (families at ``seed`` + 0 … 11, as the module docstring says).
+    """
     tests = families(n, seed)
     tests["slopes"] = dm.before_release(simulate_dataset(
         n, seed=seed + 5, motion="slopes", machine=MACHINE, session=dm.SESSION_WORK,
@@ -75,7 +87,13 @@ def test_sets(n: int, seed: int) -> dict:
 
 
 def trace(a) -> None:
-    """Train, zero, and record every test family's trace in ``a.out``."""
+    """Train, zero, and record every test family's trace in ``a.out``.
+
+    Parameters
+    ----------
+    a : argparse.Namespace
+        ``train_seed``, ``seed``, ``n_test`` and ``out`` (a folder).
+    """
     t0 = time.time()
     counts = {"swing": 25, "work-cycle": 25, "lifts": 20, "reach": 30}
     est = create_estimator("balance-net", None).fit(mixture(training_motions(counts, a.train_seed), counts))
@@ -127,14 +145,24 @@ def check(a) -> None:
 
 
 def sigma_of(c: dict, info, novelty, misfit):
-    """σ as ``BalanceNet._estimate_sigma`` from the recorded state."""
+    """σ as ``BalanceNet._estimate_sigma`` from the recorded state, and the model floor's part.
+
+    Parameters
+    ----------
+    c : dict
+        The training's constants (``constants.json``).
+    info, novelty, misfit : numpy.ndarray
+        The weighing's sums after every sample.
+    """
     with np.errstate(divide="ignore", invalid="ignore"):
         floor = np.maximum(c["floor_a"] + c["floor_b"] * novelty / info + c["floor_c"] * misfit / info, 0.0)
         return np.sqrt(c["kappa"] ** 2 / info + floor + c["zero_std"] ** 2), np.sqrt(floor)
 
 
 def ready_of(rule: str, c: dict, t: pd.DataFrame) -> np.ndarray:
-    """Where the rule holds, per sample (``info:S`` the current rule; ``sigma:P`` 2σ ≤ P % of rated;
+    """Where the rule holds, per sample.
+
+    ``info:S`` the current rule; ``sigma:P`` 2σ ≤ P % of rated;
     ``floor:R`` κ/√I ≤ R × the model's floor and the zero's; ``floorA:R`` the same with the
     floor's constant part; ``stat:P`` 2κ/√I ≤ P % of rated; ``or``: ``A|B``)."""
     if "|" in rule:
@@ -174,7 +202,19 @@ def latched(ready: np.ndarray, t: pd.DataFrame) -> np.ndarray:
 
 
 def judge_rule(rule: str, c: dict, t: pd.DataFrame, latch: bool) -> dict:
-    """The family's row under ``rule``."""
+    """The family's row under ``rule``.
+
+    Parameters
+    ----------
+    rule : str
+        See :func:`ready_of`.
+    c : dict
+        The training's constants.
+    t : pandas.DataFrame
+        The family's trace.
+    latch : bool
+        Once ready, ready until the weighing restarts.
+    """
     ready = ready_of(rule, c, t)
     if latch:
         ready = latched(ready, t)
