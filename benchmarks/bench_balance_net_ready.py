@@ -25,6 +25,8 @@ Usage::
         --seed 147100 --n-test 8 --out ready-tuning
     PYTHONPATH=src python benchmarks/bench_balance_net_ready.py judge --out ready-tuning \
         --rule info:0.3 --rule sigma:0.5
+    PYTHONPATH=src python benchmarks/bench_balance_net_ready.py channels --train-seed 147630 \
+        --zero-seed 147350 --trench-seed 147309     # trench's error per channel
 """
 
 from __future__ import annotations
@@ -142,6 +144,52 @@ def check(a) -> None:
         diff = float(np.max(np.abs(e - (t["num"] / t["info"]).to_numpy(float)[ok]))) if ok.any() else 0.0
         print(f"{name}: ok {ok.mean():.3f}, rule {rule.mean():.3f}, same samples {same}, "
               f"largest estimate difference {diff:.2e} kg", flush=True)
+
+
+def channels(a) -> None:
+    """Each ``trench`` motion's error per channel at its end: the weighing's own windows summed
+    per channel (``Σ w φ r / Σ w φ²`` of each cylinder; the new-load test's windows left out).
+
+    Parameters
+    ----------
+    a : argparse.Namespace
+        ``train_seed``, ``zero_seed`` (the empty swing), ``trench_seed`` and ``n_test``.
+    """
+    import excavator_payload.estimators.learned.balance_net as bn
+
+    counts = {"swing": 25, "work-cycle": 25, "lifts": 20, "reach": 30}
+    est = create_estimator("balance-net", None).fit(mixture(training_motions(counts, a.train_seed), counts))
+    est.zero(dm.zero_data(a.zero_seed))
+    windows, add = [], bn._add_window
+
+    def recorded(sums, w, phi, r, novelty):
+        if sums[0] == est.num and sums[1] == est.info:  # the weighing's own sums
+            windows.append((w * phi * r, w * phi * phi))
+        return add(sums, w, phi, r, novelty)
+
+    bn._add_window = recorded
+    try:
+        ds = dm.simulate_trajectory(trench_trajectory(a.n_test, a.trench_seed), a.trench_seed, dm.SESSION_WORK)
+        rows = []
+        for k in ds.experiment_ids:
+            windows.clear()
+            est.estimate(ds.subset([k]))
+            num, info = (np.sum([x[i] for x in windows], axis=0) for i in (0, 1))
+            load = float(ds.subset([k]).frame["payload"].iloc[0])
+            rows.append([load, est.num / est.info - load, *(n / i - load if i > 0 else np.nan for n, i in zip(num, info)),
+                         *(info / info.sum())])
+    finally:
+        bn._add_window = add
+    n = (len(rows[0]) - 2) // 2
+    names = [est.sensor_set.signals[i] for i in est.model.layout.q]
+    df = pd.DataFrame(rows, columns=["load", "error", *(f"{q}_error" for q in names[:n]),
+                                     *(f"{q}_info_share" for q in names[:n])])
+    print(df.round(2).to_string(index=False))
+    for col in ["error", *(f"{q}_error" for q in names[:n])]:
+        ok = np.isfinite(df[col])
+        if ok.sum() >= 2:
+            slope, offset = np.polyfit(df["load"][ok], df[col][ok], 1)
+            print(f"{col}: {100 * slope:+.2f} % of the load {offset:+.1f} kg")
 
 
 def sigma_of(c: dict, info, novelty, misfit):
@@ -280,8 +328,15 @@ def main() -> None:
     ch.add_argument("--out", type=Path, required=True)
     ch.add_argument("--rule", required=True)
     ch.add_argument("--option", action="append", default=[], help="KEY=VALUE estimator option")
+    cn = sub.add_parser("channels")
+    cn.add_argument("--train-seed", type=int, required=True)
+    cn.add_argument("--zero-seed", type=int, required=True)
+    cn.add_argument("--trench-seed", type=int, required=True)
+    cn.add_argument("--n-test", type=int, default=16)
     a = ap.parse_args()
-    if a.cmd == "check":
+    if a.cmd == "channels":
+        channels(a)
+    elif a.cmd == "check":
         check(a)
     elif a.cmd == "trace":
         a.out.mkdir(parents=True, exist_ok=True)
