@@ -104,7 +104,7 @@ class BalanceStepGraph(torch.nn.Module):
         self.span, self.period = float(m._span), float(m.period)
         self.still = float(m.still_rate if L.pressure else 0.0)
         self.kappa, self.kappa_sq = float(est.kappa), float(est.kappa ** 2)
-        self.ready_info = float(est.options["ready"]) * est.typical_info
+        self.ready_info = float(est.ready_info())
         self.zero_sq = float(m.zero_std ** 2)
         self.floor_a, self.floor_b, self.floor_c = float(est.floor_a), float(est.floor_b), float(est.floor_c)
         k = len(est.novelty_mean)

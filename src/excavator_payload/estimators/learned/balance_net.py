@@ -19,9 +19,10 @@ each window from a ring: batch and stream are one computation.
   used (a regime training never saw: the model says nothing there). When every channel
   disagrees for ``--new-load`` seconds and those windows, weighed on their own, give a load
   more than :data:`NEW_LOAD_SHARE` of the largest trained payload away, that is the new load.
-* ``ok`` once the weighing holds ``--ready`` of the information a median training motion gives
-  (before: no estimate, ``warming_up``): the first windows, all of one phase of a motion,
-  carry that phase's model error.
+* ``ok`` once the information's part of 2σ, :math:`2\kappa/\sqrt{I}`, is at most
+  ``--ready-sigma`` of the largest trained payload, or the weighing holds ``--ready`` of the
+  information a median training motion gives, whichever comes first (before: no estimate,
+  ``warming_up``): the first windows, all of one phase of a motion, carry that phase's model error.
 * The machine set's frames are judged between their neighbours (a one-frame glitch is replaced
   by its neighbours' mean, as in ``calibrated``); the thesis set's samples by the base class's
   gate on the balance's residual.
@@ -283,8 +284,13 @@ class BalanceNet(Estimator):
         "new_load": Option(float, 1.0, "seconds of every channel disagreeing with the weighed load "
                            "after which a load weighed 10 % of the largest trained payload away "
                            "replaces it"),
-        "ready": Option(float, 0.3, "ok once the weighing holds this share of the information a "
-                        "median training motion gives"),
+        "ready_sigma": Option(float, 0.003, "ok once the information's part of 2 sigma (2 kappa/sqrt(I)) "
+                              "is at most this share of the largest trained payload (0.003: 15 kg of "
+                              "5 t), or at --ready, whichever comes first; the first windows, all of "
+                              "one phase, carry that phase's model error"),
+        "ready": Option(float, 0.3, "or ok once the weighing holds this share of the information a "
+                        "median training motion gives (0: --ready-sigma alone; the only rule before "
+                        "session 22)"),
     }
 
     def __init__(self, machine=None, **options: Any) -> None:
@@ -301,9 +307,11 @@ class BalanceNet(Estimator):
             raise EstimatorError(f"{self.name}: --every must be 1 … 1000")
         if not 0.0 <= float(o["margin"]) <= 1.0:
             raise EstimatorError(f"{self.name}: --margin must be 0 … 1")
-        for key in ("still_rate", "gate", "new_load", "ready"):
+        for key in ("still_rate", "gate", "new_load", "ready_sigma"):
             if not float(o[key]) > 0:
                 raise EstimatorError(f"{self.name}: --{key.replace('_', '-')} must be > 0")
+        if not float(o["ready"]) >= 0:
+            raise EstimatorError(f"{self.name}: --ready must be ≥ 0")
         self.model: BalanceModel | None = None
         self.kappa = 1.0
         self.model_std = 0.0
@@ -632,8 +640,29 @@ class BalanceNet(Estimator):
 
     @property
     def ready(self) -> bool:
-        """The weighing holds ``--ready`` of the information a median training motion gives."""
-        return self.info > 0 and self.info >= float(self.options["ready"]) * self.typical_info
+        """The weighing holds :meth:`ready_info`."""
+        return self.info > 0 and self.info >= self.ready_info()
+
+    def ready_info(self) -> float:
+        """The information from which a weight is shown: where 2κ/√I falls to ``--ready-sigma`` of
+        the largest trained payload, or ``--ready`` of a median training motion's, whichever is
+        less (``--ready`` 0: the first alone).
+
+        A share of a training motion's information is a proxy that moves with the training's
+        motions and left motions unlike them (slow grading, bang-bang levers) unweighed; the
+        information's part of σ is stated in kg whatever they were. The share stays for a
+        model whose κ is large although it weighs its own family (the thesis setting trained on
+        NMPC swings alone: no test swing reached the default ``--ready-sigma``, 20 of 20).
+
+        Returns
+        -------
+        float
+            Information (the sum of the windows' weighted squared regressors), 1/kg².
+        """
+        o = self.options
+        by_sigma = (2.0 * self.kappa / (float(o["ready_sigma"]) * self.payload_scale)) ** 2
+        share = float(o["ready"])
+        return min(by_sigma, share * self.typical_info) if share > 0 else by_sigma
 
     def _used(self, values: np.ndarray) -> np.ndarray:
         m = self.model

@@ -72,7 +72,7 @@ def balance_net_model(est) -> CModel:
         f"#define EP_STILL_RATE {c_number(m.still_rate if L.pressure else 0.0)}  /* rad/s */",
         f"#define EP_KAPPA {c_number(est.kappa)}",
         f"#define EP_KAPPA_SQ {c_number(est.kappa ** 2)}",
-        f"#define EP_READY_INFO {c_number(float(opts['ready']) * est.typical_info)}  /* ok from this information */",
+        f"#define EP_READY_INFO {c_number(est.ready_info())}  /* ok from this information */",
         f"#define EP_ZERO_SQ {c_number(m.zero_std ** 2)}  /* the zero's part of sigma^2, kg^2 */",
         "/* the model's floor^2 = max(A + B * mean novelty + C * mean misfit, 0), kg^2 */",
         f"#define EP_FLOOR_A {c_number(est.floor_a)}",
