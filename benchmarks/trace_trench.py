@@ -25,11 +25,24 @@ Usage (docs/findings/any-motion.md, "Why `calibrated` cannot weigh the trench wi
 
     PYTHONPATH=src python benchmarks/trace_trench.py --seed 146101 --motions 10 --n-test 8 \\
         --option wait_for_boom=no --out trace-trench
+
+``--readiness``: instead of the variants, readiness rules applied after the fact (the estimator is
+not changed) on ``--sets`` (``trench`` and the old families: NMPC swings, work cycles, the 5°
+slope, `lever`), the draw's calibration weighing each set twice, with main's defaults (today's
+rule: ``ok`` once the boom has its 50 windows and the estimate holds still) and with
+``wait_for_boom=no`` (every weight shown, with its σ and status). Per rule and family: motions
+within 1 % (MAX over the ``ok`` samples after the first second), ``ok`` share and first ``ok``
+(:func:`readiness_rules`). Usage (docs/findings/any-motion.md, "A readiness on σ when the boom is
+held")::
+
+    PYTHONPATH=src python benchmarks/trace_trench.py --readiness --seed 146301 --motions 10 \\
+        --n-test 8 --out ready-a
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import sys
 import time
 from pathlib import Path
@@ -40,7 +53,7 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_calibration_attribution import GROUPS, group_index, true_delta, variant, with_offsets  # noqa: E402
 from bench_efficiency_gap import N_DELTA, N_OFFSETS, oracle  # noqa: E402
-from held_out_motions import trench_trajectory  # noqa: E402
+from held_out_motions import lever_trajectory, trench_trajectory  # noqa: E402
 
 from excavator_payload.estimators.classical.calibrated import CalibratedEstimator
 from excavator_payload.estimators.classical.kernels import PayloadKernel
@@ -52,6 +65,11 @@ JOINTS = ("boom", "dipper", "bucket")
 MOVING_RATE = 0.05
 #: σ at which 2σ is 1 % of the rated 5000 kg, kg
 SIGMA_READY = 25.0
+#: ``--readiness``: the boom counts as held while its 0.5 s mean rate stays below this, rad/s
+#: (the trench's corrections reach 0.03-0.05 rad/s, a work cycle's lift several times that)
+BOOM_HELD_RATE = 0.1
+#: ``--readiness``: samples (100 Hz) σ ≤ X must have held before the rule ``σ≤X for 1 s`` shows a weight
+HOLD_SAMPLES = 100
 #: the steady rule on the shown estimate: moved by at most STEADY_KG over STEADY_SAMPLES (0.5 s)
 STEADY_KG, STEADY_SAMPLES = 5.0, 50
 
@@ -227,6 +245,122 @@ def coverage_report(cal, tests) -> None:
               f"90 % {np.percentile(d, 90):.1f}°, > 10° on {np.mean(d > 10):.0%}", flush=True)
 
 
+def readiness_rules(today_frame, nowait_frame, ds, thresholds) -> pd.DataFrame:
+    """Per motion of ``ds`` and readiness rule: the worst error over the rule's ``ok`` samples
+    after the first second (``max_err``; NaN if never ``ok``), the share of those samples that are
+    ``ok`` and the first ``ok`` (s after the motion's start).
+
+    Rules: ``today`` (main's: the boom's 50 windows, then a steady estimate), ``no wait``
+    (``wait_for_boom=no``: every weight shown), and per X in ``thresholds`` ``today or σ≤X`` (also
+    ``ok`` where the weighing without the wait is ``ok`` and reports σ ≤ X) and ``today or σ≤X
+    latched`` (``ok`` from the first such sample until the status without the wait leaves ``ok``:
+    a restart, a load change) and ``today or σ≤X, boom held`` (σ ≤ X only while the boom's 0.5 s
+    mean measured rate has stayed below :data:`BOOM_HELD_RATE` since the motion's start) and
+    ``today or σ≤X for 1 s`` (σ ≤ X on each of the last :data:`HOLD_SAMPLES` samples). Where
+    today's rule shows a weight its estimate is used, elsewhere the estimate without the wait.
+
+    Parameters
+    ----------
+    today_frame, nowait_frame : pandas.DataFrame
+        The estimates of ``ds`` with main's defaults and with ``wait_for_boom=no``.
+    ds : Dataset
+        The test motions (known payloads).
+    thresholds : sequence of float
+        The σ thresholds X, kg.
+    """
+    f = ds.frame
+    rows = []
+    for e in ds.experiment_ids:
+        m = (f["experiment"] == e).to_numpy()
+        t = f["time"].to_numpy(float)[m]
+        judged = (t - t[0]) >= 1.0
+        payload = float(f["payload"].to_numpy(float)[m][0])
+        ok_today = today_frame["status"].astype(str).to_numpy()[m] == "ok"
+        ok_free = nowait_frame["status"].astype(str).to_numpy()[m] == "ok"
+        sigma = nowait_frame["sigma"].to_numpy(float)[m]
+        estimate = np.where(ok_today, today_frame["payload_estimate"].to_numpy(float)[m],
+                            nowait_frame["payload_estimate"].to_numpy(float)[m])
+        # the boom held so far: its measured rate, averaged over 0.5 s, never above BOOM_HELD_RATE
+        boom = pd.Series(f["boom_rate"].to_numpy(float)[m]).rolling(STEADY_SAMPLES, min_periods=1).mean().abs()
+        held = np.maximum.accumulate(boom.to_numpy()) <= BOOM_HELD_RATE
+        rules = {"today": ok_today, "no wait": ok_free}
+        for x in thresholds:
+            below = ok_free & (sigma <= x)
+            latched = np.zeros_like(below)
+            on = False
+            for i in range(len(below)):  # on from σ ≤ X until the status leaves ok
+                on = ok_free[i] and (on or below[i])
+                latched[i] = on
+            rules[f"today or σ≤{x:g}"] = ok_today | below
+            rules[f"today or σ≤{x:g} latched"] = ok_today | latched
+            rules[f"today or σ≤{x:g}, boom held"] = ok_today | (below & held)
+            # σ ≤ X on every sample of the last HOLD_SAMPLES (the first weights are the worst)
+            run = np.convolve(below.astype(float), np.ones(HOLD_SAMPLES), "full")[:len(below)]
+            rules[f"today or σ≤{x:g} for {HOLD_SAMPLES / 100:g} s"] = ok_today | (run >= HOLD_SAMPLES)
+        # today's and the free weighing's estimates where both are ok (they should be equal)
+        both = ok_today & ok_free
+        diff = float(np.max(np.abs(today_frame["payload_estimate"].to_numpy(float)[m][both]
+                                   - nowait_frame["payload_estimate"].to_numpy(float)[m][both]))) if both.any() else 0.0
+        for rule, ok in rules.items():
+            ok = ok & judged
+            err = np.abs(estimate - payload)
+            worst = np.flatnonzero(ok)[np.argmax(err[ok])] if ok.any() else None
+            rows.append({"experiment": int(e), "payload": payload, "rule": rule,
+                         "max_err": float(err[worst]) if ok.any() else np.nan,
+                         "ok_share": float(ok[judged].mean()),
+                         "first_ok_s": float(t[np.flatnonzero(ok)[0]] - t[0]) if ok.any() else np.nan,
+                         # the worst sample: its time after the start and the σ without the wait there
+                         "worst_s": float(t[worst] - t[0]) if ok.any() else np.nan,
+                         "worst_sigma": float(sigma[worst]) if ok.any() else np.nan,
+                         "today_vs_free_kg": diff})
+    return pd.DataFrame(rows)
+
+
+def readiness_sets(names, n: int, seed: int) -> dict:
+    """The test sets of ``bench_machine_draws.py --seed SEED --n-test N``: NMPC swings, work cycles
+    and the 5° slope (:func:`dm.test_sets`, seed + 2), `lever` (seed + 4), `trench` (seed + 9).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Which sets.
+    n : int
+        Motions per set.
+    seed : int
+        The bench's seed.
+    """
+    tests = {k: v for k, v in dm.test_sets(n, seed + 2).items() if k in names} if set(names) - {"lever", "trench"} \
+        else {}
+    if "lever" in names:
+        tests["lever"] = dm.simulate_trajectory(lever_trajectory(n, seed + 4), seed + 4, dm.SESSION_WORK)
+    if "trench" in names:
+        tests["trench"] = dm.simulate_trajectory(trench_trajectory(n, seed + 9), seed + 9, dm.SESSION_WORK)
+    return tests
+
+
+def run_readiness(a, est, t0: float) -> None:
+    """``--readiness``: :func:`readiness_rules` on ``a.sets`` with ``est`` (main's defaults, zeroed)
+    and its twin without the boom wait; writes ``OUT/readiness.csv`` and prints the summary."""
+    free = copy.deepcopy(est)
+    free.options["wait_for_boom"] = "no"
+    free.use_calibration()
+    tests = readiness_sets(a.sets, a.n_test, a.seed)
+    print(f"test sets simulated ({time.time() - t0:.0f} s)", flush=True)
+    tables = []
+    for name, ds in tests.items():
+        table = readiness_rules(est.estimate(ds), free.estimate(ds), ds, a.sigma_ready).assign(family=name)
+        tables.append(table)
+        pd.concat(tables).to_csv(a.out / "readiness.csv", index=False)
+        print(f"\n{name} ({time.time() - t0:.0f} s; today's and the free estimate differ by at most "
+              f"{table['today_vs_free_kg'].max():.2g} kg where both are ok)", flush=True)
+        summary = table.groupby("rule", sort=False).agg(
+            within=("max_err", lambda s: int((s <= 0.01 * dm.RATED_PAYLOAD).sum())), motions=("max_err", "size"),
+            never_ok=("max_err", lambda s: int(s.isna().sum())), max_kg=("max_err", "max"),
+            ok_share=("ok_share", "mean"), first_ok_median_s=("first_ok_s", "median"))
+        print(summary.round(3).to_string(), flush=True)
+    print(f"total {time.time() - t0:.0f} s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seed", type=int, default=146101, help="bench_machine_draws.py --seed (tuning seeds)")
@@ -239,10 +373,23 @@ def main() -> None:
                     choices=list(GROUPS), help="parameter groups swapped to the truth one at a time")
     ap.add_argument("--variants", nargs="+", default=None, help="labels to run (default: all)")
     ap.add_argument("--out", type=Path, default=Path("trace-trench"))
+    ap.add_argument("--readiness", action="store_true",
+                    help="readiness rules after the fact on --sets instead of the variants (main's defaults "
+                         "and wait_for_boom=no; --option is ignored)")
+    ap.add_argument("--sets", nargs="+", default=["trench", "nmpc", "work-cycle", "slope-5deg", "lever"],
+                    choices=["trench", "nmpc", "work-cycle", "slope-5deg", "lever"], help="--readiness's test sets")
+    ap.add_argument("--sigma-ready", type=float, nargs="+", default=[12.5, SIGMA_READY], metavar="KG",
+                    help="--readiness: the σ thresholds X of the rules 'today or σ ≤ X'")
     a = ap.parse_args()
     options = dict(o.split("=", 1) for o in a.option)
     a.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
+    if a.readiness:
+        est = CalibratedEstimator("cat345c-hydraulic-3pct", balance="momentum").fit(
+            dm.calibration_mix(a.motions, a.seed, reach=None))
+        est.zero(dm.zero_data(a.seed + 1))
+        print(f"calibrated and zeroed ({time.time() - t0:.0f} s)", flush=True)
+        return run_readiness(a, est, t0)
     tests = dm.simulate_trajectory(trench_trajectory(a.n_test, a.seed + 9), a.seed + 9, dm.SESSION_WORK)
     cal = dm.calibration_mix(a.motions, a.seed, reach=None)
     zero = dm.zero_data(a.seed + 1)
