@@ -38,6 +38,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_machine_draws as bmd  # noqa: E402
+from bench_efficiency_gap import cached  # noqa: E402
 from held_out_motions import (joystick_trajectory, lever_trajectory,  # noqa: E402
                               multisine_trajectory, tremor_trajectory)
 
@@ -51,26 +52,6 @@ from excavator_payload.model.machine import load_machine
 FAMILIES = ("nmpc", "work-cycle", "slope-5deg", "lever")
 DEG = math.pi / 180
 MACHINE = "cat345c-hydraulic"
-
-
-def cached(cache: Path, key: str, make):
-    """``make()``, pickled in ``cache/key.pkl``.
-
-    Parameters
-    ----------
-    cache : Path
-        Folder of the pickles.
-    key : str
-        File name without ``.pkl``.
-    make : callable
-        Makes the value when it is not cached.
-    """
-    path = cache / f"{key}.pkl"
-    if path.exists():
-        return pickle.loads(path.read_bytes())
-    value = make()
-    path.write_bytes(pickle.dumps(value))
-    return value
 
 
 def test_sets(n: int, seed: int) -> dict:
